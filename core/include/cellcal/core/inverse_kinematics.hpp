@@ -1,0 +1,39 @@
+// Numerical inverse kinematics on any model (any parameter vector): damped least squares with joint limits and
+// restarts. Used by compensation: solve the identified model for the joints that reach a target.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+
+#include "cellcal/core/observation.hpp"
+#include "cellcal/core/robot_model.hpp"
+
+namespace cellcal {
+
+struct IkOptions {
+  MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D: reach the position, any orientation
+  int max_iterations = 100;
+  int restarts = 8;                  // random seeds tried after the given one (deterministic)
+  double position_tolerance_m = 1e-9;
+  double orientation_tolerance_rad = 1e-9;
+  double damping = 1e-6;             // Levenberg damping (m^2)
+  double orientation_weight_m = 0.5; // a radian of orientation error counts as this many metres
+  bool IsValid(std::string* error) const;
+};
+
+enum class IkStatus { kSolved, kOutOfReach };
+
+struct IkResult {
+  IkStatus status = IkStatus::kOutOfReach;
+  Eigen::VectorXd q_rad;          // best solution found (within limits)
+  double position_error_m = 0;    // residual of q_rad
+  double orientation_error_rad = 0;
+  int iterations = 0;
+  std::string message;            // why it failed, with the residual
+  bool ok() const { return status == IkStatus::kSolved; }
+};
+
+IkResult solveInverseKinematics(const RobotModel& model, const Eigen::VectorXd& params, const Pose& target_in_tracker,
+                                const Eigen::VectorXd& q_seed_rad, const IkOptions& options = {});
+
+}  // namespace cellcal

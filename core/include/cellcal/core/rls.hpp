@@ -1,0 +1,92 @@
+// Recursive least squares for kinematic calibration, as in the paper:
+//   x_{k+1} = x_k + P_{k+1} a (b - a^T x_k),  P updated by Sherman-Morrison (block form: one pose = 3 or 6 rows).
+//
+// RlsEstimator is the linear algebra: rows A (r x m, whitened) and targets b (r). Gain K = P A^T (lambda I + A P A^T)^-1,
+// x += K (b - A x), P = (P - K A P) / lambda. lambda = 1 is the paper's (all data weighted equally); lambda < 1
+// forgets old data geometrically, and then each diagonal entry of P is bounded by `max_covariance_diag`
+// (the inflation 1/lambda is cut so no entry exceeds its bound) so unexcited directions cannot wind up.
+// addProcessNoise() adds Q to P between measurement groups: a random-walk prior toward the previous estimate.
+//
+// RlsCalibrator applies it to the nonlinear kinematic model: each pose is linearized at the current estimate
+// (innovation = measured - model(x_k), A = whitened pose Jacobian), which equals the linear form above for a
+// linear model.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/calibration.hpp"
+#include "cellcal/core/kinematics.hpp"
+#include "cellcal/core/observation.hpp"
+
+namespace cellcal {
+
+struct RlsOptions {
+  double forgetting = 1.0;            // lambda in (0, 1]
+  Eigen::VectorXd max_covariance_diag;  // empty: no bound; else one entry per state (used when lambda < 1)
+  bool IsValid(int state_size, std::string* error) const;
+};
+
+class RlsEstimator {
+ public:
+  RlsEstimator(Eigen::VectorXd x0, Eigen::MatrixXd P0, RlsOptions options = {});
+  // Batch start as in the paper: P0 = (A0^T A0)^-1, x0 = least-squares solution of A0 x = b0.
+  static RlsEstimator fromInitialBatch(const Eigen::MatrixXd& A0, const Eigen::VectorXd& b0, RlsOptions options = {});
+
+  // One measurement block: b = A x + noise (noise whitened to unit variance).
+  void update(const Eigen::Ref<const Eigen::MatrixXd>& A, const Eigen::Ref<const Eigen::VectorXd>& b);
+  // Same with the innovation (b - A x) computed by the caller (nonlinear models).
+  void updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>& A,
+                            const Eigen::Ref<const Eigen::VectorXd>& innovation);
+  void addProcessNoise(const Eigen::VectorXd& q_diag);
+
+  const Eigen::VectorXd& x() const { return x_; }
+  Eigen::VectorXd& mutableX() { return x_; }
+  const Eigen::MatrixXd& P() const { return P_; }
+  // Normalized innovation squared of the last update: nu^T S^-1 nu (chi-square with r dof for a consistent filter).
+  double lastNormalizedInnovation() const { return last_nis_; }
+
+ private:
+  Eigen::VectorXd x_;
+  Eigen::MatrixXd P_;
+  RlsOptions options_;
+  double last_nis_ = 0;
+  Eigen::MatrixXd PA_, S_;  // workspaces
+};
+
+struct RlsCalibratorOptions {
+  RlsOptions rls;
+  IdentifiabilityOptions identifiability;
+};
+
+class RlsCalibrator {
+ public:
+  // Starts from `params` with a Gaussian prior (P0 = prior covariance) over the structurally identifiable set.
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
+                MeasurementKind kind, RlsCalibratorOptions options = {});
+  // Starts from the parameters and covariance of a batch result (the paper's P0 = (A0^T A0)^-1 when it had no prior).
+  RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options = {});
+
+  // Linearize at the current estimate and update. Returns the normalized innovation squared.
+  double addObservation(const Observation& obs);
+  // Random-walk process noise: sigma of the change since the last update, per length / angle parameter.
+  void addProcessNoise(double sigma_length_m, double sigma_angle_rad);
+
+  const Eigen::VectorXd& params() const { return params_; }
+  const std::vector<int>& estimated() const { return estimated_; }
+  const Eigen::MatrixXd& covariance() const { return rls_.P(); }
+  const RlsEstimator& estimator() const { return rls_; }
+  GaussianPrior asPrior() const;  // current estimate and covariance, e.g. for a batch solve
+
+ private:
+  const RobotModel* model_;
+  Eigen::VectorXd params_;
+  std::vector<int> estimated_;
+  RlsEstimator rls_;
+  KinematicsData data_;
+  Eigen::MatrixXd J_, A_;
+  Eigen::Matrix<double, 6, 1> r_;
+};
+
+}  // namespace cellcal

@@ -1,0 +1,79 @@
+// A simulated robot cell: a "true" robot (nominal + random geometric errors + true base/tool frames) whose accuracy
+// degrades over hours (thermal growth of link lengths, joint-zero drift with temperature and wear), a laser tracker
+// with the Leica AT960 specification and the robot's repeatability. Everything is reproducible from the seed.
+// Used by tests, the paper experiment and (later) the DDS simulators.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "cellcal/core/observation.hpp"
+#include "cellcal/core/robot_model.hpp"
+
+namespace cellcal {
+
+// AT960: maximum permissible error +-(15 um + 6 um/m) in position, 0.01 deg in orientation; MPE = 2 sigma.
+struct TrackerSpec {
+  double mpe_constant_m = 15e-6;
+  double mpe_per_distance = 6e-6;  // metres per metre of distance
+  double orientation_mpe_rad = 0.01 * 3.14159265358979323846 / 180.0;
+  double mpe_in_sigmas = 2.0;
+  double sigmaPosition(double distance_m) const { return (mpe_constant_m + mpe_per_distance * distance_m) / mpe_in_sigmas; }
+  double sigmaOrientation() const { return orientation_mpe_rad / mpe_in_sigmas; }
+};
+
+struct SimulationConfig {
+  std::uint64_t seed = 1;
+  // Geometric errors of the true robot: uniform magnitude in [min, max], random sign, on every canonical parameter
+  // (kinematics, and the base/tool frames relative to their registered values).
+  double length_error_min_m = 0.1e-3, length_error_max_m = 0.5e-3;
+  double angle_error_min_rad = 0.01 * 3.14159265358979323846 / 180.0;
+  double angle_error_max_rad = 0.05 * 3.14159265358979323846 / 180.0;
+  // Registered (nominal) placement of the robot base in the tracker frame and of the target on the flange:
+  // x, y, z (m), roll, pitch, yaw (rad).
+  Eigen::Matrix<double, 6, 1> base_in_tracker = (Eigen::Matrix<double, 6, 1>() << 2.2, 0.4, -0.3, 0, 0, 2.8).finished();
+  Eigen::Matrix<double, 6, 1> tool_in_flange = (Eigen::Matrix<double, 6, 1>() << 0.03, 0.0, 0.06, 0, 0, 0).finished();
+  TrackerSpec tracker;
+  double repeatability_m = 0.02e-3;  // +- (2 sigma), isotropic at the target
+  // Degradation: temperature rise dT(t) = warmup_K (1 - exp(-t / warmup_tau_h)); lengths grow by expansion_per_K dT;
+  // each joint zero drifts by c_j dT + w_j t with c_j, w_j uniform in +-max.
+  double expansion_per_K = 23e-6;  // aluminium arm
+  double warmup_K = 6.0;
+  double warmup_tau_h = 1.5;
+  double zero_drift_per_K_max_rad = 0.005 * 3.14159265358979323846 / 180.0;
+  double zero_wear_per_h_max_rad = 0.005 * 3.14159265358979323846 / 180.0;
+  // Poses: joints uniform in this fraction of their limits (and of +-180 deg), flange above z_min in the base frame
+  // and at least min_radius from joint 1's axis.
+  double pose_range_fraction = 0.8;
+  double pose_min_z_m = -0.2;
+  double pose_min_radius_m = 0.2;
+};
+
+class SimulatedCell {
+ public:
+  SimulatedCell(const RobotModel& nominal, const SimulationConfig& config);
+
+  // What the user knows: the nominal model with the registered base and tool frames.
+  const RobotModel& model() const { return model_; }
+  const Eigen::VectorXd& nominalParams() const { return model_.nominal; }
+  // The truth at t hours of work (never given to the code under test).
+  Eigen::VectorXd trueParams(double t_h) const;
+  double temperatureRiseK(double t_h) const;
+
+  std::vector<Eigen::VectorXd> randomConfigurations(int n, std::mt19937_64& rng) const;
+  // A noisy tracker measurement at configuration q, time t (sigmas set from the spec).
+  Observation measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
+                      MeasurementKind kind = MeasurementKind::kPose6D) const;
+  Pose truePose(const Eigen::VectorXd& q_rad, double t_h) const;
+  const SimulationConfig& config() const { return config_; }
+
+ private:
+  SimulationConfig config_;
+  RobotModel model_;
+  Eigen::VectorXd true0_;
+  Eigen::VectorXd zero_drift_per_K_, zero_wear_per_h_;
+};
+
+}  // namespace cellcal

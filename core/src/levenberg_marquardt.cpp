@@ -1,0 +1,111 @@
+// Levenberg-Marquardt with Ceres. Analytic Jacobians (kinematics.hpp): no autodiff in this TU, so it compiles fast.
+#include <ceres/ceres.h>
+
+#include <chrono>
+
+#include "calibration_internal.hpp"
+
+namespace cellcal {
+namespace {
+
+// Residual f = W (model(x) - measured) of one observation (Ceres' sign: minimise 1/2 |f|^2),
+// over the single parameter block x = params[estimated].
+class ObservationCost final : public ceres::CostFunction {
+ public:
+  ObservationCost(const RobotModel& model, const Observation& obs, const Eigen::VectorXd& base_params,
+                  const std::vector<int>& estimated)
+      : model_(model), obs_(obs), base_(base_params), estimated_(estimated), data_(model) {
+    set_num_residuals(obs.rows());
+    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(estimated.size()));
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+    for (size_t k = 0; k < estimated_.size(); ++k) params_[estimated_[k]] = parameters[0][k];
+    Eigen::Matrix<double, 6, 1> r;
+    const int rows = whitenedResidual(model_, data_, params_, obs_, r, jacobians && jacobians[0] ? &J_ : nullptr);
+    for (int i = 0; i < rows; ++i) residuals[i] = -r[i];
+    if (jacobians && jacobians[0]) {
+      const auto m = estimated_.size();
+      for (int i = 0; i < rows; ++i)
+        for (size_t k = 0; k < m; ++k) jacobians[0][i * m + k] = J_(i, estimated_[k]);
+    }
+    return true;
+  }
+
+ private:
+  const RobotModel& model_;
+  const Observation& obs_;
+  const Eigen::VectorXd base_;
+  const std::vector<int>& estimated_;
+  mutable KinematicsData data_;
+  mutable Eigen::VectorXd params_ = base_;
+  mutable Eigen::MatrixXd J_;
+};
+
+// f = U (x - mean): the Gaussian prior as whitened rows.
+class PriorCost final : public ceres::CostFunction {
+ public:
+  PriorCost(const Eigen::MatrixXd& U, const Eigen::VectorXd& mean) : U_(U), mean_(mean) {
+    set_num_residuals(static_cast<int>(U.rows()));
+    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(U.cols()));
+  }
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+    const Eigen::Map<const Eigen::VectorXd> x(parameters[0], U_.cols());
+    Eigen::Map<Eigen::VectorXd>(residuals, U_.rows()) = U_ * (x - mean_);
+    if (jacobians && jacobians[0])
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(jacobians[0], U_.rows(),
+                                                                                         U_.cols()) = U_;
+    return true;
+  }
+
+ private:
+  Eigen::MatrixXd U_;
+  Eigen::VectorXd mean_;
+};
+
+}  // namespace
+
+CalibrationResult solveLevenbergMarquardt(const CalibrationProblem& problem, const SolverOptions& options) {
+  std::string err;
+  if (!problem.IsValid(&err)) throw std::invalid_argument("CalibrationProblem: " + err);
+  if (!options.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
+  const auto t0 = std::chrono::steady_clock::now();
+  internal::ReducedProblem rp(problem);
+  CalibrationResult res;
+  res.params = problem.initial_params;
+  const double n_obs = static_cast<double>(problem.observations.size());
+  res.initial_cost_per_observation = rp.dataCost(res.params) / n_obs;
+
+  std::vector<double> x(rp.estimated.size());
+  for (size_t k = 0; k < x.size(); ++k) x[k] = res.params[rp.estimated[k]];
+  ceres::Problem::Options popts;
+  popts.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+  ceres::Problem cp(popts);
+  for (const auto& o : problem.observations)
+    cp.AddResidualBlock(new ObservationCost(*problem.model, o, problem.initial_params, rp.estimated), nullptr,
+                        x.data());
+  if (rp.prior_sqrt_info.size()) cp.AddResidualBlock(new PriorCost(rp.prior_sqrt_info, rp.prior_mean), nullptr, x.data());
+
+  ceres::Solver::Options so;
+  so.minimizer_type = ceres::TRUST_REGION;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = options.max_iterations;
+  so.function_tolerance = 1e-12;
+  so.gradient_tolerance = 1e-14;
+  so.parameter_tolerance = options.step_tolerance;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &cp, &summary);
+
+  for (size_t k = 0; k < x.size(); ++k) res.params[rp.estimated[k]] = x[k];
+  res.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  res.converged = summary.termination_type == ceres::CONVERGENCE;
+  res.message = summary.message;
+  rp.finish(res);
+  res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace cellcal

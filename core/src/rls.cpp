@@ -1,0 +1,141 @@
+#include "cellcal/core/rls.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/QR>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace cellcal {
+
+bool RlsOptions::IsValid(int state_size, std::string* error) const {
+  auto fail = [&](const char* m) {
+    if (error) *error = m;
+    return false;
+  };
+  if (!(forgetting > 0 && forgetting <= 1)) return fail("forgetting must be in (0, 1]");
+  if (max_covariance_diag.size() != 0 &&
+      (max_covariance_diag.size() != state_size || !(max_covariance_diag.array() > 0).all()))
+    return fail("max_covariance_diag must be empty or one positive entry per state");
+  return true;
+}
+
+RlsEstimator::RlsEstimator(Eigen::VectorXd x0, Eigen::MatrixXd P0, RlsOptions options)
+    : x_(std::move(x0)), P_(std::move(P0)), options_(std::move(options)) {
+  std::string err;
+  if (P_.rows() != x_.size() || P_.cols() != x_.size()) throw std::invalid_argument("RlsEstimator: P0 size mismatch");
+  if (!options_.IsValid(static_cast<int>(x_.size()), &err)) throw std::invalid_argument("RlsOptions: " + err);
+}
+
+RlsEstimator RlsEstimator::fromInitialBatch(const Eigen::MatrixXd& A0, const Eigen::VectorXd& b0, RlsOptions options) {
+  if (A0.rows() < A0.cols()) throw std::invalid_argument("RlsEstimator::fromInitialBatch: fewer rows than states");
+  const Eigen::MatrixXd H = A0.transpose() * A0;
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
+  if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-15)
+    throw std::invalid_argument("RlsEstimator::fromInitialBatch: A0 is rank deficient");
+  Eigen::VectorXd x0 = A0.colPivHouseholderQr().solve(b0);
+  Eigen::MatrixXd P0 = ldlt.solve(Eigen::MatrixXd::Identity(H.rows(), H.cols()));
+  return RlsEstimator(std::move(x0), std::move(P0), std::move(options));
+}
+
+void RlsEstimator::update(const Eigen::Ref<const Eigen::MatrixXd>& A, const Eigen::Ref<const Eigen::VectorXd>& b) {
+  updateWithInnovation(A, b - A * x_);
+}
+
+void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>& A,
+                                        const Eigen::Ref<const Eigen::VectorXd>& innovation) {
+  const double lambda = options_.forgetting;
+  PA_.noalias() = P_.selfadjointView<Eigen::Lower>() * A.transpose();  // m x r
+  S_.noalias() = A * PA_;                                               // r x r
+  S_.diagonal().array() += lambda;
+  Eigen::LLT<Eigen::MatrixXd> llt(S_);
+  // x += P A^T S^-1 nu
+  const Eigen::VectorXd s_inv_nu = llt.solve(innovation);
+  last_nis_ = innovation.dot(s_inv_nu);
+  x_.noalias() += PA_ * s_inv_nu;
+  // P -= (P A^T L^-T)(P A^T L^-T)^T  (symmetric rank-r downdate, lower triangle only)
+  llt.matrixU().solveInPlace<Eigen::OnTheRight>(PA_);
+  P_.selfadjointView<Eigen::Lower>().rankUpdate(PA_, -1.0);
+  if (lambda < 1.0) {
+    double inflate = 1.0 / lambda;
+    if (options_.max_covariance_diag.size())
+      for (Eigen::Index i = 0; i < P_.rows(); ++i)
+        inflate = std::min(inflate, options_.max_covariance_diag[i] / P_(i, i));
+    if (inflate > 1.0) P_.triangularView<Eigen::Lower>() *= inflate;
+  }
+  P_.triangularView<Eigen::StrictlyUpper>() = P_.transpose();
+}
+
+void RlsEstimator::addProcessNoise(const Eigen::VectorXd& q_diag) { P_.diagonal() += q_diag; }
+
+namespace {
+std::vector<int> checkedStructural(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
+                                   const IdentifiabilityOptions& options) {
+  return structuralIdentifiability(model, params, kind, options).identifiable;
+}
+
+Eigen::MatrixXd priorOver(const GaussianPrior& prior, const std::vector<int>& estimated) {
+  const auto n = static_cast<Eigen::Index>(estimated.size());
+  Eigen::MatrixXd P = Eigen::MatrixXd::Zero(n, n);
+  std::vector<int> pos(estimated.size(), -1);
+  for (size_t a = 0; a < estimated.size(); ++a)
+    for (size_t b = 0; b < prior.indices.size(); ++b)
+      if (prior.indices[b] == estimated[a]) pos[a] = static_cast<int>(b);
+  for (Eigen::Index a = 0; a < n; ++a) {
+    if (pos[a] < 0)
+      throw std::invalid_argument("RlsCalibrator: the prior has no variance for an estimated parameter");
+    for (Eigen::Index b = 0; b < n; ++b)
+      if (pos[b] >= 0) P(a, b) = prior.covariance(pos[a], pos[b]);
+  }
+  return P;
+}
+
+Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx) {
+  Eigen::VectorXd out(idx.size());
+  for (size_t k = 0; k < idx.size(); ++k) out[k] = full[idx[k]];
+  return out;
+}
+}  // namespace
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
+                             MeasurementKind kind, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(params),
+      estimated_(checkedStructural(model, params, kind, options.identifiability)),
+      rls_(select(params, estimated_), priorOver(prior, estimated_), options.rls),
+      data_(model) {}
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(initial.params),
+      estimated_(initial.estimated),
+      rls_(select(initial.params, initial.estimated), initial.covariance, options.rls),
+      data_(model) {}
+
+double RlsCalibrator::addObservation(const Observation& obs) {
+  const int rows = whitenedResidual(*model_, data_, params_, obs, r_, &J_);
+  A_.resize(rows, static_cast<Eigen::Index>(estimated_.size()));
+  for (size_t k = 0; k < estimated_.size(); ++k) A_.col(k) = J_.col(estimated_[k]);
+  rls_.updateWithInnovation(A_, r_.head(rows));
+  for (size_t k = 0; k < estimated_.size(); ++k) params_[estimated_[k]] = rls_.x()[k];
+  return rls_.lastNormalizedInnovation();
+}
+
+void RlsCalibrator::addProcessNoise(double sigma_length_m, double sigma_angle_rad) {
+  Eigen::VectorXd q(estimated_.size());
+  for (size_t k = 0; k < estimated_.size(); ++k) {
+    const double s = model_->isLength(estimated_[k]) ? sigma_length_m : sigma_angle_rad;
+    q[k] = s * s;
+  }
+  rls_.addProcessNoise(q);
+}
+
+GaussianPrior RlsCalibrator::asPrior() const {
+  GaussianPrior p;
+  p.mean = params_;
+  p.indices = estimated_;
+  p.covariance = rls_.P();
+  return p;
+}
+
+}  // namespace cellcal

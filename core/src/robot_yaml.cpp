@@ -1,0 +1,189 @@
+#include "cellcal/core/robot_yaml.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "cellcal/core/se3.hpp"
+
+namespace cellcal {
+namespace {
+
+class Reader {
+ public:
+  explicit Reader(std::string source) : source_(std::move(source)) {}
+
+  [[noreturn]] void fail(const YAML::Node& node, const std::string& field, const std::string& msg) const {
+    std::ostringstream s;
+    s << source_;
+    if (node.IsDefined() && node.Mark().line >= 0) s << ":" << node.Mark().line + 1 << ":" << node.Mark().column + 1;
+    s << ": " << field << ": " << msg;
+    throw ConfigError(s.str());
+  }
+
+  void requireMap(const YAML::Node& node, const std::string& field) const {
+    if (!node.IsMap()) fail(node, field, "expected a mapping");
+  }
+
+  // Every key of `node` must be in `allowed`; names the first offending key and its line.
+  void checkKeys(const YAML::Node& node, const std::string& field, const std::set<std::string>& allowed) const {
+    std::set<std::string> seen;
+    for (const auto& kv : node) {
+      const std::string key = kv.first.as<std::string>();
+      const std::string where = field.empty() ? key : field + "." + key;
+      if (!allowed.count(key)) {
+        std::string list;
+        for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
+        fail(kv.first, where, "unknown key (allowed: " + list + ")");
+      }
+      if (!seen.insert(key).second) fail(kv.first, where, "duplicated key");
+    }
+  }
+
+  YAML::Node required(const YAML::Node& parent, const std::string& key, const std::string& field) const {
+    const YAML::Node n = parent[key];
+    if (!n.IsDefined() || n.IsNull()) fail(parent, field, "missing required key '" + key + "'");
+    return n;
+  }
+
+  double number(const YAML::Node& node, const std::string& field) const {
+    if (!node.IsScalar()) fail(node, field, "expected a number");
+    double v = 0;
+    try {
+      v = node.as<double>();
+    } catch (const YAML::Exception&) {
+      fail(node, field, "expected a number, got '" + node.Scalar() + "'");
+    }
+    if (!std::isfinite(v)) fail(node, field, "must be finite, got '" + node.Scalar() + "'");
+    return v;
+  }
+
+  bool boolean(const YAML::Node& node, const std::string& field) const {
+    if (!node.IsScalar()) fail(node, field, "expected true or false");
+    try {
+      return node.as<bool>();
+    } catch (const YAML::Exception&) {
+      fail(node, field, "expected true or false, got '" + node.Scalar() + "'");
+    }
+  }
+
+  std::vector<double> vector(const YAML::Node& node, const std::string& field, size_t size) const {
+    if (!node.IsSequence() || node.size() != size)
+      fail(node, field, "expected a list of " + std::to_string(size) + " numbers");
+    std::vector<double> out;
+    for (size_t i = 0; i < size; ++i) out.push_back(number(node[i], field + "[" + std::to_string(i) + "]"));
+    return out;
+  }
+
+ private:
+  std::string source_;
+};
+
+void readFrame(const Reader& r, const YAML::Node& node, const std::string& field, RobotModel& m, int first) {
+  r.requireMap(node, field);
+  static const char* keys[] = {"x_mm", "y_mm", "z_mm", "roll_deg", "pitch_deg", "yaw_deg"};
+  r.checkKeys(node, field, {keys, keys + 6});
+  for (int k = 0; k < 6; ++k) {
+    const double v = r.number(r.required(node, keys[k], field + "." + keys[k]), field + "." + keys[k]);
+    m.nominal[first + k] = k < 3 ? v * 1e-3 : degToRad(v);
+  }
+}
+
+}  // namespace
+
+RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) {
+  Reader r(source);
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const YAML::ParserException& e) {
+    throw ConfigError(source + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
+                      ": YAML syntax error: " + e.msg);
+  }
+  if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with name, joints, ...");
+  r.checkKeys(root, "", {"name", "joints", "links", "gravity_in_base_mps2", "base_in_tracker", "tool_in_flange"});
+
+  RobotModel m;
+  const YAML::Node name = r.required(root, "name", "name");
+  if (!name.IsScalar() || name.Scalar().empty()) r.fail(name, "name", "expected a non-empty string");
+  m.name = name.Scalar();
+
+  const YAML::Node joints = r.required(root, "joints", "joints");
+  if (!joints.IsSequence() || joints.size() == 0) r.fail(joints, "joints", "expected a non-empty list of joints");
+  const int n = static_cast<int>(joints.size());
+  m.nominal = Eigen::VectorXd::Zero(5 * n + 12);
+  for (int j = 0; j < n; ++j) {
+    const YAML::Node jn = joints[j];
+    const std::string f = "joints[" + std::to_string(j) + "]";
+    r.requireMap(jn, f);
+    r.checkKeys(jn, f,
+                {"theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "parallel_to_next", "limits_deg"});
+    auto num = [&](const char* key, bool req) -> double {
+      const YAML::Node v = jn[key];
+      if (!v.IsDefined() || v.IsNull()) {
+        if (req) r.fail(jn, f + "." + key, std::string("missing required key '") + key + "'");
+        return 0.0;
+      }
+      return r.number(v, f + "." + key);
+    };
+    m.nominal[m.jointParam(j, JointParam::kThetaOffset)] = degToRad(num("theta_offset_deg", true));
+    m.nominal[m.jointParam(j, JointParam::kD)] = num("d_mm", true) * 1e-3;
+    m.nominal[m.jointParam(j, JointParam::kA)] = num("a_mm", true) * 1e-3;
+    m.nominal[m.jointParam(j, JointParam::kAlpha)] = degToRad(num("alpha_deg", true));
+    m.nominal[m.jointParam(j, JointParam::kBeta)] = degToRad(num("beta_deg", false));
+    const YAML::Node par = jn["parallel_to_next"];
+    const bool parallel = par.IsDefined() && !par.IsNull() && r.boolean(par, f + ".parallel_to_next");
+    m.parallel_to_next.push_back(parallel);
+    if (parallel && m.nominal[m.jointParam(j, JointParam::kD)] != 0.0)
+      r.fail(jn["d_mm"], f + ".d_mm", "must be 0 on a joint that is parallel_to_next (its offset goes in beta_deg)");
+    if (!parallel && m.nominal[m.jointParam(j, JointParam::kBeta)] != 0.0)
+      r.fail(jn["beta_deg"], f + ".beta_deg", "only a joint that is parallel_to_next may have a beta");
+    const auto lim = r.vector(r.required(jn, "limits_deg", f + ".limits_deg"), f + ".limits_deg", 2);
+    if (!(lim[0] < lim[1])) r.fail(jn["limits_deg"], f + ".limits_deg", "expected [lower, upper] with lower < upper");
+    m.limits.push_back({degToRad(lim[0]), degToRad(lim[1])});
+  }
+  if (m.parallel_to_next.back())
+    r.fail(joints[n - 1], "joints[" + std::to_string(n - 1) + "].parallel_to_next", "the last joint has no next joint");
+
+  if (const YAML::Node links = root["links"]; links.IsDefined() && !links.IsNull()) {
+    if (!links.IsSequence() || static_cast<int>(links.size()) != n)
+      r.fail(links, "links", "expected one entry per joint (" + std::to_string(n) + ")");
+    for (int j = 0; j < n; ++j) {
+      const std::string f = "links[" + std::to_string(j) + "]";
+      r.requireMap(links[j], f);
+      r.checkKeys(links[j], f, {"mass_kg", "com_mm"});
+      LinkInertia li;
+      li.mass_kg = r.number(r.required(links[j], "mass_kg", f + ".mass_kg"), f + ".mass_kg");
+      if (li.mass_kg < 0) r.fail(links[j]["mass_kg"], f + ".mass_kg", "must be >= 0");
+      const auto c = r.vector(r.required(links[j], "com_mm", f + ".com_mm"), f + ".com_mm", 3);
+      li.com_m = Eigen::Vector3d(c[0], c[1], c[2]) * 1e-3;
+      m.links.push_back(li);
+    }
+  }
+  if (const YAML::Node g = root["gravity_in_base_mps2"]; g.IsDefined() && !g.IsNull()) {
+    const auto v = r.vector(g, "gravity_in_base_mps2", 3);
+    m.gravity_in_base_mps2 = Eigen::Vector3d(v[0], v[1], v[2]);
+  }
+  if (const YAML::Node b = root["base_in_tracker"]; b.IsDefined() && !b.IsNull())
+    readFrame(r, b, "base_in_tracker", m, m.baseParam(FrameParam::kX));
+  if (const YAML::Node t = root["tool_in_flange"]; t.IsDefined() && !t.IsNull())
+    readFrame(r, t, "tool_in_flange", m, m.toolParam(FrameParam::kX));
+
+  std::string err;
+  if (!m.IsValid(&err)) throw ConfigError(source + ": " + err);
+  return m;
+}
+
+RobotModel loadRobotModel(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path + ": cannot open robot file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (ss.str().find_first_not_of(" \t\r\n") == std::string::npos) throw ConfigError(path + ": file is empty");
+  return parseRobotModel(ss.str(), path);
+}
+
+}  // namespace cellcal

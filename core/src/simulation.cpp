@@ -1,0 +1,96 @@
+#include "cellcal/core/simulation.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "cellcal/core/kinematics.hpp"
+#include "cellcal/core/se3.hpp"
+
+namespace cellcal {
+
+SimulatedCell::SimulatedCell(const RobotModel& nominal, const SimulationConfig& config)
+    : config_(config), model_(nominal) {
+  const int b = model_.baseParam(FrameParam::kX), t = model_.toolParam(FrameParam::kX);
+  for (int k = 0; k < 6; ++k) {
+    model_.nominal[b + k] = config.base_in_tracker[k];
+    model_.nominal[t + k] = config.tool_in_flange[k];
+  }
+  std::mt19937_64 rng(config.seed);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signed_uniform = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1.0 : 1.0) * (lo + (hi - lo) * u01(rng)); };
+  true0_ = model_.nominal;
+  for (int i : model_.canonicalParams())
+    true0_[i] += model_.isLength(i) ? signed_uniform(config.length_error_min_m, config.length_error_max_m)
+                                    : signed_uniform(config.angle_error_min_rad, config.angle_error_max_rad);
+  const int n = model_.numJoints();
+  zero_drift_per_K_.resize(n);
+  zero_wear_per_h_.resize(n);
+  for (int j = 0; j < n; ++j) {
+    zero_drift_per_K_[j] = (2 * u01(rng) - 1) * config.zero_drift_per_K_max_rad;
+    zero_wear_per_h_[j] = (2 * u01(rng) - 1) * config.zero_wear_per_h_max_rad;
+  }
+}
+
+double SimulatedCell::temperatureRiseK(double t_h) const {
+  return config_.warmup_K * (1.0 - std::exp(-t_h / config_.warmup_tau_h));
+}
+
+Eigen::VectorXd SimulatedCell::trueParams(double t_h) const {
+  Eigen::VectorXd p = true0_;
+  const double dT = temperatureRiseK(t_h);
+  for (int j = 0; j < model_.numJoints(); ++j) {
+    for (JointParam k : {JointParam::kD, JointParam::kA}) {
+      const int i = model_.jointParam(j, k);
+      p[i] += true0_[i] * config_.expansion_per_K * dT;
+    }
+    p[model_.jointParam(j, JointParam::kThetaOffset)] += zero_drift_per_K_[j] * dT + zero_wear_per_h_[j] * t_h;
+  }
+  return p;
+}
+
+std::vector<Eigen::VectorXd> SimulatedCell::randomConfigurations(int n, std::mt19937_64& rng) const {
+  std::vector<Eigen::VectorXd> out;
+  Eigen::VectorXd params = model_.nominal;
+  for (int k = 0; k < 6; ++k) params[model_.baseParam(FrameParam::kX) + k] = 0.0;  // flange in the base frame
+  KinematicsData data(model_);
+  const int nj = model_.numJoints();
+  while (static_cast<int>(out.size()) < n) {
+    Eigen::VectorXd q(nj);
+    for (int j = 0; j < nj; ++j) {
+      const double lo = std::max(model_.limits[j].lower_rad, -kPi) * config_.pose_range_fraction;
+      const double hi = std::min(model_.limits[j].upper_rad, kPi) * config_.pose_range_fraction;
+      q[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
+    }
+    const Eigen::Vector3d p = forwardKinematics(model_, data, params, q).translation();
+    if (p.z() < config_.pose_min_z_m || p.head<2>().norm() < config_.pose_min_radius_m) continue;
+    out.push_back(q);
+  }
+  return out;
+}
+
+Pose SimulatedCell::truePose(const Eigen::VectorXd& q_rad, double t_h) const {
+  return forwardKinematics(model_, trueParams(t_h), q_rad);
+}
+
+Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
+                                   MeasurementKind kind) const {
+  std::normal_distribution<double> g(0.0, 1.0);
+  Pose T = truePose(q_rad, t_h);
+  const double sigma_rep = config_.repeatability_m / 2.0;
+  const double sigma_p = config_.tracker.sigmaPosition(T.translation().norm());
+  const double sigma_o = config_.tracker.sigmaOrientation();
+  Eigen::Vector3d dp(g(rng), g(rng), g(rng));
+  Eigen::Vector3d dr(g(rng), g(rng), g(rng));
+  Eigen::Vector3d dw(g(rng), g(rng), g(rng));
+  T.translation() += sigma_rep * dr + sigma_p * dp;
+  T.linear() = expSO3(sigma_o * dw) * T.linear();
+  Observation o;
+  o.q_rad = q_rad;
+  o.measured_in_tracker = T;
+  o.kind = kind;
+  o.sigma_position_m = std::hypot(sigma_p, sigma_rep);
+  o.sigma_orientation_rad = sigma_o;
+  return o;
+}
+
+}  // namespace cellcal

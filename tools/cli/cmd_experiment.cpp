@@ -1,0 +1,209 @@
+// `cellcal experiment paper`: the published experiments on the simulated robot (core/paper_experiment.hpp).
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "cellcal/core/paper_experiment.hpp"
+#include "cellcal/core/robot_yaml.hpp"
+#include "commands.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+struct ExperimentArgs {
+  std::string robot = defaultRobotFile("staubli_tx60.yaml");
+  std::uint64_t seed = 1;
+  std::string json_path, plot_dir;
+  bool position_only = false;
+  bool quiet = false;
+  double forgetting = 0.95;
+};
+
+double improvement(double before, double after) { return before > 0 ? 100.0 * (before - after) / before : 0.0; }
+
+std::string runLabel(const MaintenanceRun& r) {
+  std::string s = r.algorithm;
+  if (r.prior) s += "+prior";
+  if (r.forgetting < 1.0) {
+    char b[32];
+    std::snprintf(b, sizeof b, " lambda=%.2f", r.forgetting);
+    s += b;
+  }
+  return s;
+}
+
+void printTables(const PaperExperimentResult& r, const PaperExperimentConfig& cfg, std::ostream& os) {
+  char line[256];
+  os << "Pose-number sweep (paper Table 2): RLS from the prior, group 0 of the simulated "
+     << "robot; mean position error, mm\n";
+  os << "  poses  identification  verification\n";
+  for (const auto& s : r.sweep) {
+    std::snprintf(line, sizeof line, "  %5d  %14.4f  %12.4f\n", s.poses, s.ident_mean_m * 1e3, s.verify_mean_m * 1e3);
+    os << line;
+  }
+  os << "\nAccuracy maintenance (paper Table 4): " << cfg.groups << " groups " << cfg.hours_between_groups
+     << " h apart; group 0 = initial calibration with " << cfg.identification_poses
+     << " poses; means over the update groups 1.." << cfg.groups - 1 << ", mm\n";
+  os << "  mode        algorithm          poses  ident before  after  impr%   verify before  after  impr%  "
+        "worst verify/floor\n";
+  for (const auto& m : r.maintenance) {
+    std::snprintf(line, sizeof line, "  %-10s  %-17s  %5d  %12.4f %6.4f %6.1f   %13.4f %6.4f %6.1f  %8.2f\n",
+                  m.mode.c_str(), runLabel(m).c_str(), m.updated_poses, m.ident_before_m * 1e3,
+                  m.ident_after_m * 1e3, improvement(m.ident_before_m, m.ident_after_m), m.verify_before_m * 1e3,
+                  m.verify_after_m * 1e3, improvement(m.verify_before_m, m.verify_after_m), m.worst_verify_to_floor);
+    os << line;
+  }
+  os << "\nVerification error after each update, mm (group: hours)\n  mode        algorithm          poses";
+  for (int g = 0; g < cfg.groups; ++g) {
+    std::snprintf(line, sizeof line, "   g%d:%3.0fh", g, g * cfg.hours_between_groups);
+    os << line;
+  }
+  os << "\n";
+  for (const auto& m : r.maintenance) {
+    std::snprintf(line, sizeof line, "  %-10s  %-17s  %5d", m.mode.c_str(), runLabel(m).c_str(), m.updated_poses);
+    os << line;
+    for (const auto& g : m.groups) {
+      std::snprintf(line, sizeof line, "  %8.4f", g.verify_after_m * 1e3);
+      os << line;
+    }
+    os << "\n";
+  }
+  std::snprintf(line, sizeof line, "  %-10s  %-17s  %5s", "noise", "floor", "");
+  os << line;
+  for (const auto& g : r.maintenance.front().groups) {
+    std::snprintf(line, sizeof line, "  %8.4f", g.noise_floor_m * 1e3);
+    os << line;
+  }
+  std::snprintf(line, sizeof line,
+                "\n\nNoise floor (mean |measured - true| on verification poses): %.4f mm; nominal model error: %.4f mm\n"
+                "Timing: RLS %.2f us per pose (linearization + update), LM 50-pose initial solve %.2f ms\n",
+                r.noise_floor_m * 1e3, r.true_error_nominal_m * 1e3, r.rls_time_per_pose_s * 1e6,
+                r.lm_time_50_s * 1e3);
+  os << line;
+}
+
+nlohmann::json toJson(const PaperExperimentResult& r) {
+  nlohmann::json j;
+  j["pose_sweep"] = nlohmann::json::array();
+  for (const auto& s : r.sweep)
+    j["pose_sweep"].push_back({{"poses", s.poses}, {"ident_mean_mm", s.ident_mean_m * 1e3},
+                               {"verify_mean_mm", s.verify_mean_m * 1e3}});
+  j["maintenance"] = nlohmann::json::array();
+  for (const auto& m : r.maintenance) {
+    nlohmann::json row = {{"mode", m.mode},
+                          {"algorithm", m.algorithm},
+                          {"updated_poses", m.updated_poses},
+                          {"ident_before_mm", m.ident_before_m * 1e3},
+                          {"ident_after_mm", m.ident_after_m * 1e3},
+                          {"verify_before_mm", m.verify_before_m * 1e3},
+                          {"verify_after_mm", m.verify_after_m * 1e3},
+                          {"prior", m.prior},
+                          {"forgetting", m.forgetting},
+                          {"worst_verify_to_noise_floor", m.worst_verify_to_floor}};
+    for (const auto& g : m.groups)
+      row["groups"].push_back({{"group", g.group},
+                               {"t_h", g.t_h},
+                               {"poses_used", g.poses_used},
+                               {"ident_before_mm", g.ident_before_m * 1e3},
+                               {"ident_after_mm", g.ident_after_m * 1e3},
+                               {"verify_before_mm", g.verify_before_m * 1e3},
+                               {"verify_after_mm", g.verify_after_m * 1e3},
+                               {"noise_floor_mm", g.noise_floor_m * 1e3},
+                               {"update_time_s", g.update_time_s}});
+    j["maintenance"].push_back(row);
+  }
+  j["noise_floor_mm"] = r.noise_floor_m * 1e3;
+  j["nominal_model_error_mm"] = r.true_error_nominal_m * 1e3;
+  j["rls_time_per_pose_us"] = r.rls_time_per_pose_s * 1e6;
+  j["lm_time_50_poses_ms"] = r.lm_time_50_s * 1e3;
+  return j;
+}
+
+void writePlots(const PaperExperimentResult& r, const std::string& dir) {
+  std::string err;
+  // Figure 1: verification error per group, before/after, for each run (like the paper's per-group bars).
+  std::ostringstream data;
+  data << "# group t_h floor";
+  for (const auto& m : r.maintenance) data << " \"" << m.mode << " " << runLabel(m) << " " << m.updated_poses << "\"";
+  data << "\n";
+  const size_t groups = r.maintenance.front().groups.size();
+  for (size_t g = 0; g < groups; ++g) {
+    // Two rows per group: before (x = g - 0.2) and after (x = g + 0.2).
+    for (int after = 0; after < 2; ++after) {
+      data << g + (after ? 0.15 : -0.15) << " " << r.maintenance.front().groups[g].t_h << " "
+           << r.maintenance.front().groups[g].noise_floor_m * 1e3;
+      for (const auto& m : r.maintenance)
+        data << " " << (after ? m.groups[g].verify_after_m : m.groups[g].verify_before_m) * 1e3;
+      data << "\n";
+    }
+  }
+  std::ostringstream gp;
+  gp << "set title 'Verification error per group: before (left) and after (right) each update'\n"
+     << "set xlabel 'group (2 h apart)'\nset ylabel 'mean position error (mm)'\nset logscale y\n"
+     << "set key outside right\nset grid\nset xtics 1\n"
+     << "plot for [c=4:" << 3 + r.maintenance.size() << "] datafile using 1:c with linespoints title columnhead(c), "
+     << "datafile using 1:3 with lines lw 2 dt 2 lc 'black' title 'noise floor'\n";
+  if (!renderGnuplot(dir, "maintenance", data.str(), gp.str(), &err)) std::cerr << "warning: " << err << "\n";
+  // Figure 2: pose sweep.
+  std::ostringstream d2;
+  d2 << "# poses ident_mm verify_mm\n";
+  for (const auto& s : r.sweep) d2 << s.poses << " " << s.ident_mean_m * 1e3 << " " << s.verify_mean_m * 1e3 << "\n";
+  std::ostringstream g2;
+  g2 << "set title 'RLS: mean position error against the number of identification poses'\n"
+     << "set xlabel 'poses'\nset ylabel 'mean position error (mm)'\nset grid\nset logscale y\n"
+     << "plot datafile using 1:2 with linespoints title 'identification', datafile using 1:3 with linespoints title "
+        "'verification', "
+     << r.noise_floor_m * 1e3 << " with lines dt 2 lc 'black' title 'noise floor'\n";
+  if (!renderGnuplot(dir, "pose_sweep", d2.str(), g2.str(), &err)) std::cerr << "warning: " << err << "\n";
+}
+
+}  // namespace
+
+Runner addExperimentCommand(CLI::App& app) {
+  auto args = std::make_shared<ExperimentArgs>();
+  CLI::App* exp = app.add_subcommand("experiment", "Reproduce published experiments on a simulated robot");
+  exp->require_subcommand(1);
+  CLI::App* paper = exp->add_subcommand(
+      "paper",
+      "4 groups of 100 poses measured 2 h apart on a simulated Staubli TX60 whose accuracy degrades; prints the "
+      "pose-number sweep (paper Table 2) and accuracy maintenance with RLS and LM (paper Table 4)");
+  paper->add_option("--robot", args->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
+  paper->add_option("--seed", args->seed, "seed of the simulated robot, tracker and poses")->capture_default_str();
+  paper->add_option("--json", args->json_path, "write the results as JSON to this file");
+  paper->add_option("--plot", args->plot_dir, "write PNG figures (gnuplot) into this directory");
+  paper->add_option("--forgetting", args->forgetting, "lambda of the forgetting-factor variant")->capture_default_str();
+  paper->add_flag("--position-only", args->position_only, "use 3D position measurements instead of 6D poses");
+  paper->add_flag("--quiet", args->quiet, "no progress line");
+  return [args, paper]() -> int {
+    if (!*paper) return 0;
+    const RobotModel robot = loadRobotModel(args->robot);
+    PaperExperimentConfig cfg;
+    cfg.sim.seed = args->seed;
+    cfg.forgetting = args->forgetting;
+    if (args->position_only) cfg.kind = MeasurementKind::kPosition3D;
+    ProgressFn progress;
+    if (!args->quiet)
+      progress = [](const std::string& step, int done, int total) {
+        std::fprintf(stderr, "\r[%-30s] %3d%%  %-24s", std::string(30 * done / total, '#').c_str(), 100 * done / total,
+                     step.c_str());
+        if (done == total) std::fprintf(stderr, "\n");
+      };
+    const auto r = runPaperExperiment(robot, cfg, progress);
+    std::cout << "cellcal experiment paper: robot " << robot.name << ", seed " << args->seed << ", "
+              << (args->position_only ? "3D position" : "6D pose") << " measurements\n\n";
+    printTables(r, cfg, std::cout);
+    if (!args->json_path.empty()) {
+      std::ofstream(args->json_path) << toJson(r).dump(2) << "\n";
+      std::cout << "JSON written to " << args->json_path << "\n";
+    }
+    if (!args->plot_dir.empty()) {
+      writePlots(r, args->plot_dir);
+      std::cout << "Figures written to " << args->plot_dir << "/maintenance.png and pose_sweep.png\n";
+    }
+    return 0;
+  };
+}
+
+}  // namespace cellcal::cli

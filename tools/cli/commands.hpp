@@ -1,0 +1,22 @@
+// Subcommands of the `cellcal` tool. Each registers itself on the CLI11 app and runs when selected.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <functional>
+#include <string>
+
+namespace cellcal::cli {
+
+using Runner = std::function<int()>;
+
+// Adds `experiment paper` under `app`; returns the function to run when it is selected.
+Runner addExperimentCommand(CLI::App& app);
+
+// Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
+// Returns false with a message in *error when gnuplot is missing or fails.
+bool renderGnuplot(const std::string& dir, const std::string& name, const std::string& data,
+                   const std::string& script, std::string* error);
+
+std::string defaultRobotFile(const std::string& name);
+
+}  // namespace cellcal::cli

@@ -1,0 +1,32 @@
+// cellcal: command-line entry point. Subcommands live in cmd_*.cpp.
+#include <iostream>
+
+#include "cellcal/core/robot_yaml.hpp"
+#include "commands.hpp"
+
+namespace cellcal::cli {
+std::string defaultRobotFile(const std::string& name) { return std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name; }
+}  // namespace cellcal::cli
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "cellcal: continuous kinematic calibration for DDS robot cells.\n"
+      "Identifies the kinematic parameter errors of a robot from laser-tracker poses with recursive least squares\n"
+      "and compensates targets with the identified model. See README.md."};
+  app.require_subcommand(1);
+  auto experiment = cellcal::cli::addExperimentCommand(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  try {
+    return experiment();
+  } catch (const cellcal::ConfigError& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  }
+}
