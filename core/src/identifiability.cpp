@@ -33,9 +33,14 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   Q.resize(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(cand.size())));
   int k = 0;
   std::vector<int> dropped;
+  // A column many orders below the strongest one is round-off, not excitation (e.g. a rotation about an axis the
+  // target lies on): normalizing it would turn noise into a direction.
+  double max_norm = 0;
+  for (int c : cand) max_norm = std::max(max_norm, J.col(c).norm());
+  const double min_norm = 1e-10 * max_norm;
   for (int c : cand) {
     const double norm = J.col(c).norm();
-    if (norm == 0.0 || k >= m) {
+    if (norm <= min_norm || k >= m) {
       dropped.push_back(c);
       continue;
     }
@@ -65,7 +70,7 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
     d.index = c;
     d.name = model.paramName(c);
     const double norm = J.col(c).norm();
-    if (norm > 0 && k > 0) {
+    if (norm > min_norm && k > 0) {
       const Eigen::VectorXd coef = qr.solve(J.col(c) / norm);
       for (int i = 0; i < k; ++i)
         if (std::abs(coef[i]) >= 0.05) d.merged_into.emplace_back(rep.identifiable[i], coef[i]);

@@ -20,9 +20,7 @@ bool PaperExperimentConfig::IsValid(std::string* error) const {
     if (n < 1 || n > identification_poses) return fail("sweep pose counts must be in [1, identification_poses]");
   for (int n : continuous_poses)
     if (n < 1 || n > identification_poses) return fail("continuous pose counts must be in [1, identification_poses]");
-  if (!(prior_sigma_length_m > 0 && prior_sigma_angle_rad > 0 && drift_sigma_length_m >= 0 &&
-        drift_sigma_angle_rad >= 0))
-    return fail("prior sigmas must be > 0 and drift sigmas >= 0");
+  if (!(prior_sigma_length_m > 0 && prior_sigma_angle_rad > 0)) return fail("prior sigmas must be > 0");
   if (!(forgetting > 0 && forgetting <= 1)) return fail("forgetting must be in (0, 1]");
   return true;
 }
@@ -96,6 +94,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
   out.true_error_nominal_m = mean(positionErrors(model, p0, groups[0].verify));
 
   const std::vector<int> all = model.canonicalParams();
+  const Eigen::VectorXd drift = cfg.drift.sigmas(model);
   const GaussianPrior prior0 = diagonalPrior(model, p0, all, cfg.prior_sigma_length_m, cfg.prior_sigma_angle_rad);
   const int total_steps = static_cast<int>(cfg.sweep_poses.size()) + 3 + 3 * static_cast<int>(cfg.continuous_poses.size()) + 1;
   int step = 0;
@@ -156,7 +155,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
-            if (g > 0) rls.addProcessNoise(cfg.drift_sigma_length_m, cfg.drift_sigma_angle_rad);
+            if (g > 0) rls.addProcessNoise(drift);
             const auto t0 = Clock::now();
             for (const auto& o : used) rls.addObservation(o);
             rls_time += since(t0);
@@ -194,10 +193,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
           run, k,
           [&](int g, const std::vector<Observation>& used) {
             if (g > 0)
-              for (Eigen::Index i = 0; i < prior.covariance.rows(); ++i) {
-                const double s = model.isLength(prior.indices[i]) ? cfg.drift_sigma_length_m : cfg.drift_sigma_angle_rad;
-                prior.covariance(i, i) += s * s;
-              }
+              for (Eigen::Index i = 0; i < prior.covariance.rows(); ++i)
+                prior.covariance(i, i) += drift[prior.indices[i]] * drift[prior.indices[i]];
             CalibrationProblem p{&model, params, used, prior, {}};
             const auto r = solveLevenbergMarquardt(p);
             params = r.params;

@@ -121,13 +121,25 @@ double RlsCalibrator::addObservation(const Observation& obs) {
   return rls_.lastNormalizedInnovation();
 }
 
-void RlsCalibrator::addProcessNoise(double sigma_length_m, double sigma_angle_rad) {
+void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full) {
   Eigen::VectorXd q(estimated_.size());
-  for (size_t k = 0; k < estimated_.size(); ++k) {
-    const double s = model_->isLength(estimated_[k]) ? sigma_length_m : sigma_angle_rad;
-    q[k] = s * s;
-  }
+  for (size_t k = 0; k < estimated_.size(); ++k) q[k] = sigma_full[estimated_[k]] * sigma_full[estimated_[k]];
   rls_.addProcessNoise(q);
+}
+
+Eigen::VectorXd DriftModel::sigmas(const RobotModel& model) const {
+  Eigen::VectorXd s(model.numParams());
+  const int n = model.numJoints();
+  for (int i = 0; i < model.numParams(); ++i) {
+    if (i >= 5 * n) {
+      s[i] = model.isLength(i) ? frame_length_m : frame_angle_rad;
+    } else if (i % 5 == static_cast<int>(JointParam::kThetaOffset)) {
+      s[i] = joint_offset_rad;
+    } else {
+      s[i] = model.isLength(i) ? joint_length_m : axis_angle_rad;
+    }
+  }
+  return s;
 }
 
 GaussianPrior RlsCalibrator::asPrior() const {

@@ -39,8 +39,8 @@ std::string RobotModel::paramNameHuman(int index) const {
   return s.substr(0, pos) + (isLength(index) ? "_mm" : "_deg");
 }
 
-double RobotModel::toHuman(int index, double si_value) const {
-  return isLength(index) ? si_value * 1e3 : radToDeg(si_value);
+double RobotModel::toHuman(int index, double value_si) const {
+  return isLength(index) ? value_si * 1e3 : radToDeg(value_si);
 }
 
 bool RobotModel::isCanonical(int index) const {

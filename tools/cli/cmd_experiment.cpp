@@ -124,9 +124,13 @@ nlohmann::json toJson(const PaperExperimentResult& r) {
 void writePlots(const PaperExperimentResult& r, const std::string& dir) {
   std::string err;
   // Figure 1: verification error per group, before/after, for each run (like the paper's per-group bars).
+  // LM with the RLS prior overlaps RLS; leave it out of the figure (it is in the tables and JSON).
+  std::vector<const MaintenanceRun*> runs;
+  for (const auto& m : r.maintenance)
+    if (!m.prior) runs.push_back(&m);
   std::ostringstream data;
-  data << "# group t_h floor";
-  for (const auto& m : r.maintenance) data << " \"" << m.mode << " " << runLabel(m) << " " << m.updated_poses << "\"";
+  data << "x t_h floor";
+  for (const auto* m : runs) data << " \"" << m->mode << " " << runLabel(*m) << " " << m->updated_poses << "\"";
   data << "\n";
   const size_t groups = r.maintenance.front().groups.size();
   for (size_t g = 0; g < groups; ++g) {
@@ -134,27 +138,27 @@ void writePlots(const PaperExperimentResult& r, const std::string& dir) {
     for (int after = 0; after < 2; ++after) {
       data << g + (after ? 0.15 : -0.15) << " " << r.maintenance.front().groups[g].t_h << " "
            << r.maintenance.front().groups[g].noise_floor_m * 1e3;
-      for (const auto& m : r.maintenance)
-        data << " " << (after ? m.groups[g].verify_after_m : m.groups[g].verify_before_m) * 1e3;
+      for (const auto* m : runs)
+        data << " " << (after ? m->groups[g].verify_after_m : m->groups[g].verify_before_m) * 1e3;
       data << "\n";
     }
   }
   std::ostringstream gp;
   gp << "set title 'Verification error per group: before (left) and after (right) each update'\n"
      << "set xlabel 'group (2 h apart)'\nset ylabel 'mean position error (mm)'\nset logscale y\n"
-     << "set key outside right\nset grid\nset xtics 1\n"
-     << "plot for [c=4:" << 3 + r.maintenance.size() << "] datafile using 1:c with linespoints title columnhead(c), "
+     << "set key outside right\nset grid\nset xtics 1\nset xrange [-0.5:" << groups - 0.5 << "]\n"
+     << "plot for [c=4:" << 3 + runs.size() << "] datafile using 1:c with linespoints title columnhead(c), "
      << "datafile using 1:3 with lines lw 2 dt 2 lc 'black' title 'noise floor'\n";
   if (!renderGnuplot(dir, "maintenance", data.str(), gp.str(), &err)) std::cerr << "warning: " << err << "\n";
   // Figure 2: pose sweep.
   std::ostringstream d2;
-  d2 << "# poses ident_mm verify_mm\n";
+  d2 << "poses ident_mm verify_mm\n";
   for (const auto& s : r.sweep) d2 << s.poses << " " << s.ident_mean_m * 1e3 << " " << s.verify_mean_m * 1e3 << "\n";
   std::ostringstream g2;
   g2 << "set title 'RLS: mean position error against the number of identification poses'\n"
      << "set xlabel 'poses'\nset ylabel 'mean position error (mm)'\nset grid\nset logscale y\n"
-     << "plot datafile using 1:2 with linespoints title 'identification', datafile using 1:3 with linespoints title "
-        "'verification', "
+     << "plot datafile using 1:2 skip 1 with linespoints title 'identification (poses used)', datafile using 1:3 skip 1 "
+        "with linespoints title 'verification (50 other poses)', "
      << r.noise_floor_m * 1e3 << " with lines dt 2 lc 'black' title 'noise floor'\n";
   if (!renderGnuplot(dir, "pose_sweep", d2.str(), g2.str(), &err)) std::cerr << "warning: " << err << "\n";
 }

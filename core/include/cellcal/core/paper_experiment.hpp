@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/core/rls.hpp"
 #include "cellcal/core/robot_model.hpp"
 #include "cellcal/core/simulation.hpp"
 
@@ -34,8 +35,7 @@ struct PaperExperimentConfig {
   double prior_sigma_length_m = 1e-3;
   double prior_sigma_angle_rad = 0.1 * 3.14159265358979323846 / 180.0;
   // Process noise between groups (random walk of the parameters over hours_between_groups, 1 sigma).
-  double drift_sigma_length_m = 0.1e-3;
-  double drift_sigma_angle_rad = 0.02 * 3.14159265358979323846 / 180.0;
+  DriftModel drift;
   double forgetting = 0.95;  // lambda of the forgetting variant
   bool IsValid(std::string* error) const;
 };

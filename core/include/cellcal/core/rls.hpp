@@ -55,6 +55,18 @@ class RlsEstimator {
   Eigen::MatrixXd PA_, S_;  // workspaces
 };
 
+// How much each kind of parameter may change between two calibration updates (1 sigma, random walk).
+// Warm-up and wear move joint zeros and link lengths; axis angles and the base/tool frames barely move.
+struct DriftModel {
+  double joint_offset_rad = 0.02 * 3.14159265358979323846 / 180.0;  // theta offsets
+  double joint_length_m = 0.05e-3;                                  // d, a
+  double axis_angle_rad = 0.002 * 3.14159265358979323846 / 180.0;   // alpha, beta
+  double frame_length_m = 0.01e-3;                                  // base/tool x, y, z
+  double frame_angle_rad = 0.001 * 3.14159265358979323846 / 180.0;  // base/tool roll, pitch, yaw
+  // sigma for every parameter of the full vector.
+  Eigen::VectorXd sigmas(const RobotModel& model) const;
+};
+
 struct RlsCalibratorOptions {
   RlsOptions rls;
   IdentifiabilityOptions identifiability;
@@ -70,8 +82,8 @@ class RlsCalibrator {
 
   // Linearize at the current estimate and update. Returns the normalized innovation squared.
   double addObservation(const Observation& obs);
-  // Random-walk process noise: sigma of the change since the last update, per length / angle parameter.
-  void addProcessNoise(double sigma_length_m, double sigma_angle_rad);
+  // Random-walk process noise: sigma (full parameter vector) of the change since the last update.
+  void addProcessNoise(const Eigen::VectorXd& sigma_full);
 
   const Eigen::VectorXd& params() const { return params_; }
   const std::vector<int>& estimated() const { return estimated_; }

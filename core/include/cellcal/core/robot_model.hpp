@@ -53,7 +53,7 @@ class RobotModel {
   // Same name with the human unit: "joint3.a_mm", "base.yaw_deg".
   std::string paramNameHuman(int index) const;
   // Value in human units (mm or deg) of a parameter expressed in SI.
-  double toHuman(int index, double si_value) const;
+  double toHuman(int index, double value_si) const;
   bool isLength(int index) const;
   // False for d of a parallel_to_next joint and beta of any other joint (see above).
   bool isCanonical(int index) const;
