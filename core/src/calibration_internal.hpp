@@ -7,6 +7,9 @@
 
 namespace cellcal::internal {
 
+// Throws std::invalid_argument naming what is wrong with the problem or the options.
+void requireValid(const CalibrationProblem& problem, const SolverOptions& options);
+
 // The linear-algebra view of a CalibrationProblem restricted to the estimated parameters.
 struct ReducedProblem {
   const CalibrationProblem* problem = nullptr;

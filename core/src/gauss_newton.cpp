@@ -81,6 +81,12 @@ std::vector<NamedParameter> CalibrationResult::parameters(const RobotModel& mode
 
 namespace internal {
 
+void requireValid(const CalibrationProblem& problem, const SolverOptions& options) {
+  std::string err;
+  if (!problem.IsValid(&err)) throw std::invalid_argument("CalibrationProblem: " + err);
+  if (!options.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
+}
+
 ReducedProblem::ReducedProblem(const CalibrationProblem& p) : problem(&p) {
   const RobotModel& model = *p.model;
   identifiability = analyzeIdentifiability(model, p.initial_params, p.observations, p.identifiability);
@@ -145,9 +151,7 @@ void ReducedProblem::finish(CalibrationResult& result) const {
 }  // namespace internal
 
 CalibrationResult solveGaussNewton(const CalibrationProblem& problem, const SolverOptions& options) {
-  std::string err;
-  if (!problem.IsValid(&err)) throw std::invalid_argument("CalibrationProblem: " + err);
-  if (!options.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
+  internal::requireValid(problem, options);
   const auto t0 = std::chrono::steady_clock::now();
   internal::ReducedProblem rp(problem);
   CalibrationResult res;

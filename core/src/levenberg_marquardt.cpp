@@ -66,9 +66,7 @@ class PriorCost final : public ceres::CostFunction {
 }  // namespace
 
 CalibrationResult solveLevenbergMarquardt(const CalibrationProblem& problem, const SolverOptions& options) {
-  std::string err;
-  if (!problem.IsValid(&err)) throw std::invalid_argument("CalibrationProblem: " + err);
-  if (!options.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
+  internal::requireValid(problem, options);
   const auto t0 = std::chrono::steady_clock::now();
   internal::ReducedProblem rp(problem);
   CalibrationResult res;
