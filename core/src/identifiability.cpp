@@ -29,8 +29,7 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   IdentifiabilityReport rep;
   rep.num_candidates = static_cast<int>(cand.size());
   const Eigen::Index m = J.rows();
-  Eigen::MatrixXd Q(m, 0);
-  Q.resize(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(cand.size())));
+  Eigen::MatrixXd Q(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(cand.size())));
   int k = 0;
   std::vector<int> dropped;
   // A column many orders below the strongest one is round-off, not excitation (e.g. a rotation about an axis the

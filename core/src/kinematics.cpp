@@ -20,11 +20,6 @@ const Pose& forwardKinematics(const RobotModel& model, KinematicsData& data, con
   });
   data.tool_in_tracker.linear() = X.R;
   data.tool_in_tracker.translation() = X.p;
-  // Flange = tool * inverse(tool_in_flange).
-  const int t = model.toolParam(FrameParam::kX);
-  const Pose tool_in_flange = poseFromXyzRpy(params[t], params[t + 1], params[t + 2], params[t + 3], params[t + 4],
-                                             params[t + 5]);
-  data.flange_in_tracker = data.tool_in_tracker * tool_in_flange.inverse();
   return data.tool_in_tracker;
 }
 

@@ -28,9 +28,11 @@ TEST(PaperExperiment, ContinuousCalibrationStaysNearTheNoiseFloor) {
       ASSERT_EQ(static_cast<int>(m.groups.size()), cfg.groups);
       // Where drift left something to correct (before > 2x floor), every update must reduce the error; at the
       // floor an update can only move it by noise.
-      for (const auto& g : m.groups)
-        if (g.verify_before_m > 2 * g.noise_floor_m)
+      for (const auto& g : m.groups) {
+        if (g.verify_before_m > 2 * g.noise_floor_m) {
           EXPECT_LT(g.verify_after_m, g.verify_before_m) << m.mode << " " << m.algorithm << " group " << g.group;
+        }
+      }
       if (m.mode == "continuous" && m.algorithm == "rls" && m.forgetting == 1.0) {
         ++continuous_rls;
         double mean_ratio = 0;
@@ -42,7 +44,9 @@ TEST(PaperExperiment, ContinuousCalibrationStaysNearTheNoiseFloor) {
         if (m.updated_poses == 15) within15 += within;
         if (m.updated_poses == 20) within20 += within;
       }
-      if (m.mode == "periodic") EXPECT_LT(m.worst_verify_to_floor, 1.5) << m.algorithm;
+      if (m.mode == "periodic") {
+        EXPECT_LT(m.worst_verify_to_floor, 1.5) << m.algorithm;
+      }
     }
     EXPECT_EQ(continuous_rls, static_cast<int>(cfg.continuous_poses.size()));
     EXPECT_GT(r.rls_time_per_pose_s, 0);

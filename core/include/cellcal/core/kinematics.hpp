@@ -25,7 +25,6 @@ struct KinematicsData {
   std::vector<Eigen::Vector3d> axis;    // per parameter
   std::vector<Eigen::Vector3d> origin;  // per parameter (only used for rotations)
   std::vector<bool> is_rotation;        // per parameter
-  Pose flange_in_tracker = Pose::Identity();
   Pose tool_in_tracker = Pose::Identity();
 };
 
