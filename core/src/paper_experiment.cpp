@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 
 #include "cellcal/core/calibration.hpp"
+#include "cellcal/core/pose_selection.hpp"
 #include "cellcal/core/rls.hpp"
 
 namespace cellcal {
@@ -96,7 +98,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
   const std::vector<int> all = model.canonicalParams();
   const Eigen::VectorXd drift = cfg.drift.sigmas(model);
   const GaussianPrior prior0 = diagonalPrior(model, p0, all, cfg.prior_sigma_length_m, cfg.prior_sigma_angle_rad);
-  const int total_steps = static_cast<int>(cfg.sweep_poses.size()) + 3 + 3 * static_cast<int>(cfg.continuous_poses.size()) + 1;
+  const int total_steps =
+      static_cast<int>(cfg.sweep_poses.size()) + 3 + 4 * static_cast<int>(cfg.continuous_poses.size()) + 1;
   int step = 0;
   auto tick = [&](const std::string& what) {
     if (progress) progress(what, ++step, total_steps);
@@ -114,12 +117,14 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
 
   // ---- Table 4: accuracy maintenance. ----
   // One generic loop; `update` moves the estimate with the poses of one group.
+  using Chooser = std::function<std::vector<Observation>(int group, int k)>;
+  const Chooser first_k = [&](int g, int k) { return firstN(groups[g].ident, k); };
   auto run_maintenance = [&](MaintenanceRun run, int per_group,
                              const std::function<void(int group, const std::vector<Observation>&)>& update,
-                             const std::function<const Eigen::VectorXd&()>& params) {
+                             const std::function<const Eigen::VectorXd&()>& params, const Chooser& choose) {
     for (int g = 0; g < cfg.groups; ++g) {
       const int k = g == 0 ? cfg.identification_poses : per_group;
-      const auto used = firstN(groups[g].ident, k);
+      const auto used = choose(g, k);
       MaintenanceGroup mg;
       mg.group = g;
       mg.t_h = groups[g].t_h;
@@ -161,7 +166,35 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
             rls_time += since(t0);
             rls_poses += static_cast<int>(used.size());
           },
-          [&]() -> const Eigen::VectorXd& { return rls.params(); });
+          [&]() -> const Eigen::VectorXd& { return rls.params(); }, first_k);
+    }
+    // RLS that chooses which K poses to measure (continuous mode only): predict, choose, update.
+    if (mode == "continuous") {
+      RlsCalibrator rls(model, p0, prior0, cfg.kind);
+      PoseSelectionOptions sel;
+      sel.kind = cfg.kind;
+      sel.sigma_position_m = std::hypot(
+          cfg.sim.tracker.sigmaPosition(model.nominal.segment<3>(model.baseParam(FrameParam::kX)).norm()),
+          cfg.sim.repeatability_m / 2);
+      sel.sigma_orientation_rad = cfg.sim.tracker.sigmaOrientation();
+      MaintenanceRun run;
+      run.mode = mode;
+      run.algorithm = "rls";
+      run.updated_poses = k;
+      run.pose_selection = "i-optimal";
+      const Chooser choose = [&](int g, int count) {
+        if (g == 0) return firstN(groups[g].ident, count);
+        rls.addProcessNoise(drift);
+        std::vector<Eigen::VectorXd> qs;
+        for (const auto& o : groups[g].ident) qs.push_back(o.q_rad);
+        std::vector<Observation> used;
+        for (int i : selectInformativePoses(model, rls.params(), rls.estimated(), rls.covariance(), qs, count, sel))
+          used.push_back(groups[g].ident[i]);  // the tracker measures the chosen configurations
+        return used;
+      };
+      run_maintenance(
+          run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
+          [&]() -> const Eigen::VectorXd& { return rls.params(); }, choose);
     }
     // LM as in the paper: warm start from the previous estimate, fresh poses only.
     {
@@ -178,7 +211,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
             if (g == 0 && mode == "periodic") out.lm_time_50_s = r.solve_time_s;
             params = r.params;
           },
-          [&]() -> const Eigen::VectorXd& { return params; });
+          [&]() -> const Eigen::VectorXd& { return params; }, first_k);
     }
     // LM done like RLS: the same prior (previous estimate and covariance plus process noise).
     {
@@ -202,7 +235,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
             prior.indices = r.estimated;
             prior.covariance = r.covariance;
           },
-          [&]() -> const Eigen::VectorXd& { return params; });
+          [&]() -> const Eigen::VectorXd& { return params; }, first_k);
     }
   }
   // RLS with forgetting instead of process noise (continuous, smallest K), P bounded by the prior variance.
@@ -220,7 +253,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     run.forgetting = cfg.forgetting;
     run_maintenance(
         run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
-        [&]() -> const Eigen::VectorXd& { return rls.params(); });
+        [&]() -> const Eigen::VectorXd& { return rls.params(); }, first_k);
   }
   out.rls_time_per_pose_s = rls_poses ? rls_time / rls_poses : 0.0;
   return out;

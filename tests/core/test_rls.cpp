@@ -1,8 +1,11 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/QR>
+#include <numeric>
+#include <set>
 
 #include "cellcal/core/calibration.hpp"
+#include "cellcal/core/pose_selection.hpp"
 #include "cellcal/core/rls.hpp"
 #include "cellcal/core/simulation.hpp"
 #include "test_support.hpp"
@@ -174,6 +177,70 @@ TEST_P(RlsCalibration, ConvergesPoseByPoseAndMatchesBatchWithSamePrior) {
 INSTANTIATE_TEST_SUITE_P(Kinds, RlsCalibration,
                          ::testing::Values(MeasurementKind::kPose6D, MeasurementKind::kPosition3D),
                          [](const auto& i) { return i.param == MeasurementKind::kPose6D ? "Pose6D" : "Position3D"; });
+
+// Mean predicted position variance over `where` after measuring `chosen` (exact Bayesian update of P).
+double predictedVariance(const RobotModel& m, const Eigen::VectorXd& params, const std::vector<int>& est,
+                         Eigen::MatrixXd P, const std::vector<Eigen::VectorXd>& qs, const std::vector<int>& chosen,
+                         const PoseSelectionOptions& o) {
+  KinematicsData data(m);
+  Eigen::MatrixXd J(6, m.numParams());
+  auto rowsOf = [&](const Eigen::VectorXd& q, bool whitened) {
+    forwardKinematics(m, data, params, q);
+    computePoseJacobian(m, data, J);
+    Eigen::MatrixXd A(whitened ? 6 : 3, est.size());
+    for (size_t k = 0; k < est.size(); ++k) {
+      A.col(k).head<3>() = J.col(est[k]).head<3>() / (whitened ? o.sigma_position_m : 1.0);
+      if (whitened) A.col(k).tail<3>() = J.col(est[k]).tail<3>() / o.sigma_orientation_rad;
+    }
+    return A;
+  };
+  for (int i : chosen) {
+    const Eigen::MatrixXd A = rowsOf(qs[i], true);
+    const Eigen::MatrixXd PA = P * A.transpose();
+    Eigen::MatrixXd S = A * PA;
+    S.diagonal().array() += 1.0;
+    P -= PA * S.llt().solve(PA.transpose());
+  }
+  double v = 0;
+  for (const auto& q : qs) {
+    const Eigen::MatrixXd B = rowsOf(q, false);
+    v += (B * P * B.transpose()).trace();
+  }
+  return v / static_cast<double>(qs.size());
+}
+
+TEST(PoseSelection, ChosenPosesTeachMoreThanRandomOnes) {
+  const std::uint64_t seed = test::testSeed();
+  SimulationConfig sc;
+  sc.seed = seed;
+  SimulatedCell cell(test::robot("staubli_tx60"), sc);
+  const auto prior = diagonalPrior(cell.model(), cell.nominalParams(), cell.model().canonicalParams(), 1e-3,
+                                   degToRad(0.1));
+  RlsCalibrator rls(cell.model(), cell.nominalParams(), prior, MeasurementKind::kPose6D);
+  std::mt19937_64 rng(seed);
+  for (const auto& q : cell.randomConfigurations(50, rng)) rls.addObservation(cell.measure(q, 0.0, rng));
+  rls.addProcessNoise(DriftModel{}.sigmas(cell.model()));
+  const auto qs = cell.randomConfigurations(50, rng);
+  PoseSelectionOptions o;
+  const auto chosen =
+      selectInformativePoses(cell.model(), rls.params(), rls.estimated(), rls.covariance(), qs, 15, o);
+  ASSERT_EQ(chosen.size(), 15u);
+  EXPECT_EQ(std::set<int>(chosen.begin(), chosen.end()).size(), 15u);
+  const double v_chosen =
+      predictedVariance(cell.model(), rls.params(), rls.estimated(), rls.covariance(), qs, chosen, o);
+  double v_random = 0;
+  for (int t = 0; t < 20; ++t) {
+    std::vector<int> idx(qs.size());
+    std::iota(idx.begin(), idx.end(), 0);
+    std::shuffle(idx.begin(), idx.end(), rng);
+    idx.resize(15);
+    v_random += predictedVariance(cell.model(), rls.params(), rls.estimated(), rls.covariance(), qs, idx, o) / 20;
+  }
+  std::printf("predicted position variance: chosen/random = %.3f\n", v_chosen / v_random);
+  EXPECT_LT(v_chosen, 0.9 * v_random);
+  const double v_none = predictedVariance(cell.model(), rls.params(), rls.estimated(), rls.covariance(), qs, {}, o);
+  EXPECT_LT(v_random, v_none);
+}
 
 }  // namespace
 }  // namespace cellcal

@@ -27,6 +27,7 @@ double improvement(double before, double after) { return before > 0 ? 100.0 * (b
 std::string runLabel(const MaintenanceRun& r) {
   std::string s = r.algorithm;
   if (r.prior) s += "+prior";
+  if (r.pose_selection == "i-optimal") s += "+select";
   if (r.forgetting < 1.0) {
     char b[32];
     std::snprintf(b, sizeof b, " lambda=%.2f", r.forgetting);
@@ -141,6 +142,7 @@ nlohmann::json toJson(const PaperExperimentResult& r) {
                           {"verify_after_mm", m.verify_after_m * 1e3},
                           {"prior", m.prior},
                           {"forgetting", m.forgetting},
+                          {"pose_selection", m.pose_selection},
                           {"worst_verify_to_noise_floor", m.worst_verify_to_floor}};
     for (const auto& g : m.groups)
       row["groups"].push_back({{"group", g.group},

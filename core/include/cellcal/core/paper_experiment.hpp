@@ -7,7 +7,8 @@
 //    every later group updates the previous estimate either periodically (all identification poses) or
 //    continuously (only the first K freshly measured poses), with RLS and with LM. "Before" is the previous
 //    estimate on the new group's poses, "after" the updated one. Identification errors are on the poses used.
-//  - Variants the paper lacks: LM with the same Gaussian prior RLS carries (previous estimate and covariance plus
+//  - Variants the paper lacks: continuous RLS that chooses its K poses among the group's identification
+//    configurations (greedy, minimizing the predicted position variance; never looking at measurements), LM with the same Gaussian prior RLS carries (previous estimate and covariance plus
 //    process noise), RLS with a forgetting factor instead of process noise, and the tracker noise floor (mean
 //    |measured - true| on the verification poses: what a perfect model would score).
 #pragma once
@@ -54,6 +55,7 @@ struct MaintenanceRun {
   std::string algorithm;         // "rls" | "lm"
   int updated_poses = 0;         // per group after the initial calibration
   bool prior = false;            // LM with the RLS prior
+  std::string pose_selection = "first";  // "first": the first K poses visited; "i-optimal": chosen to minimize predicted position variance (pose_selection.hpp)
   double forgetting = 1.0;       // RLS lambda
   std::vector<MaintenanceGroup> groups;  // group 0 = initial calibration
   // Means over the update groups (1..G-1).
