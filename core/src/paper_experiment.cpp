@@ -24,6 +24,7 @@ bool PaperExperimentConfig::IsValid(std::string* error) const {
     if (n < 1 || n > identification_poses) return fail("continuous pose counts must be in [1, identification_poses]");
   if (!(prior_sigma_length_m > 0 && prior_sigma_angle_rad > 0)) return fail("prior sigmas must be > 0");
   if (!(forgetting > 0 && forgetting <= 1)) return fail("forgetting must be in (0, 1]");
+  if (selection_candidates < 0) return fail("selection_candidates must be >= 0");
   return true;
 }
 
@@ -171,6 +172,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     // RLS that chooses which K poses to measure (continuous mode only): predict, choose, update.
     if (mode == "continuous") {
       RlsCalibrator rls(model, p0, prior0, cfg.kind);
+      std::mt19937_64 select_rng(cfg.sim.seed * 104729 + static_cast<std::uint64_t>(k));
       PoseSelectionOptions sel;
       sel.kind = cfg.kind;
       sel.sigma_position_m = std::hypot(
@@ -186,10 +188,16 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
         if (g == 0) return firstN(groups[g].ident, count);
         rls.addProcessNoise(drift);
         std::vector<Eigen::VectorXd> qs;
-        for (const auto& o : groups[g].ident) qs.push_back(o.q_rad);
+        if (cfg.selection_candidates > 0) {
+          qs = cell.randomConfigurations(cfg.selection_candidates, select_rng);
+        } else {
+          for (const auto& o : groups[g].ident) qs.push_back(o.q_rad);
+        }
         std::vector<Observation> used;
         for (int i : selectInformativePoses(model, rls.params(), rls.estimated(), rls.covariance(), qs, count, sel))
-          used.push_back(groups[g].ident[i]);  // the tracker measures the chosen configurations
+          // The tracker measures the chosen configurations.
+          used.push_back(cfg.selection_candidates > 0 ? cell.measure(qs[i], groups[g].t_h, select_rng, cfg.kind)
+                                                      : groups[g].ident[i]);
         return used;
       };
       run_maintenance(

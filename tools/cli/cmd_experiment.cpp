@@ -20,6 +20,7 @@ struct ExperimentArgs {
   bool quiet = false;
   double forgetting = 0.95;
   int seeds = 1;
+  int candidates = 0;
 };
 
 double improvement(double before, double after) { return before > 0 ? 100.0 * (before - after) / before : 0.0; }
@@ -224,6 +225,11 @@ Runner addExperimentCommand(CLI::App& app) {
                     "run this many random robots (seed, seed+1, ...) and print how often the targets hold")
       ->check(CLI::Range(1, 100000))
       ->capture_default_str();
+  paper->add_option("--candidates", args->candidates,
+                    "chosen-pose rows choose among N fresh reachable configurations per group instead of the "
+                    "group's identification poses (0)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   paper->add_flag("--position-only", args->position_only, "use 3D position measurements instead of 6D poses");
   paper->add_flag("--quiet", args->quiet, "no progress line");
   return [args, paper]() -> int {
@@ -232,6 +238,7 @@ Runner addExperimentCommand(CLI::App& app) {
     PaperExperimentConfig cfg;
     cfg.sim.seed = args->seed;
     cfg.forgetting = args->forgetting;
+    cfg.selection_candidates = args->candidates;
     if (args->position_only) cfg.kind = MeasurementKind::kPosition3D;
     if (args->seeds > 1) {
       printSeedSummary(robot, cfg, args->seed, args->seeds, std::cout);

@@ -38,6 +38,9 @@ struct PaperExperimentConfig {
   // Process noise between groups (random walk of the parameters over hours_between_groups, 1 sigma).
   DriftModel drift;
   double forgetting = 0.95;  // lambda of the forgetting variant
+  // Candidates of the chosen-pose variant: 0 = the group's identification configurations; N > 0 = N fresh random
+  // reachable configurations per group, the chosen ones measured when chosen (a cell that can ask for any pose).
+  int selection_candidates = 0;
   bool IsValid(std::string* error) const;
 };
 
