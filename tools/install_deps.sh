@@ -9,6 +9,7 @@ PACKAGES=(
   libeigen3-dev libceres-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev
+  libfastrtps-dev fastddsgen
   gnuplot-nox
 )
 
