@@ -28,25 +28,48 @@ Attempt descend(const RobotModel& model, KinematicsData& data, const Eigen::Vect
   const int n = model.numJoints();
   const int rows = o.kind == MeasurementKind::kPose6D ? 6 : 3;
   Eigen::MatrixXd J(6, n);
+  // Weighted error: orientation rows count as orientation_weight_m metres per radian.
+  auto error = [&](const Eigen::VectorXd& qq, Eigen::VectorXd& e) {
+    const Eigen::Matrix<double, 6, 1> full = poseError(target, forwardKinematics(model, data, params, qq));
+    e = full.head(rows);
+    if (rows == 6) e.tail(3) *= o.orientation_weight_m;
+  };
+  auto clampToLimits = [&](Eigen::VectorXd& qq) {
+    for (int j = 0; j < n; ++j) qq[j] = std::clamp(qq[j], model.limits[j].lower_rad, model.limits[j].upper_rad);
+  };
   Attempt a;
+  Eigen::VectorXd e, e_trial;
+  error(q, e);
+  double lambda = std::max(o.damping, 1e-6);  // Levenberg-Marquardt: grows on a failed step, shrinks on a good one
   for (a.iterations = 0; a.iterations < o.max_iterations; ++a.iterations) {
-    const Eigen::Matrix<double, 6, 1> e = poseError(target, forwardKinematics(model, data, params, q));
-    a.pos = e.head<3>().norm();
-    a.ori = rows == 6 ? e.tail<3>().norm() : 0.0;
+    a.pos = e.head(3).norm();
+    a.ori = rows == 6 ? e.tail(3).norm() / o.orientation_weight_m : 0.0;
     if (a.pos < o.position_tolerance_m && a.ori < o.orientation_tolerance_rad) break;
+    forwardKinematics(model, data, params, q);
     computeJointJacobian(model, data, J);
     Eigen::MatrixXd Jr = J.topRows(rows);
-    Eigen::VectorXd er = e.head(rows);
-    if (rows == 6) {
-      Jr.bottomRows(3) *= o.orientation_weight_m;
-      er.tail(3) *= o.orientation_weight_m;
+    if (rows == 6) Jr.bottomRows(3) *= o.orientation_weight_m;
+    bool improved = false;
+    for (int tries = 0; tries < 30 && !improved; ++tries) {
+      // dq = J^T (J J^T + lambda I)^-1 e, then clamp to the limits.
+      Eigen::MatrixXd JJt = Jr * Jr.transpose();
+      JJt.diagonal().array() += lambda;
+      Eigen::VectorXd q_trial = q + Jr.transpose() * JJt.ldlt().solve(e);
+      clampToLimits(q_trial);
+      error(q_trial, e_trial);
+      if (e_trial.squaredNorm() < e.squaredNorm()) {
+        q = q_trial;
+        e = e_trial;
+        lambda = std::max(o.damping, lambda * 1e-3);
+        improved = true;
+      } else {
+        lambda *= 10.0;
+      }
     }
-    // dq = J^T (J J^T + mu I)^-1 e, then clamp to the limits.
-    Eigen::MatrixXd JJt = Jr * Jr.transpose();
-    JJt.diagonal().array() += o.damping;
-    q += Jr.transpose() * JJt.ldlt().solve(er);
-    for (int j = 0; j < n; ++j) q[j] = std::clamp(q[j], model.limits[j].lower_rad, model.limits[j].upper_rad);
+    if (!improved) break;  // stuck (local minimum or at a limit): let a restart try elsewhere
   }
+  a.pos = e.head(3).norm();
+  a.ori = rows == 6 ? e.tail(3).norm() / o.orientation_weight_m : 0.0;
   a.q = q;
   return a;
 }
@@ -66,10 +89,17 @@ IkResult solveInverseKinematics(const RobotModel& model, const Eigen::VectorXd& 
   bool have_best = false;
   IkResult res;
   for (int attempt = 0; attempt <= options.restarts; ++attempt) {
-    if (attempt > 0)
+    // Restarts: first around the given seed with growing spread (the right branch is usually near it; near a
+    // singularity the first descent can slide into a neighbouring branch's shallow minimum), then anywhere.
+    if (attempt > 0 && attempt <= options.restarts / 2) {
+      std::normal_distribution<double> g(0.0, 0.05 * attempt);
+      for (int j = 0; j < model.numJoints(); ++j)
+        seed[j] = std::clamp(q_seed_rad[j] + g(rng), model.limits[j].lower_rad, model.limits[j].upper_rad);
+    } else if (attempt > 0) {
       for (int j = 0; j < model.numJoints(); ++j)
         seed[j] = std::uniform_real_distribution<double>(std::max(model.limits[j].lower_rad, -kPi),
                                                          std::min(model.limits[j].upper_rad, kPi))(rng);
+    }
     Attempt a = descend(model, data, params, target_in_tracker, seed, options);
     res.iterations += a.iterations;
     const double score = a.pos + options.orientation_weight_m * a.ori;

@@ -12,11 +12,11 @@ namespace cellcal {
 
 struct IkOptions {
   MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D: reach the position, any orientation
-  int max_iterations = 100;
+  int max_iterations = 500;           // near a singularity convergence is only linear
   int restarts = 8;                  // random seeds tried after the given one (deterministic)
   double position_tolerance_m = 1e-9;
   double orientation_tolerance_rad = 1e-9;
-  double damping = 1e-6;             // Levenberg damping (m^2)
+  double damping = 1e-12;            // smallest Levenberg damping (m^2); it adapts upward on failed steps
   double orientation_weight_m = 0.5; // a radian of orientation error counts as this many metres
   bool IsValid(std::string* error) const;
 };
