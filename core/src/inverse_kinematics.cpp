@@ -45,7 +45,7 @@ Attempt descend(const RobotModel& model, KinematicsData& data, const Eigen::Vect
     a.pos = e.head(3).norm();
     a.ori = rows == 6 ? e.tail(3).norm() / o.orientation_weight_m : 0.0;
     if (a.pos < o.position_tolerance_m && a.ori < o.orientation_tolerance_rad) break;
-    forwardKinematics(model, data, params, q);
+    // `data` holds the FK of q: the last evaluation was error(q) or the accepted trial that became q.
     computeJointJacobian(model, data, J);
     Eigen::MatrixXd Jr = J.topRows(rows);
     if (rows == 6) Jr.bottomRows(3) *= o.orientation_weight_m;
