@@ -57,8 +57,11 @@ TEST_P(Identification, RecoversInjectedErrorsToTheNoiseFloor) {
     const double err = named[idx].value - m.toHuman(idx, truth[idx]);
     EXPECT_LT(std::abs(err), 5 * named[idx].stddev + 1e-9)
         << named[idx].name << ": error " << err << ", sigma " << named[idx].stddev;
-    EXPECT_LT(std::abs(err), std::abs(named[idx].initial - m.toHuman(idx, truth[idx])))
-        << named[idx].name << " did not move toward the truth";
+    // Where the data resolve the hidden error (it exceeds 5 sigma), the estimate must also have moved toward it;
+    // an error below the resolution (3D data resolve alpha angles to ~0.01 deg) may legitimately stay put.
+    const double initial_err = named[idx].initial - m.toHuman(idx, truth[idx]);
+    if (std::abs(initial_err) > 5 * named[idx].stddev)
+      EXPECT_LT(std::abs(err), std::abs(initial_err)) << named[idx].name << " did not move toward the truth";
   }
   // Dropped (merged) parameters stay exactly where they started.
   for (const auto& d : r.identifiability.dropped) EXPECT_EQ(r.params[d.index], cell.nominalParams()[d.index]);
