@@ -112,6 +112,19 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const CalibrationResult& i
       rls_(select(initial.params, initial.estimated), initial.covariance, options.rls),
       data_(model) {}
 
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                             const Eigen::MatrixXd& covariance, RlsCalibratorOptions options)
+    : model_(&model), params_(params), estimated_(estimated), rls_(select(params, estimated), covariance, options.rls),
+      data_(model) {}
+
+double RlsCalibrator::normalizedInnovation(const Observation& obs) {
+  const int rows = whitenedResidual(*model_, data_, params_, obs, r_, &J_);
+  A_.resize(rows, static_cast<Eigen::Index>(estimated_.size()));
+  for (size_t k = 0; k < estimated_.size(); ++k) A_.col(k) = J_.col(estimated_[k]);
+  const Eigen::MatrixXd S = A_ * rls_.P() * A_.transpose() + Eigen::MatrixXd::Identity(rows, rows);
+  return r_.head(rows).dot(S.ldlt().solve(r_.head(rows)));
+}
+
 double RlsCalibrator::addObservation(const Observation& obs) {
   const int rows = whitenedResidual(*model_, data_, params_, obs, r_, &J_);
   A_.resize(rows, static_cast<Eigen::Index>(estimated_.size()));

@@ -2,107 +2,27 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include <cmath>
 #include <fstream>
-#include <set>
 #include <sstream>
 
 #include "cellcal/core/se3.hpp"
+#include "yaml_reader.hpp"
 
 namespace cellcal {
 namespace {
 
-class Reader {
- public:
-  explicit Reader(std::string source) : source_(std::move(source)) {}
-
-  [[noreturn]] void fail(const YAML::Node& node, const std::string& field, const std::string& msg) const {
-    std::ostringstream s;
-    s << source_;
-    if (node.IsDefined() && node.Mark().line >= 0) s << ":" << node.Mark().line + 1 << ":" << node.Mark().column + 1;
-    s << ": " << field << ": " << msg;
-    throw ConfigError(s.str());
-  }
-
-  void requireMap(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsMap()) fail(node, field, "expected a mapping");
-  }
-
-  // Every key of `node` must be in `allowed`; names the first offending key and its line.
-  void checkKeys(const YAML::Node& node, const std::string& field, const std::set<std::string>& allowed) const {
-    std::set<std::string> seen;
-    for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
-      const std::string where = field.empty() ? key : field + "." + key;
-      if (!allowed.count(key)) {
-        std::string list;
-        for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
-        fail(kv.first, where, "unknown key (allowed: " + list + ")");
-      }
-      if (!seen.insert(key).second) fail(kv.first, where, "duplicated key");
-    }
-  }
-
-  YAML::Node required(const YAML::Node& parent, const std::string& key, const std::string& field) const {
-    const YAML::Node n = parent[key];
-    if (!n.IsDefined() || n.IsNull()) fail(parent, field, "missing required key '" + key + "'");
-    return n;
-  }
-
-  double number(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsScalar()) fail(node, field, "expected a number");
-    double v = 0;
-    try {
-      v = node.as<double>();
-    } catch (const YAML::Exception&) {
-      fail(node, field, "expected a number, got '" + node.Scalar() + "'");
-    }
-    if (!std::isfinite(v)) fail(node, field, "must be finite, got '" + node.Scalar() + "'");
-    return v;
-  }
-
-  bool boolean(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsScalar()) fail(node, field, "expected true or false");
-    try {
-      return node.as<bool>();
-    } catch (const YAML::Exception&) {
-      fail(node, field, "expected true or false, got '" + node.Scalar() + "'");
-    }
-  }
-
-  std::vector<double> vector(const YAML::Node& node, const std::string& field, size_t size) const {
-    if (!node.IsSequence() || node.size() != size)
-      fail(node, field, "expected a list of " + std::to_string(size) + " numbers");
-    std::vector<double> out;
-    for (size_t i = 0; i < size; ++i) out.push_back(number(node[i], field + "[" + std::to_string(i) + "]"));
-    return out;
-  }
-
- private:
-  std::string source_;
-};
-
-void readFrame(const Reader& r, const YAML::Node& node, const std::string& field, RobotModel& m, int first) {
-  r.requireMap(node, field);
-  static const char* keys[] = {"x_mm", "y_mm", "z_mm", "roll_deg", "pitch_deg", "yaw_deg"};
-  r.checkKeys(node, field, {keys, keys + 6});
-  for (int k = 0; k < 6; ++k) {
-    const double v = r.number(r.required(node, keys[k], field + "." + keys[k]), field + "." + keys[k]);
-    m.nominal[first + k] = k < 3 ? v * 1e-3 : degToRad(v);
-  }
+using detail::YamlReader;
+void readFrame(const YamlReader& r, const YAML::Node& node, const std::string& field, RobotModel& m, int first) {
+  double v[6];
+  r.frame(node, field, v);
+  for (int k = 0; k < 6; ++k) m.nominal[first + k] = v[k];
 }
 
 }  // namespace
 
 RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) {
-  Reader r(source);
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::ParserException& e) {
-    throw ConfigError(source + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
-                      ": YAML syntax error: " + e.msg);
-  }
+  YamlReader r(source);
+  const YAML::Node root = r.load(yaml_text);
   if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with name, joints, ...");
   r.checkKeys(root, "", {"name", "joints", "links", "gravity_in_base_mps2", "base_in_tracker", "tool_in_flange"});
 

@@ -79,9 +79,14 @@ class RlsCalibrator {
                 MeasurementKind kind, RlsCalibratorOptions options = {});
   // Starts from the parameters and covariance of a batch result (the paper's P0 = (A0^T A0)^-1 when it had no prior).
   RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options = {});
+  // Resumes a saved estimate: full parameter vector, estimated indices, covariance over them.
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                const Eigen::MatrixXd& covariance, RlsCalibratorOptions options = {});
 
   // Linearize at the current estimate and update. Returns the normalized innovation squared.
   double addObservation(const Observation& obs);
+  // Normalized innovation squared of `obs` against the current estimate, without updating (for outlier gating).
+  double normalizedInnovation(const Observation& obs);
   // Random-walk process noise: sigma (full parameter vector) of the change since the last update.
   void addProcessNoise(const Eigen::VectorXd& sigma_full);
 

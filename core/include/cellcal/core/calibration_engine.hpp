@@ -1,0 +1,103 @@
+// The calibration engine of one robot, without DDS: samples in, calibrations out. The engine process wraps one per
+// robot of the cell file; `cellcal validate` runs the same code over a recording.
+//
+// Flow: joint states and tracker readings -> PairingBuffer -> Observation -> (process noise for the cell time since
+// the previous update) -> RLS update, per pose (continuous mode) or per batch of N poses (periodic mode) -> a new
+// version. Before a pose updates the estimate, the current calibration predicts it: those a-priori errors are the
+// engine's honest running verification (the pose was not used to make the prediction).
+// Persistence: after every accepted pose the whole state (estimate, covariance, counters, the unapplied poses of a
+// periodic batch) is written atomically (temporary file, fsync, rename, fsync of the folder). A restarted engine
+// resumes from it and rejects readings at or before the last applied one, so no update is lost or applied twice.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/pairing.hpp"
+#include "cellcal/core/rls.hpp"
+
+namespace cellcal {
+
+enum class Health { kUncalibrated = 0, kOk = 1, kDegraded = 2, kHoldLastGood = 3 };
+const char* healthName(Health h);
+
+struct CalibrationSnapshot {
+  std::uint64_t version = 0;          // 0 = nothing identified yet; +1 per accepted update
+  EngineMode mode = EngineMode::kContinuous;
+  Health health = Health::kUncalibrated;
+  std::uint32_t poses_used = 0;
+  Eigen::VectorXd params;             // full SI vector (RobotModel layout)
+  std::vector<int> estimated;         // indices of params the RLS estimates
+  Eigen::MatrixXd covariance;         // over `estimated`
+  double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
+  double residual_rms_orientation_rad = 0;
+  double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
+  std::int64_t last_measurement_stamp_ns = 0;
+  std::uint64_t last_tracker_sequence = 0;
+  std::int64_t last_update_stamp_ns = 0;    // stamp of the reading that made this version
+};
+
+struct EngineCounters {
+  std::array<std::uint64_t, static_cast<size_t>(Rejection::kCount)> rejected{};
+  std::uint64_t joint_states = 0, tracker_readings = 0, paired = 0;
+  std::string last_rejection;                // detail of the most recent rejection
+};
+
+class CalibrationEngine {
+ public:
+  // `robot` and `settings` must outlive the engine. Throws std::runtime_error when the state file exists but cannot
+  // be used (another robot/model, corrupt): the message names the file and says what to do.
+  CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression,
+                    bool persist = true);
+
+  std::string stateFile() const;
+  bool restored() const { return restored_; }
+
+  // Returns false (and counts the rejection) for a sample that will never be used.
+  bool onJointState(const JointSample& s, std::int64_t receive_ns);
+  bool onTrackerSample(const TrackerSample& s, std::int64_t receive_ns);
+  // Pairs what can be paired and updates. Returns true when a new version was made.
+  bool process(std::int64_t now_ns);
+
+  const CalibrationSnapshot& snapshot() const { return snap_; }
+  const EngineCounters& counters() const { return counters_; }
+  const CellRobot& robot() const { return *robot_; }
+  std::int64_t lastInputReceiveNs() const { return last_input_ns_; }
+  // Wall time of the last update (linearization + RLS + persistence), ns.
+  std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
+
+ private:
+  void applyPose(const PairedReading& p);
+  void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
+  void refreshStatistics();
+  void persist() const;
+  bool restore();
+  void reject(Rejection r, const std::string& detail);
+
+  const CellRobot* robot_;
+  const EngineSettings* settings_;
+  double time_compression_;
+  bool persist_;
+  bool restored_ = false;
+  PairingBuffer pairing_;
+  std::unique_ptr<RlsCalibrator> rls_;
+  Eigen::VectorXd drift_sigma_;       // accumulated over settings.drift_per_h
+  CalibrationSnapshot snap_;
+  EngineCounters counters_;
+  std::vector<PairedReading> batch_;  // periodic mode: poses waiting for the batch to fill
+  struct Recent {
+    double prior_error_m, post_error_m, post_error_rad;
+  };
+  std::deque<Recent> recent_;
+  std::int64_t last_input_ns_ = 0;
+  std::int64_t last_update_duration_ns_ = 0;
+};
+
+}  // namespace cellcal

@@ -1,0 +1,99 @@
+// The cell file (config/cell.yaml): one file every process of a cell reads (DDS settings, robots, engine,
+// compensation, simulation). Strict like the robot file: unknown or duplicated keys, wrong types and values out of
+// range are ConfigError "<file>:<line>:<column>: <field>: <message>". Human units in the file (mm, deg, ms, s),
+// SI in the structs. See docs/cell-file.md.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/observation.hpp"
+#include "cellcal/core/robot_model.hpp"
+#include "cellcal/core/robot_yaml.hpp"
+
+namespace cellcal {
+
+enum class EngineMode { kContinuous, kPeriodic };
+
+struct DdsSettings {
+  int domain_id = 0;                           // 0..232; CELLCAL_DOMAIN_ID or --domain-id override it
+  std::string profiles_file;                   // absolute path (resolved against the cell file's folder)
+  std::string participant_profile = "cellcal"; // "cellcal_loopback": UDP on 127.0.0.1 only
+};
+
+struct CellRobot {
+  std::string robot_id;                        // DDS key of JointState / CalibrationState / TargetPose
+  std::string target_id;                       // DDS key of the TrackerPose stream of the target on its flange
+  std::string robot_file;                      // absolute path
+  MeasurementKind measurement = MeasurementKind::kPose6D;
+  // Registration of this cell (override the robot file when given), SI: x, y, z (m), roll, pitch, yaw (rad).
+  std::optional<Eigen::Matrix<double, 6, 1>> base_in_tracker, tool_in_flange;
+  // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig.
+  RobotModel model;
+};
+
+struct EngineSettings {
+  EngineMode mode = EngineMode::kContinuous;
+  int batch_poses = 15;                        // periodic mode: poses per update
+  std::string state_dir = "state";             // absolute path after loading; one JSON file per robot
+  double max_pairing_skew_s = 0.05;            // joint state used for a tracker reading: at most this far in time
+  double settle_tolerance_rad = 1e-5;          // joints of the bracketing states may differ by at most this
+  double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem
+  double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
+  double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
+  double outlier_gate_nis = 0.0;               // reject a pose whose normalized innovation exceeds this (0 = off)
+  double prior_length_m = 1e-3;                // 1 sigma of the uncalibrated robot (manufacturing + registration)
+  double prior_angle_rad = 0.1 * 3.14159265358979323846 / 180.0;
+  // Random walk of the parameters (1 sigma accumulated over drift_per_h hours of cell time).
+  double drift_joint_offset_rad = 0.02 * 3.14159265358979323846 / 180.0;
+  double drift_joint_length_m = 0.05e-3;
+  double drift_axis_angle_rad = 0.002 * 3.14159265358979323846 / 180.0;
+  double drift_frame_length_m = 0.01e-3;
+  double drift_frame_angle_rad = 0.001 * 3.14159265358979323846 / 180.0;
+  double drift_per_h = 2.0;
+};
+
+enum class ExceedAction { kRefuse, kClamp };
+
+struct CompensationSettings {
+  double max_correction_m = 5e-3;              // never send a correction larger than this
+  double max_correction_rad = 0.5 * 3.14159265358979323846 / 180.0;
+  ExceedAction on_exceed = ExceedAction::kRefuse;
+  double max_ik_error_m = 1e-6;                // the identified model must reach the target this closely
+};
+
+// The simulated cell behind the `sim` sources (and the launcher's hold-out check).
+struct SimulationSettings {
+  std::uint64_t seed = 1;
+  int initial_poses = 50;                      // campaign at t = 0
+  int poses_per_group = 15;                    // every later campaign
+  int groups = 4;                              // campaigns including the initial one
+  double hours_between_groups = 2.0;           // cell time between campaigns (the robot works meanwhile)
+  double pose_time_s = 20.0;                   // cell time per pose: move then settle
+  double settle_fraction = 0.5;                // last part of pose_time_s the robot stands still
+  double joint_rate_hz = 500.0;                // JointState rate (wall clock)
+  int tracker_readings_per_pose = 1;
+  double tracker_delay_fraction = 0.3;         // tracker reads this far into the settled part
+};
+
+struct CellConfig {
+  std::string source;                          // the file it came from
+  DdsSettings dds;
+  double time_compression = 1.0;               // cell seconds per wall second (simulated cells run faster)
+  std::vector<CellRobot> robots;
+  EngineSettings engine;
+  CompensationSettings compensation;
+  SimulationSettings simulation;
+
+  const CellRobot* robotById(const std::string& robot_id) const;
+  const CellRobot* robotByTarget(const std::string& target_id) const;
+};
+
+// Reads and checks the cell file and every robot file it names (relative paths are relative to the cell file).
+CellConfig loadCellConfig(const std::string& path);
+CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir);
+
+}  // namespace cellcal

@@ -1,0 +1,36 @@
+// Compensation: what to send an unmodified controller (which believes the nominal model) so that the real robot,
+// described by the identified parameters, lands on the desired pose.
+//
+//   q*        = IK(identified model, desired)           joints that put the real robot on the target
+//   corrected = FK(nominal model, q*)                   the pose the controller must be commanded to reach q*
+//   correction = corrected (-) desired                  translation norm (m) and rotation angle (rad)
+//
+// Poses are in the tracker (cell) frame, like TargetPose; a controller wanting its base frame applies the nominal
+// base_in_tracker inverse. A correction beyond the bound is refused (the desired pose is returned unchanged,
+// applied = false) or, with ExceedAction::kClamp, scaled down to the bound along the same direction.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+
+#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/inverse_kinematics.hpp"
+#include "cellcal/core/se3.hpp"
+
+namespace cellcal {
+
+struct CompensationResult {
+  bool applied = false;
+  bool clamped = false;
+  std::string reason;                      // why not applied / clamped; empty when applied in full
+  Pose corrected_in_tracker = Pose::Identity();
+  Eigen::VectorXd q_rad;                   // joint solution the robot will move to (empty when refused)
+  double correction_position_m = 0;        // of the correction as computed (before any clamping)
+  double correction_orientation_rad = 0;
+};
+
+CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified_params,
+                              const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
+                              const CompensationSettings& settings);
+
+}  // namespace cellcal

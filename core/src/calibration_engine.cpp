@@ -1,0 +1,361 @@
+#include "cellcal/core/calibration_engine.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <stdexcept>
+
+#include "cellcal/core/calibration.hpp"
+#include "cellcal/core/kinematics.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kStateFormat = "cellcal-engine-state/1";
+constexpr size_t kRecentWindow = 30;
+
+std::int64_t steadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& s) {
+  PairingOptions o;
+  o.max_skew_s = s.max_pairing_skew_s;
+  o.settle_tolerance_rad = s.settle_tolerance_rad;
+  o.max_sample_age_s = s.max_sample_age_s;
+  o.kind = robot.measurement;
+  return o;
+}
+
+void writeAll(int fd, const std::string& data, const std::string& path) {
+  size_t off = 0;
+  while (off < data.size()) {
+    const ssize_t n = ::write(fd, data.data() + off, data.size() - off);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw std::runtime_error(path + ": write failed: " + std::strerror(errno));
+    }
+    off += static_cast<size_t>(n);
+  }
+}
+
+// Atomic replace: a reader (or a restart after SIGKILL / power loss) sees the old file or the new one, never a mix.
+void atomicWrite(const std::string& path, const std::string& data) {
+  const fs::path p(path);
+  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) throw std::runtime_error(tmp + ": cannot create: " + std::strerror(errno));
+  try {
+    writeAll(fd, data, tmp);
+    if (::fsync(fd) != 0) throw std::runtime_error(tmp + ": fsync failed: " + std::strerror(errno));
+  } catch (...) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    throw;
+  }
+  ::close(fd);
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    const std::string err = std::strerror(errno);
+    ::unlink(tmp.c_str());
+    throw std::runtime_error(path + ": rename failed: " + err);
+  }
+  const int dfd = ::open(p.parent_path().empty() ? "." : p.parent_path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+json observationToJson(const PairedReading& p) {
+  const Observation& o = p.observation;
+  const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+  return {{"q_rad", std::vector<double>(o.q_rad.data(), o.q_rad.data() + o.q_rad.size())},
+          {"position_m", {o.measured_in_tracker.translation().x(), o.measured_in_tracker.translation().y(),
+                          o.measured_in_tracker.translation().z()}},
+          {"orientation_xyzw", {qn.x(), qn.y(), qn.z(), qn.w()}},
+          {"pose6d", o.kind == MeasurementKind::kPose6D},
+          {"sigma_position_m", o.sigma_position_m},
+          {"sigma_orientation_rad", o.sigma_orientation_rad},
+          {"tracker_stamp_ns", p.tracker_stamp_ns},
+          {"tracker_sequence", p.tracker_sequence},
+          {"joint_stamp_ns", p.joint_stamp_ns}};
+}
+
+PairedReading observationFromJson(const json& j) {
+  PairedReading p;
+  const auto q = j.at("q_rad").get<std::vector<double>>();
+  p.observation.q_rad = Eigen::Map<const Eigen::VectorXd>(q.data(), static_cast<Eigen::Index>(q.size()));
+  const auto pos = j.at("position_m").get<std::vector<double>>();
+  const auto ori = j.at("orientation_xyzw").get<std::vector<double>>();
+  p.observation.measured_in_tracker = Pose::Identity();
+  p.observation.measured_in_tracker.translation() = Eigen::Vector3d(pos.at(0), pos.at(1), pos.at(2));
+  p.observation.measured_in_tracker.linear() =
+      Eigen::Quaterniond(ori.at(3), ori.at(0), ori.at(1), ori.at(2)).normalized().toRotationMatrix();
+  p.observation.kind = j.at("pose6d").get<bool>() ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+  p.observation.sigma_position_m = j.at("sigma_position_m").get<double>();
+  p.observation.sigma_orientation_rad = j.at("sigma_orientation_rad").get<double>();
+  p.tracker_stamp_ns = j.at("tracker_stamp_ns").get<std::int64_t>();
+  p.tracker_sequence = j.at("tracker_sequence").get<std::uint64_t>();
+  p.joint_stamp_ns = j.at("joint_stamp_ns").get<std::int64_t>();
+  return p;
+}
+
+}  // namespace
+
+const char* healthName(Health h) {
+  switch (h) {
+    case Health::kUncalibrated: return "uncalibrated";
+    case Health::kOk: return "ok";
+    case Health::kDegraded: return "degraded";
+    case Health::kHoldLastGood: return "hold_last_good";
+  }
+  return "?";
+}
+
+CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression,
+                                     bool persist)
+    : robot_(&robot),
+      settings_(&settings),
+      time_compression_(time_compression),
+      persist_(persist),
+      pairing_(robot.model, pairingOptions(robot, settings)) {
+  const RobotModel& m = robot.model;
+  DriftModel drift;
+  drift.joint_offset_rad = settings.drift_joint_offset_rad;
+  drift.joint_length_m = settings.drift_joint_length_m;
+  drift.axis_angle_rad = settings.drift_axis_angle_rad;
+  drift.frame_length_m = settings.drift_frame_length_m;
+  drift.frame_angle_rad = settings.drift_frame_angle_rad;
+  drift_sigma_ = drift.sigmas(m);
+  snap_.mode = settings.mode;
+  snap_.verification_mean_position_m = std::nan("");
+  if (!(persist_ && restore())) {
+    const GaussianPrior prior =
+        diagonalPrior(m, m.nominal, m.canonicalParams(), settings.prior_length_m, settings.prior_angle_rad);
+    rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot.measurement);
+    snap_.params = rls_->params();
+    snap_.estimated = rls_->estimated();
+    snap_.covariance = rls_->covariance();
+  }
+}
+
+std::string CalibrationEngine::stateFile() const {
+  return (fs::path(settings_->state_dir) / (robot_->robot_id + ".state.json")).string();
+}
+
+void CalibrationEngine::reject(Rejection r, const std::string& detail) {
+  ++counters_.rejected[static_cast<size_t>(r)];
+  counters_.last_rejection = std::string(rejectionName(r)) + ": " + detail;
+}
+
+bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_ns) {
+  ++counters_.joint_states;
+  last_input_ns_ = receive_ns;
+  std::string detail;
+  if (auto r = pairing_.addJointState(s, receive_ns, &detail)) {
+    reject(*r, robot_->robot_id + " " + detail);
+    return false;
+  }
+  return true;
+}
+
+bool CalibrationEngine::onTrackerSample(const TrackerSample& s, std::int64_t receive_ns) {
+  ++counters_.tracker_readings;
+  last_input_ns_ = receive_ns;
+  std::string detail;
+  if (auto r = pairing_.addTrackerSample(s, receive_ns, &detail)) {
+    reject(*r, robot_->target_id + " " + detail);
+    return false;
+  }
+  return true;
+}
+
+bool CalibrationEngine::process(std::int64_t now_ns) {
+  PairingOutcome out = pairing_.poll(now_ns);
+  for (const auto& [r, d] : out.rejected) reject(r, robot_->target_id + " " + d);
+  bool changed = false;
+  for (const auto& p : out.paired) {
+    const auto t0 = steadyNs();
+    if (settings_->outlier_gate_nis > 0) {
+      const double nis = rls_->normalizedInnovation(p.observation);
+      if (!(nis <= settings_->outlier_gate_nis)) {
+        std::ostringstream m;
+        m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
+          << " above the gate " << settings_->outlier_gate_nis;
+        reject(Rejection::kOutlier, m.str());
+        continue;
+      }
+    }
+    ++counters_.paired;
+    if (settings_->mode == EngineMode::kContinuous) {
+      applyPose(p);
+      finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+      changed = true;
+    } else {
+      batch_.push_back(p);
+      if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
+        for (const auto& b : batch_) applyPose(b);
+        batch_.clear();
+        finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+        changed = true;
+      } else {
+        snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
+        snap_.last_tracker_sequence = p.tracker_sequence;
+        pairing_.setAppliedUntil(p.tracker_stamp_ns);
+        if (persist_) persist();
+      }
+    }
+    last_update_duration_ns_ = steadyNs() - t0;
+  }
+  return changed;
+}
+
+void CalibrationEngine::applyPose(const PairedReading& p) {
+  const RobotModel& m = robot_->model;
+  // Random walk of the parameters over the cell time since the previous update.
+  if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
+    const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
+    rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h));
+  }
+  snap_.last_update_stamp_ns = p.tracker_stamp_ns;
+  KinematicsData data(m);
+  const Observation& o = p.observation;
+  const Pose before = forwardKinematics(m, data, rls_->params(), o.q_rad);
+  rls_->addObservation(o);
+  const Pose after = forwardKinematics(m, data, rls_->params(), o.q_rad);
+  Recent r;
+  r.prior_error_m = (o.measured_in_tracker.translation() - before.translation()).norm();
+  r.post_error_m = (o.measured_in_tracker.translation() - after.translation()).norm();
+  r.post_error_rad = o.kind == MeasurementKind::kPose6D
+                         ? logSO3(o.measured_in_tracker.linear() * after.linear().transpose()).norm()
+                         : 0.0;
+  recent_.push_back(r);
+  while (recent_.size() > kRecentWindow) recent_.pop_front();
+  ++snap_.poses_used;
+}
+
+void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence) {
+  ++snap_.version;
+  snap_.params = rls_->params();
+  snap_.estimated = rls_->estimated();
+  snap_.covariance = rls_->covariance();
+  snap_.last_measurement_stamp_ns = stamp_ns;
+  snap_.last_tracker_sequence = sequence;
+  pairing_.setAppliedUntil(stamp_ns);
+  refreshStatistics();
+  if (persist_) persist();
+}
+
+void CalibrationEngine::refreshStatistics() {
+  double sp = 0, so = 0, pe = 0;
+  for (const auto& r : recent_) {
+    sp += r.post_error_m * r.post_error_m;
+    so += r.post_error_rad * r.post_error_rad;
+    pe += r.prior_error_m;
+  }
+  const double n = static_cast<double>(recent_.size());
+  snap_.residual_rms_position_m = recent_.empty() ? 0.0 : std::sqrt(sp / n);
+  snap_.residual_rms_orientation_rad = recent_.empty() ? 0.0 : std::sqrt(so / n);
+  snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
+  // Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3).
+  const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
+  const size_t needed = 2 * ((snap_.estimated.size() + rows - 1) / rows);
+  snap_.health = snap_.poses_used >= needed ? Health::kOk : Health::kUncalibrated;
+}
+
+void CalibrationEngine::persist() const {
+  const RobotModel& m = robot_->model;
+  json j;
+  j["format"] = kStateFormat;
+  j["robot_id"] = robot_->robot_id;
+  j["robot_name"] = m.name;
+  j["num_params"] = m.numParams();
+  j["version"] = snap_.version;
+  j["poses_used"] = snap_.poses_used;
+  j["mode"] = settings_->mode == EngineMode::kContinuous ? "continuous" : "periodic";
+  j["last_measurement_stamp_ns"] = snap_.last_measurement_stamp_ns;
+  j["last_tracker_sequence"] = snap_.last_tracker_sequence;
+  j["last_update_stamp_ns"] = snap_.last_update_stamp_ns;
+  j["nominal"] = std::vector<double>(m.nominal.data(), m.nominal.data() + m.nominal.size());
+  j["params"] = std::vector<double>(snap_.params.data(), snap_.params.data() + snap_.params.size());
+  j["estimated"] = snap_.estimated;
+  std::vector<double> cov(snap_.covariance.data(), snap_.covariance.data() + snap_.covariance.size());
+  j["covariance"] = cov;
+  json recent = json::array();
+  for (const auto& r : recent_) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad});
+  j["recent"] = recent;
+  json batch = json::array();
+  for (const auto& b : batch_) batch.push_back(observationToJson(b));
+  j["pending_batch"] = batch;
+  std::error_code ec;
+  fs::create_directories(settings_->state_dir, ec);
+  atomicWrite(stateFile(), j.dump(1));
+}
+
+bool CalibrationEngine::restore() {
+  const std::string path = stateFile();
+  std::ifstream in(path);
+  if (!in) return false;
+  const RobotModel& m = robot_->model;
+  auto fail = [&](const std::string& why) -> bool {
+    throw std::runtime_error(path + ": " + why + " (move the file away to start this robot's calibration over)");
+  };
+  json j;
+  try {
+    j = json::parse(in);
+  } catch (const json::exception& e) {
+    fail(std::string("not a readable engine state: ") + e.what());
+  }
+  try {
+    if (j.at("format") != kStateFormat) fail("unknown format '" + j.at("format").dump() + "'");
+    if (j.at("robot_id") != robot_->robot_id) fail("state of robot '" + j.at("robot_id").get<std::string>() + "'");
+    if (j.at("num_params").get<int>() != m.numParams() || j.at("robot_name") != m.name)
+      fail("made for model '" + j.at("robot_name").get<std::string>() + "', the cell now says '" + m.name + "'");
+    const auto nominal = j.at("nominal").get<std::vector<double>>();
+    for (int i = 0; i < m.numParams(); ++i)
+      if (nominal.at(i) != m.nominal[i])
+        fail("the nominal model changed since (" + m.paramName(i) + "): the state no longer applies");
+    const auto params = j.at("params").get<std::vector<double>>();
+    const auto estimated = j.at("estimated").get<std::vector<int>>();
+    const auto cov = j.at("covariance").get<std::vector<double>>();
+    const auto ne = static_cast<Eigen::Index>(estimated.size());
+    if (static_cast<int>(params.size()) != m.numParams() || static_cast<Eigen::Index>(cov.size()) != ne * ne)
+      fail("parameter or covariance size mismatch");
+    for (int e : estimated)
+      if (e < 0 || e >= m.numParams()) fail("estimated index out of range");
+    const Eigen::VectorXd p = Eigen::Map<const Eigen::VectorXd>(params.data(), m.numParams());
+    const Eigen::MatrixXd P = Eigen::Map<const Eigen::MatrixXd>(cov.data(), ne, ne);
+    if (!p.allFinite() || !P.allFinite()) fail("non-finite values");
+    rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, P);
+    snap_.version = j.at("version").get<std::uint64_t>();
+    snap_.poses_used = j.at("poses_used").get<std::uint32_t>();
+    snap_.last_measurement_stamp_ns = j.at("last_measurement_stamp_ns").get<std::int64_t>();
+    snap_.last_tracker_sequence = j.at("last_tracker_sequence").get<std::uint64_t>();
+    snap_.last_update_stamp_ns = j.at("last_update_stamp_ns").get<std::int64_t>();
+    for (const auto& r : j.at("recent")) recent_.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>()});
+    for (const auto& b : j.at("pending_batch")) batch_.push_back(observationFromJson(b));
+  } catch (const json::exception& e) {
+    fail(std::string("missing or malformed field: ") + e.what());
+  }
+  snap_.params = rls_->params();
+  snap_.estimated = rls_->estimated();
+  snap_.covariance = rls_->covariance();
+  pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);
+  if (snap_.version > 0) refreshStatistics();
+  restored_ = true;
+  return true;
+}
+
+}  // namespace cellcal

@@ -1,0 +1,208 @@
+#include "cellcal/core/cell_config.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "cellcal/core/se3.hpp"
+#include "yaml_reader.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+using detail::YamlReader;
+
+std::string resolve(const std::string& base_dir, const std::string& p) {
+  if (p.empty() || fs::path(p).is_absolute()) return p;
+  return (fs::path(base_dir) / p).lexically_normal().string();
+}
+
+// Optional number in a map: absent/null keeps `value`; `scale` converts the file's unit to SI.
+struct Section {
+  const YamlReader& r;
+  YAML::Node node;
+  std::string field;
+  bool has(const char* key) const { return node[key].IsDefined() && !node[key].IsNull(); }
+  std::string f(const char* key) const { return field + "." + key; }
+  void num(const char* key, double& value, double scale = 1.0, double min = -1e300, bool min_exclusive = false) const {
+    if (!has(key)) return;
+    const double v = r.number(node[key], f(key)) * scale;
+    if (min_exclusive ? !(v > min) : !(v >= min))
+      r.fail(node[key], f(key), std::string("must be ") + (min_exclusive ? "> " : ">= ") + std::to_string(min / scale));
+    value = v;
+  }
+  void integer(const char* key, int& value, long long min, long long max) const {
+    if (!has(key)) return;
+    const long long v = r.integer(node[key], f(key));
+    if (v < min || v > max)
+      r.fail(node[key], f(key), "must be in [" + std::to_string(min) + ", " + std::to_string(max) + "]");
+    value = static_cast<int>(v);
+  }
+};
+
+Section section(const YamlReader& r, const YAML::Node& root, const char* key, const std::set<std::string>& keys) {
+  const YAML::Node n = root[key];
+  if (!n.IsDefined() || n.IsNull()) return {r, YAML::Node(YAML::NodeType::Map), key};
+  r.requireMap(n, key);
+  r.checkKeys(n, key, keys);
+  return {r, n, key};
+}
+
+}  // namespace
+
+const CellRobot* CellConfig::robotById(const std::string& id) const {
+  for (const auto& r : robots)
+    if (r.robot_id == id) return &r;
+  return nullptr;
+}
+
+const CellRobot* CellConfig::robotByTarget(const std::string& id) const {
+  for (const auto& r : robots)
+    if (r.target_id == id) return &r;
+  return nullptr;
+}
+
+CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir) {
+  YamlReader r(source);
+  const YAML::Node root = r.load(yaml_text);
+  if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with dds, robots, engine, ...");
+  r.checkKeys(root, "", {"dds", "time_compression", "robots", "engine", "compensation", "simulation"});
+  CellConfig c;
+  c.source = source;
+  constexpr double kDeg = 3.14159265358979323846 / 180.0;
+
+  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile"});
+  dds.integer("domain_id", c.dds.domain_id, 0, 232);
+  c.dds.profiles_file = resolve(base_dir, "dds/cellcal_qos.xml");
+  if (dds.has("profiles_file")) c.dds.profiles_file = resolve(base_dir, r.string(dds.node["profiles_file"], dds.f("profiles_file")));
+  if (dds.has("participant_profile"))
+    c.dds.participant_profile = r.string(dds.node["participant_profile"], dds.f("participant_profile"));
+
+  if (root["time_compression"].IsDefined()) {
+    c.time_compression = r.number(root["time_compression"], "time_compression");
+    if (!(c.time_compression >= 1.0)) r.fail(root["time_compression"], "time_compression", "must be >= 1");
+  }
+
+  const YAML::Node robots = r.required(root, "robots", "robots");
+  if (!robots.IsSequence() || robots.size() == 0) r.fail(robots, "robots", "expected a non-empty list of robots");
+  std::set<std::string> ids, targets;
+  for (size_t i = 0; i < robots.size(); ++i) {
+    const std::string f = "robots[" + std::to_string(i) + "]";
+    const YAML::Node n = robots[i];
+    r.requireMap(n, f);
+    r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange"});
+    CellRobot rb;
+    rb.robot_id = r.string(r.required(n, "robot_id", f + ".robot_id"), f + ".robot_id");
+    rb.target_id = r.string(r.required(n, "target_id", f + ".target_id"), f + ".target_id");
+    if (rb.robot_id.size() > 64) r.fail(n["robot_id"], f + ".robot_id", "at most 64 characters (the DDS key bound)");
+    if (rb.target_id.size() > 64) r.fail(n["target_id"], f + ".target_id", "at most 64 characters (the DDS key bound)");
+    if (!ids.insert(rb.robot_id).second) r.fail(n["robot_id"], f + ".robot_id", "robot_id '" + rb.robot_id + "' used twice");
+    if (!targets.insert(rb.target_id).second)
+      r.fail(n["target_id"], f + ".target_id", "target_id '" + rb.target_id + "' used twice");
+    rb.robot_file = resolve(base_dir, r.string(r.required(n, "robot_file", f + ".robot_file"), f + ".robot_file"));
+    if (n["measurement"].IsDefined()) {
+      const std::string m = r.string(n["measurement"], f + ".measurement");
+      if (m == "pose6d") rb.measurement = MeasurementKind::kPose6D;
+      else if (m == "position3d") rb.measurement = MeasurementKind::kPosition3D;
+      else r.fail(n["measurement"], f + ".measurement", "expected pose6d or position3d, got '" + m + "'");
+    }
+    double v[6];
+    if (n["base_in_tracker"].IsDefined()) {
+      r.frame(n["base_in_tracker"], f + ".base_in_tracker", v);
+      rb.base_in_tracker = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
+    }
+    if (n["tool_in_flange"].IsDefined()) {
+      r.frame(n["tool_in_flange"], f + ".tool_in_flange", v);
+      rb.tool_in_flange = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
+    }
+    try {
+      rb.model = loadRobotModel(rb.robot_file);
+    } catch (const ConfigError& e) {
+      r.fail(n["robot_file"], f + ".robot_file", e.what());
+    }
+    if (rb.base_in_tracker) rb.model.nominal.segment<6>(rb.model.baseParam(FrameParam::kX)) = *rb.base_in_tracker;
+    if (rb.tool_in_flange) rb.model.nominal.segment<6>(rb.model.toolParam(FrameParam::kX)) = *rb.tool_in_flange;
+    c.robots.push_back(std::move(rb));
+  }
+
+  const Section e = section(r, root, "engine",
+                            {"mode", "batch_poses", "state_dir", "max_pairing_skew_ms", "settle_tolerance_deg",
+                             "max_sample_age_s", "stale_input_s", "republish_period_s", "outlier_gate_nis",
+                             "prior_length_mm", "prior_angle_deg", "drift"});
+  if (e.has("mode")) {
+    const std::string m = r.string(e.node["mode"], e.f("mode"));
+    if (m == "continuous") c.engine.mode = EngineMode::kContinuous;
+    else if (m == "periodic") c.engine.mode = EngineMode::kPeriodic;
+    else r.fail(e.node["mode"], e.f("mode"), "expected continuous or periodic, got '" + m + "'");
+  }
+  e.integer("batch_poses", c.engine.batch_poses, 1, 100000);
+  c.engine.state_dir = resolve(base_dir, c.engine.state_dir);
+  if (e.has("state_dir")) c.engine.state_dir = resolve(base_dir, r.string(e.node["state_dir"], e.f("state_dir")));
+  e.num("max_pairing_skew_ms", c.engine.max_pairing_skew_s, 1e-3, 0, true);
+  e.num("settle_tolerance_deg", c.engine.settle_tolerance_rad, kDeg, 0);
+  e.num("max_sample_age_s", c.engine.max_sample_age_s, 1, 0, true);
+  e.num("stale_input_s", c.engine.stale_input_s, 1, 0, true);
+  e.num("republish_period_s", c.engine.republish_period_s, 1, 0, true);
+  e.num("outlier_gate_nis", c.engine.outlier_gate_nis, 1, 0);
+  e.num("prior_length_mm", c.engine.prior_length_m, 1e-3, 0, true);
+  e.num("prior_angle_deg", c.engine.prior_angle_rad, kDeg, 0, true);
+  if (e.has("drift")) {
+    const YAML::Node d = e.node["drift"];
+    r.requireMap(d, "engine.drift");
+    r.checkKeys(d, "engine.drift",
+                {"joint_offset_deg", "joint_length_mm", "axis_angle_deg", "frame_length_mm", "frame_angle_deg", "per_h"});
+    const Section ds{r, d, "engine.drift"};
+    ds.num("joint_offset_deg", c.engine.drift_joint_offset_rad, kDeg, 0);
+    ds.num("joint_length_mm", c.engine.drift_joint_length_m, 1e-3, 0);
+    ds.num("axis_angle_deg", c.engine.drift_axis_angle_rad, kDeg, 0);
+    ds.num("frame_length_mm", c.engine.drift_frame_length_m, 1e-3, 0);
+    ds.num("frame_angle_deg", c.engine.drift_frame_angle_rad, kDeg, 0);
+    ds.num("per_h", c.engine.drift_per_h, 1, 0, true);
+  }
+
+  const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm"});
+  cp.num("max_correction_mm", c.compensation.max_correction_m, 1e-3, 0, true);
+  cp.num("max_correction_deg", c.compensation.max_correction_rad, kDeg, 0, true);
+  cp.num("max_ik_error_mm", c.compensation.max_ik_error_m, 1e-3, 0, true);
+  if (cp.has("on_exceed")) {
+    const std::string a = r.string(cp.node["on_exceed"], cp.f("on_exceed"));
+    if (a == "refuse") c.compensation.on_exceed = ExceedAction::kRefuse;
+    else if (a == "clamp") c.compensation.on_exceed = ExceedAction::kClamp;
+    else r.fail(cp.node["on_exceed"], cp.f("on_exceed"), "expected refuse or clamp, got '" + a + "'");
+  }
+
+  const Section s = section(r, root, "simulation",
+                            {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
+                             "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction"});
+  if (s.has("seed")) {
+    const long long seed = r.integer(s.node["seed"], s.f("seed"));
+    if (seed < 0) r.fail(s.node["seed"], s.f("seed"), "must be >= 0");
+    c.simulation.seed = static_cast<std::uint64_t>(seed);
+  }
+  s.integer("initial_poses", c.simulation.initial_poses, 1, 100000);
+  s.integer("poses_per_group", c.simulation.poses_per_group, 1, 100000);
+  s.integer("groups", c.simulation.groups, 1, 100000);
+  s.num("hours_between_groups", c.simulation.hours_between_groups, 1, 0);
+  s.num("pose_time_s", c.simulation.pose_time_s, 1, 0, true);
+  s.num("settle_fraction", c.simulation.settle_fraction, 1, 0, true);
+  if (c.simulation.settle_fraction > 1) r.fail(s.node["settle_fraction"], s.f("settle_fraction"), "must be <= 1");
+  s.num("joint_rate_hz", c.simulation.joint_rate_hz, 1, 0, true);
+  s.integer("tracker_readings_per_pose", c.simulation.tracker_readings_per_pose, 1, 1000);
+  s.num("tracker_delay_fraction", c.simulation.tracker_delay_fraction, 1, 0);
+  if (c.simulation.tracker_delay_fraction >= 1)
+    r.fail(s.node["tracker_delay_fraction"], s.f("tracker_delay_fraction"), "must be < 1");
+  return c;
+}
+
+CellConfig loadCellConfig(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path + ": cannot open cell file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (ss.str().find_first_not_of(" \t\r\n") == std::string::npos) throw ConfigError(path + ": file is empty");
+  return parseCellConfig(ss.str(), path, fs::path(path).parent_path().string());
+}
+
+}  // namespace cellcal

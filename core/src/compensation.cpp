@@ -1,0 +1,66 @@
+#include "cellcal/core/compensation.hpp"
+
+#include <sstream>
+
+#include "cellcal/core/kinematics.hpp"
+
+namespace cellcal {
+
+CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified,
+                              const Pose& desired, const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
+  CompensationResult out;
+  out.corrected_in_tracker = desired;
+  if (identified.size() != nominal.numParams() || !identified.allFinite()) {
+    out.reason = "identified parameters unusable (size or NaN)";
+    return out;
+  }
+  Eigen::VectorXd seed = q_seed;
+  if (seed.size() != nominal.numJoints() || !seed.allFinite() || !nominal.withinLimits(seed)) {
+    seed = Eigen::VectorXd::Zero(nominal.numJoints());
+    for (int j = 0; j < nominal.numJoints(); ++j)
+      seed[j] = 0.5 * (nominal.limits[j].lower_rad + nominal.limits[j].upper_rad);
+  }
+  const IkResult ik = solveInverseKinematics(nominal, identified, desired, seed);
+  if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
+    out.reason = "the identified model cannot reach the target: " + ik.message;
+    return out;
+  }
+  KinematicsData data(nominal);
+  const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
+  const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
+  out.correction_position_m = c.head<3>().norm();
+  out.correction_orientation_rad = c.tail<3>().norm();
+  const double over = std::max(out.correction_position_m / s.max_correction_m,
+                               out.correction_orientation_rad / s.max_correction_rad);
+  if (over <= 1.0) {
+    out.applied = true;
+    out.corrected_in_tracker = corrected;
+    out.q_rad = ik.q_rad;
+    return out;
+  }
+  std::ostringstream m;
+  m << "correction " << out.correction_position_m * 1e3 << " mm / " << out.correction_orientation_rad * 180 / kPi
+    << " deg exceeds the bound " << s.max_correction_m * 1e3 << " mm / " << s.max_correction_rad * 180 / kPi << " deg";
+  if (s.on_exceed == ExceedAction::kRefuse) {
+    out.reason = m.str() + ": refused";
+    return out;
+  }
+  // Clamp: the same correction direction, scaled to the bound.
+  const double k = 1.0 / over;
+  Pose clamped = Pose::Identity();
+  clamped.translation() = desired.translation() + k * c.head<3>();
+  clamped.linear() = expSO3(k * c.tail<3>()) * desired.linear();
+  const IkResult back = solveInverseKinematics(nominal, nominal.nominal, clamped, ik.q_rad);
+  if (!back.ok()) {
+    out.reason = m.str() + "; clamped pose unreachable: " + back.message;
+    return out;
+  }
+  out.applied = true;
+  out.clamped = true;
+  out.reason = m.str() + ": clamped to the bound";
+  out.corrected_in_tracker = clamped;
+  out.q_rad = back.q_rad;
+  return out;
+}
+
+}  // namespace cellcal

@@ -1,0 +1,381 @@
+// The DDS-free parts of the cell: the cell file, pairing tracker readings with joint states, the calibration engine
+// (per pose and per batch, persistence and restart) and compensation. Hidden robot errors are drawn from a fresh
+// seed; the engine only sees samples.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "cellcal/core/calibration_engine.hpp"
+#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/compensation.hpp"
+#include "cellcal/core/kinematics.hpp"
+#include "cellcal/core/pairing.hpp"
+#include "cellcal/core/sim_program.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kCell = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+
+std::string tempDir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("cellcal_test_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d.string();
+}
+
+TEST(CellFile, ShippedCellLoadsWithItsRobotAndRegistration) {
+  const CellConfig c = loadCellConfig(kCell);
+  ASSERT_EQ(c.robots.size(), 1u);
+  const CellRobot& r = c.robots[0];
+  EXPECT_EQ(r.robot_id, "tx60");
+  EXPECT_EQ(r.model.name, "staubli_tx60");
+  EXPECT_NEAR(r.model.nominal[r.model.baseParam(FrameParam::kX)], 2.2, 1e-12);  // from the cell, not the robot file
+  EXPECT_NEAR(r.model.nominal[r.model.toolParam(FrameParam::kZ)], 0.06, 1e-12);
+  EXPECT_TRUE(fs::path(c.dds.profiles_file).is_absolute());
+  EXPECT_TRUE(fs::exists(c.dds.profiles_file)) << c.dds.profiles_file;
+  EXPECT_NEAR(c.engine.max_pairing_skew_s, 0.05, 1e-12);
+  EXPECT_NEAR(c.compensation.max_correction_m, 5e-3, 1e-12);
+}
+
+std::string errorOf(const std::string& yaml) {
+  try {
+    parseCellConfig(yaml, "cell.yaml", CELLCAL_CONFIG_DIR);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(CellFile, ErrorsNameLineAndField) {
+  const std::string robot = "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml }\n";
+  EXPECT_EQ(errorOf(robot + "engine:\n  mode: sometimes\n"),
+            "cell.yaml:4:9: engine.mode: expected continuous or periodic, got 'sometimes'");
+  EXPECT_NE(errorOf(robot + "engine:\n  max_skew_ms: 3\n").find("cell.yaml:4:3: engine.max_skew_ms: unknown key"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "dds: { domain_id: 300 }\n").find("dds.domain_id: must be in [0, 232]"), std::string::npos);
+  EXPECT_NE(errorOf("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/nope.yaml }\n")
+                .find("robots[0].robot_file: "),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "  - { robot_id: a, target_id: u, robot_file: robots/ur10.yaml }\n").find("used twice"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "compensation: { max_correction_mm: -1 }\n").find("compensation.max_correction_mm: must be > "),
+            std::string::npos);
+  EXPECT_NE(errorOf("dds: {}\n").find("missing required key 'robots'"), std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+struct PairingFixture : ::testing::Test {
+  RobotModel m = test::robot("staubli_tx60");
+  PairingOptions opt;
+  static constexpr std::int64_t kMs = 1000000;
+  std::int64_t t0 = 1'700'000'000'000'000'000;
+  Eigen::VectorXd q = Eigen::VectorXd::Constant(6, 0.3);
+  std::uint64_t seq = 0;
+
+  JointSample joint(std::int64_t t, bool settled, const Eigen::VectorXd& at) { return {t, ++seq, at, settled}; }
+  TrackerSample reading(std::int64_t t) {
+    TrackerSample s;
+    s.stamp_ns = t;
+    s.sequence = ++seq;
+    s.position_m = Eigen::Vector3d(1, 2, 3);
+    return s;
+  }
+};
+
+TEST_F(PairingFixture, PairsOnlyWhenTheRobotStoodStillAcrossTheReading) {
+  PairingBuffer b(m, opt);
+  for (int k = 0; k <= 10; ++k) ASSERT_FALSE(b.addJointState(joint(t0 + k * 2 * kMs, true, q), t0 + k * 2 * kMs));
+  ASSERT_FALSE(b.addTrackerSample(reading(t0 + 9 * kMs), t0 + 9 * kMs));
+  const auto out = b.poll(t0 + 21 * kMs);
+  ASSERT_EQ(out.paired.size(), 1u);
+  EXPECT_EQ(out.paired[0].joint_stamp_ns, t0 + 8 * kMs);
+  EXPECT_EQ(out.paired[0].observation.q_rad, q);
+  EXPECT_NEAR(out.paired[0].observation.measured_in_tracker.translation().y(), 2.0, 0);
+}
+
+TEST_F(PairingFixture, ReadingWaitsForTheNextJointStateThenDecides) {
+  PairingBuffer b(m, opt);
+  ASSERT_FALSE(b.addJointState(joint(t0, true, q), t0));
+  ASSERT_FALSE(b.addTrackerSample(reading(t0 + kMs), t0 + kMs));
+  EXPECT_TRUE(b.poll(t0 + 2 * kMs).paired.empty());
+  EXPECT_EQ(b.pending(), 1u);
+  Eigen::VectorXd moved = q;
+  moved[2] += 0.01;
+  ASSERT_FALSE(b.addJointState(joint(t0 + 2 * kMs, true, moved), t0 + 2 * kMs));
+  const auto out = b.poll(t0 + 3 * kMs);
+  ASSERT_EQ(out.rejected.size(), 1u);
+  EXPECT_EQ(out.rejected[0].first, Rejection::kRobotMoved) << out.rejected[0].second;
+}
+
+TEST_F(PairingFixture, MovingStaleAndMissingJointStatesAreNotPaired) {
+  {
+    PairingBuffer b(m, opt);
+    b.addJointState(joint(t0, true, q), t0);
+    b.addJointState(joint(t0 + 2 * kMs, false, q), t0 + 2 * kMs);
+    b.addTrackerSample(reading(t0 + kMs), t0 + kMs);
+    const auto out = b.poll(t0 + 3 * kMs);
+    ASSERT_EQ(out.rejected.size(), 1u);
+    EXPECT_EQ(out.rejected[0].first, Rejection::kRobotMoving);
+  }
+  {  // the last joint state before the reading is older than the skew: stale
+    PairingBuffer b(m, opt);
+    b.addJointState(joint(t0, true, q), t0);
+    b.addJointState(joint(t0 + 200 * kMs, true, q), t0 + 200 * kMs);
+    b.addTrackerSample(reading(t0 + 100 * kMs), t0 + 200 * kMs);
+    const auto out = b.poll(t0 + 201 * kMs);
+    ASSERT_EQ(out.rejected.size(), 1u);
+    EXPECT_EQ(out.rejected[0].first, Rejection::kNoJointState) << out.rejected[0].second;
+  }
+  {  // no joint state after the reading arrives within the skew: decided by timeout
+    PairingBuffer b(m, opt);
+    b.addJointState(joint(t0, true, q), t0);
+    b.addTrackerSample(reading(t0 + kMs), t0 + kMs);
+    EXPECT_TRUE(b.poll(t0 + 10 * kMs).rejected.empty());
+    const auto out = b.poll(t0 + 60 * kMs);
+    ASSERT_EQ(out.rejected.size(), 1u);
+    EXPECT_EQ(out.rejected[0].first, Rejection::kNoJointState);
+  }
+}
+
+TEST_F(PairingFixture, OutOfOrderDuplicateAndBadSamplesAreRejectedWithReasons) {
+  PairingBuffer b(m, opt);
+  std::string d;
+  ASSERT_FALSE(b.addJointState(joint(t0 + 10 * kMs, true, q), t0 + 10 * kMs));
+  EXPECT_EQ(b.addJointState(joint(t0 + 5 * kMs, true, q), t0 + 11 * kMs, &d), Rejection::kOutOfOrder);
+  EXPECT_NE(d.find("older"), std::string::npos);
+  EXPECT_EQ(b.addJointState(joint(t0 + 10 * kMs, true, q), t0 + 11 * kMs), Rejection::kDuplicate);
+  Eigen::VectorXd bad = q;
+  bad[4] = std::nan("");
+  EXPECT_EQ(b.addJointState(joint(t0 + 12 * kMs, true, bad), t0 + 12 * kMs), Rejection::kNonFinite);
+  bad = q;
+  bad[4] = 3.0;  // beyond the TX60 joint 5 limit
+  EXPECT_EQ(b.addJointState(joint(t0 + 12 * kMs, true, bad), t0 + 12 * kMs), Rejection::kJointsOutsideLimits);
+  EXPECT_EQ(b.addJointState(joint(t0 + 12 * kMs, true, Eigen::VectorXd::Zero(5)), t0 + 12 * kMs),
+            Rejection::kWrongJointCount);
+  EXPECT_EQ(b.addJointState(joint(t0 + 20'000 * kMs, true, q), t0 + 12 * kMs, &d), Rejection::kStampInFuture);
+  EXPECT_NE(d.find("clocks"), std::string::npos);
+  TrackerSample r = reading(t0 + 13 * kMs);
+  r.orientation_xyzw = {0, 0, 0, 1.1};
+  EXPECT_EQ(b.addTrackerSample(r, t0 + 13 * kMs), Rejection::kNonUnitQuaternion);
+  r = reading(t0 + 13 * kMs);
+  r.valid = false;
+  EXPECT_EQ(b.addTrackerSample(r, t0 + 13 * kMs), Rejection::kTrackerInvalid);
+  r = reading(t0 - 10'000 * kMs);
+  EXPECT_EQ(b.addTrackerSample(r, t0 + 13 * kMs), Rejection::kStampTooOld);
+  b.setAppliedUntil(t0 + 14 * kMs);
+  EXPECT_EQ(b.addTrackerSample(reading(t0 + 14 * kMs), t0 + 15 * kMs), Rejection::kAlreadyApplied);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Feeds the engine the samples a cell would publish: joint states at the program's rate and one tracker reading per
+// settled pose, for campaigns [first, last).
+struct Feed {
+  const SimulatedCell& cell;
+  const SimRobotProgram& program;
+  std::mt19937_64 rng;
+  std::int64_t epoch_ns = 1'700'000'000'000'000'000;
+  double compression;
+  std::uint64_t jseq = 0, tseq = 0;
+
+  std::int64_t wallNs(double cell_s) const { return epoch_ns + static_cast<std::int64_t>(cell_s / compression * 1e9); }
+
+  // Returns the number of readings published.
+  int run(CalibrationEngine& engine, int first, int last, double joint_period_cell_s, double pose_time_s,
+          double settle_fraction) {
+    int readings = 0;
+    for (int g = first; g < last; ++g) {
+      for (int k = 0; k < program.posesIn(g); ++k) {
+        const double start = program.campaignStart_s(g) + k * pose_time_s;
+        const double read_at = start + (1 - settle_fraction + 0.3 * settle_fraction) * pose_time_s;
+        bool read = false;
+        for (double t = start; t < start + pose_time_s; t += joint_period_cell_s) {
+          const SimRobotState st = program.at(t);
+          engine.onJointState({wallNs(t), ++jseq, st.q_rad, st.settled}, wallNs(t));
+          if (!read && t >= read_at) {
+            read = true;
+            const Observation o = cell.measure(st.q_rad, t / 3600.0, rng);
+            TrackerSample s;
+            s.stamp_ns = wallNs(t) - 1000;
+            s.sequence = ++tseq;
+            s.position_m = o.measured_in_tracker.translation();
+            const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+            s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+            for (int i = 0; i < 3; ++i) {
+              s.covariance[i * 7] = o.sigma_position_m * o.sigma_position_m;
+              s.covariance[(i + 3) * 7] = o.sigma_orientation_rad * o.sigma_orientation_rad;
+            }
+            engine.onTrackerSample(s, wallNs(t));
+            ++readings;
+          }
+          engine.process(wallNs(t));
+        }
+      }
+    }
+    return readings;
+  }
+};
+
+double verifyError(const SimulatedCell& cell, const Eigen::VectorXd& params, double t_h, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const auto qs = cell.randomConfigurations(100, rng);
+  KinematicsData d(cell.model());
+  double sum = 0;
+  for (const auto& q : qs)
+    sum += (forwardKinematics(cell.model(), d, params, q).translation() - cell.truePose(q, t_h).translation()).norm();
+  return sum / static_cast<double>(qs.size());
+}
+
+struct EngineFixture : ::testing::Test {
+  CellConfig config = loadCellConfig(kCell);
+  std::uint64_t seed = test::testSeed();
+  void SetUp() override {
+    config.simulation.seed = seed;
+    config.simulation.groups = 3;
+    config.engine.state_dir = tempDir(::testing::UnitTest::GetInstance()->current_test_info()->name());
+  }
+  void TearDown() override { fs::remove_all(config.engine.state_dir); }
+};
+
+TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  CalibrationEngine engine(robot, config.engine, config.time_compression);
+  Feed feed{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const int readings = feed.run(engine, 0, 3, dt, config.simulation.pose_time_s, config.simulation.settle_fraction);
+  const auto& c = engine.counters();
+  EXPECT_EQ(engine.snapshot().poses_used, static_cast<unsigned>(readings)) << c.last_rejection;
+  EXPECT_EQ(engine.snapshot().version, static_cast<unsigned>(readings));
+  EXPECT_EQ(engine.snapshot().health, Health::kOk);
+  const double t_h = program.campaignEnd_s(2) / 3600;
+  const double nominal = verifyError(cell, cell.nominalParams(), t_h, seed + 5);
+  const double floor = verifyError(cell, cell.trueParams(t_h), t_h, seed + 5);  // 0: exact truth
+  const double after = verifyError(cell, engine.snapshot().params, t_h, seed + 5);
+  EXPECT_EQ(floor, 0.0);
+  // The tracker (~20 um) and repeatability (~10 um) bound what 80 poses can identify: well under 0.1 mm.
+  EXPECT_LT(after, 0.1e-3) << "nominal " << nominal * 1e3 << " mm";
+  EXPECT_LT(after, nominal / 10);
+  EXPECT_TRUE(std::isfinite(engine.snapshot().verification_mean_position_m));
+  EXPECT_LT(engine.snapshot().residual_rms_position_m, 0.1e-3);
+}
+
+TEST_F(EngineFixture, RestartFromPersistedStateContinuesExactlyWhereItStopped) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const double pt = config.simulation.pose_time_s, sf = config.simulation.settle_fraction;
+  EngineSettings no_persist = config.engine;
+  CalibrationEngine straight(robot, no_persist, config.time_compression, /*persist=*/false);
+  Feed f1{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  f1.run(straight, 0, 3, dt, pt, sf);
+
+  Feed f2{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  std::uint64_t version_at_stop = 0;
+  {
+    CalibrationEngine first(robot, config.engine, config.time_compression);
+    EXPECT_FALSE(first.restored());
+    f2.run(first, 0, 2, dt, pt, sf);
+    version_at_stop = first.snapshot().version;
+  }  // "killed": nothing but the state file survives
+  ASSERT_TRUE(fs::exists(fs::path(config.engine.state_dir) / "tx60.state.json"));
+  CalibrationEngine second(robot, config.engine, config.time_compression);
+  ASSERT_TRUE(second.restored());
+  EXPECT_EQ(second.snapshot().version, version_at_stop);
+  f2.run(second, 2, 3, dt, pt, sf);
+  EXPECT_EQ(second.snapshot().version, straight.snapshot().version);
+  EXPECT_EQ(second.snapshot().poses_used, straight.snapshot().poses_used);
+  EXPECT_LT((second.snapshot().params - straight.snapshot().params).cwiseAbs().maxCoeff(), 1e-12);
+  // A reading from before the stop is never applied twice.
+  TrackerSample old;
+  old.stamp_ns = second.snapshot().last_measurement_stamp_ns;
+  old.sequence = 1;
+  EXPECT_FALSE(second.onTrackerSample(old, old.stamp_ns));
+  EXPECT_EQ(second.counters().rejected[static_cast<size_t>(Rejection::kAlreadyApplied)], 1u);
+}
+
+TEST_F(EngineFixture, StateOfAnotherModelIsRefusedWithTheFileNamed) {
+  const CellRobot& robot = config.robots[0];
+  { CalibrationEngine e(robot, config.engine, 1.0); }
+  std::ofstream(fs::path(config.engine.state_dir) / "tx60.state.json") << "{\"format\": 1";
+  try {
+    CalibrationEngine e(robot, config.engine, 1.0);
+    FAIL() << "corrupt state accepted";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("tx60.state.json"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("start this robot's calibration over"), std::string::npos);
+  }
+}
+
+TEST_F(EngineFixture, PeriodicModeUpdatesOncePerBatch) {
+  config.engine.mode = EngineMode::kPeriodic;
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  CalibrationEngine engine(robot, config.engine, config.time_compression);
+  Feed feed{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  const int readings = feed.run(engine, 0, 2, config.time_compression / config.simulation.joint_rate_hz,
+                                config.simulation.pose_time_s, config.simulation.settle_fraction);
+  EXPECT_EQ(engine.snapshot().version, static_cast<unsigned>(readings / config.engine.batch_poses));
+  EXPECT_EQ(engine.snapshot().poses_used, engine.snapshot().version * config.engine.batch_poses);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+TEST(Compensation, TheTrueRobotLandsOnTheTargetWithTheCorrectedCommand) {
+  const std::uint64_t seed = test::testSeed();
+  const CellConfig config = loadCellConfig(kCell);
+  SimulationSettings ss = config.simulation;
+  ss.seed = seed;
+  const SimulatedCell cell = makeSimulatedCell(config.robots[0], ss, 0);
+  const RobotModel& m = cell.model();
+  const Eigen::VectorXd truth = cell.trueParams(0.0);
+  std::mt19937_64 rng(seed);
+  KinematicsData d(m);
+  int checked = 0;
+  for (const auto& q : cell.randomConfigurations(20, rng)) {
+    const Pose desired = forwardKinematics(m, d, m.nominal, q);
+    const CompensationResult c = compensate(m, truth, desired, q, config.compensation);
+    ASSERT_TRUE(c.applied) << c.reason;
+    // The controller believes the nominal model: commanded `corrected`, it goes to q_cmd with FK_nominal = corrected.
+    const IkResult ctrl = solveInverseKinematics(m, m.nominal, c.corrected_in_tracker, c.q_rad);
+    ASSERT_TRUE(ctrl.ok());
+    const Pose landed = forwardKinematics(m, d, truth, ctrl.q_rad);
+    const Pose uncorrected = forwardKinematics(m, d, truth, q);
+    EXPECT_LT((landed.translation() - desired.translation()).norm(), 1e-6);
+    EXPECT_GT((uncorrected.translation() - desired.translation()).norm(), 50e-6);  // the hidden error is real
+    EXPECT_NEAR(c.correction_position_m, (c.corrected_in_tracker.translation() - desired.translation()).norm(), 1e-12);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 20);
+}
+
+TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {
+  const CellConfig config = loadCellConfig(kCell);
+  const RobotModel& m = config.robots[0].model;
+  Eigen::VectorXd wrong = m.nominal;
+  wrong[m.jointParam(1, JointParam::kA)] += 0.02;  // a 20 mm error: far beyond 5 mm
+  const Eigen::VectorXd q = Eigen::VectorXd::Constant(6, 0.4);
+  KinematicsData d(m);
+  const Pose desired = forwardKinematics(m, d, m.nominal, q);
+  CompensationSettings s = config.compensation;
+  const CompensationResult refused = compensate(m, wrong, desired, q, s);
+  EXPECT_FALSE(refused.applied);
+  EXPECT_NE(refused.reason.find("exceeds the bound 5 mm"), std::string::npos) << refused.reason;
+  EXPECT_TRUE(refused.corrected_in_tracker.isApprox(desired));
+  s.on_exceed = ExceedAction::kClamp;
+  const CompensationResult clamped = compensate(m, wrong, desired, q, s);
+  ASSERT_TRUE(clamped.applied) << clamped.reason;
+  EXPECT_TRUE(clamped.clamped);
+  const Eigen::Matrix<double, 6, 1> c = poseError(clamped.corrected_in_tracker, desired);
+  EXPECT_LE(c.head<3>().norm(), s.max_correction_m * (1 + 1e-9));
+  EXPECT_LE(c.tail<3>().norm(), s.max_correction_rad * (1 + 1e-9));
+  EXPECT_GT(std::max(c.head<3>().norm() / s.max_correction_m, c.tail<3>().norm() / s.max_correction_rad), 0.999);
+}
+
+}  // namespace
+}  // namespace cellcal
