@@ -18,9 +18,11 @@ configure: deps
 build: configure
 	cmake --build $(BUILD_DIR) -j $(JOBS)
 
-# Until the DDS cell exists the demo is the paper experiment on the simulated Staubli TX60.
+# The four-process cell on localhost against the simulated Staubli TX60 (the paper's continuous scenario: 50 poses,
+# then 15 fresh poses every 2 h of cell time, 720x compressed).
 demo: build
-	$(BUILD_DIR)/bin/cellcal experiment paper --plot $(BUILD_DIR)/demo --json $(BUILD_DIR)/demo/paper.json
+	$(BUILD_DIR)/bin/cellcal cell --duration-s 35 --work-dir $(BUILD_DIR)/demo/cell \
+	  --summary-json $(BUILD_DIR)/demo/cell-summary.json
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)

@@ -51,7 +51,9 @@ void writeAll(int fd, const std::string& data, const std::string& path) {
   }
 }
 
-// Atomic replace: a reader (or a restart after SIGKILL / power loss) sees the old file or the new one, never a mix.
+// Atomic replace: a reader (or a restart after SIGKILL) sees the old file or the new one, never a mix. The data
+// reach the disk with syncFile() (CalibrationEngine::syncToDisk), which the engine process calls right after
+// publishing, so the latency path does not wait for the disk.
 void atomicWrite(const std::string& path, const std::string& data) {
   const fs::path p(path);
   const std::string tmp = path + ".tmp." + std::to_string(::getpid());
@@ -59,7 +61,6 @@ void atomicWrite(const std::string& path, const std::string& data) {
   if (fd < 0) throw std::runtime_error(tmp + ": cannot create: " + std::strerror(errno));
   try {
     writeAll(fd, data, tmp);
-    if (::fsync(fd) != 0) throw std::runtime_error(tmp + ": fsync failed: " + std::strerror(errno));
   } catch (...) {
     ::close(fd);
     ::unlink(tmp.c_str());
@@ -71,6 +72,16 @@ void atomicWrite(const std::string& path, const std::string& data) {
     ::unlink(tmp.c_str());
     throw std::runtime_error(path + ": rename failed: " + err);
   }
+}
+
+void syncFile(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw std::runtime_error(path + ": cannot open to fsync: " + std::strerror(errno));
+  const int rc = ::fsync(fd);
+  const int err = errno;
+  ::close(fd);
+  if (rc != 0) throw std::runtime_error(path + ": fsync failed: " + std::strerror(err));
+  const fs::path p(path);
   const int dfd = ::open(p.parent_path().empty() ? "." : p.parent_path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dfd >= 0) {
     ::fsync(dfd);
@@ -275,7 +286,7 @@ void CalibrationEngine::refreshStatistics() {
   snap_.health = snap_.poses_used >= needed ? Health::kOk : Health::kUncalibrated;
 }
 
-void CalibrationEngine::persist() const {
+void CalibrationEngine::persist() {
   const RobotModel& m = robot_->model;
   json j;
   j["format"] = kStateFormat;
@@ -301,7 +312,14 @@ void CalibrationEngine::persist() const {
   j["pending_batch"] = batch;
   std::error_code ec;
   fs::create_directories(settings_->state_dir, ec);
-  atomicWrite(stateFile(), j.dump(1));
+  atomicWrite(stateFile(), j.dump());
+  unsynced_ = true;
+}
+
+void CalibrationEngine::syncToDisk() {
+  if (!unsynced_) return;
+  syncFile(stateFile());
+  unsynced_ = false;
 }
 
 bool CalibrationEngine::restore() {

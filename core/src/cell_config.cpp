@@ -177,9 +177,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction"});
   if (s.has("seed")) {
-    const long long seed = r.integer(s.node["seed"], s.f("seed"));
-    if (seed < 0) r.fail(s.node["seed"], s.f("seed"), "must be >= 0");
-    c.simulation.seed = static_cast<std::uint64_t>(seed);
+    c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
   s.integer("initial_poses", c.simulation.initial_poses, 1, 100000);
   s.integer("poses_per_group", c.simulation.poses_per_group, 1, 100000);

@@ -4,7 +4,10 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cerrno>
 #include <cmath>
+#include <cstdint>
+#include <cstdlib>
 #include <set>
 #include <sstream>
 #include <string>
@@ -86,9 +89,24 @@ class YamlReader {
   }
 
   long long integer(const YAML::Node& node, const std::string& field) const {
-    const double v = number(node, field);
-    if (v != std::floor(v) || std::abs(v) > 9.0e15) fail(node, field, "expected an integer, got '" + node.Scalar() + "'");
-    return static_cast<long long>(v);
+    if (!node.IsScalar()) fail(node, field, "expected an integer");
+    const std::string& t = node.Scalar();
+    char* end = nullptr;
+    errno = 0;
+    const long long v = std::strtoll(t.c_str(), &end, 10);
+    if (t.empty() || *end != '\0' || errno == ERANGE) fail(node, field, "expected an integer, got '" + t + "'");
+    return v;
+  }
+
+  std::uint64_t unsignedInteger(const YAML::Node& node, const std::string& field) const {
+    if (!node.IsScalar()) fail(node, field, "expected a non-negative integer");
+    const std::string& t = node.Scalar();
+    char* end = nullptr;
+    errno = 0;
+    const unsigned long long v = std::strtoull(t.c_str(), &end, 10);
+    if (t.empty() || t[0] == '-' || *end != '\0' || errno == ERANGE)
+      fail(node, field, "expected a non-negative integer, got '" + t + "'");
+    return v;
   }
 
   // Parses a whole document; syntax errors name the line and column.

@@ -69,15 +69,14 @@ TEST(Msgs, CalibrationStateCarriesNamedParameters) {
   a.mode(cellcal::msg::MODE_CONTINUOUS);
   a.health(cellcal::msg::HEALTH_OK);
   a.poses_used(65);
-  cellcal::msg::NamedParameter p;
-  p.name("joint2.a_m");
-  p.value(0.29021);
-  p.stddev(3e-6);
-  a.parameters().push_back(p);
+  a.parameter_names().push_back("joint2.a_m");
+  a.parameter_values().push_back(0.29021);
+  a.parameter_stddevs().push_back(3e-6);
   const auto b = roundTrip<cellcal::msg::CalibrationStatePubSubType>(a);
   EXPECT_EQ(a, b);
-  ASSERT_EQ(b.parameters().size(), 1u);
-  EXPECT_EQ(b.parameters()[0].name().to_string(), "joint2.a_m");
+  ASSERT_EQ(b.parameter_names().size(), 1u);
+  EXPECT_EQ(b.parameter_names()[0].to_string(), "joint2.a_m");
+  EXPECT_EQ(b.parameter_values()[0], 0.29021);
 }
 
 TEST(Msgs, TargetCompensationAndDiagnosticsRoundTrip) {
@@ -96,10 +95,8 @@ TEST(Msgs, TargetCompensationAndDiagnosticsRoundTrip) {
   EXPECT_EQ(c, (roundTrip<cellcal::msg::CompensatedTargetPubSubType>(c)));
   cellcal::msg::CalibrationDiagnostics d;
   d.robot_id("r");
-  cellcal::msg::RejectionCount rc;
-  rc.reason("robot_moving");
-  rc.count(12);
-  d.rejections().push_back(rc);
+  d.rejection_reasons().push_back("robot_moving");
+  d.rejection_counts().push_back(12);
   d.drift_alarm(true);
   EXPECT_EQ(d, (roundTrip<cellcal::msg::CalibrationDiagnosticsPubSubType>(d)));
 }

@@ -11,6 +11,8 @@ using Runner = std::function<int()>;
 
 // Adds `experiment paper` under `app`; returns the function to run when it is selected.
 Runner addExperimentCommand(CLI::App& app);
+// Adds `cell` (the four-process cell on localhost).
+Runner addCellCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
 // Returns false with a message in *error when gnuplot is missing or fails.

@@ -15,12 +15,14 @@ int main(int argc, char** argv) {
       "and compensates targets with the identified model. See README.md."};
   app.require_subcommand(1);
   auto experiment = cellcal::cli::addExperimentCommand(app);
+  auto cell = cellcal::cli::addCellCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
   try {
+    if (app.got_subcommand("cell")) return cell();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

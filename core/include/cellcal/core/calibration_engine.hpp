@@ -6,7 +6,8 @@
 // version. Before a pose updates the estimate, the current calibration predicts it: those a-priori errors are the
 // engine's honest running verification (the pose was not used to make the prediction).
 // Persistence: after every accepted pose the whole state (estimate, covariance, counters, the unapplied poses of a
-// periodic batch) is written atomically (temporary file, fsync, rename, fsync of the folder). A restarted engine
+// periodic batch) is written atomically (temporary file, rename) before process() returns; syncToDisk() then
+// fsyncs it (the engine process calls it right after publishing, so the disk is off the latency path). A restarted engine
 // resumes from it and rejects readings at or before the last applied one, so no update is lost or applied twice.
 #pragma once
 
@@ -63,8 +64,11 @@ class CalibrationEngine {
   // Returns false (and counts the rejection) for a sample that will never be used.
   bool onJointState(const JointSample& s, std::int64_t receive_ns);
   bool onTrackerSample(const TrackerSample& s, std::int64_t receive_ns);
-  // Pairs what can be paired and updates. Returns true when a new version was made.
+  // Pairs what can be paired and updates. Returns true when a new version was made. Every accepted pose is in the
+  // state file (atomically replaced) when this returns: a SIGKILL after it loses nothing.
   bool process(std::int64_t now_ns);
+  // fsync of the state file and its folder (power-loss durability); call after publishing a new version.
+  void syncToDisk();
 
   const CalibrationSnapshot& snapshot() const { return snap_; }
   const EngineCounters& counters() const { return counters_; }
@@ -77,7 +81,7 @@ class CalibrationEngine {
   void applyPose(const PairedReading& p);
   void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
   void refreshStatistics();
-  void persist() const;
+  void persist();
   bool restore();
   void reject(Rejection r, const std::string& detail);
 
@@ -98,6 +102,7 @@ class CalibrationEngine {
   std::deque<Recent> recent_;
   std::int64_t last_input_ns_ = 0;
   std::int64_t last_update_duration_ns_ = 0;
+  bool unsynced_ = false;
 };
 
 }  // namespace cellcal

@@ -1,0 +1,151 @@
+// One DomainParticipant per process, with typed writers and readers on cellcal's topics. The only place that knows
+// Fast DDS entity plumbing; components see `DdsNode::writer<Msg>()` and `DdsNode::reader<Msg>(callback)`.
+// Topic names, types and QoS profile per message type are in TopicOf<> (one table, docs/ARCHITECTURE.md).
+#pragma once
+
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/DataReaderListener.hpp>
+#include <fastdds/dds/subscriber/SampleInfo.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/topic/Topic.hpp>
+#include <fastdds/dds/topic/TypeSupport.hpp>
+
+#include <atomic>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/cell_config.hpp"
+#include "cellcal_msgsPubSubTypes.h"
+
+namespace cellcal::components {
+
+namespace fdds = eprosima::fastdds::dds;
+
+template <class M>
+struct TopicOf;
+#define CELLCAL_TOPIC(Msg, Name, Profile)                      \
+  template <>                                                  \
+  struct TopicOf<Msg> {                                        \
+    using PubSub = Msg##PubSubType;                            \
+    static constexpr const char* name = Name;                  \
+    static constexpr const char* profile = Profile;            \
+  };
+CELLCAL_TOPIC(cellcal::msg::JointState, "cellcal/joint_state", "sensor_stream")
+CELLCAL_TOPIC(cellcal::msg::TrackerPose, "cellcal/tracker_pose", "sensor_stream")
+CELLCAL_TOPIC(cellcal::msg::CalibrationState, "cellcal/calibration_state", "calibration_state")
+CELLCAL_TOPIC(cellcal::msg::CalibrationDiagnostics, "cellcal/calibration_diagnostics", "calibration_state")
+CELLCAL_TOPIC(cellcal::msg::TargetPose, "cellcal/target_pose", "command")
+CELLCAL_TOPIC(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "command")
+CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream")
+#undef CELLCAL_TOPIC
+
+struct TopicCounters {
+  std::atomic<std::uint64_t> published{0}, received{0};
+};
+
+template <class M>
+class Writer {
+ public:
+  Writer(fdds::DataWriter* w, std::shared_ptr<TopicCounters> c) : w_(w), c_(std::move(c)) {}
+  // False when DDS refused the sample (the caller decides whether that matters).
+  bool write(M& sample) {
+    const bool ok = w_->write(&sample);
+    if (ok) ++c_->published;
+    return ok;
+  }
+  fdds::DataWriter* entity() const { return w_; }
+
+ private:
+  fdds::DataWriter* w_;
+  std::shared_ptr<TopicCounters> c_;
+};
+
+class DdsNode {
+ public:
+  // Loads the cell's profile file and creates the participant from dds.participant_profile on dds.domain_id.
+  // Throws std::runtime_error naming the file/profile when that fails.
+  DdsNode(const CellConfig& cell, const std::string& node_name);
+  ~DdsNode();
+  DdsNode(const DdsNode&) = delete;
+  DdsNode& operator=(const DdsNode&) = delete;
+
+  template <class M>
+  Writer<M> writer() {
+    fdds::Topic* t = topic<M>();
+    fdds::DataWriter* w = publisher_->create_datawriter_with_profile(t, TopicOf<M>::profile);
+    if (!w) throw std::runtime_error(std::string("cannot create a writer on ") + TopicOf<M>::name + " with profile " +
+                                     TopicOf<M>::profile);
+    return Writer<M>(w, counters(TopicOf<M>::name));
+  }
+
+  // `on_sample` runs on a Fast DDS thread for every valid sample; keep it short and thread-safe.
+  template <class M>
+  void reader(std::function<void(const M&, const fdds::SampleInfo&)> on_sample) {
+    fdds::Topic* t = topic<M>();
+    auto l = std::make_unique<Listener<M>>(std::move(on_sample), counters(TopicOf<M>::name));
+    fdds::DataReader* r = subscriber_->create_datareader_with_profile(t, TopicOf<M>::profile, l.get());
+    if (!r) throw std::runtime_error(std::string("cannot create a reader on ") + TopicOf<M>::name);
+    listeners_.push_back(std::move(l));
+  }
+
+  // Deletes every reader/writer and the participant: no callback runs after it returns (call it before the state
+  // the callbacks use goes away). stats() stays valid. Idempotent; the destructor calls it.
+  void shutdown();
+
+  // {"<topic>": {"published": n, "received": n}}
+  nlohmann::json stats() const;
+  fdds::DomainParticipant* participant() const { return participant_; }
+  int domainId() const { return domain_id_; }
+
+ private:
+  template <class M>
+  struct Listener : fdds::DataReaderListener {
+    Listener(std::function<void(const M&, const fdds::SampleInfo&)> f, std::shared_ptr<TopicCounters> c)
+        : fn(std::move(f)), counters(std::move(c)) {}
+    void on_data_available(fdds::DataReader* reader) override {
+      M sample;
+      fdds::SampleInfo info;
+      while (reader->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
+        if (!info.valid_data) continue;
+        ++counters->received;
+        fn(sample, info);
+      }
+    }
+    std::function<void(const M&, const fdds::SampleInfo&)> fn;
+    std::shared_ptr<TopicCounters> counters;
+  };
+
+  template <class M>
+  fdds::Topic* topic() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = topics_.find(TopicOf<M>::name);
+    if (it != topics_.end()) return it->second;
+    fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
+    type.register_type(participant_);
+    fdds::Topic* t = participant_->create_topic(TopicOf<M>::name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+    if (!t) throw std::runtime_error(std::string("cannot create topic ") + TopicOf<M>::name);
+    topics_[TopicOf<M>::name] = t;
+    return t;
+  }
+  std::shared_ptr<TopicCounters> counters(const std::string& topic);
+
+  int domain_id_ = 0;
+  fdds::DomainParticipant* participant_ = nullptr;
+  fdds::Publisher* publisher_ = nullptr;
+  fdds::Subscriber* subscriber_ = nullptr;
+  mutable std::mutex mutex_;
+  std::map<std::string, fdds::Topic*> topics_;
+  std::map<std::string, std::shared_ptr<TopicCounters>> counters_;
+  std::vector<std::unique_ptr<fdds::DataReaderListener>> listeners_;
+};
+
+}  // namespace cellcal::components

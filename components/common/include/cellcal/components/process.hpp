@@ -1,0 +1,46 @@
+// What every cellcal process shares: the common command line, the cell file with its overrides, clean stop on
+// SIGINT/SIGTERM, the wall clock, and the exit summary.
+//
+// Overrides, strongest last: cell file < environment (CELLCAL_DOMAIN_ID, CELLCAL_DDS_PROFILE) < command line.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+#include "cellcal/core/cell_config.hpp"
+
+namespace cellcal::components {
+
+struct ProcessOptions {
+  std::string config_path;
+  std::optional<int> domain_id;
+  std::string participant_profile;
+  std::string stats_json;     // written at exit: what this process published/received, its own counters
+  std::string state_dir;      // engine only
+};
+
+void addCommonOptions(CLI::App& app, ProcessOptions& o);
+CellConfig loadCell(const ProcessOptions& o);
+
+void installStopHandlers();
+bool stopRequested();
+void requestStop();
+// Sleeps until `until` (steady clock) or a stop request; false when stopped.
+bool sleepUntil(std::chrono::steady_clock::time_point until);
+
+inline std::int64_t wallNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+// Writes `j` to `path` (if not empty) through a temporary file and rename.
+void writeJsonFile(const std::string& path, const nlohmann::json& j);
+
+// Runs `body` and turns exceptions into "<program>: error: <message>" on stderr and exit code 1 (2 for usage).
+int runMain(const char* program, int argc, char** argv, CLI::App& app, const std::function<int()>& body);
+
+}  // namespace cellcal::components

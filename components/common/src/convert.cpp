@@ -1,0 +1,127 @@
+#include "cellcal/components/convert.hpp"
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <map>
+
+namespace cellcal::components {
+
+JointSample toJointSample(const msg::JointState& m) {
+  JointSample s;
+  s.stamp_ns = static_cast<std::int64_t>(m.source_stamp_ns());
+  s.sequence = m.sequence_number();
+  s.q_rad = Eigen::Map<const Eigen::VectorXd>(m.position_rad().data(), static_cast<Eigen::Index>(m.position_rad().size()));
+  s.settled = m.settled();
+  return s;
+}
+
+msg::JointState toJointState(const std::string& robot_id, std::int64_t stamp_ns, std::uint64_t sequence,
+                             const Eigen::VectorXd& q_rad, bool settled) {
+  msg::JointState m;
+  m.robot_id(robot_id);
+  m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  m.sequence_number(sequence);
+  m.position_rad(std::vector<double>(q_rad.data(), q_rad.data() + q_rad.size()));
+  m.settled(settled);
+  return m;
+}
+
+TrackerSample toTrackerSample(const msg::TrackerPose& m) {
+  TrackerSample s;
+  s.stamp_ns = static_cast<std::int64_t>(m.source_stamp_ns());
+  s.sequence = m.sequence_number();
+  s.position_m = Eigen::Vector3d(m.position_m()[0], m.position_m()[1], m.position_m()[2]);
+  for (int i = 0; i < 4; ++i) s.orientation_xyzw[i] = m.orientation_xyzw()[i];
+  s.has_orientation = m.has_orientation();
+  for (int i = 0; i < 36; ++i) s.covariance[i] = m.covariance()[i];
+  s.valid = m.valid();
+  return s;
+}
+
+msg::TrackerPose toTrackerPose(const std::string& target_id, std::int64_t stamp_ns, std::uint64_t sequence,
+                               const Observation& o) {
+  msg::TrackerPose m;
+  m.target_id(target_id);
+  m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  m.sequence_number(sequence);
+  fromPose(o.measured_in_tracker, m.position_m(), m.orientation_xyzw());
+  m.has_orientation(o.kind == MeasurementKind::kPose6D);
+  std::array<double, 36> cov{};
+  for (int i = 0; i < 3; ++i) {
+    cov[i * 7] = o.sigma_position_m * o.sigma_position_m;
+    cov[(i + 3) * 7] = o.sigma_orientation_rad * o.sigma_orientation_rad;
+  }
+  m.covariance(cov);
+  m.valid(true);
+  return m;
+}
+
+msg::CalibrationState toCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
+                                         std::uint64_t sequence) {
+  const RobotModel& model = robot.model;
+  msg::CalibrationState m;
+  m.robot_id(robot.robot_id);
+  m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  m.sequence_number(sequence);
+  m.version(s.version);
+  m.mode(s.mode == EngineMode::kContinuous ? msg::MODE_CONTINUOUS : msg::MODE_PERIODIC);
+  m.health(static_cast<msg::CalibrationHealth>(static_cast<int>(s.health)));
+  m.poses_used(s.poses_used);
+  Eigen::VectorXd sigma = Eigen::VectorXd::Zero(model.numParams());
+  for (size_t k = 0; k < s.estimated.size(); ++k)
+    sigma[s.estimated[k]] = std::sqrt(std::max(0.0, s.covariance(static_cast<Eigen::Index>(k), static_cast<Eigen::Index>(k))));
+  for (int i = 0; i < model.numParams(); ++i) {
+    m.parameter_names().push_back(model.paramName(i));
+    m.parameter_values().push_back(s.params[i]);
+    m.parameter_stddevs().push_back(sigma[i]);
+  }
+  m.residual_rms_position_m(s.residual_rms_position_m);
+  m.residual_rms_orientation_rad(s.residual_rms_orientation_rad);
+  m.verification_mean_position_m(s.verification_mean_position_m);
+  m.last_measurement_stamp_ns(static_cast<std::uint64_t>(s.last_measurement_stamp_ns));
+  m.robot_model(model.name);
+  return m;
+}
+
+std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,
+                                                         std::string* error) {
+  auto fail = [&](const std::string& e) -> std::optional<ReceivedCalibration> {
+    if (error) *error = "CalibrationState of " + m.robot_id().to_string() + " v" + std::to_string(m.version()) + ": " + e;
+    return std::nullopt;
+  };
+  if (m.robot_model().to_string() != model.name)
+    return fail("model '" + m.robot_model().to_string() + "', expected '" + model.name + "'");
+  std::map<std::string, int> index;
+  for (int i = 0; i < model.numParams(); ++i) index[model.paramName(i)] = i;
+  ReceivedCalibration r;
+  r.params = model.nominal;
+  if (m.parameter_values().size() != m.parameter_names().size())
+    return fail("parameter_names and parameter_values differ in length");
+  for (size_t k = 0; k < m.parameter_names().size(); ++k) {
+    const std::string name = m.parameter_names()[k].to_string();
+    const auto it = index.find(name);
+    if (it == index.end()) return fail("unknown parameter '" + name + "'");
+    if (!std::isfinite(m.parameter_values()[k])) return fail("parameter '" + name + "' is not finite");
+    r.params[it->second] = m.parameter_values()[k];
+  }
+  r.version = m.version();
+  r.health = m.health();
+  r.poses_used = m.poses_used();
+  r.verification_mean_position_m = m.verification_mean_position_m();
+  return r;
+}
+
+Pose toPose(const std::array<double, 3>& p, const std::array<double, 4>& q) {
+  Pose T = Pose::Identity();
+  T.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
+  T.linear() = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized().toRotationMatrix();
+  return T;
+}
+
+void fromPose(const Pose& T, std::array<double, 3>& p, std::array<double, 4>& q) {
+  for (int i = 0; i < 3; ++i) p[i] = T.translation()[i];
+  const Eigen::Quaterniond qn(T.linear());
+  q = {qn.x(), qn.y(), qn.z(), qn.w()};
+}
+
+}  // namespace cellcal::components

@@ -1,0 +1,85 @@
+#include "cellcal/components/process.hpp"
+
+#include <atomic>
+#include <csignal>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <thread>
+
+namespace cellcal::components {
+namespace {
+std::atomic<bool> g_stop{false};
+extern "C" void onSignal(int) { g_stop = true; }
+}  // namespace
+
+void addCommonOptions(CLI::App& app, ProcessOptions& o) {
+  o.config_path = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+  app.add_option("-c,--config", o.config_path, "cell file (YAML)")->capture_default_str();
+  app.add_option("--domain-id", o.domain_id, "DDS domain id 0..232 (overrides the cell file and CELLCAL_DOMAIN_ID)")
+      ->check(CLI::Range(0, 232));
+  app.add_option("--dds-profile", o.participant_profile,
+                 "participant profile of the profiles file: cellcal, cellcal_udp, cellcal_loopback "
+                 "(overrides the cell file and CELLCAL_DDS_PROFILE)");
+  app.add_option("--stats-json", o.stats_json, "write what this process published and received to this file at exit");
+}
+
+CellConfig loadCell(const ProcessOptions& o) {
+  CellConfig c = loadCellConfig(o.config_path);
+  if (const char* env = std::getenv("CELLCAL_DOMAIN_ID"); env && *env) {
+    char* end = nullptr;
+    const long v = std::strtol(env, &end, 10);
+    if (*end || v < 0 || v > 232) throw std::runtime_error(std::string("CELLCAL_DOMAIN_ID='") + env + "': expected 0..232");
+    c.dds.domain_id = static_cast<int>(v);
+  }
+  if (const char* env = std::getenv("CELLCAL_DDS_PROFILE"); env && *env) c.dds.participant_profile = env;
+  if (o.domain_id) c.dds.domain_id = *o.domain_id;
+  if (!o.participant_profile.empty()) c.dds.participant_profile = o.participant_profile;
+  if (!o.state_dir.empty()) c.engine.state_dir = std::filesystem::absolute(o.state_dir).string();
+  return c;
+}
+
+void installStopHandlers() {
+  std::signal(SIGINT, onSignal);
+  std::signal(SIGTERM, onSignal);
+}
+bool stopRequested() { return g_stop.load(); }
+void requestStop() { g_stop = true; }
+
+bool sleepUntil(std::chrono::steady_clock::time_point until) {
+  while (!g_stop.load()) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= until) return true;
+    std::this_thread::sleep_for(std::min<std::chrono::steady_clock::duration>(until - now, std::chrono::milliseconds(50)));
+  }
+  return false;
+}
+
+void writeJsonFile(const std::string& path, const nlohmann::json& j) {
+  if (path.empty()) return;
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp);
+    if (!out) throw std::runtime_error(path + ": cannot write");
+    out << j.dump(2) << "\n";
+  }
+  std::filesystem::rename(tmp, path);
+}
+
+int runMain(const char* program, int argc, char** argv, CLI::App& app, const std::function<int()>& body) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  try {
+    installStopHandlers();
+    return body();
+  } catch (const std::exception& e) {
+    std::cerr << program << ": error: " << e.what() << "\n";
+    return 1;
+  }
+}
+
+}  // namespace cellcal::components

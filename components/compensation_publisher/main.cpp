@@ -1,0 +1,146 @@
+// cellcal_compensation_publisher: for every cellcal/target_pose, solves the identified model for the joints that
+// reach the target and publishes on cellcal/compensated_target the pose to command the unmodified controller
+// (the nominal model's pose of those joints), the joints, the correction and the calibration version used.
+// Refuses (applied = false, with the reason) when no calibration is loaded, it is not healthy, the identified model
+// cannot reach the target, or the correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set).
+#include <unistd.h>
+
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/core/compensation.hpp"
+
+using namespace cellcal;
+using namespace cellcal::components;
+
+int main(int argc, char** argv) {
+  CLI::App app{"cellcal compensation publisher: corrected targets for the unmodified robot controller"};
+  ProcessOptions o;
+  double duration_s = 0;
+  double wait_for_calibration_s = 3;
+  addCommonOptions(app, o);
+  app.add_option("--wait-for-calibration-s", wait_for_calibration_s,
+                 "at start, wait this long for every robot's calibration before taking targets")
+      ->capture_default_str();
+  app.add_option("--duration-s", duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+  return runMain("cellcal_compensation_publisher", argc, argv, app, [&] {
+    const CellConfig cell = loadCell(o);
+    struct Robot {
+      const CellRobot* robot;
+      std::optional<ReceivedCalibration> calibration;
+      Eigen::VectorXd last_q;
+      std::uint64_t seq = 0;
+    };
+    std::map<std::string, Robot> robots;
+    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, Eigen::VectorXd()};
+    std::mutex mutex;
+    std::uint64_t applied = 0, refused = 0, clamped = 0, bad_states = 0;
+
+    DdsNode node(cell, "cellcal_compensation_publisher");
+    auto writer = node.writer<msg::CompensatedTarget>();
+    node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> lock(mutex);
+      auto it = robots.find(m.robot_id().to_string());
+      if (it == robots.end()) return;
+      std::string error;
+      auto c = fromCalibrationState(it->second.robot->model, m, &error);
+      if (!c) {
+        ++bad_states;
+        std::cerr << "compensation_publisher: ignored: " << error << "\n";
+        return;
+      }
+      if (!it->second.calibration || it->second.calibration->version != c->version) {
+        if (!it->second.calibration)
+          std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " received ("
+                    << c->poses_used << " poses)\n";
+        it->second.calibration = std::move(c);
+      }
+    });
+    // Targets are taken only once every robot's calibration is here (TRANSIENT_LOCAL delivers the latest at once
+    // on discovery) or after --wait-for-calibration-s: a restarted publisher never answers from an empty state
+    // while the engine's calibration is on its way.
+    {
+      const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_for_calibration_s);
+      while (std::chrono::steady_clock::now() < deadline && !stopRequested()) {
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          bool all = true;
+          for (const auto& [id, r] : robots) all = all && r.calibration.has_value();
+          if (all) break;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      }
+    }
+    node.reader<msg::TargetPose>([&](const msg::TargetPose& t, const fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> lock(mutex);
+      auto it = robots.find(t.robot_id().to_string());
+      if (it == robots.end()) return;
+      Robot& r = it->second;
+      msg::CompensatedTarget out;
+      out.robot_id(t.robot_id());
+      out.sequence_number(++r.seq);
+      out.target_sequence(t.sequence_number());
+      out.desired_position_m(t.position_m());
+      out.desired_orientation_xyzw(t.orientation_xyzw());
+      out.corrected_position_m(t.position_m());
+      out.corrected_orientation_xyzw(t.orientation_xyzw());
+      out.applied(false);
+      out.clamped(false);
+      bool finite = true;
+      for (double v : t.position_m()) finite = finite && std::isfinite(v);
+      for (double v : t.orientation_xyzw()) finite = finite && std::isfinite(v);
+      const auto& q = t.orientation_xyzw();
+      const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+      if (!finite || std::abs(qn - 1.0) > 1e-6) {
+        out.reason("target rejected: non-finite position or non-unit quaternion");
+      } else if (!r.calibration) {
+        out.reason("no calibration received yet");
+      } else if (r.calibration->health != msg::HEALTH_OK) {
+        out.calibration_version(r.calibration->version);
+        out.reason("calibration v" + std::to_string(r.calibration->version) + " is not healthy (health " +
+                   std::to_string(static_cast<int>(r.calibration->health)) + ")");
+      } else {
+        out.calibration_version(r.calibration->version);
+        Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
+                                                                 static_cast<Eigen::Index>(t.seed_position_rad().size()));
+        if (seed.size() == 0) seed = r.last_q;
+        const CompensationResult c =
+            compensate(r.robot->model, r.calibration->params, toPose(t.position_m(), t.orientation_xyzw()), seed, cell.compensation);
+        out.applied(c.applied);
+        out.clamped(c.clamped);
+        out.reason(c.reason.substr(0, 255));
+        out.correction_position_m(c.correction_position_m);
+        out.correction_orientation_rad(c.correction_orientation_rad);
+        if (c.applied) {
+          fromPose(c.corrected_in_tracker, out.corrected_position_m(), out.corrected_orientation_xyzw());
+          out.joint_position_rad(std::vector<double>(c.q_rad.data(), c.q_rad.data() + c.q_rad.size()));
+          r.last_q = c.q_rad;
+        }
+      }
+      out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
+      writer.write(out);
+      if (out.applied()) ++applied; else ++refused;
+      if (out.clamped()) ++clamped;
+    });
+    std::cerr << "compensation_publisher: " << robots.size() << " robot(s), bound "
+              << cell.compensation.max_correction_m * 1e3 << " mm / " << cell.compensation.max_correction_rad * 180 / kPi
+              << " deg, domain " << node.domainId() << "\n";
+    const auto start = std::chrono::steady_clock::now();
+    while (sleepUntil(std::chrono::steady_clock::now() + std::chrono::milliseconds(20)))
+      if (duration_s > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration_s)) break;
+    node.shutdown();
+    nlohmann::json versions = nlohmann::json::object();
+    for (const auto& [id, r] : robots) versions[id] = r.calibration ? r.calibration->version : 0;
+    writeJsonFile(o.stats_json, {{"name", "compensation_publisher"},
+                                 {"pid", ::getpid()},
+                                 {"topics", node.stats()},
+                                 {"extra", {{"applied", applied}, {"refused", refused}, {"clamped", clamped},
+                                            {"bad_calibration_states", bad_states}, {"calibration_versions", versions}}}});
+    return 0;
+  });
+}

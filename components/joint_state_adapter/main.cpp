@@ -1,0 +1,162 @@
+// cellcal_joint_state_adapter: publishes the robot's joint angles (cellcal/joint_state).
+//   --source sim  the simulated robot of the cell file (one stream per robot; also its truth on
+//                 cellcal/sim/robot_truth, for the simulated tracker and the launcher)
+//   --source udp  one line per reading from a controller bridge (docs/udp-sources.md):
+//                 <robot_id> <stamp_ns|0> <settled 0|1> <q1_rad> ... <qN_rad>
+#include <unistd.h>
+
+#include <iostream>
+#include <map>
+#include <thread>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/components/udp_lines.hpp"
+#include "cellcal/core/sim_program.hpp"
+
+using namespace cellcal;
+using namespace cellcal::components;
+
+namespace {
+
+struct Options {
+  ProcessOptions common;
+  std::string source = "sim";
+  double duration_s = 0;
+  double start_cell_time_s = 0;
+  int wait_for_readers = 0;
+  std::string udp_address = "127.0.0.1";
+  int udp_port = 5610;
+};
+
+int runSim(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
+  auto js = node.writer<msg::JointState>();
+  auto truth = node.writer<sim::RobotTruth>();
+  std::vector<SimulatedCell> cells;
+  std::vector<SimRobotProgram> programs;
+  for (size_t i = 0; i < cell.robots.size(); ++i) cells.push_back(makeSimulatedCell(cell.robots[i], cell.simulation, static_cast<int>(i)));
+  for (const auto& c : cells) programs.emplace_back(c, cell.simulation);
+  if (o.wait_for_readers > 0) {
+    // Start the program only once someone listens: JointState matched by >= 1 reader (the engine) and
+    // RobotTruth by >= N (the simulated tracker, and the launcher when it watches). At most 10 s.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    fdds::PublicationMatchedStatus a, b;
+    while (std::chrono::steady_clock::now() < deadline && !stopRequested()) {
+      js.entity()->get_publication_matched_status(a);
+      truth.entity()->get_publication_matched_status(b);
+      if (a.current_count >= 1 && b.current_count >= o.wait_for_readers) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));  // let the readers' side of the match settle
+    std::cerr << "joint_state_adapter: readers matched: joint_state " << a.current_count << ", robot_truth "
+              << b.current_count << "\n";
+  }
+  const double period_s = 1.0 / cell.simulation.joint_rate_hz;
+  const auto start = std::chrono::steady_clock::now();
+  std::uint64_t seq = 0, ticks = 0, late = 0;
+  std::cerr << "joint_state_adapter: sim, " << cell.robots.size() << " robot(s) at " << cell.simulation.joint_rate_hz
+            << " Hz, cell time x" << cell.time_compression << ", domain " << node.domainId() << "\n";
+  for (std::uint64_t k = 0;; ++k) {
+    const auto due = start + std::chrono::nanoseconds(static_cast<std::int64_t>(k * period_s * 1e9));
+    if (!sleepUntil(due)) break;
+    const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (o.duration_s > 0 && elapsed_s >= o.duration_s) break;
+    if (elapsed_s > (k + 2) * period_s) {  // fell behind: skip to now rather than bursting
+      late += static_cast<std::uint64_t>(elapsed_s / period_s) - k;
+      k = static_cast<std::uint64_t>(elapsed_s / period_s);
+    }
+    const double cell_time = o.start_cell_time_s + k * period_s * cell.time_compression;
+    const std::int64_t now = wallNs();
+    ++seq;
+    for (size_t i = 0; i < cell.robots.size(); ++i) {
+      const SimRobotState st = programs[i].at(cell_time);
+      auto m = toJointState(cell.robots[i].robot_id, now, seq, st.q_rad, st.settled);
+      js.write(m);
+      sim::RobotTruth t;
+      t.robot_id(cell.robots[i].robot_id);
+      t.source_stamp_ns(static_cast<std::uint64_t>(now));
+      t.sequence_number(seq);
+      t.cell_time_s(cell_time);
+      t.position_rad(m.position_rad());
+      t.settled(st.settled);
+      t.pose_id(st.pose_id);
+      t.settled_for_s(st.settled_for_s);
+      t.settle_duration_s(st.settle_duration_s);
+      truth.write(t);
+    }
+    ++ticks;
+  }
+  extra["ticks"] = ticks;
+  extra["ticks_skipped_late"] = late;
+  return 0;
+}
+
+int runUdp(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
+  auto js = node.writer<msg::JointState>();
+  UdpLineSocket sock(o.udp_address, o.udp_port);
+  std::cerr << "joint_state_adapter: udp " << o.udp_address << ":" << sock.port() << ", domain " << node.domainId() << "\n";
+  std::map<std::string, std::uint64_t> seq;
+  std::uint64_t lines = 0, bad = 0;
+  const auto start = std::chrono::steady_clock::now();
+  while (!stopRequested()) {
+    if (o.duration_s > 0 && std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >= o.duration_s) break;
+    for (const std::string& line : sock.receive(50)) {
+      ++lines;
+      const auto f = splitFields(line);
+      std::string why;
+      const CellRobot* robot = f.empty() ? nullptr : cell.robotById(f[0]);
+      std::int64_t stamp = 0, settled = 0;
+      Eigen::VectorXd q;
+      if (!robot) {
+        why = f.empty() ? "empty line" : "unknown robot_id '" + f[0] + "'";
+      } else if (static_cast<int>(f.size()) != 3 + robot->model.numJoints()) {
+        why = "expected 3 + " + std::to_string(robot->model.numJoints()) + " fields, got " + std::to_string(f.size());
+      } else if (!parseInt64(f[1], &stamp) || stamp < 0) {
+        why = "field 2 (stamp_ns): '" + f[1] + "' is not a non-negative integer";
+      } else if (!parseInt64(f[2], &settled) || (settled != 0 && settled != 1)) {
+        why = "field 3 (settled): expected 0 or 1, got '" + f[2] + "'";
+      } else {
+        q.resize(robot->model.numJoints());
+        for (int j = 0; j < q.size() && why.empty(); ++j)
+          if (!parseDouble(f[3 + j], &q[j])) why = "field " + std::to_string(4 + j) + " (q" + std::to_string(j + 1) + "_rad): '" + f[3 + j] + "' is not a finite number";
+      }
+      if (!why.empty()) {
+        ++bad;
+        std::cerr << "joint_state_adapter: udp line " << lines << " ignored: " << why << "\n";
+        continue;
+      }
+      auto m = toJointState(robot->robot_id, stamp == 0 ? wallNs() : stamp, ++seq[robot->robot_id], q, settled == 1);
+      js.write(m);
+    }
+  }
+  extra["udp_lines"] = lines;
+  extra["udp_bad_lines"] = bad;
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"cellcal joint-state adapter: publishes the robot's joint angles on cellcal/joint_state"};
+  Options o;
+  addCommonOptions(app, o.common);
+  app.add_option("--source", o.source, "sim | udp")->check(CLI::IsMember({"sim", "udp"}))->capture_default_str();
+  app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+  app.add_option("--start-cell-time-s", o.start_cell_time_s, "sim: start the robot program at this cell time");
+  app.add_option("--wait-for-readers", o.wait_for_readers,
+                 "sim: start the program once JointState has a reader and RobotTruth has N (at most 10 s)");
+  app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();
+  app.add_option("--udp-port", o.udp_port, "udp: port to bind (0: any)")->capture_default_str();
+  return runMain("cellcal_joint_state_adapter", argc, argv, app, [&] {
+    const CellConfig cell = loadCell(o.common);
+    nlohmann::json extra;
+    int rc = 0;
+    {
+      DdsNode node(cell, "cellcal_joint_state_adapter");
+      rc = o.source == "sim" ? runSim(cell, node, o, extra) : runUdp(cell, node, o, extra);
+      writeJsonFile(o.common.stats_json, {{"name", "joint_state_adapter"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"source", o.source}, {"extra", extra}});
+    }
+    return rc;
+  });
+}

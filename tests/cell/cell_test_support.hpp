@@ -1,0 +1,141 @@
+// Multi-process cell tests: real component processes on localhost (loopback profile), each test on its own DDS
+// domain (hash of the test name into 1..200, so parallel ctest runs never see each other's samples).
+#pragma once
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "test_support.hpp"
+
+namespace cellcal::test {
+
+namespace fs = std::filesystem;
+
+inline int domainForTest() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const std::string name = std::string(info->test_suite_name()) + "." + info->name();
+  std::uint32_t h = 2166136261u;
+  for (char c : name) h = (h ^ static_cast<unsigned char>(c)) * 16777619u;
+  return 1 + static_cast<int>(h % 200);
+}
+
+inline std::string testDir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const fs::path d = fs::temp_directory_path() / ("cellcal_" + std::string(info->name()) + "_" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d.string();
+}
+
+struct RobotEntry {
+  std::string robot_id, target_id, robot_file = "staubli_tx60.yaml";
+  std::string base = "{ x_mm: 2200, y_mm: 400, z_mm: -300, roll_deg: 0, pitch_deg: 0, yaw_deg: 160 }";
+};
+
+// A cell file for a test: loopback profile, its own domain and state folder, a short simulated program.
+inline std::string writeCell(const std::string& dir, int domain, std::uint64_t seed, const std::vector<RobotEntry>& robots,
+                             const std::string& simulation_extra = "", const std::string& engine_extra = "") {
+  std::ostringstream y;
+  y << "dds: { domain_id: " << domain << ", profiles_file: " << CELLCAL_CONFIG_DIR
+    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback }\n"
+    << "time_compression: 720\nrobots:\n";
+  for (const auto& r : robots)
+    y << "  - { robot_id: " << r.robot_id << ", target_id: " << r.target_id << ", robot_file: " << CELLCAL_CONFIG_DIR
+      << "/robots/" << r.robot_file << ", base_in_tracker: " << r.base
+      << ", tool_in_flange: { x_mm: 30, y_mm: 0, z_mm: 60, roll_deg: 0, pitch_deg: 0, yaw_deg: 0 } }\n";
+  y << "engine:\n  state_dir: " << dir << "/state\n" << engine_extra
+    << "simulation:\n  seed: " << seed << "\n  joint_rate_hz: 1000\n" << simulation_extra;
+  const std::string path = dir + "/cell.yaml";
+  std::ofstream(path) << y.str();
+  return path;
+}
+
+// A child process whose output goes to <dir>/<name>.log.
+class Process {
+ public:
+  Process(const std::string& dir, const std::string& name, std::vector<std::string> args) : name_(name) {
+    log_ = dir + "/" + name + ".log";
+    std::vector<std::string> full = {std::string(CELLCAL_BIN_DIR) + "/" + args[0]};
+    full.insert(full.end(), args.begin() + 1, args.end());
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      const int fd = ::open(log_.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+      ::dup2(fd, 1);
+      ::dup2(fd, 2);
+      std::vector<char*> argv;
+      for (auto& a : full) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      ::execv(argv[0], argv.data());
+      ::_exit(127);
+    }
+  }
+  ~Process() {
+    if (running()) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+  }
+  bool running() {
+    if (exit_code_ >= 0) return false;
+    int st = 0;
+    if (::waitpid(pid_, &st, WNOHANG) == pid_) {
+      exit_code_ = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+      return false;
+    }
+    return true;
+  }
+  // SIGINT (clean stop) or SIGKILL; returns the exit code (-1 on timeout).
+  int stop(int sig = SIGINT, double timeout_s = 15) {
+    if (!running()) return exit_code_;
+    ::kill(pid_, sig);
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (running() && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    return exit_code_;
+  }
+  int wait(double timeout_s) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (running() && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    return exit_code_;
+  }
+  std::string log() const {
+    std::ifstream in(log_);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+  pid_t pid() const { return pid_; }
+
+ private:
+  std::string name_, log_;
+  pid_t pid_ = -1;
+  int exit_code_ = -1;
+};
+
+inline bool waitUntil(const std::function<bool()>& cond, double timeout_s) {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < end) {
+    if (cond()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return cond();
+}
+
+inline nlohmann::json readJson(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return nlohmann::json();
+  return nlohmann::json::parse(in, nullptr, false);
+}
+
+}  // namespace cellcal::test
