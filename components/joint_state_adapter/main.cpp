@@ -1,15 +1,19 @@
 // cellcal_joint_state_adapter: publishes the robot's joint angles (cellcal/joint_state).
 //   --source sim  the simulated robot of the cell file (one stream per robot; also its truth on
 //                 cellcal/sim/robot_truth, for the simulated tracker and the launcher)
+//   --source csv  the joints of a measurement file (CSV v1), replayed in time (common/csv_replay.hpp); give the
+//                 tracker adapter the same file and --start-unix-ns
 //   --source udp  one line per reading from a controller bridge (docs/udp-sources.md):
 //                 <robot_id> <stamp_ns|0> <settled 0|1> <q1_rad> ... <qN_rad>
 #include <unistd.h>
 
+#include <algorithm>
 #include <iostream>
 #include <map>
 #include <thread>
 
 #include "cellcal/components/convert.hpp"
+#include "cellcal/components/csv_replay.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/components/udp_lines.hpp"
@@ -28,6 +32,7 @@ struct Options {
   int wait_for_readers = 0;
   std::string udp_address = "127.0.0.1";
   int udp_port = 5610;
+  CsvReplayOptions csv;
 };
 
 int runSim(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
@@ -92,6 +97,44 @@ int runSim(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::js
   return 0;
 }
 
+int runCsv(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
+  auto js = node.writer<msg::JointState>();
+  const CsvReplay r = loadCsvReplay(cell, o.csv);
+  for (const auto& w : r.file.warnings) std::cerr << "joint_state_adapter: skipped: " << w << "\n";
+  std::cerr << "joint_state_adapter: csv " << o.csv.path << ": " << r.file.rows.size() << " rows for "
+            << r.robot->robot_id << ", starting at unix ns " << r.start_unix_ns << ", domain " << node.domainId() << "\n";
+  const double period_s = 1.0 / cell.simulation.joint_rate_hz;
+  const double end_s = r.t_s.back() + r.hold_s + 0.5;
+  std::uint64_t seq = 0;
+  size_t k = 0;
+  for (;;) {
+    const double tau = (wallNs() - r.start_unix_ns) * 1e-9;
+    if (tau > end_s || stopRequested()) break;
+    if (tau >= -r.hold_s - 0.5) {
+      while (k + 1 < r.t_s.size() && tau > r.t_s[k] + r.hold_s) ++k;
+      Eigen::VectorXd q;
+      bool settled = false;
+      if (std::abs(tau - r.t_s[k]) <= r.hold_s) {
+        q = r.file.rows[k].q_rad;
+        settled = true;
+      } else if (tau < r.t_s[k]) {  // moving toward row k
+        const double t0 = k == 0 ? r.t_s[0] - r.hold_s - 0.5 : r.t_s[k - 1] + r.hold_s;
+        const double f = std::clamp((tau - t0) / (r.t_s[k] - r.hold_s - t0), 0.0, 1.0);
+        const Eigen::VectorXd& from = k == 0 ? r.file.rows[0].q_rad : r.file.rows[k - 1].q_rad;
+        q = from + f * (r.file.rows[k].q_rad - from);
+      } else {
+        q = r.file.rows.back().q_rad;
+      }
+      auto m = toJointState(r.robot->robot_id, wallNs(), ++seq, q, settled);
+      js.write(m);
+    }
+    std::this_thread::sleep_for(std::chrono::duration<double>(period_s));
+  }
+  extra["rows"] = r.file.rows.size();
+  extra["skipped_rows"] = r.file.skipped_rows;
+  return 0;
+}
+
 int runUdp(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
   auto js = node.writer<msg::JointState>();
   UdpLineSocket sock(o.udp_address, o.udp_port);
@@ -141,11 +184,17 @@ int main(int argc, char** argv) {
   CLI::App app{"cellcal joint-state adapter: publishes the robot's joint angles on cellcal/joint_state"};
   Options o;
   addCommonOptions(app, o.common);
-  app.add_option("--source", o.source, "sim | udp")->check(CLI::IsMember({"sim", "udp"}))->capture_default_str();
+  app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();
   app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
   app.add_option("--start-cell-time-s", o.start_cell_time_s, "sim: start the robot program at this cell time");
   app.add_option("--wait-for-readers", o.wait_for_readers,
                  "sim: start the program once JointState has a reader and RobotTruth has N (at most 10 s)");
+  app.add_option("--csv", o.csv.path, "csv: measurement file (CSV v1)");
+  app.add_option("--robot-id", o.csv.robot_id, "csv: robot the file belongs to (default: the first of the cell)");
+  app.add_option("--period-s", o.csv.period_s, "csv: seconds between rows without stamp_s")->capture_default_str();
+  app.add_option("--rate", o.csv.rate, "csv: replay stamp_s this many times faster")->capture_default_str();
+  app.add_option("--start-unix-ns", o.csv.start_unix_ns, "csv: wall time of the first row (same for both adapters)");
+  app.add_flag("--skip-bad-rows", o.csv.skip_bad_rows, "csv: skip (and count) bad rows instead of stopping");
   app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();
   app.add_option("--udp-port", o.udp_port, "udp: port to bind (0: any)")->capture_default_str();
   return runMain("cellcal_joint_state_adapter", argc, argv, app, [&] {
@@ -154,7 +203,9 @@ int main(int argc, char** argv) {
     int rc = 0;
     {
       DdsNode node(cell, "cellcal_joint_state_adapter");
-      rc = o.source == "sim" ? runSim(cell, node, o, extra) : runUdp(cell, node, o, extra);
+      rc = o.source == "sim" ? runSim(cell, node, o, extra)
+           : o.source == "csv" ? runCsv(cell, node, o, extra)
+                               : runUdp(cell, node, o, extra);
       writeJsonFile(o.common.stats_json, {{"name", "joint_state_adapter"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"source", o.source}, {"extra", extra}});
     }
     return rc;

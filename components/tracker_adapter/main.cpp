@@ -2,6 +2,7 @@
 //   --source sim  the core simulator's tracker (AT960 noise, the robot's repeatability) measuring the simulated robot
 //                 it learns from cellcal/sim/robot_truth: one reading per settled pose of the robot program, stamped
 //                 with the instant of the robot state it measured (a tracker triggered in sync with the controller)
+//   --source csv  the readings of a measurement file (CSV v1), row k stamped start + t_k (common/csv_replay.hpp)
 //   --source udp  one line per reading from a tracker bridge (docs/udp-sources.md):
 //                 <target_id> <stamp_ns|0> <valid 0|1> <x_m> <y_m> <z_m> [<qx> <qy> <qz> <qw>]
 //                 [<sigma_position_m> <sigma_orientation_rad>]
@@ -13,6 +14,7 @@
 #include <thread>
 
 #include "cellcal/components/convert.hpp"
+#include "cellcal/components/csv_replay.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/components/udp_lines.hpp"
@@ -29,6 +31,9 @@ struct Options {
   double duration_s = 0;
   std::string udp_address = "127.0.0.1";
   int udp_port = 5611;
+  CsvReplayOptions csv;
+  double sigma_position_mm = 0.015;
+  double sigma_orientation_deg = 0.005;
 };
 
 bool waitFor(const Options& o) {
@@ -83,6 +88,27 @@ int runSim(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::js
   waitFor(o);
   node.shutdown();  // no callback after this point
   extra["readings"] = measured;
+  return 0;
+}
+
+int runCsv(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::json& extra) {
+  auto writer = node.writer<msg::TrackerPose>();
+  const CsvReplay r = loadCsvReplay(cell, o.csv);
+  for (const auto& w : r.file.warnings) std::cerr << "tracker_adapter: skipped: " << w << "\n";
+  std::cerr << "tracker_adapter: csv " << o.csv.path << ": " << r.file.rows.size() << " readings of "
+            << r.robot->target_id << ", starting at unix ns " << r.start_unix_ns << ", domain " << node.domainId() << "\n";
+  std::uint64_t seq = 0;
+  for (size_t k = 0; k < r.file.rows.size() && !stopRequested(); ++k) {
+    const std::int64_t at = r.start_unix_ns + static_cast<std::int64_t>(r.t_s[k] * 1e9);
+    while (wallNs() < at && !stopRequested()) std::this_thread::sleep_for(std::chrono::microseconds(200));
+    const Observation obs = toObservation(r.file.rows[k], r.robot->measurement, o.sigma_position_mm * 1e-3,
+                                          o.sigma_orientation_deg * kPi / 180);
+    auto m = toTrackerPose(r.robot->target_id, at, ++seq, obs);
+    writer.write(m);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  extra["readings"] = seq;
+  extra["skipped_rows"] = r.file.skipped_rows;
   return 0;
 }
 
@@ -150,8 +176,16 @@ int main(int argc, char** argv) {
   CLI::App app{"cellcal tracker adapter: publishes target poses measured by the laser tracker on cellcal/tracker_pose"};
   Options o;
   addCommonOptions(app, o.common);
-  app.add_option("--source", o.source, "sim | udp")->check(CLI::IsMember({"sim", "udp"}))->capture_default_str();
+  app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();
   app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+  app.add_option("--csv", o.csv.path, "csv: measurement file (CSV v1)");
+  app.add_option("--robot-id", o.csv.robot_id, "csv: robot the file belongs to (default: the first of the cell)");
+  app.add_option("--period-s", o.csv.period_s, "csv: seconds between rows without stamp_s")->capture_default_str();
+  app.add_option("--rate", o.csv.rate, "csv: replay stamp_s this many times faster")->capture_default_str();
+  app.add_option("--start-unix-ns", o.csv.start_unix_ns, "csv: wall time of the first row (same for both adapters)");
+  app.add_flag("--skip-bad-rows", o.csv.skip_bad_rows, "csv: skip (and count) bad rows instead of stopping");
+  app.add_option("--sigma-position-mm", o.sigma_position_mm, "csv: 1-sigma position noise of the tracker")->capture_default_str();
+  app.add_option("--sigma-orientation-deg", o.sigma_orientation_deg, "csv: 1-sigma orientation noise")->capture_default_str();
   app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();
   app.add_option("--udp-port", o.udp_port, "udp: port to bind (0: any)")->capture_default_str();
   return runMain("cellcal_tracker_adapter", argc, argv, app, [&] {
@@ -160,7 +194,9 @@ int main(int argc, char** argv) {
     int rc = 0;
     {
       DdsNode node(cell, "cellcal_tracker_adapter");
-      rc = o.source == "sim" ? runSim(cell, node, o, extra) : runUdp(cell, node, o, extra);
+      rc = o.source == "sim" ? runSim(cell, node, o, extra)
+           : o.source == "csv" ? runCsv(cell, node, o, extra)
+                               : runUdp(cell, node, o, extra);
       writeJsonFile(o.common.stats_json, {{"name", "tracker_adapter"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"source", o.source}, {"extra", extra}});
     }
     return rc;

@@ -3,6 +3,10 @@
 // domain. Hidden robot errors come from a fresh seed per run; the engine never sees the truth.
 #include <gtest/gtest.h>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+
 #include <atomic>
 #include <mutex>
 
@@ -241,6 +245,128 @@ TEST(CellProcesses, TwoRobotsOnOneDomainAreCalibratedIndependentlyByKey) {
   const auto left = readJson(dir + "/run/state/left.state.json"), right = readJson(dir + "/run/state/right.state.json");
   EXPECT_EQ(left["robot_name"], "staubli_tx60");
   EXPECT_EQ(right["robot_name"], "ur10");
+}
+
+double holdoutErrorMm(const SimulatedCell& sim, const Eigen::VectorXd& params, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  KinematicsData d(sim.model());
+  double sum = 0;
+  const auto qs = sim.randomConfigurations(100, rng);
+  for (const auto& q : qs) sum += (forwardKinematics(sim.model(), d, params, q).translation() - sim.truePose(q, 0).translation()).norm();
+  return sum / qs.size() * 1e3;
+}
+
+Eigen::VectorXd paramsOf(const RobotModel& m, const msg::CalibrationState& s) {
+  std::string err;
+  auto c = fromCalibrationState(m, s, &err);
+  EXPECT_TRUE(c.has_value()) << err;
+  return c ? c->params : m.nominal;
+}
+
+TEST(CellProcesses, MeasurementFileReplaysThroughBothCsvSourcesAndCalibrates) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}});
+  const CellConfig cell = loadCellConfig(cfg);
+  const SimulatedCell sim = makeSimulatedCell(cell.robots[0], cell.simulation, 0);
+  std::mt19937_64 rng(seed);
+  {
+    std::ofstream csv(dir + "/m.csv");
+    csv << "# simulated TX60, seed " << seed << "\nq1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,qw,qx,qy,qz,stamp_s\n";
+    csv.precision(12);
+    int k = 0;
+    for (const auto& q : sim.randomConfigurations(40, rng)) {
+      const Observation o = sim.measure(q, 0.0, rng);
+      for (int j = 0; j < 6; ++j) csv << q[j] * 180 / kPi << ",";
+      const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+      const Eigen::Vector3d p = o.measured_in_tracker.translation() * 1e3;
+      csv << p.x() << "," << p.y() << "," << p.z() << "," << qn.w() << "," << qn.x() << "," << qn.y() << "," << qn.z()
+          << "," << 100 + 0.1 * k++ << "\n";
+    }
+  }
+  Probe probe(cell);
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
+  const std::string start = std::to_string((wallNs() / 1'000'000'000 + 3) * 1'000'000'000);
+  Process joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--source", "csv", "--csv", dir + "/m.csv",
+                                 "--start-unix-ns", start});
+  Process tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg, "--source", "csv", "--csv", dir + "/m.csv",
+                                   "--start-unix-ns", start});
+  EXPECT_EQ(joints.wait(30), 0) << joints.log();
+  EXPECT_EQ(tracker.wait(10), 0) << tracker.log();
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const std::uint64_t v = probe.latestVersion("tx60");
+  EXPECT_GE(v, 38u) << engine.log();
+  EXPECT_LE(v, 40u);
+  std::lock_guard<std::mutex> l(probe.mutex);
+  ASSERT_FALSE(probe.states.empty());
+  const double after = holdoutErrorMm(sim, paramsOf(cell.robots[0].model, probe.states.back()), seed + 1);
+  const double before = holdoutErrorMm(sim, cell.robots[0].model.nominal, seed + 1);
+  EXPECT_LT(after, before / 10) << "before " << before << " mm";
+}
+
+TEST(CellProcesses, UdpSourcesBridgeAControllerAndATracker) {
+  const std::string dir = testDir();
+  const int domain = domainForTest();
+  const std::uint64_t seed = testSeed();
+  const std::string cfg = writeCell(dir, domain, seed, {{"tx60", "tx60_target"}});
+  const CellConfig cell = loadCellConfig(cfg);
+  const SimulatedCell sim = makeSimulatedCell(cell.robots[0], cell.simulation, 0);
+  const int jport = 21000 + 2 * domain, tport = jport + 1;
+  Probe probe(cell);
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
+  Process joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--source", "udp", "--udp-port",
+                                 std::to_string(jport), "--stats-json", dir + "/joints.json"});
+  Process tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg, "--source", "udp", "--udp-port",
+                                   std::to_string(tport), "--stats-json", dir + "/tracker.json"});
+  ASSERT_TRUE(waitUntil([&] {
+    std::lock_guard<std::mutex> l(probe.mutex);
+    return !probe.states.empty();  // the engine is up and discovered
+  }, 10));
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // adapters discovered
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  auto send = [&](int port, const std::string& line) {
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_port = htons(static_cast<uint16_t>(port));
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ::sendto(fd, line.data(), line.size(), 0, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  };
+  std::mt19937_64 rng(seed);
+  send(tport, "tx60_target 0 1 1.0 2.0\n");  // a bad line: counted, ignored
+  int sent = 0;
+  for (const auto& q : sim.randomConfigurations(30, rng)) {
+    const Observation o = sim.measure(q, 0.0, rng);
+    const std::int64_t t = wallNs();
+    std::ostringstream js0, js1, tr;
+    js0.precision(17);
+    js1.precision(17);
+    tr.precision(17);
+    js0 << "tx60 " << t - 2'000'000 << " 1";
+    js1 << "tx60 " << t + 2'000'000 << " 1";
+    for (int j = 0; j < 6; ++j) {
+      js0 << " " << q[j];
+      js1 << " " << q[j];
+    }
+    const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+    const Eigen::Vector3d p = o.measured_in_tracker.translation();
+    tr << "tx60_target " << t << " 1 " << p.x() << " " << p.y() << " " << p.z() << " " << qn.x() << " " << qn.y() << " "
+       << qn.z() << " " << qn.w() << " " << o.sigma_position_m << " " << o.sigma_orientation_rad;
+    send(jport, js0.str());
+    send(tport, tr.str());
+    std::this_thread::sleep_for(std::chrono::milliseconds(3));
+    send(jport, js1.str());
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    ++sent;
+  }
+  ::close(fd);
+  EXPECT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 28; }, 10)) << engine.log();
+  joints.stop();
+  tracker.stop();
+  EXPECT_EQ(readJson(dir + "/tracker.json")["extra"]["udp_bad_lines"], 1) << tracker.log();
+  EXPECT_NE(tracker.log().find("expected 6, 8, 10 or 12 fields, got 5"), std::string::npos) << tracker.log();
+  std::lock_guard<std::mutex> l(probe.mutex);
+  const double after = holdoutErrorMm(sim, paramsOf(cell.robots[0].model, probe.states.back()), seed + 1);
+  EXPECT_LT(after, holdoutErrorMm(sim, cell.robots[0].model.nominal, seed + 1) / 5);
 }
 
 }  // namespace
