@@ -179,6 +179,22 @@ bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_
     reject(*r, robot_->robot_id + " " + detail);
     return false;
   }
+  // Remember when the robot moved (a new stand-still starts a new pose).
+  const bool moved = !s.settled || (last_joint_q_.size() == s.q_rad.size() &&
+                                    (s.q_rad - last_joint_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad);
+  if (moved) {
+    motion_stamps_ns_.push_back(s.stamp_ns);
+    while (motion_stamps_ns_.size() > 256) motion_stamps_ns_.pop_front();
+  }
+  last_joint_q_ = s.q_rad;
+  return true;
+}
+
+bool CalibrationEngine::samePoseAsLastUsed(const PairedReading& p) const {
+  if (used_q_.size() != p.observation.q_rad.size()) return false;
+  if ((p.observation.q_rad - used_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad) return false;
+  for (std::int64_t t : motion_stamps_ns_)
+    if (t > used_joint_stamp_ns_ && t <= p.joint_stamp_ns) return false;
   return true;
 }
 
@@ -210,6 +226,14 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
       }
     }
     ++counters_.paired;
+    // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
+    // using them as independent observations would overweight the pose. The first reading is used at once.
+    if (samePoseAsLastUsed(p)) {
+      ++counters_.same_pose;
+      continue;
+    }
+    used_q_ = p.observation.q_rad;
+    used_joint_stamp_ns_ = p.joint_stamp_ns;
     if (settings_->mode == EngineMode::kContinuous) {
       applyPose(p);
       finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);

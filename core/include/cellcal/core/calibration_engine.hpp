@@ -3,7 +3,9 @@
 //
 // Flow: joint states and tracker readings -> PairingBuffer -> Observation -> (process noise for the cell time since
 // the previous update) -> RLS update, per pose (continuous mode) or per batch of N poses (periodic mode) -> a new
-// version. Before a pose updates the estimate, the current calibration predicts it: those a-priori errors are the
+// version. A pose is one stand-still of the robot: the first reading paired in it is used, later readings of the
+// same stand-still are counted (same_pose) and not applied (their robot error is the same; a tracker streaming at
+// 1 kHz must not weigh a pose a thousand times). Before a pose updates the estimate, the current calibration predicts it: those a-priori errors are the
 // engine's honest running verification (the pose was not used to make the prediction).
 // Persistence: after every accepted pose the whole state (estimate, covariance, counters, the unapplied poses of a
 // periodic batch) is written atomically (temporary file, rename) before process() returns; syncToDisk() then
@@ -48,6 +50,7 @@ struct CalibrationSnapshot {
 struct EngineCounters {
   std::array<std::uint64_t, static_cast<size_t>(Rejection::kCount)> rejected{};
   std::uint64_t joint_states = 0, tracker_readings = 0, paired = 0;
+  std::uint64_t same_pose = 0;               // paired readings of a pose already used (not applied again)
   std::string last_rejection;                // detail of the most recent rejection
 };
 
@@ -81,6 +84,7 @@ class CalibrationEngine {
   void applyPose(const PairedReading& p);
   void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
   void refreshStatistics();
+  bool samePoseAsLastUsed(const PairedReading& p) const;
   void persist();
   bool restore();
   void reject(Rejection r, const std::string& detail);
@@ -103,6 +107,9 @@ class CalibrationEngine {
   std::int64_t last_input_ns_ = 0;
   std::int64_t last_update_duration_ns_ = 0;
   bool unsynced_ = false;
+  Eigen::VectorXd last_joint_q_, used_q_;
+  std::int64_t used_joint_stamp_ns_ = 0;
+  std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
 };
 
 }  // namespace cellcal
