@@ -312,6 +312,40 @@ TEST_F(EngineFixture, StateOfAnotherModelIsRefusedWithTheFileNamed) {
   }
 }
 
+TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
+  const CellRobot& robot = config.robots[0];
+  CalibrationEngine engine(robot, config.engine, 1.0, /*persist=*/false);
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  const auto qs = sim.randomConfigurations(3, rng);
+  std::int64_t t = 1'700'000'000'000'000'000;
+  std::uint64_t seq = 0;
+  int readings = 0;
+  for (const auto& q : qs) {
+    for (int k = 0; k < 20; ++k) {  // moving toward q
+      t += 1'000'000;
+      engine.onJointState({t, ++seq, q * (0.5 + k / 40.0), false}, t);
+    }
+    for (int k = 0; k < 100; ++k) {  // standing still: the tracker streams at 1 kHz
+      t += 1'000'000;
+      engine.onJointState({t, ++seq, q, true}, t);
+      const Observation o = sim.measure(q, 0.0, rng);
+      TrackerSample s;
+      s.stamp_ns = t;
+      s.sequence = ++seq;
+      s.position_m = o.measured_in_tracker.translation();
+      const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+      s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+      engine.onTrackerSample(s, t);
+      engine.process(t);
+      ++readings;
+    }
+  }
+  EXPECT_EQ(engine.snapshot().version, 3u);
+  EXPECT_EQ(engine.counters().paired, static_cast<std::uint64_t>(readings));
+  EXPECT_EQ(engine.counters().same_pose, static_cast<std::uint64_t>(readings - 3));
+}
+
 TEST_F(EngineFixture, PeriodicModeUpdatesOncePerBatch) {
   config.engine.mode = EngineMode::kPeriodic;
   const CellRobot& robot = config.robots[0];
