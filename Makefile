@@ -29,6 +29,7 @@ test: build
 
 bench: build
 	$(BUILD_DIR)/bin/cellcal_bench
+	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
 
 clean:
 	rm -rf $(BUILD_DIR)

@@ -109,8 +109,7 @@ int main(int argc, char** argv) {
         push(s.update_ns, s.engine->lastUpdateDurationNs());
       }
       if (!changed) return;
-      publishState(s);
-      s.engine->syncToDisk();  // the state file was replaced before publishing; now make it durable
+      publishState(s);  // the state file was replaced (atomically) before; the main loop fsyncs it
       ++updates;
       const auto& snap = s.engine->snapshot();
       if (!quiet)
@@ -154,13 +153,17 @@ int main(int argc, char** argv) {
     const auto start = std::chrono::steady_clock::now();
     auto next_republish = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                       std::chrono::duration<double>(cell.engine.republish_period_s));
+    std::vector<std::string> to_sync;
     while (sleepUntil(std::chrono::steady_clock::now() + std::chrono::milliseconds(5))) {
       if (duration_s > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(duration_s)) break;
+      // Durability off the latency path: fsync the state files replaced since the last round, without the lock.
+      for (const auto& f : to_sync) syncStateFile(f);
+      to_sync.clear();
       std::lock_guard<std::mutex> lock(mutex);
       const std::int64_t now = wallNs();
       for (auto& [id, s] : by_robot) {
         step(s, now);  // readings whose joint state never came time out here
-        s.engine->syncToDisk();  // periodic mode: poses added to a batch
+        if (s.engine->takeUnsynced()) to_sync.push_back(s.engine->stateFile());
       }
       if (std::chrono::steady_clock::now() >= next_republish) {
         next_republish += std::chrono::duration_cast<std::chrono::steady_clock::duration>(
@@ -172,6 +175,7 @@ int main(int argc, char** argv) {
       }
     }
     node.shutdown();
+    for (auto& [id, s] : by_robot) s.engine->syncToDisk();
     nlohmann::json robots = nlohmann::json::object();
     for (auto& [id, s] : by_robot) {
       const auto& snap = s.engine->snapshot();

@@ -74,7 +74,9 @@ void atomicWrite(const std::string& path, const std::string& data) {
   }
 }
 
-void syncFile(const std::string& path) {
+}  // namespace
+
+void syncStateFile(const std::string& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw std::runtime_error(path + ": cannot open to fsync: " + std::strerror(errno));
   const int rc = ::fsync(fd);
@@ -88,6 +90,8 @@ void syncFile(const std::string& path) {
     ::close(dfd);
   }
 }
+
+namespace {
 
 json observationToJson(const PairedReading& p) {
   const Observation& o = p.observation;
@@ -342,7 +346,7 @@ void CalibrationEngine::persist() {
 
 void CalibrationEngine::syncToDisk() {
   if (!unsynced_) return;
-  syncFile(stateFile());
+  syncStateFile(stateFile());
   unsynced_ = false;
 }
 

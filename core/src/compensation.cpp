@@ -20,7 +20,12 @@ CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& 
     for (int j = 0; j < nominal.numJoints(); ++j)
       seed[j] = 0.5 * (nominal.limits[j].lower_rad + nominal.limits[j].upper_rad);
   }
-  const IkResult ik = solveInverseKinematics(nominal, identified, desired, seed);
+  // The controller's own joints for the target are within a fraction of a degree of the answer: start there, and
+  // give up quickly when that fails (a target the true arm cannot reach should not cost milliseconds).
+  IkOptions ik_options;
+  ik_options.max_iterations = 100;
+  ik_options.restarts = 2;
+  const IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
   if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
     out.reason = "the identified model cannot reach the target: " + ik.message;
     return out;
@@ -50,7 +55,7 @@ CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& 
   Pose clamped = Pose::Identity();
   clamped.translation() = desired.translation() + k * c.head<3>();
   clamped.linear() = expSO3(k * c.tail<3>()) * desired.linear();
-  const IkResult back = solveInverseKinematics(nominal, nominal.nominal, clamped, ik.q_rad);
+  const IkResult back = solveInverseKinematics(nominal, nominal.nominal, clamped, ik.q_rad, ik_options);
   if (!back.ok()) {
     out.reason = m.str() + "; clamped pose unreachable: " + back.message;
     return out;

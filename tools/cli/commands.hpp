@@ -13,6 +13,8 @@ using Runner = std::function<int()>;
 Runner addExperimentCommand(CLI::App& app);
 // Adds `cell` (the four-process cell on localhost).
 Runner addCellCommand(CLI::App& app);
+// Adds `bench-cell` (latency and load through real processes).
+Runner addBenchCellCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
 // Returns false with a message in *error when gnuplot is missing or fails.

@@ -16,6 +16,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   auto experiment = cellcal::cli::addExperimentCommand(app);
   auto cell = cellcal::cli::addCellCommand(app);
+  auto bench_cell = cellcal::cli::addBenchCellCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -23,6 +24,7 @@ int main(int argc, char** argv) {
   }
   try {
     if (app.got_subcommand("cell")) return cell();
+    if (app.got_subcommand("bench-cell")) return bench_cell();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

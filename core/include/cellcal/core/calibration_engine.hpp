@@ -72,6 +72,13 @@ class CalibrationEngine {
   bool process(std::int64_t now_ns);
   // fsync of the state file and its folder (power-loss durability); call after publishing a new version.
   void syncToDisk();
+  // For a process that fsyncs off its latency path: true (once) when the file changed since the last call; then
+  // call syncStateFile(stateFile()) from any thread.
+  bool takeUnsynced() {
+    const bool u = unsynced_;
+    unsynced_ = false;
+    return u;
+  }
 
   const CalibrationSnapshot& snapshot() const { return snap_; }
   const EngineCounters& counters() const { return counters_; }
@@ -111,5 +118,8 @@ class CalibrationEngine {
   std::int64_t used_joint_stamp_ns_ = 0;
   std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
 };
+
+// fsync of a file and its folder.
+void syncStateFile(const std::string& path);
 
 }  // namespace cellcal

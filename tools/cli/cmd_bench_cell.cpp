@@ -1,0 +1,288 @@
+// `cellcal bench-cell`: latency and sustained load of the engine and compensation processes, through real
+// processes on localhost. This process plays N robots and their trackers: joint states and tracker readings at
+// --rate-hz each per robot (the tracker streams all the time; the robot stands still 30 of every 50 ms), and
+// TargetPoses at --targets-hz per robot. It measures, side by side in one run:
+//   tracker reading published -> CalibrationState received   (p50/p99 over the poses)
+//   TargetPose published -> CompensatedTarget received         (p50/p99)
+// whether the engine kept up (every sample received, one update per stand-still, latency not growing), and the
+// CPU (share of one core) and peak RSS of the engine and compensation processes.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/core/kinematics.hpp"
+#include "cellcal/core/sim_program.hpp"
+#include "commands.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace cellcal::components;
+
+struct BenchArgs {
+  int robots = 8;
+  double rate_hz = 1000;
+  double targets_hz = 100;
+  double duration_s = 20;
+  int domain_id = 220;
+  std::string json;
+};
+
+double pct(std::vector<double> v, double p) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())))];
+}
+
+// utime + stime of a process, seconds.
+double cpuSeconds(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto close = s.rfind(')');
+  if (close == std::string::npos) return std::nan("");
+  std::istringstream rest(s.substr(close + 2));
+  std::string f;
+  double ut = 0, st = 0;
+  for (int i = 3; i <= 15 && rest >> f; ++i) {
+    if (i == 14) ut = std::stod(f);
+    if (i == 15) st = std::stod(f);
+  }
+  return (ut + st) / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
+
+double peakRssMb(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  return std::nan("");
+}
+
+pid_t spawnQuiet(const std::string& exe, const std::vector<std::string>& args, const std::string& log) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ::dup2(fd, 1);
+    ::dup2(fd, 2);
+    std::vector<std::string> full = {exe};
+    full.insert(full.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (auto& a : full) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  return pid;
+}
+
+int runBench(const BenchArgs& a) {
+  const fs::path dir = fs::temp_directory_path() / ("cellcal_bench_cell_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string cfg = (dir / "cell.yaml").string();
+  {
+    std::ofstream y(cfg);
+    y << "dds: { domain_id: " << a.domain_id << ", profiles_file: " << CELLCAL_CONFIG_DIR
+      << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback }\nrobots:\n";
+    for (int i = 0; i < a.robots; ++i)
+      y << "  - { robot_id: r" << i << ", target_id: t" << i << ", robot_file: " << CELLCAL_CONFIG_DIR
+        << "/robots/staubli_tx60.yaml, base_in_tracker: { x_mm: 2200, y_mm: " << 400 + 1500 * i
+        << ", z_mm: -300, roll_deg: 0, pitch_deg: 0, yaw_deg: 160 } }\n";
+    y << "engine: { state_dir: " << (dir / "state").string() << " }\n";
+  }
+  const CellConfig cell = loadCellConfig(cfg);
+  const fs::path bin = fs::read_symlink("/proc/self/exe").parent_path();
+  const pid_t engine = spawnQuiet((bin / "cellcal_calibration_engine").string(),
+                                  {"--config", cfg, "--quiet", "--stats-json", (dir / "engine.json").string()},
+                                  (dir / "engine.log").string());
+  const pid_t comp = spawnQuiet((bin / "cellcal_compensation_publisher").string(),
+                                {"--config", cfg, "--wait-for-calibration-s", "0", "--stats-json", (dir / "comp.json").string()},
+                                (dir / "comp.log").string());
+
+  DdsNode node(cell, "cellcal_bench_cell");
+  auto js = node.writer<msg::JointState>();
+  auto tp = node.writer<msg::TrackerPose>();
+  auto tg = node.writer<msg::TargetPose>();
+  std::mutex mutex;
+  struct Rx {
+    std::int64_t at;
+    std::int64_t stamp;
+    std::uint64_t version;
+    std::string robot;
+  };
+  std::vector<Rx> states;
+  std::vector<std::pair<std::int64_t, std::uint64_t>> comps;  // receipt, target sequence (unique over robots)
+  node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    std::lock_guard<std::mutex> l(mutex);
+    states.push_back({now, static_cast<std::int64_t>(m.last_measurement_stamp_ns()), m.version(), m.robot_id().to_string()});
+  });
+  node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    std::lock_guard<std::mutex> l(mutex);
+    comps.emplace_back(now, m.target_sequence());
+  });
+  // Wait for discovery both ways.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
+  for (;;) {
+    fdds::PublicationMatchedStatus s1, s2, s3;
+    js.entity()->get_publication_matched_status(s1);
+    tp.entity()->get_publication_matched_status(s2);
+    tg.entity()->get_publication_matched_status(s3);
+    if (s1.current_count >= 1 && s2.current_count >= 1 && s3.current_count >= 1) break;
+    if (std::chrono::steady_clock::now() > deadline) throw std::runtime_error("engine/compensation not discovered (see " + dir.string() + ")");
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  std::this_thread::sleep_for(std::chrono::seconds(1));
+
+  std::vector<SimulatedCell> sims;
+  std::vector<std::vector<Eigen::VectorXd>> poses;
+  for (int i = 0; i < a.robots; ++i) {
+    sims.push_back(makeSimulatedCell(cell.robots[i], SimulationSettings{}, i));
+    std::mt19937_64 rng(1000 + i);
+    poses.push_back(sims.back().randomConfigurations(64, rng));
+  }
+  std::mt19937_64 rng(5);
+  const int ticks_per_pose = static_cast<int>(std::lround(0.050 * a.rate_hz)), moving_ticks = ticks_per_pose * 2 / 5;
+  const int target_every = std::max(1, static_cast<int>(std::lround(a.rate_hz / a.targets_hz)));
+  std::map<std::uint64_t, std::int64_t> target_sent;
+  std::uint64_t seq = 0, target_seq = 0, standstills = 0, late_ticks = 0;
+  const double cpu0_engine = cpuSeconds(engine), cpu0_comp = cpuSeconds(comp), cpu0_self = cpuSeconds(::getpid());
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto period = std::chrono::duration<double>(1.0 / a.rate_hz);
+  KinematicsData kd(cell.robots[0].model);
+  std::int64_t tick = 0;
+  std::printf("bench-cell: %d robots, joint states and tracker readings at %.0f Hz each per robot, targets at %.0f Hz "
+              "per robot, %.0f s...\n", a.robots, a.rate_hz, a.targets_hz, a.duration_s);
+  std::fflush(stdout);
+  for (;; ++tick) {
+    const auto due = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * static_cast<double>(tick));
+    if (std::chrono::steady_clock::now() > due + period) ++late_ticks;
+    std::this_thread::sleep_until(due);
+    if (std::chrono::steady_clock::now() - t0 > std::chrono::duration<double>(a.duration_s) || stopRequested()) break;
+    const std::int64_t now = wallNs();
+    ++seq;
+    for (int i = 0; i < a.robots; ++i) {
+      // Robots are not synchronized: each one's program is offset by a fraction of a pose.
+      const std::int64_t rt = tick + i * ticks_per_pose / a.robots;
+      const int phase = static_cast<int>(rt % ticks_per_pose);
+      const auto k = static_cast<size_t>(rt / ticks_per_pose);
+      if (phase == moving_ticks) ++standstills;
+      const Eigen::VectorXd& from = poses[i][k % 64];
+      const Eigen::VectorXd& to = poses[i][(k + 1) % 64];
+      const bool settled = phase >= moving_ticks;
+      const Eigen::VectorXd q = settled ? to : from + (to - from) * (static_cast<double>(phase) / moving_ticks);
+      auto j = toJointState(cell.robots[i].robot_id, now, seq, q, settled);
+      js.write(j);
+      Observation o = sims[i].measure(q, 0.0, rng);
+      auto r = toTrackerPose(cell.robots[i].target_id, now, seq, o);
+      tp.write(r);
+      if (tick % target_every == static_cast<std::int64_t>(i % target_every)) {
+        msg::TargetPose t;
+        t.robot_id(cell.robots[i].robot_id);
+        t.sequence_number(++target_seq);
+        fromPose(forwardKinematics(cell.robots[i].model, kd, cell.robots[i].model.nominal, to), t.position_m(),
+                 t.orientation_xyzw());
+        t.seed_position_rad(std::vector<double>(to.data(), to.data() + to.size()));
+        t.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
+        {
+          std::lock_guard<std::mutex> l(mutex);
+          target_sent[target_seq] = static_cast<std::int64_t>(t.source_stamp_ns());
+        }
+        tg.write(t);
+      }
+    }
+  }
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const double cpu_engine = (cpuSeconds(engine) - cpu0_engine) / wall, cpu_comp = (cpuSeconds(comp) - cpu0_comp) / wall;
+  const double cpu_self = (cpuSeconds(::getpid()) - cpu0_self) / wall;
+  const double rss_engine = peakRssMb(engine), rss_comp = peakRssMb(comp);
+  ::kill(engine, SIGINT);
+  ::kill(comp, SIGINT);
+  ::waitpid(engine, nullptr, 0);
+  ::waitpid(comp, nullptr, 0);
+  node.shutdown();
+
+  // Latencies: each new version once; first, middle and last thirds to see whether it grows.
+  std::vector<double> state_us, comp_us, first_third, last_third;
+  std::map<std::string, std::uint64_t> last_version;
+  for (const auto& s : states) {
+    if (s.version <= last_version[s.robot] || s.stamp == 0) continue;
+    last_version[s.robot] = s.version;
+    state_us.push_back((s.at - s.stamp) / 1e3);
+  }
+  for (size_t i = 0; i < state_us.size(); ++i) {
+    if (i < state_us.size() / 3) first_third.push_back(state_us[i]);
+    if (i >= 2 * state_us.size() / 3) last_third.push_back(state_us[i]);
+  }
+  for (const auto& [at, sq] : comps)
+    if (auto it = target_sent.find(sq); it != target_sent.end()) comp_us.push_back((at - it->second) / 1e3);
+  std::uint64_t versions = 0;
+  for (const auto& [r, v] : last_version) versions += v;
+  const auto es = nlohmann::json::parse(std::ifstream((dir / "engine.json").string()), nullptr, false);
+  const std::uint64_t js_pub = static_cast<std::uint64_t>(tick) * a.robots, js_rx = es.is_discarded() ? 0 : es["topics"]["cellcal/joint_state"].value("received", 0ULL);
+  const std::uint64_t tp_rx = es.is_discarded() ? 0 : es["topics"]["cellcal/tracker_pose"].value("received", 0ULL);
+  nlohmann::json out = {
+      {"robots", a.robots}, {"rate_hz_per_stream", a.rate_hz}, {"targets_hz_per_robot", a.targets_hz}, {"duration_s", wall},
+      {"tracker_to_state_us", {{"p50", pct(state_us, 0.5)}, {"p99", pct(state_us, 0.99)}, {"samples", state_us.size()},
+                               {"p50_first_third", pct(first_third, 0.5)}, {"p50_last_third", pct(last_third, 0.5)}}},
+      {"target_to_compensated_us", {{"p50", pct(comp_us, 0.5)}, {"p99", pct(comp_us, 0.99)}, {"samples", comp_us.size()},
+                                    {"sent", target_seq}}},
+      {"joint_states", {{"published", js_pub}, {"received_by_engine", js_rx}}},
+      {"tracker_readings", {{"published", js_pub}, {"received_by_engine", tp_rx}}},
+      {"standstills", standstills}, {"calibration_updates", versions}, {"bench_ticks_late", late_ticks},
+      {"cpu_share_of_one_core", {{"engine", cpu_engine}, {"compensation_publisher", cpu_comp}, {"bench_publisher", cpu_self}}},
+      {"peak_rss_mb", {{"engine", rss_engine}, {"compensation_publisher", rss_comp}}},
+      {"cores", std::thread::hardware_concurrency()}};
+  std::printf("                                     p50 us    p99 us   samples\n");
+  std::printf("tracker reading -> CalibrationState %8.0f  %8.0f  %8zu\n", pct(state_us, 0.5), pct(state_us, 0.99), state_us.size());
+  std::printf("TargetPose -> CompensatedTarget     %8.0f  %8.0f  %8zu\n", pct(comp_us, 0.5), pct(comp_us, 0.99), comp_us.size());
+  std::printf("engine received %llu of %llu joint states and %llu of %llu tracker readings; %llu updates for %llu stand-stills\n",
+              static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
+              static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
+              static_cast<unsigned long long>(versions), static_cast<unsigned long long>(standstills));
+  std::printf("tracker -> state p50 first third %.0f us, last third %.0f us (growing = falling behind)\n",
+              pct(first_third, 0.5), pct(last_third, 0.5));
+  std::printf("CPU (share of one core): engine %.2f, compensation %.2f, this publisher %.2f; peak RSS engine %.1f MB, "
+              "compensation %.1f MB; %u cores\n",
+              cpu_engine, cpu_comp, cpu_self, rss_engine, rss_comp, std::thread::hardware_concurrency());
+  if (!a.json.empty()) writeJsonFile(a.json, out);
+  fs::remove_all(dir);
+  return 0;
+}
+
+}  // namespace
+
+Runner addBenchCellCommand(CLI::App& app) {
+  auto a = std::make_shared<BenchArgs>();
+  CLI::App* cmd = app.add_subcommand("bench-cell",
+                                     "Benchmark the engine and compensation processes on localhost: latencies, "
+                                     "sustained rate, CPU and RSS (this process plays the robots and trackers)");
+  cmd->add_option("--robots", a->robots, "robots (each with a joint-state and a tracker stream)")->check(CLI::Range(1, 64))->capture_default_str();
+  cmd->add_option("--rate-hz", a->rate_hz, "rate of each stream")->check(CLI::Range(10.0, 5000.0))->capture_default_str();
+  cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses per second and robot")->capture_default_str();
+  cmd->add_option("--duration-s", a->duration_s, "measuring time")->capture_default_str();
+  cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
+  cmd->add_option("--json", a->json, "write the figures as JSON");
+  return [a, cmd]() -> int {
+    if (!*cmd) return 0;
+    installStopHandlers();
+    return runBench(*a);
+  };
+}
+
+}  // namespace cellcal::cli
