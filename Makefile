@@ -21,7 +21,7 @@ build: configure
 # The four-process cell on localhost against the simulated Staubli TX60 (the paper's continuous scenario: 50 poses,
 # then 15 fresh poses every 2 h of cell time, 720x compressed).
 demo: build
-	$(BUILD_DIR)/bin/cellcal cell --duration-s 35 --work-dir $(BUILD_DIR)/demo/cell \
+	$(BUILD_DIR)/bin/cellcal cell --duration-s 32 --work-dir $(BUILD_DIR)/demo/cell \
 	  --summary-json $(BUILD_DIR)/demo/cell-summary.json
 
 test: build

@@ -180,7 +180,7 @@ int runBench(const BenchArgs& a) {
       const std::int64_t rt = tick + i * ticks_per_pose / a.robots;
       const int phase = static_cast<int>(rt % ticks_per_pose);
       const auto k = static_cast<size_t>(rt / ticks_per_pose);
-      if (phase == moving_ticks) ++standstills;
+      if (phase == moving_ticks || (tick == 0 && phase > moving_ticks)) ++standstills;
       const Eigen::VectorXd& from = poses[i][k % 64];
       const Eigen::VectorXd& to = poses[i][(k + 1) % 64];
       const bool settled = phase >= moving_ticks;
