@@ -87,11 +87,11 @@ int main(int argc, char** argv) {
         d.rejection_reasons().push_back(rejectionName(static_cast<Rejection>(k)));
         d.rejection_counts().push_back(c.rejected[k]);
       }
-      d.drift_alarm(false);
+      d.drift_alarm(s.engine->snapshot().drift_alarm);
       d.stale_input(s.engine->lastInputReceiveNs() == 0 ||
                     now - s.engine->lastInputReceiveNs() > static_cast<std::int64_t>(cell.engine.stale_input_s * 1e9));
       d.identifiable_parameters(static_cast<std::uint32_t>(s.engine->snapshot().estimated.size()));
-      d.condition_number(0.0);
+      d.condition_number(s.engine->snapshot().condition_number);
       d.pairing_latency_p99_ns(p99(s.pairing_ns));
       d.update_latency_p99_ns(p99(s.update_ns));
       d.joint_states_received(c.joint_states);
@@ -185,6 +185,9 @@ int main(int argc, char** argv) {
       robots[id] = {{"version", snap.version},
                     {"poses_used", snap.poses_used},
                     {"health", healthName(snap.health)},
+                    {"recent_nis_per_row", snap.recent_nis_per_row},
+                    {"drift_alarm", snap.drift_alarm},
+                    {"condition_number", snap.condition_number},
                     {"rejected", rej},
                     {"pairing_latency_p99_ns", p99(s.pairing_ns)},
                     {"update_latency_p99_ns", p99(s.update_ns)}};

@@ -59,17 +59,22 @@ int runSim(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::js
   }
   const double period_s = 1.0 / cell.simulation.joint_rate_hz;
   const auto start = std::chrono::steady_clock::now();
+  auto anchor = start;          // wall time of tick `anchor_tick`
+  std::uint64_t anchor_tick = 0;
   std::uint64_t seq = 0, ticks = 0, late = 0;
   std::cerr << "joint_state_adapter: sim, " << cell.robots.size() << " robot(s) at " << cell.simulation.joint_rate_hz
             << " Hz, cell time x" << cell.time_compression << ", domain " << node.domainId() << "\n";
   for (std::uint64_t k = 0;; ++k) {
-    const auto due = start + std::chrono::nanoseconds(static_cast<std::int64_t>(k * period_s * 1e9));
+    const auto due = anchor + std::chrono::nanoseconds(static_cast<std::int64_t>((k - anchor_tick) * period_s * 1e9));
     if (!sleepUntil(due)) break;
-    const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    if (o.duration_s > 0 && elapsed_s >= o.duration_s) break;
-    if (elapsed_s > (k + 2) * period_s) {  // fell behind: skip to now rather than bursting
-      late += static_cast<std::uint64_t>(elapsed_s / period_s) - k;
-      k = static_cast<std::uint64_t>(elapsed_s / period_s);
+    const auto now_steady = std::chrono::steady_clock::now();
+    if (o.duration_s > 0 && std::chrono::duration<double>(now_steady - start).count() >= o.duration_s) break;
+    if (now_steady - due > std::chrono::duration<double>(2 * period_s)) {
+      // Fell behind (a loaded machine): simulated time is tick-based, so it slows down instead of skipping poses
+      // the tracker would never see, and the schedule restarts from now instead of bursting.
+      ++late;
+      anchor = now_steady;
+      anchor_tick = k;
     }
     const double cell_time = o.start_cell_time_s + k * period_s * cell.time_compression;
     const std::int64_t now = wallNs();

@@ -9,6 +9,9 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+
+#include <Eigen/Eigenvalues>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
@@ -272,11 +275,12 @@ void CalibrationEngine::applyPose(const PairedReading& p) {
   KinematicsData data(m);
   const Observation& o = p.observation;
   const Pose before = forwardKinematics(m, data, rls_->params(), o.q_rad);
-  rls_->addObservation(o);
+  const double nis = rls_->addObservation(o);
   const Pose after = forwardKinematics(m, data, rls_->params(), o.q_rad);
   Recent r;
   r.prior_error_m = (o.measured_in_tracker.translation() - before.translation()).norm();
   r.post_error_m = (o.measured_in_tracker.translation() - after.translation()).norm();
+  r.nis_per_row = nis / o.rows();
   r.post_error_rad = o.kind == MeasurementKind::kPose6D
                          ? logSO3(o.measured_in_tracker.linear() * after.linear().transpose()).norm()
                          : 0.0;
@@ -298,16 +302,25 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
 }
 
 void CalibrationEngine::refreshStatistics() {
-  double sp = 0, so = 0, pe = 0;
+  double sp = 0, so = 0, pe = 0, nis = 0;
   for (const auto& r : recent_) {
     sp += r.post_error_m * r.post_error_m;
     so += r.post_error_rad * r.post_error_rad;
     pe += r.prior_error_m;
+    nis += r.nis_per_row;
   }
   const double n = static_cast<double>(recent_.size());
   snap_.residual_rms_position_m = recent_.empty() ? 0.0 : std::sqrt(sp / n);
   snap_.residual_rms_orientation_rad = recent_.empty() ? 0.0 : std::sqrt(so / n);
   snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
+  snap_.recent_nis_per_row = recent_.empty() ? 0.0 : nis / n;
+  snap_.drift_alarm = recent_.size() >= 10 && snap_.recent_nis_per_row > settings_->drift_alarm_nis_per_row;
+  if (snap_.covariance.rows() > 0) {
+    const Eigen::VectorXd d = snap_.covariance.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+    const Eigen::MatrixXd corr = d.asDiagonal() * snap_.covariance * d.asDiagonal();
+    const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(corr, Eigen::EigenvaluesOnly).eigenvalues();
+    snap_.condition_number = ev.minCoeff() > 0 ? ev.maxCoeff() / ev.minCoeff() : std::numeric_limits<double>::infinity();
+  }
   // Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3).
   const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
   const size_t needed = 2 * ((snap_.estimated.size() + rows - 1) / rows);
@@ -333,7 +346,7 @@ void CalibrationEngine::persist() {
   std::vector<double> cov(snap_.covariance.data(), snap_.covariance.data() + snap_.covariance.size());
   j["covariance"] = cov;
   json recent = json::array();
-  for (const auto& r : recent_) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad});
+  for (const auto& r : recent_) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
   j["recent"] = recent;
   json batch = json::array();
   for (const auto& b : batch_) batch.push_back(observationToJson(b));
@@ -390,7 +403,8 @@ bool CalibrationEngine::restore() {
     snap_.last_measurement_stamp_ns = j.at("last_measurement_stamp_ns").get<std::int64_t>();
     snap_.last_tracker_sequence = j.at("last_tracker_sequence").get<std::uint64_t>();
     snap_.last_update_stamp_ns = j.at("last_update_stamp_ns").get<std::int64_t>();
-    for (const auto& r : j.at("recent")) recent_.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>()});
+    for (const auto& r : j.at("recent"))
+      recent_.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>(), r.at(3).get<double>()});
     for (const auto& b : j.at("pending_batch")) batch_.push_back(observationFromJson(b));
   } catch (const json::exception& e) {
     fail(std::string("missing or malformed field: ") + e.what());

@@ -15,6 +15,7 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "cellcal/components/convert.hpp"
@@ -193,8 +194,10 @@ int runCell(const CellArgs& a) {
       if (j.robot->robot_id == id) return &j;
     return nullptr;
   };
+  std::optional<std::chrono::steady_clock::time_point> program_start;  // first RobotTruth: the robot runs
   node.reader<sim::RobotTruth>([&](const sim::RobotTruth& t, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> lock(mutex);
+    if (!program_start) program_start = std::chrono::steady_clock::now();
     if (Judge* j = findJudge(t.robot_id().to_string())) j->cell_time_s = std::max(j->cell_time_s, t.cell_time_s());
   });
   // DDS callbacks only record (receipt time, sample): one receive thread serves every reader, so scoring in a
@@ -294,7 +297,14 @@ int runCell(const CellArgs& a) {
   const auto period = std::chrono::duration<double>(1.0 / a.targets_hz);
   auto next = std::chrono::steady_clock::now();
   bool child_died = false;
-  while (elapsed() < a.duration_s && !stopRequested()) {
+  // --duration-s counts from the moment the robot program runs (start-up and discovery excluded), so a loaded
+  // machine still sees the whole program; at most 30 s are allowed for start-up.
+  auto running_s = [&]() -> double {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!program_start) return elapsed() > 30 ? a.duration_s : 0.0;
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - *program_start).count();
+  };
+  while (running_s() < a.duration_s && !stopRequested()) {
     next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
     std::this_thread::sleep_until(next);
     for (auto& c : children) {
@@ -424,7 +434,8 @@ Runner addCellCommand(CLI::App& app) {
       "time-compressed hours); print a line per calibration update and a summary");
   addCommonOptions(*cmd, a->common);
   a->common.participant_profile = "cellcal_loopback";
-  cmd->add_option("--duration-s", a->duration_s, "how long to run (wall clock)")->capture_default_str();
+  cmd->add_option("--duration-s", a->duration_s, "how long the robot program runs (wall clock, from its first sample)")
+      ->capture_default_str();
   cmd->add_option("--summary-json", a->summary_json, "write the summary (processes, topics, accuracy, latencies)");
   cmd->add_option("--work-dir", a->work_dir, "logs, per-process stats and the engine's state")->capture_default_str();
   cmd->add_flag("--resume", a->resume, "keep the engine state of a previous run (default: start uncalibrated)");

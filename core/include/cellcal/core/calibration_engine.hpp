@@ -45,6 +45,13 @@ struct CalibrationSnapshot {
   std::int64_t last_measurement_stamp_ns = 0;
   std::uint64_t last_tracker_sequence = 0;
   std::int64_t last_update_stamp_ns = 0;    // stamp of the reading that made this version
+  // Consistency: mean normalized innovation squared per measurement row over the recent poses (about 1 when the
+  // noise and drift models hold). Above EngineSettings::drift_alarm_nis_per_row (with >= 10 recent poses): the
+  // robot moves faster than the drift model allows, or the model misses an effect -> drift_alarm.
+  double recent_nis_per_row = 0;
+  bool drift_alarm = false;
+  // Condition number of the estimate's correlation matrix (scale-free): large = parameters hard to separate.
+  double condition_number = 0;
 };
 
 struct EngineCounters {
@@ -108,7 +115,7 @@ class CalibrationEngine {
   EngineCounters counters_;
   std::vector<PairedReading> batch_;  // periodic mode: poses waiting for the batch to fill
   struct Recent {
-    double prior_error_m, post_error_m, post_error_rad;
+    double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };
   std::deque<Recent> recent_;
   std::int64_t last_input_ns_ = 0;

@@ -45,6 +45,7 @@ struct EngineSettings {
   double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
   double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
   double outlier_gate_nis = 0.0;               // reject a pose whose normalized innovation exceeds this (0 = off)
+  double drift_alarm_nis_per_row = 3.0;        // recent mean NIS per row above this: drift alarm
   double prior_length_m = 1e-3;                // 1 sigma of the uncalibrated robot (manufacturing + registration)
   double prior_angle_rad = 0.1 * 3.14159265358979323846 / 180.0;
   // Random walk of the parameters (1 sigma accumulated over drift_per_h hours of cell time).
