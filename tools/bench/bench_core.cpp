@@ -8,6 +8,7 @@
 #include "cellcal/core/calibration.hpp"
 #include "cellcal/core/calibration_engine.hpp"
 #include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/registration.hpp"
 #include "cellcal/core/inverse_kinematics.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/rls.hpp"
@@ -129,6 +130,25 @@ void BM_InverseKinematics(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_InverseKinematics)->Unit(benchmark::kMicrosecond);
+
+// `cellcal calibrate` on N poses without knowing where the robot stands: registration of base and tool, then
+// Levenberg-Marquardt over every identifiable parameter (issue target: 400 poses in < 100 ms).
+void BM_CalibrateGeometric(benchmark::State& state) {
+  const auto n = static_cast<int>(state.range(0));
+  SimulationConfig sc;
+  SimulatedCell cell(fx().robot, sc);
+  std::mt19937_64 rng(11);
+  std::vector<Observation> obs;
+  for (const auto& q : cell.randomConfigurations(n, rng)) obs.push_back(cell.measure(q, 0.0, rng));
+  Eigen::VectorXd start = cell.model().nominal;
+  start.tail<12>().setZero();
+  for (auto _ : state) {
+    const RegistrationResult reg = registerFrames(cell.model(), start, obs);
+    CalibrationProblem p{&cell.model(), reg.params, obs, std::nullopt, {}};
+    benchmark::DoNotOptimize(solveLevenbergMarquardt(p).params.data());
+  }
+}
+BENCHMARK(BM_CalibrateGeometric)->Arg(400)->Unit(benchmark::kMillisecond);
 
 // One tracker reading through the engine: pairing, linearization, RLS update, statistics, and (Arg 1) the atomic
 // state-file replacement, (Arg 2) plus its fsync. Arg 0 keeps the state in memory only. Side by side: the cost of

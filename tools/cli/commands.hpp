@@ -15,6 +15,9 @@ Runner addExperimentCommand(CLI::App& app);
 Runner addCellCommand(CLI::App& app);
 // Adds `bench-cell` (latency and load through real processes).
 Runner addBenchCellCommand(CLI::App& app);
+// Adds `calibrate` (batch calibration of a measurement file) and `import ipa`.
+Runner addCalibrateCommand(CLI::App& app);
+Runner addImportCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
 // Returns false with a message in *error when gnuplot is missing or fails.

@@ -17,6 +17,8 @@ int main(int argc, char** argv) {
   auto experiment = cellcal::cli::addExperimentCommand(app);
   auto cell = cellcal::cli::addCellCommand(app);
   auto bench_cell = cellcal::cli::addBenchCellCommand(app);
+  auto calibrate = cellcal::cli::addCalibrateCommand(app);
+  auto import_ = cellcal::cli::addImportCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -25,6 +27,8 @@ int main(int argc, char** argv) {
   try {
     if (app.got_subcommand("cell")) return cell();
     if (app.got_subcommand("bench-cell")) return bench_cell();
+    if (app.got_subcommand("calibrate")) return calibrate();
+    if (app.got_subcommand("import")) return import_();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

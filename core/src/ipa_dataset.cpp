@@ -1,0 +1,169 @@
+#include "cellcal/core/ipa_dataset.hpp"
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <ctime>
+#include <fstream>
+#include <iomanip>
+#include <map>
+#include <sstream>
+
+#include "cellcal/core/se3.hpp"
+
+namespace cellcal {
+namespace {
+
+std::vector<std::string> split(const std::string& line, char sep) {
+  std::vector<std::string> out;
+  std::string cell;
+  std::istringstream in(line);
+  while (std::getline(in, cell, sep)) {
+    if (!cell.empty() && cell.back() == '\r') cell.pop_back();
+    out.push_back(cell);
+  }
+  return out;
+}
+
+// Seconds since the epoch of YYYYMMDDhhmmss (UTC as written), or NaN when it is not such a stamp.
+double parseStamp(const std::string& s) {
+  if (s.size() != 14 || s.find_first_not_of("0123456789") != std::string::npos) return std::nan("");
+  std::tm tm{};
+  tm.tm_year = std::stoi(s.substr(0, 4)) - 1900;
+  tm.tm_mon = std::stoi(s.substr(4, 2)) - 1;
+  tm.tm_mday = std::stoi(s.substr(6, 2));
+  tm.tm_hour = std::stoi(s.substr(8, 2));
+  tm.tm_min = std::stoi(s.substr(10, 2));
+  tm.tm_sec = std::stoi(s.substr(12, 2));
+  return static_cast<double>(timegm(&tm));
+}
+
+}  // namespace
+
+MeasurementFile readIpaSeries(const std::string& path, const RobotModel& robot, std::string* notes) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path + ": cannot open");
+  std::string line;
+  if (!std::getline(in, line)) throw ConfigError(path + ": empty file");
+  const auto header = split(line, ';');
+  std::map<std::string, int> col;
+  for (size_t i = 0; i < header.size(); ++i) col[header[i]] = static_cast<int>(i);
+  const std::vector<std::string> joints = {"shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+                                           "wrist_1_joint",      "wrist_2_joint",       "wrist_3_joint"};
+  if (robot.numJoints() != 6) throw ConfigError(path + ": the ipa series are of a 6-joint UR10; robot " + robot.name);
+  for (const auto& c : joints)
+    if (!col.count(c)) throw ConfigError(path + ":1: header: missing column " + c);
+  for (const char* c : {"measurement_x", "measurement_y", "measurement_z", "measurement_rx", "measurement_ry", "measurement_rz"})
+    if (!col.count(c)) throw ConfigError(path + std::string(":1: header: missing column ") + c);
+  MeasurementFile f;
+  f.source = path;
+  int lineno = 1, damaged = 0;
+  double t_first = std::nan(""), tmin = 1e9, tmax = -1e9;
+  bool stamps_ok = col.count("Timestamp") > 0;
+  std::vector<double> stamps;
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    auto cells = split(line, ';');
+    auto number = [&](const std::string& name) {
+      const int c = col.at(name);
+      std::string s = c < static_cast<int>(cells.size()) ? cells[c] : "";
+      for (char& ch : s)
+        if (ch == ',') ch = '.';
+      char* end = nullptr;
+      const double v = std::strtod(s.c_str(), &end);
+      if (s.empty() || *end != '\0' || !std::isfinite(v))
+        throw ConfigError(path + ":" + std::to_string(lineno) + ":" + std::to_string(c + 1) + ": " + name + ": '" +
+                          (c < static_cast<int>(cells.size()) ? cells[c] : "") + "' is not a number");
+      return v;
+    };
+    MeasurementRow r;
+    r.line = lineno;
+    r.q_rad.resize(6);
+    for (int j = 0; j < 6; ++j) r.q_rad[j] = number(joints[j]);
+    r.position_m = Eigen::Vector3d(number("measurement_x"), number("measurement_y"), number("measurement_z")) * 1e-3;
+    // Intrinsic X-Y-Z (scipy 'XYZ'): R = Rx(a) Ry(b) Rz(c).
+    const double a = degToRad(number("measurement_rx")), b = degToRad(number("measurement_ry")),
+                 c = degToRad(number("measurement_rz"));
+    const Eigen::Matrix3d R = (Eigen::AngleAxisd(a, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(b, Eigen::Vector3d::UnitY()) *
+                               Eigen::AngleAxisd(c, Eigen::Vector3d::UnitZ())).toRotationMatrix();
+    r.orientation = Eigen::Quaterniond(R).normalized();
+    if (col.count("measurement_temperature")) {
+      r.temperature_c = number("measurement_temperature");
+      tmin = std::min(tmin, *r.temperature_c);
+      tmax = std::max(tmax, *r.temperature_c);
+    }
+    if (stamps_ok) {
+      const double t = parseStamp(cells.at(col.at("Timestamp")));
+      if (std::isnan(t)) {
+        stamps_ok = false;
+        ++damaged;
+      } else {
+        if (std::isnan(t_first)) t_first = t;
+        stamps.push_back(t - t_first);
+      }
+    }
+    for (int j = 0; j < 6; ++j)
+      if (r.q_rad[j] < robot.limits[j].lower_rad || r.q_rad[j] > robot.limits[j].upper_rad)
+        throw ConfigError(path + ":" + std::to_string(lineno) + ":" + std::to_string(col.at(joints[j]) + 1) + ": " +
+                          joints[j] + ": outside the joint limits of " + robot.name);
+    f.rows.push_back(std::move(r));
+  }
+  if (stamps_ok && stamps.size() == f.rows.size())
+    for (size_t i = 0; i < f.rows.size(); ++i) f.rows[i].stamp_s = stamps[i];
+  if (notes) {
+    std::ostringstream n;
+    n << f.rows.size() << " rows from " << path << "; ";
+    if (stamps_ok && !stamps.empty())
+      n << "stamps over " << std::fixed << std::setprecision(2) << stamps.back() / 3600.0 << " h";
+    else
+      n << "timestamps unusable (damaged, e.g. '2,02011E+13'): row order only";
+    if (tmax >= tmin) n << "; temperature " << std::fixed << std::setprecision(2) << tmin << " .. " << tmax << " C";
+    *notes = n.str();
+  }
+  (void)damaged;
+  return f;
+}
+
+void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints, const std::string& comment) {
+  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false;
+  for (const auto& r : f.rows) {
+    oriented |= r.orientation.has_value();
+    stamped |= r.stamp_s.has_value();
+    grouped |= r.group.has_value();
+    temp |= r.temperature_c.has_value();
+    payload |= r.payload_kg.has_value();
+  }
+  std::istringstream c(comment);
+  std::string line;
+  while (std::getline(c, line)) out << "# " << line << "\n";
+  for (int j = 1; j <= joints; ++j) out << "q" << j << "_rad,";
+  out << "x_mm,y_mm,z_mm";
+  if (oriented) out << ",qw,qx,qy,qz";
+  if (stamped) out << ",stamp_s";
+  if (grouped) out << ",group";
+  if (temp) out << ",temperature_c";
+  if (payload) out << ",payload_kg";
+  out << "\n" << std::setprecision(12);
+  for (const auto& r : f.rows) {
+    for (int j = 0; j < joints; ++j) out << r.q_rad[j] << ",";
+    out << r.position_m.x() * 1e3 << "," << r.position_m.y() * 1e3 << "," << r.position_m.z() * 1e3;
+    if (oriented) {
+      if (r.orientation)
+        out << "," << r.orientation->w() << "," << r.orientation->x() << "," << r.orientation->y() << "," << r.orientation->z();
+      else
+        out << ",,,,";
+    }
+    auto opt = [&](bool has, const auto& v) {
+      if (!has) return;
+      out << ",";
+      if (v) out << *v;
+    };
+    opt(stamped, r.stamp_s);
+    opt(grouped, r.group);
+    opt(temp, r.temperature_c);
+    opt(payload, r.payload_kg);
+    out << "\n";
+  }
+}
+
+}  // namespace cellcal
