@@ -55,7 +55,7 @@ nlohmann::json toJson(const ErrorStats& s) {
 }
 
 struct CalibrateArgs {
-  std::string robot, data, json, model = "geometric", split = "alternate";
+  std::string robot, data, json, model = "geometric", split = "alternate", solver = "gn";
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
   bool position_only = false, skip_bad_rows = false, no_register = false;
 };
@@ -90,7 +90,7 @@ int runCalibrate(const CalibrateArgs& a) {
   CalibrationProblem p{&robot, start, ident, std::nullopt, {}};
   std::string why;
   if (!p.IsValid(&why)) throw std::runtime_error(why);
-  const CalibrationResult r = solveLevenbergMarquardt(p);
+  const CalibrationResult r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
   const auto t2 = Clock::now();
   const double reg_s = std::chrono::duration<double>(t1 - t0).count(), solve_s = std::chrono::duration<double>(t2 - t1).count();
   const ErrorStats ib = errorStats(robot, start, ident), ia = errorStats(robot, r.params, ident);
@@ -99,8 +99,9 @@ int runCalibrate(const CalibrateArgs& a) {
               a.split.c_str(), ident.size(), verify.size(), kind == MeasurementKind::kPose6D ? "6D" : "position only",
               robot.name.c_str());
   if (!a.no_register) std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", reg_rms, reg_s * 1e3);
-  std::printf("geometric calibration (Levenberg-Marquardt): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
-              r.converged ? "converged" : "NOT converged", r.iterations, r.estimated.size(), solve_s * 1e3);
+  std::printf("geometric calibration (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
+              a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton", r.converged ? "converged" : "NOT converged", r.iterations, r.estimated.size(), solve_s * 1e3);
+  if (!r.converged) std::printf("  solver: %s\n", r.message.c_str());
   std::printf("\n                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
   auto row = [](const char* name, const ErrorStats& s) {
     std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, s.mean_mm, s.rms_mm, s.max_mm, s.mean_deg,
@@ -123,7 +124,7 @@ int runCalibrate(const CalibrateArgs& a) {
     nlohmann::json j = {{"data", a.data}, {"robot", robot.name}, {"rows", file.rows.size()}, {"skipped_rows", file.skipped_rows},
                         {"split", a.split}, {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
                         {"measurement", kind == MeasurementKind::kPose6D ? "pose6d" : "position3d"},
-                        {"model", a.model}, {"converged", r.converged}, {"iterations", r.iterations},
+                        {"model", a.model}, {"solver", a.solver}, {"converged", r.converged}, {"iterations", r.iterations},
                         {"registration_rms_mm", reg_rms}, {"registration_time_s", reg_s}, {"solve_time_s", solve_s},
                         {"identification", {{"before", toJson(ib)}, {"after", toJson(ia)}}},
                         {"verification", {{"before", toJson(vb)}, {"after", toJson(va)}}},
@@ -140,7 +141,7 @@ Runner addCalibrateCommand(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "calibrate",
       "Batch geometric calibration of a measurement file (CSV v1): registers the base and tool frames, identifies every "
-      "identifiable kinematic parameter with Levenberg-Marquardt on the identification rows, and reports mean/RMS/max "
+      "identifiable kinematic parameter (Gauss-Newton, or --solver lm) on the identification rows, and reports mean/RMS/max "
       "position and orientation errors on identification and verification rows, before and after. Split: "
       "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies");
   cmd->add_option("--robot", a->robot, "robot file (YAML)")->required()->check(CLI::ExistingFile);
@@ -150,6 +151,9 @@ Runner addCalibrateCommand(CLI::App& app) {
   cmd->add_option("--split", a->split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
   cmd->add_option("--sigma-position-mm", a->sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
   cmd->add_option("--sigma-orientation-deg", a->sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
+  cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres)")
+      ->check(CLI::IsMember({"gn", "lm"}))
+      ->capture_default_str();
   cmd->add_flag("--position-only", a->position_only, "use positions only, even where orientations are given");
   cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_flag("--no-register", a->no_register, "trust the robot file's base and tool frames as the start");
