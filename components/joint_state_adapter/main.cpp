@@ -194,12 +194,7 @@ int main(int argc, char** argv) {
   app.add_option("--start-cell-time-s", o.start_cell_time_s, "sim: start the robot program at this cell time");
   app.add_option("--wait-for-readers", o.wait_for_readers,
                  "sim: start the program once JointState has a reader and RobotTruth has N (at most 10 s)");
-  app.add_option("--csv", o.csv.path, "csv: measurement file (CSV v1)");
-  app.add_option("--robot-id", o.csv.robot_id, "csv: robot the file belongs to (default: the first of the cell)");
-  app.add_option("--period-s", o.csv.period_s, "csv: seconds between rows without stamp_s")->capture_default_str();
-  app.add_option("--rate", o.csv.rate, "csv: replay stamp_s this many times faster")->capture_default_str();
-  app.add_option("--start-unix-ns", o.csv.start_unix_ns, "csv: wall time of the first row (same for both adapters)");
-  app.add_flag("--skip-bad-rows", o.csv.skip_bad_rows, "csv: skip (and count) bad rows instead of stopping");
+  addCsvReplayOptions(app, o.csv);
   app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();
   app.add_option("--udp-port", o.udp_port, "udp: port to bind (0: any)")->capture_default_str();
   return runMain("cellcal_joint_state_adapter", argc, argv, app, [&] {

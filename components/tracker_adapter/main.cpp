@@ -178,12 +178,7 @@ int main(int argc, char** argv) {
   addCommonOptions(app, o.common);
   app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();
   app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
-  app.add_option("--csv", o.csv.path, "csv: measurement file (CSV v1)");
-  app.add_option("--robot-id", o.csv.robot_id, "csv: robot the file belongs to (default: the first of the cell)");
-  app.add_option("--period-s", o.csv.period_s, "csv: seconds between rows without stamp_s")->capture_default_str();
-  app.add_option("--rate", o.csv.rate, "csv: replay stamp_s this many times faster")->capture_default_str();
-  app.add_option("--start-unix-ns", o.csv.start_unix_ns, "csv: wall time of the first row (same for both adapters)");
-  app.add_flag("--skip-bad-rows", o.csv.skip_bad_rows, "csv: skip (and count) bad rows instead of stopping");
+  addCsvReplayOptions(app, o.csv);
   app.add_option("--sigma-position-mm", o.sigma_position_mm, "csv: 1-sigma position noise of the tracker")->capture_default_str();
   app.add_option("--sigma-orientation-deg", o.sigma_orientation_deg, "csv: 1-sigma orientation noise")->capture_default_str();
   app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();

@@ -6,6 +6,7 @@
 // when they start within the same second).
 #pragma once
 
+#include <CLI/CLI.hpp>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -31,6 +32,9 @@ struct CsvReplay {
   double hold_s = 0;
   std::int64_t start_unix_ns = 0;
 };
+
+// --csv, --robot-id, --period-s, --rate, --start-unix-ns, --skip-bad-rows (the same in both adapters).
+void addCsvReplayOptions(CLI::App& app, CsvReplayOptions& o);
 
 // Throws ConfigError / std::runtime_error naming the file and line on bad input.
 CsvReplay loadCsvReplay(const CellConfig& cell, const CsvReplayOptions& options);
