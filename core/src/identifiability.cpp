@@ -10,8 +10,8 @@
 namespace cellcal {
 
 bool IdentifiabilityOptions::IsValid(std::string* error) const {
-  if (!(rank_tolerance > 0 && rank_tolerance < 1)) {
-    if (error) *error = "rank_tolerance must be in (0, 1)";
+  if (!(rank_tolerance > 0 && rank_tolerance < 1) || !(weak_separation >= 0 && weak_separation < 1)) {
+    if (error) *error = "rank_tolerance must be in (0, 1) and weak_separation in [0, 1)";
     return false;
   }
   return true;
@@ -37,15 +37,32 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   double max_norm = 0;
   for (int c : cand) max_norm = std::max(max_norm, J.col(c).norm());
   const double min_norm = 1e-10 * max_norm;
+  // Two passes over the candidates in priority order. The first keeps only columns well clear of the kept span
+  // (> weak_separation); the second revisits the rest against everything kept by then. A near-gauge that only a
+  // small angle breaks (joint 6's alpha and a tool roll, separated by a tool pitch of a few hundredths of a degree)
+  // is thus closed by the well-separated parameter instead of being estimated as two nearly equal columns.
+  auto residual = [&](int c, Eigen::VectorXd& v) {
+    v = J.col(c) / J.col(c).norm();
+    for (int pass = 0; pass < 2; ++pass) v -= Q.leftCols(k) * (Q.leftCols(k).transpose() * v);
+    return v.norm();
+  };
+  std::vector<int> deferred;
+  Eigen::VectorXd v;
   for (int c : cand) {
-    const double norm = J.col(c).norm();
-    if (norm <= min_norm || k >= m) {
+    if (J.col(c).norm() <= min_norm || k >= m) {
       dropped.push_back(c);
       continue;
     }
-    Eigen::VectorXd v = J.col(c) / norm;
-    for (int pass = 0; pass < 2; ++pass) v -= Q.leftCols(k) * (Q.leftCols(k).transpose() * v);
-    const double res = v.norm();
+    const double res = residual(c, v);
+    if (res > std::max(options.weak_separation, options.rank_tolerance)) {
+      Q.col(k++) = v / res;
+      rep.identifiable.push_back(c);
+    } else {
+      deferred.push_back(c);
+    }
+  }
+  for (int c : deferred) {
+    const double res = k < m ? residual(c, v) : 0.0;
     if (res > options.rank_tolerance) {
       Q.col(k++) = v / res;
       rep.identifiable.push_back(c);
@@ -53,6 +70,8 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
       dropped.push_back(c);
     }
   }
+  std::sort(rep.identifiable.begin(), rep.identifiable.end());
+  std::sort(dropped.begin(), dropped.end());
   rep.rank = k;
 
   // Scaled Jacobian of the kept columns: condition number, and what each dropped column merges into.

@@ -60,8 +60,9 @@ TEST_P(Identification, RecoversInjectedErrorsToTheNoiseFloor) {
     // Where the data resolve the hidden error (it exceeds 5 sigma), the estimate must also have moved toward it;
     // an error below the resolution (3D data resolve alpha angles to ~0.01 deg) may legitimately stay put.
     const double initial_err = named[idx].initial - m.toHuman(idx, truth[idx]);
-    if (std::abs(initial_err) > 5 * named[idx].stddev)
+    if (std::abs(initial_err) > 5 * named[idx].stddev) {
       EXPECT_LT(std::abs(err), std::abs(initial_err)) << named[idx].name << " did not move toward the truth";
+    }
   }
   // Dropped (merged) parameters stay exactly where they started.
   for (const auto& d : r.identifiability.dropped) EXPECT_EQ(r.params[d.index], cell.nominalParams()[d.index]);

@@ -56,7 +56,7 @@ nlohmann::json toJson(const ErrorStats& s) {
 
 struct CalibrateArgs {
   std::string robot, data, json, model = "geometric", split = "alternate", solver = "gn";
-  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
+  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01, rank_tolerance = IdentifiabilityOptions{}.rank_tolerance;
   bool position_only = false, skip_bad_rows = false, no_register = false;
 };
 
@@ -88,6 +88,7 @@ int runCalibrate(const CalibrateArgs& a) {
   }
   const auto t1 = Clock::now();
   CalibrationProblem p{&robot, start, ident, std::nullopt, {}};
+  p.identifiability.rank_tolerance = a.rank_tolerance;
   std::string why;
   if (!p.IsValid(&why)) throw std::runtime_error(why);
   const CalibrationResult r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
@@ -153,6 +154,10 @@ Runner addCalibrateCommand(CLI::App& app) {
   cmd->add_option("--sigma-orientation-deg", a->sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
   cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres)")
       ->check(CLI::IsMember({"gn", "lm"}))
+      ->capture_default_str();
+  cmd->add_option("--rank-tolerance", a->rank_tolerance,
+                  "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "
+                  "than this sine")
       ->capture_default_str();
   cmd->add_flag("--position-only", a->position_only, "use positions only, even where orientations are given");
   cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");

@@ -4,7 +4,10 @@
 // fixed priority order (joint parameters base to flange, then base frame, then tool frame; only canonical
 // parameters are candidates) and kept when they add a direction the kept ones do not span: relative residual after
 // projection > rank_tolerance (greedy QR with column pivoting in a deterministic order, so the kept set is the
-// natural one: d1 stays and base z, which only duplicates it, is fixed). Every dropped parameter is reported with
+// natural one: d1 stays and base z, which only duplicates it, is fixed). Columns within weak_separation of the kept
+// span are taken in a second pass, after all well-separated ones, so that a near-duplicate (a tool roll next to joint
+// 6's alpha when the tool is tilted by a few hundredths of a degree) does not push out a parameter that is clearly
+// separable (the tool pitch). Every dropped parameter is reported with
 // the kept parameters it is (nearly) a combination of: it is fixed at its current value, and the ones it merges into
 // absorb its error.
 #pragma once
@@ -20,6 +23,7 @@ namespace cellcal {
 
 struct IdentifiabilityOptions {
   double rank_tolerance = 1e-5;  // sine of the angle between a scaled column and the span of the kept ones
+  double weak_separation = 1e-2;  // columns closer than this (sine) to the kept span are considered after the others
   std::vector<int> candidates;   // empty: model.canonicalParams()
   bool IsValid(std::string* error) const;
 };
