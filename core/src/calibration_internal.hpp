@@ -2,6 +2,8 @@
 #pragma once
 
 #include <Eigen/Cholesky>
+#include <Eigen/QR>
+#include <string>
 
 #include "cellcal/core/calibration.hpp"
 
@@ -27,5 +29,59 @@ struct ReducedProblem {
   Eigen::MatrixXd covariance(const Eigen::VectorXd& params) const;
   void finish(CalibrationResult& result) const;
 };
+
+struct GaussNewtonOutcome {
+  Eigen::VectorXd x;
+  int iterations = 0;
+  bool converged = false;
+  std::string message;
+  double cost = 0;  // 1/2 |b|^2 at x
+};
+
+// Gauss-Newton with column scaling and step halving on a least-squares problem given as
+//   eval(x, b, A): the whitened residual b (measured - model, and any prior rows) at x and, when A is not null, its
+//   Jacobian A = d model / dx, so that the step s minimizes |A s - b|.
+// Stops when no step decreases the cost or the column-scaled step is below options.step_tolerance.
+template <typename Eval>
+GaussNewtonOutcome gaussNewton(Eval&& eval, Eigen::VectorXd x, const SolverOptions& options) {
+  GaussNewtonOutcome out;
+  Eigen::VectorXd b, b_trial;
+  Eigen::MatrixXd A;
+  eval(x, b, &A);
+  double cost = 0.5 * b.squaredNorm();
+  for (out.iterations = 1; out.iterations <= options.max_iterations; ++out.iterations) {
+    const Eigen::VectorXd scale = A.colwise().norm().cwiseMax(1e-300).cwiseInverse();
+    const Eigen::VectorXd y = (A * scale.asDiagonal()).colPivHouseholderQr().solve(b);
+    const Eigen::VectorXd step = scale.asDiagonal() * y;
+    double t = 1.0, trial_cost = 0;
+    Eigen::VectorXd trial;
+    for (int h = 0; h < 20; ++h, t *= 0.5) {  // step halving keeps the cost monotone far from the solution
+      trial = x + t * step;
+      eval(trial, b_trial, nullptr);
+      trial_cost = 0.5 * b_trial.squaredNorm();
+      if (trial_cost <= cost) break;
+    }
+    if (trial_cost > cost) {
+      out.converged = true;
+      out.message = "converged (no further decrease)";
+      break;
+    }
+    x = trial;
+    cost = trial_cost;
+    if ((t * y).norm() < options.step_tolerance) {
+      out.converged = true;
+      out.message = "converged (step below tolerance)";
+      break;
+    }
+    eval(x, b, &A);
+  }
+  if (!out.converged) {
+    out.iterations = options.max_iterations;
+    out.message = "maximum iterations reached";
+  }
+  out.x = std::move(x);
+  out.cost = cost;
+  return out;
+}
 
 }  // namespace cellcal::internal

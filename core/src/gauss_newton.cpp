@@ -154,70 +154,36 @@ CalibrationResult solveGaussNewton(const CalibrationProblem& problem, const Solv
   internal::requireValid(problem, options);
   const auto t0 = std::chrono::steady_clock::now();
   internal::ReducedProblem rp(problem);
-  CalibrationResult res;
-  res.params = problem.initial_params;
-  const double n_obs = static_cast<double>(problem.observations.size());
-  const bool has_prior = rp.prior_sqrt_info.size() > 0;
-  auto total_cost = [&](const Eigen::VectorXd& params, double data_cost) {
-    if (!has_prior) return data_cost;
-    Eigen::VectorXd x(rp.estimated.size());
-    for (size_t k = 0; k < rp.estimated.size(); ++k) x[k] = params[rp.estimated[k]];
-    return data_cost + 0.5 * (rp.prior_sqrt_info * (x - rp.prior_mean)).squaredNorm();
-  };
-  Eigen::VectorXd r;
-  Eigen::MatrixXd J;
-  rp.evaluate(res.params, r, &J);
-  double data_cost = 0.5 * r.squaredNorm();
-  res.initial_cost_per_observation = data_cost / n_obs;
-  double cost = total_cost(res.params, data_cost);
   const auto m = static_cast<Eigen::Index>(rp.estimated.size());
-  for (res.iterations = 1; res.iterations <= options.max_iterations; ++res.iterations) {
-    // Stack data and prior rows; scale columns to unit norm so metres and radians are comparable.
-    Eigen::MatrixXd A(J.rows() + (has_prior ? m : 0), m);
-    Eigen::VectorXd b(A.rows());
-    A.topRows(J.rows()) = J;
-    b.head(J.rows()) = r;
-    if (has_prior) {
-      Eigen::VectorXd x(m);
-      for (Eigen::Index k = 0; k < m; ++k) x[k] = res.params[rp.estimated[k]];
-      A.bottomRows(m) = rp.prior_sqrt_info;
-      b.tail(m) = rp.prior_sqrt_info * (rp.prior_mean - x);
+  const bool has_prior = rp.prior_sqrt_info.size() > 0;
+  auto full = [&](const Eigen::VectorXd& x) {
+    Eigen::VectorXd params = problem.initial_params;
+    for (Eigen::Index k = 0; k < m; ++k) params[rp.estimated[k]] = x[k];
+    return params;
+  };
+  // Data rows, then the prior's whitened rows U (mean - x).
+  auto eval = [&](const Eigen::VectorXd& x, Eigen::VectorXd& b, Eigen::MatrixXd* A) {
+    Eigen::VectorXd r;
+    Eigen::MatrixXd J;
+    rp.evaluate(full(x), r, A ? &J : nullptr);
+    b.resize(r.size() + (has_prior ? m : 0));
+    b.head(r.size()) = r;
+    if (has_prior) b.tail(m) = rp.prior_sqrt_info * (rp.prior_mean - x);
+    if (A) {
+      A->resize(b.size(), m);
+      A->topRows(J.rows()) = J;
+      if (has_prior) A->bottomRows(m) = rp.prior_sqrt_info;
     }
-    const Eigen::VectorXd scale = A.colwise().norm().cwiseMax(1e-300).cwiseInverse();
-    const Eigen::VectorXd y = (A * scale.asDiagonal()).colPivHouseholderQr().solve(b);
-    const Eigen::VectorXd step = scale.asDiagonal() * y;
-    // Step halving keeps the cost monotone far from the solution.
-    double t = 1.0;
-    Eigen::VectorXd trial;
-    double trial_cost = 0, trial_data = 0;
-    Eigen::VectorXd r_trial;
-    for (int h = 0; h < 20; ++h, t *= 0.5) {
-      trial = res.params;
-      for (Eigen::Index k = 0; k < m; ++k) trial[rp.estimated[k]] += t * step[k];
-      rp.evaluate(trial, r_trial, nullptr);
-      trial_data = 0.5 * r_trial.squaredNorm();
-      trial_cost = total_cost(trial, trial_data);
-      if (trial_cost <= cost) break;
-    }
-    if (trial_cost > cost) {  // no descent possible: at the minimum within precision
-      res.converged = true;
-      res.message = "converged (no further decrease)";
-      break;
-    }
-    res.params = trial;
-    cost = trial_cost;
-    data_cost = trial_data;
-    if ((t * y).norm() < options.step_tolerance) {
-      res.converged = true;
-      res.message = "converged (step below tolerance)";
-      break;
-    }
-    rp.evaluate(res.params, r, &J);
-  }
-  if (!res.converged) {
-    res.iterations = options.max_iterations;
-    res.message = "maximum iterations reached";
-  }
+  };
+  Eigen::VectorXd x0(m);
+  for (Eigen::Index k = 0; k < m; ++k) x0[k] = problem.initial_params[rp.estimated[k]];
+  CalibrationResult res;
+  res.initial_cost_per_observation = rp.dataCost(problem.initial_params) / static_cast<double>(problem.observations.size());
+  const internal::GaussNewtonOutcome gn = internal::gaussNewton(eval, x0, options);
+  res.params = full(gn.x);
+  res.iterations = gn.iterations;
+  res.converged = gn.converged;
+  res.message = gn.message;
   rp.finish(res);
   res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;

@@ -17,25 +17,18 @@ bool IdentifiabilityOptions::IsValid(std::string* error) const {
   return true;
 }
 
-IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
-                                             const IdentifiabilityOptions& options) {
+std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
+                                    const IdentifiabilityOptions& options) {
   std::string err;
   if (!options.IsValid(&err)) throw std::invalid_argument("IdentifiabilityOptions: " + err);
-  if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
-  std::vector<int> cand = options.candidates.empty() ? model.canonicalParams() : options.candidates;
-  // Priority: joints (base to flange, natural parameter order), then base, then tool: ascending index order.
-  std::sort(cand.begin(), cand.end());
-
-  IdentifiabilityReport rep;
-  rep.num_candidates = static_cast<int>(cand.size());
   const Eigen::Index m = J.rows();
-  Eigen::MatrixXd Q(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(cand.size())));
+  Eigen::MatrixXd Q(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(order.size())));
   int k = 0;
-  std::vector<int> dropped;
+  std::vector<int> kept;
   // A column many orders below the strongest one is round-off, not excitation (e.g. a rotation about an axis the
   // target lies on): normalizing it would turn noise into a direction.
   double max_norm = 0;
-  for (int c : cand) max_norm = std::max(max_norm, J.col(c).norm());
+  for (int c : order) max_norm = std::max(max_norm, J.col(c).norm());
   const double min_norm = 1e-10 * max_norm;
   // Two passes over the candidates in priority order. The first keeps only columns well clear of the kept span
   // (> weak_separation); the second revisits the rest against everything kept by then. A near-gauge that only a
@@ -48,15 +41,12 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   };
   std::vector<int> deferred;
   Eigen::VectorXd v;
-  for (int c : cand) {
-    if (J.col(c).norm() <= min_norm || k >= m) {
-      dropped.push_back(c);
-      continue;
-    }
+  for (int c : order) {
+    if (J.col(c).norm() <= min_norm || k >= m) continue;
     const double res = residual(c, v);
     if (res > std::max(options.weak_separation, options.rank_tolerance)) {
       Q.col(k++) = v / res;
-      rep.identifiable.push_back(c);
+      kept.push_back(c);
     } else {
       deferred.push_back(c);
     }
@@ -65,13 +55,31 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
     const double res = k < m ? residual(c, v) : 0.0;
     if (res > options.rank_tolerance) {
       Q.col(k++) = v / res;
-      rep.identifiable.push_back(c);
-    } else {
-      dropped.push_back(c);
+      kept.push_back(c);
     }
   }
-  std::sort(rep.identifiable.begin(), rep.identifiable.end());
-  std::sort(dropped.begin(), dropped.end());
+  std::sort(kept.begin(), kept.end());
+  return kept;
+}
+
+IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
+                                             const IdentifiabilityOptions& options) {
+  if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
+  std::vector<int> cand = options.candidates.empty() ? model.canonicalParams() : options.candidates;
+  // Priority: joints (base to flange, natural parameter order), then base, then tool: ascending index order.
+  std::sort(cand.begin(), cand.end());
+
+  IdentifiabilityReport rep;
+  rep.num_candidates = static_cast<int>(cand.size());
+  const Eigen::Index m = J.rows();
+  rep.identifiable = independentColumns(J, cand, options);
+  const int k = static_cast<int>(rep.identifiable.size());
+  std::vector<int> dropped;
+  for (int c : cand)
+    if (!std::binary_search(rep.identifiable.begin(), rep.identifiable.end(), c)) dropped.push_back(c);
+  double max_norm = 0;
+  for (int c : cand) max_norm = std::max(max_norm, J.col(c).norm());
+  const double min_norm = 1e-10 * max_norm;
   rep.rank = k;
 
   // Scaled Jacobian of the kept columns: condition number, and what each dropped column merges into.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/se3.hpp"
@@ -68,14 +69,57 @@ std::vector<Eigen::VectorXd> SimulatedCell::randomConfigurations(int n, std::mt1
   return out;
 }
 
-Pose SimulatedCell::truePose(const Eigen::VectorXd& q_rad, double t_h) const {
-  return forwardKinematics(model_, trueParams(t_h), q_rad);
+Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before,
+                                                   double t_h) const {
+  const HiddenJointEffect& h = config_.hidden;
+  Eigen::VectorXd dq = Eigen::VectorXd::Zero(model_.numJoints());
+  if (h.cause == Cause::kNone) return dq;
+  if (h.joint < 0 || h.joint >= model_.numJoints()) throw std::invalid_argument("HiddenJointEffect: joint out of range");
+  const double q = q_rad[h.joint];
+  double& e = dq[h.joint];
+  switch (h.cause) {
+    case Cause::kNone:
+      break;
+    case Cause::kJointCompliance: {
+      if (h.links.size() != static_cast<size_t>(model_.numJoints()))
+        throw std::invalid_argument("HiddenJointEffect: compliance needs one link per joint");
+      RobotModel m = model_;
+      m.links = h.links;
+      e = h.compliance_rad_per_Nm * gravityTorques(m, trueParams(t_h), q_rad)[h.joint];
+      break;
+    }
+    case Cause::kThermalDrift:
+      e = h.zero_drift_rad_per_K * temperatureRiseK(t_h);
+      break;
+    case Cause::kCyclicTransmission:
+      e = h.harmonics_rad.dot(Eigen::Vector4d(std::sin(q), std::cos(q), std::sin(2 * q), std::cos(2 * q)));
+      break;
+    case Cause::kJointScale:
+      e = h.scale * q;
+      break;
+    case Cause::kBacklash: {
+      const double dir = (q_before && q < (*q_before)[h.joint]) ? -1.0 : 1.0;
+      e = -0.5 * h.backlash_width_rad * dir;
+      break;
+    }
+  }
+  return dq;
+}
+
+Pose SimulatedCell::truePose(const Eigen::VectorXd& q_rad, double t_h, const Eigen::VectorXd* q_before) const {
+  if (config_.hidden.cause == Cause::kNone) return forwardKinematics(model_, trueParams(t_h), q_rad);
+  return forwardKinematics(model_, trueParams(t_h), Eigen::VectorXd(q_rad + hiddenJointErrorRad(q_rad, q_before, t_h)));
 }
 
 Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
                                    MeasurementKind kind) const {
+  return measure(q_rad, nullptr, t_h, rng, kind);
+}
+
+Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h,
+                                   std::mt19937_64& rng, MeasurementKind kind) const {
   std::normal_distribution<double> g(0.0, 1.0);
-  Pose T = truePose(q_rad, t_h);
+  Pose T = truePose(q_rad, t_h, q_before);
   const double sigma_rep = config_.repeatability_m / 2.0;
   const double sigma_p = config_.tracker.sigmaPosition(T.translation().norm());
   const double sigma_o = config_.tracker.sigmaOrientation();

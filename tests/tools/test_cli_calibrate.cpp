@@ -6,6 +6,7 @@
 #include "cellcal/core/ipa_dataset.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/simulation.hpp"
+#include "core/hidden_effect.hpp"
 
 namespace cellcal {
 namespace {
@@ -56,6 +57,62 @@ TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {
                                "--data", dir + "/bad.csv"});
   EXPECT_NE(p.wait(30), 0);
   EXPECT_NE(p.log().find("bad.csv:3:6: q6_deg: 'six' is not a finite number"), std::string::npos) << p.log();
+}
+
+
+// `cellcal diagnose` and `cellcal calibrate --model` on a file with an effect hidden in it (cause, joint, size and seed
+// drawn at random; sizes from 0.005 to 0.05 deg RMS, mostly above the tracker noise). The tool sees only the file.
+TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  const RobotModel nominal = robot("staubli_tx60");
+  const HiddenEffectData h = makeHiddenEffectData(nominal, seed, MeasurementKind::kPose6D, 400, 4.0, 0.005, 0.05);
+  std::printf("hidden: %s, effect %.4f mm RMS, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.effect_rms_mm,
+              h.noise_rms_mm);
+  {
+    std::ofstream out(dir + "/m.csv");
+    writeMeasurementCsv(out, h.file, 6, "simulated TX60 with a hidden effect");
+  }
+  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
+  const double sigma_mm = h.data.verification.front().sigma_position_m * 1e3;
+  Process p(dir, "diagnose", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                              dir + "/d.json", "--report", dir + "/report", "--sigma-position-mm", std::to_string(sigma_mm)});
+  ASSERT_EQ(p.wait(60), 0) << p.log();
+  const auto j = readJson(dir + "/d.json");
+  const std::string cause = j["cause"];
+  std::vector<int> joints = j["joints"].get<std::vector<int>>();
+  const bool large = h.draw.cause != Cause::kNone && h.effect_rms_mm > h.noise_rms_mm;
+  if (h.draw.cause == Cause::kNone) EXPECT_EQ(cause, "none") << p.log();
+  if (large) {
+    EXPECT_EQ(cause, causeName(h.draw.cause)) << p.log();
+    if (h.joint_effect_rms_mm > h.noise_rms_mm) EXPECT_EQ(joints, std::vector<int>{h.draw.joint + 1}) << p.log();
+    EXPECT_LT(j["extended"]["verify_rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << p.log();
+    EXPECT_GT(j["gain_pct"].get<double>(), 0.0);
+    EXPECT_TRUE(std::filesystem::exists(dir + "/report/signature.svg"));
+  }
+  EXPECT_TRUE(std::filesystem::exists(dir + "/report/report.md"));
+  ASSERT_TRUE(j["candidates"].is_array());
+  ASSERT_FALSE(j["candidates"].empty());
+  for (const char* k : {"cause", "joints", "verify_mean_mm", "params"}) EXPECT_TRUE(j["candidates"][0].contains(k)) << k;
+  EXPECT_TRUE(j["geometric"].contains("verify_mean_mm"));
+  EXPECT_TRUE(j["extended"].contains("verify_rms_mm"));
+
+  // calibrate with the model diagnose named (auto) and with the true cause given by hand.
+  if (large) {
+    std::string spec = cause + (joints.empty() ? "" : ":" + std::to_string(joints[0]));
+    for (const std::string& model : {std::string("auto"), spec}) {
+      Process c(dir, "calibrate", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                                   dir + "/c.json", "--model", model});
+      ASSERT_EQ(c.wait(60), 0) << c.log();
+      const auto cj = readJson(dir + "/c.json");
+      EXPECT_LT(cj["verification"]["after"]["rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << model << "\n" << c.log();
+      EXPECT_FALSE(cj["extension_params"].empty()) << c.log();
+    }
+  }
+  Process bad(dir, "calibrate-bad", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--model",
+                                     "backlash"});
+  EXPECT_NE(bad.wait(30), 0);
+  EXPECT_NE(bad.log().find("needs a joint"), std::string::npos) << bad.log();
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include "cellcal/core/calibration.hpp"
+#include "cellcal/core/diagnosis.hpp"
 #include "cellcal/core/calibration_engine.hpp"
 #include "cellcal/core/cell_config.hpp"
 #include "cellcal/core/registration.hpp"
@@ -149,6 +150,38 @@ void BM_CalibrateGeometric(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_CalibrateGeometric)->Arg(400)->Unit(benchmark::kMillisecond);
+
+// `cellcal diagnose` without file I/O: n poses in visiting order (half identify, half verify) over 4 h with
+// temperatures, registration, the geometric fit and every applicable (cause, joint) candidate (31 on a 6R arm).
+void BM_Diagnose(benchmark::State& state) {
+  const auto n = static_cast<int>(state.range(0));
+  SimulationConfig sc;
+  SimulatedCell cell(fx().robot, sc);
+  std::mt19937_64 rng(12);
+  const auto qs = cell.randomConfigurations(n, rng);
+  DiagnosisData data;
+  std::vector<std::optional<double>> temperature, stamp;
+  std::vector<Observation> all;
+  for (int i = 0; i < n; ++i) {
+    const double t_h = 4.0 * i / n;
+    all.push_back(cell.measure(qs[i], i ? &qs[i - 1] : nullptr, t_h, rng));
+    temperature.push_back(cell.temperatureC(t_h));
+    stamp.push_back(t_h * 3600);
+  }
+  const DriverTable d = driversFromSequence(qs, temperature, stamp);
+  for (int i = 0; i < n; ++i) {
+    (i % 2 ? data.verification : data.identification).push_back(all[i]);
+    (i % 2 ? data.verification_drivers : data.identification_drivers).push_back(d.rows[i]);
+  }
+  data.has_thermal = true;
+  Eigen::VectorXd start = cell.model().nominal;
+  start.tail<12>().setZero();
+  for (auto _ : state) {
+    const RegistrationResult reg = registerFrames(cell.model(), start, data.identification);
+    benchmark::DoNotOptimize(diagnose(cell.model(), reg.params, data).candidates.size());
+  }
+}
+BENCHMARK(BM_Diagnose)->Arg(400)->Unit(benchmark::kMillisecond);
 
 // One tracker reading through the engine: pairing, linearization, RLS update, statistics, and (Arg 1) the atomic
 // state-file replacement, (Arg 2) plus its fsync. Arg 0 keeps the state in memory only. Side by side: the cost of

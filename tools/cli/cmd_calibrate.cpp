@@ -1,52 +1,24 @@
 // `cellcal calibrate`: batch calibration of one measurement file; `cellcal import ipa`: the ipa UR10 series to CSV v1.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <sstream>
 #include <nlohmann/json.hpp>
 
 #include "cellcal/core/calibration.hpp"
+#include "cellcal/core/diagnosis.hpp"
 #include "cellcal/core/ipa_dataset.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/measurement_csv.hpp"
 #include "cellcal/core/registration.hpp"
 #include "cellcal/core/robot_yaml.hpp"
 #include "commands.hpp"
+#include "measurement_input.hpp"
 
 namespace cellcal::cli {
 namespace {
-
-struct ErrorStats {
-  double mean_mm = 0, rms_mm = 0, max_mm = 0, mean_deg = 0, rms_deg = 0, max_deg = 0;
-  int oriented = 0;
-};
-
-ErrorStats errorStats(const RobotModel& m, const Eigen::VectorXd& p, const std::vector<Observation>& obs) {
-  KinematicsData d(m);
-  ErrorStats s;
-  for (const auto& o : obs) {
-    const Pose T = forwardKinematics(m, d, p, o.q_rad);
-    const double e = (o.measured_in_tracker.translation() - T.translation()).norm() * 1e3;
-    s.mean_mm += e;
-    s.rms_mm += e * e;
-    s.max_mm = std::max(s.max_mm, e);
-    if (o.kind == MeasurementKind::kPose6D) {
-      const double a = logSO3(o.measured_in_tracker.linear() * T.linear().transpose()).norm() * 180 / kPi;
-      s.mean_deg += a;
-      s.rms_deg += a * a;
-      s.max_deg = std::max(s.max_deg, a);
-      ++s.oriented;
-    }
-  }
-  const double n = std::max<double>(1, obs.size());
-  s.mean_mm /= n;
-  s.rms_mm = std::sqrt(s.rms_mm / n);
-  if (s.oriented) {
-    s.mean_deg /= s.oriented;
-    s.rms_deg = std::sqrt(s.rms_deg / s.oriented);
-  }
-  return s;
-}
 
 nlohmann::json toJson(const ErrorStats& s) {
   nlohmann::json j = {{"mean_mm", s.mean_mm}, {"rms_mm", s.rms_mm}, {"max_mm", s.max_mm}};
@@ -55,54 +27,103 @@ nlohmann::json toJson(const ErrorStats& s) {
 }
 
 struct CalibrateArgs {
-  std::string robot, data, json, model = "geometric", split = "alternate", solver = "gn";
-  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01, rank_tolerance = IdentifiabilityOptions{}.rank_tolerance;
-  bool position_only = false, skip_bad_rows = false, no_register = false;
+  InputArgs input;
+  std::string json, model = "geometric", solver = "gn";
+  double rank_tolerance = IdentifiabilityOptions{}.rank_tolerance;
 };
 
+ExtendedFit asFit(const Eigen::VectorXd& params) {
+  ExtendedFit f;
+  f.params = params;
+  return f;
+}
+
+// "backlash:3,joint_compliance:2" or "thermal_drift" (lengths) -> extensions; joints 1-based.
+std::vector<Extension> parseModel(const std::string& spec, const RobotModel& robot) {
+  std::vector<Extension> out;
+  std::stringstream ss(spec);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    const auto colon = item.find(':');
+    const std::string name = item.substr(0, colon);
+    const auto cause = causeFromName(name);
+    if (!cause || *cause == Cause::kNone)
+      throw std::runtime_error("--model: '" + name + "' is not a cause (joint_compliance, thermal_drift, "
+                               "cyclic_transmission, joint_scale, backlash), nor geometric or auto");
+    Extension e{*cause, -1};
+    if (colon != std::string::npos) {
+      try {
+        e.joint = std::stoi(item.substr(colon + 1)) - 1;
+      } catch (const std::exception&) {
+        throw std::runtime_error("--model: '" + item + "': the joint after ':' must be a number (1-based)");
+      }
+    } else if (*cause != Cause::kThermalDrift) {
+      throw std::runtime_error("--model: '" + item + "' needs a joint, e.g. " + name + ":2");
+    }
+    if (!applicable(robot, e, true))
+      throw std::runtime_error("--model: '" + item + "' does not apply to " + robot.name);
+    out.push_back(e);
+  }
+  if (out.empty()) throw std::runtime_error("--model: empty");
+  return out;
+}
+
 int runCalibrate(const CalibrateArgs& a) {
-  if (a.model != "geometric")
-    throw std::runtime_error("--model " + a.model + ": only 'geometric' so far (extended models come with `cellcal diagnose`)");
-  const RobotModel robot = loadRobotModel(a.robot);
-  MeasurementCsvOptions mo;
-  mo.skip_bad_rows = a.skip_bad_rows;
-  const MeasurementFile file = readMeasurementCsv(a.data, robot, mo);
-  for (const auto& w : file.warnings) std::fprintf(stderr, "skipped: %s\n", w.c_str());
-  for (const auto& c : file.ignored_columns) std::fprintf(stderr, "%s: column '%s' ignored\n", a.data.c_str(), c.c_str());
-  const MeasurementKind kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
-  std::vector<Observation> ident, verify;
-  for (size_t i = 0; i < file.rows.size(); ++i) {
-    const Observation o = toObservation(file.rows[i], kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180);
-    const bool to_verify = a.split == "alternate" ? (i % 2 == 1) : (i >= file.rows.size() / 2);
-    (to_verify ? verify : ident).push_back(o);
-  }
-  if (ident.size() < 8 || verify.empty()) throw std::runtime_error(a.data + ": too few rows (" + std::to_string(file.rows.size()) + ")");
+  const LoadedInput in = loadInput(a.input);
+  const RobotModel& robot = in.robot;
+  const auto& ident = in.data.identification;
+  const auto& verify = in.data.verification;
+  const MeasurementKind kind = in.kind;
+  const Eigen::VectorXd& start = in.start;
   using Clock = std::chrono::steady_clock;
-  const auto t0 = Clock::now();
-  Eigen::VectorXd start = robot.nominal;
-  double reg_rms = std::nan("");
-  if (!a.no_register) {
-    const RegistrationResult reg = registerFrames(robot, robot.nominal, ident);
-    start = reg.params;
-    reg_rms = reg.rms_position_m * 1e3;
-  }
   const auto t1 = Clock::now();
   CalibrationProblem p{&robot, start, ident, std::nullopt, {}};
   p.identifiability.rank_tolerance = a.rank_tolerance;
   std::string why;
   if (!p.IsValid(&why)) throw std::runtime_error(why);
   const CalibrationResult r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
+  ExtendedFit after = asFit(r.params);
+  std::string model_label = "geometric";
+  bool converged = r.converged;
+  int iterations = r.iterations;
+  size_t estimated = r.estimated.size();
+  std::string message = r.message;
+  if (a.model != "geometric") {
+    if (a.model == "auto") {
+      DiagnosisOptions o;
+      o.identifiability = p.identifiability;
+      const DiagnosisResult d = diagnose(robot, start, in.data, o);
+      after = d.best().fit;
+    } else {
+      after = fitExtended(robot, start, ident, in.data.identification_drivers, parseModel(a.model, robot), {},
+                          p.identifiability, &r.params);
+    }
+    model_label.clear();
+    for (const auto& e : after.extensions)
+      model_label += (model_label.empty() ? "" : " + ") + std::string(causeName(e.cause)) +
+                     (e.joint >= 0 ? " joint " + std::to_string(e.joint + 1) : "");
+    if (model_label.empty()) model_label = "geometric (auto: no cause found)";
+    converged = after.converged;
+    iterations = after.iterations;
+    estimated = after.estimated.size() + after.estimated_extension.size();
+    message = after.message;
+  }
   const auto t2 = Clock::now();
-  const double reg_s = std::chrono::duration<double>(t1 - t0).count(), solve_s = std::chrono::duration<double>(t2 - t1).count();
-  const ErrorStats ib = errorStats(robot, start, ident), ia = errorStats(robot, r.params, ident);
-  const ErrorStats vb = errorStats(robot, start, verify), va = errorStats(robot, r.params, verify);
-  std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.data.c_str(), file.rows.size(),
-              a.split.c_str(), ident.size(), verify.size(), kind == MeasurementKind::kPose6D ? "6D" : "position only",
-              robot.name.c_str());
-  if (!a.no_register) std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", reg_rms, reg_s * 1e3);
-  std::printf("geometric calibration (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
-              a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton", r.converged ? "converged" : "NOT converged", r.iterations, r.estimated.size(), solve_s * 1e3);
-  if (!r.converged) std::printf("  solver: %s\n", r.message.c_str());
+  const double reg_s = in.registration_s, solve_s = std::chrono::duration<double>(t2 - t1).count();
+  const ExtendedFit before = asFit(start);
+  const auto& idr = in.data.identification_drivers;
+  const auto& vdr = in.data.verification_drivers;
+  const ErrorStats ib = errorStats(robot, before, ident, idr), ia = errorStats(robot, after, ident, idr);
+  const ErrorStats vb = errorStats(robot, before, verify, vdr), va = errorStats(robot, after, verify, vdr);
+  std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.input.data.c_str(),
+              in.file.rows.size(), a.input.split.c_str(), ident.size(), verify.size(),
+              kind == MeasurementKind::kPose6D ? "6D" : "position only", robot.name.c_str());
+  if (!a.input.no_register)
+    std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", in.registration_rms_mm, reg_s * 1e3);
+  std::printf("calibration, model %s (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
+              model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",
+              converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
+  if (!converged) std::printf("  solver: %s\n", message.c_str());
   std::printf("\n                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
   auto row = [](const char* name, const ErrorStats& s) {
     std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, s.mean_mm, s.rms_mm, s.max_mm, s.mean_deg,
@@ -118,21 +139,39 @@ int runCalibrate(const CalibrateArgs& a) {
     for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramName(d.index).c_str());
     std::printf("\n");
   }
+  if (!after.estimated_extension.empty()) {
+    std::printf("extension parameters:");
+    for (int k : after.estimated_extension)
+      std::printf(" %s=%.6g", after.extension_names[k].c_str(), after.extension_params[k]);
+    std::printf("\n");
+  }
   if (!a.json.empty()) {
     nlohmann::json params = nlohmann::json::array();
-    for (const auto& np : r.parameters(robot, start))
-      params.push_back({{"name", np.name}, {"initial", np.initial}, {"value", np.value}, {"stddev", np.stddev}, {"estimated", np.estimated}});
-    nlohmann::json j = {{"data", a.data}, {"robot", robot.name}, {"rows", file.rows.size()}, {"skipped_rows", file.skipped_rows},
-                        {"split", a.split}, {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
+    if (a.model == "geometric") {
+      for (const auto& np : r.parameters(robot, start))
+        params.push_back({{"name", np.name}, {"initial", np.initial}, {"value", np.value}, {"stddev", np.stddev},
+                          {"estimated", np.estimated}});
+    } else {  // SI names and values (no covariance for extended fits yet)
+      for (int i = 0; i < robot.numParams(); ++i)
+        params.push_back({{"name", robot.paramName(i)}, {"initial", start[i]}, {"value", after.params[i]},
+                          {"estimated", std::find(after.estimated.begin(), after.estimated.end(), i) != after.estimated.end()}});
+    }
+    nlohmann::json ext = nlohmann::json::object();
+    for (int k : after.estimated_extension) ext[after.extension_names[k]] = after.extension_params[k];
+    nlohmann::json j = {{"data", a.input.data}, {"robot", robot.name}, {"rows", in.file.rows.size()},
+                        {"skipped_rows", in.file.skipped_rows}, {"split", a.input.split},
+                        {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
                         {"measurement", kind == MeasurementKind::kPose6D ? "pose6d" : "position3d"},
-                        {"model", a.model}, {"solver", a.solver}, {"converged", r.converged}, {"iterations", r.iterations},
-                        {"registration_rms_mm", reg_rms}, {"registration_time_s", reg_s}, {"solve_time_s", solve_s},
+                        {"model", a.model}, {"model_fitted", model_label}, {"solver", a.solver},
+                        {"converged", converged}, {"iterations", iterations},
+                        {"registration_rms_mm", in.registration_rms_mm}, {"registration_time_s", reg_s},
+                        {"solve_time_s", solve_s},
                         {"identification", {{"before", toJson(ib)}, {"after", toJson(ia)}}},
                         {"verification", {{"before", toJson(vb)}, {"after", toJson(va)}}},
-                        {"parameters", params}};
+                        {"parameters", params}, {"extension_params", ext}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
-  return r.converged ? 0 : 3;
+  return converged ? 0 : 3;
 }
 
 }  // namespace
@@ -145,23 +184,19 @@ Runner addCalibrateCommand(CLI::App& app) {
       "identifiable kinematic parameter (Gauss-Newton, or --solver lm) on the identification rows, and reports mean/RMS/max "
       "position and orientation errors on identification and verification rows, before and after. Split: "
       "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies");
-  cmd->add_option("--robot", a->robot, "robot file (YAML)")->required()->check(CLI::ExistingFile);
-  cmd->add_option("--data", a->data, "measurement file (CSV v1, docs/measurement-csv.md)")->required()->check(CLI::ExistingFile);
+  addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
-  cmd->add_option("--model", a->model, "geometric (extended models: see `diagnose`, to come)")->capture_default_str();
-  cmd->add_option("--split", a->split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
-  cmd->add_option("--sigma-position-mm", a->sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
-  cmd->add_option("--sigma-orientation-deg", a->sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
-  cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres)")
+  cmd->add_option("--model", a->model,
+                  "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
+                  "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
+      ->capture_default_str();
+  cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; geometric model)")
       ->check(CLI::IsMember({"gn", "lm"}))
       ->capture_default_str();
   cmd->add_option("--rank-tolerance", a->rank_tolerance,
                   "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "
                   "than this sine")
       ->capture_default_str();
-  cmd->add_flag("--position-only", a->position_only, "use positions only, even where orientations are given");
-  cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");
-  cmd->add_flag("--no-register", a->no_register, "trust the robot file's base and tool frames as the start");
   return [a, cmd]() -> int {
     if (!*cmd) return 0;
     return runCalibrate(*a);

@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   auto bench_cell = cellcal::cli::addBenchCellCommand(app);
   auto calibrate = cellcal::cli::addCalibrateCommand(app);
   auto import_ = cellcal::cli::addImportCommand(app);
+  auto diagnose = cellcal::cli::addDiagnoseCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -29,6 +30,7 @@ int main(int argc, char** argv) {
     if (app.got_subcommand("bench-cell")) return bench_cell();
     if (app.got_subcommand("calibrate")) return calibrate();
     if (app.got_subcommand("import")) return import_();
+    if (app.got_subcommand("diagnose")) return diagnose();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

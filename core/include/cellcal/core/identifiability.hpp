@@ -43,6 +43,11 @@ struct IdentifiabilityReport {
   std::string summary(const RobotModel& model) const;
 };
 
+// The columns of J (indices taken from `order`, highest priority first) that the rule above keeps, ascending.
+// Works on any stacked Jacobian, e.g. kinematic parameters plus the parameters of a model extension.
+std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
+                                    const IdentifiabilityOptions& options = {});
+
 // J: stacked whitened Jacobian with all model.numParams() columns.
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
                                              const IdentifiabilityOptions& options = {});

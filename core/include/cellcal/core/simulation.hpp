@@ -9,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "cellcal/core/model_extension.hpp"
 #include "cellcal/core/observation.hpp"
 #include "cellcal/core/robot_model.hpp"
 
@@ -22,6 +23,24 @@ struct TrackerSpec {
   double mpe_in_sigmas = 2.0;
   double sigmaPosition(double distance_m) const { return (mpe_constant_m + mpe_per_distance * distance_m) / mpe_in_sigmas; }
   double sigmaOrientation() const { return orientation_mpe_rad / mpe_in_sigmas; }
+};
+
+// An effect on one joint that a geometric model does not have (to test and demonstrate diagnosis). The true joint
+// angle is the reported one plus dq_j:
+//   kJointCompliance     dq_j = compliance_rad_per_Nm * gravity torque on joint j of `links` (true masses)
+//   kThermalDrift        dq_j = zero_drift_rad_per_K * temperature rise (lengths grow by expansion_per_K as always)
+//   kCyclicTransmission  dq_j = harmonics_rad . (sin q_j, cos q_j, sin 2q_j, cos 2q_j)
+//   kJointScale          dq_j = scale * q_j
+//   kBacklash            dq_j = -backlash_width_rad / 2 * sign(q_j - q_j before): the link lags the motor
+struct HiddenJointEffect {
+  Cause cause = Cause::kNone;
+  int joint = 0;  // 0-based
+  double compliance_rad_per_Nm = 0.0;
+  std::vector<LinkInertia> links;  // one per joint, DH frame i
+  double zero_drift_rad_per_K = 0.0;
+  Eigen::Vector4d harmonics_rad = Eigen::Vector4d::Zero();
+  double scale = 0.0;
+  double backlash_width_rad = 0.0;
 };
 
 struct SimulationConfig {
@@ -49,6 +68,8 @@ struct SimulationConfig {
   double pose_range_fraction = 0.8;
   double pose_min_z_m = -0.2;
   double pose_min_radius_m = 0.2;
+  double ambient_temperature_c = 20.0;  // temperature = ambient + rise
+  HiddenJointEffect hidden;              // none by default
 };
 
 class SimulatedCell {
@@ -66,7 +87,13 @@ class SimulatedCell {
   // A noisy tracker measurement at configuration q, time t (sigmas set from the spec).
   Observation measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
                       MeasurementKind kind = MeasurementKind::kPose6D) const;
-  Pose truePose(const Eigen::VectorXd& q_rad, double t_h) const;
+  // q_before: the configuration the robot came from (backlash depends on it); none: every joint moved positive.
+  Observation measure(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h, std::mt19937_64& rng,
+                      MeasurementKind kind = MeasurementKind::kPose6D) const;
+  Pose truePose(const Eigen::VectorXd& q_rad, double t_h, const Eigen::VectorXd* q_before = nullptr) const;
+  // The hidden effect's joint error (rad per joint) at this configuration (the truth, for tests).
+  Eigen::VectorXd hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h) const;
+  double temperatureC(double t_h) const { return config_.ambient_temperature_c + temperatureRiseK(t_h); }
   const SimulationConfig& config() const { return config_; }
 
  private:

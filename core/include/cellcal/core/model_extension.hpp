@@ -1,0 +1,75 @@
+// Physical effects a geometric model does not have, each as an extension with few parameters.
+//
+// Every cause acts on the kinematic parameters of one observation: the extension's parameters e (a handful) perturb
+// the parameter vector as  params_i = params + B_i e,  with B_i (numParams x numParams(ext)) built once per
+// observation from its joint angles and drivers. A joint error dq_j adds to joint j's theta offset; a length change
+// adds to the a and d entries. The pose Jacobian with respect to e is therefore J_i B_i, with J_i the kinematic
+// Jacobian of kinematics.hpp: no new derivative code.
+//
+// Causes (joint j, 1-based in names and output, 0-based in code):
+//   joint_compliance     dq_j = compliance * tau_j(q): the gravity torque on joint j. With link masses in the robot file,
+//                        one parameter (rad per N m) times the torque of those masses. Without, the gravity regressor
+//                        of the links beyond joint j: per link i, its mass and first moment (m, m c) in frame i times
+//                        the compliance, 4 parameters per link (the data decide which combinations are identifiable).
+//   thermal_drift        every a and d grows by e_0 * s * value and joint j's zero by e_1 * s, with s the thermal driver
+//                        (temperature minus its reference, K; or hours since the first row when no temperature).
+//                        joint = -1: the lengths only (one parameter), when no joint zero drifts measurably.
+//   cyclic_transmission  dq_j = e_0 sin q_j + e_1 cos q_j + e_2 sin 2q_j + e_3 cos 2q_j.
+//   joint_scale          dq_j = e_0 q_j (transmission-ratio error).
+//   backlash             dq_j = e_0 * m_j / 2 with m_j = +-1 the direction joint j last moved (e_0: the width, rad).
+#pragma once
+
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/robot_model.hpp"
+#include "cellcal/core/se3.hpp"
+
+namespace cellcal {
+
+enum class Cause { kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash };
+
+const char* causeName(Cause c);                               // "joint_compliance", ...
+std::optional<Cause> causeFromName(const std::string& name);  // inverse of causeName
+const std::vector<Cause>& extensionCauses();                  // every cause except kNone
+
+// Values of the drivers other than q at one observation.
+struct Drivers {
+  double thermal = 0.0;               // K above the reference temperature, or hours since the first row; see below
+  Eigen::VectorXd motion_direction;   // per joint: +1 / -1 = sign of (q - q of the row visited before), 0 unknown
+};
+
+// Drivers of rows given in visiting order. thermal: temperature_c[i] - temperature reference (their mean) if every
+// row has a temperature; else (stamp_s[i] - stamp_s[0]) / 3600 if every row has a stamp; else none
+// (has_thermal = false). Joints that moved less than 1e-4 rad get direction of the last real motion.
+struct DriverTable {
+  std::vector<Drivers> rows;
+  bool has_thermal = false;
+  std::string thermal_source;  // "temperature_c", "stamp_s" or ""
+};
+DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad, const std::vector<std::optional<double>>& temperature_c,
+                                const std::vector<std::optional<double>>& stamp_s);
+
+struct Extension {
+  Cause cause = Cause::kNone;
+  int joint = -1;  // 0-based; -1 for kNone and for thermal drift of the lengths alone
+};
+
+// Frames of the chain in the tracker frame: [0] robot base, [i] after A_i (i = 1..n), [n+1] target.
+std::vector<Pose> chainFrames(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad);
+
+// Gravity torque on each joint (N m, about its axis) of the masses in model.links at (params, q).
+Eigen::VectorXd gravityTorques(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad);
+
+// Whether the cause applies to this joint with these data (e.g. no compliance on a joint gravity never loads).
+bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal);
+int numExtensionParams(const RobotModel& model, const Extension& ext);
+std::vector<std::string> extensionParamNames(const RobotModel& model, const Extension& ext);
+
+// B_i of one observation (see the top of this file). `params` sets the geometry of the gravity basis.
+Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
+                               const Eigen::VectorXd& q_rad, const Drivers& drivers);
+
+}  // namespace cellcal

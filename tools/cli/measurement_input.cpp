@@ -1,0 +1,65 @@
+#include "measurement_input.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <stdexcept>
+
+#include "cellcal/core/registration.hpp"
+#include "cellcal/core/robot_yaml.hpp"
+
+namespace cellcal::cli {
+
+LoadedInput loadInput(const InputArgs& a) {
+  LoadedInput in;
+  in.robot = loadRobotModel(a.robot);
+  MeasurementCsvOptions mo;
+  mo.skip_bad_rows = a.skip_bad_rows;
+  in.file = readMeasurementCsv(a.data, in.robot, mo);
+  for (const auto& w : in.file.warnings) std::fprintf(stderr, "skipped: %s\n", w.c_str());
+  for (const auto& c : in.file.ignored_columns) std::fprintf(stderr, "%s: column '%s' ignored\n", a.data.c_str(), c.c_str());
+  in.kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+  const auto& rows = in.file.rows;
+  std::vector<Eigen::VectorXd> q;
+  std::vector<std::optional<double>> temperature, stamp;
+  for (const auto& r : rows) {
+    q.push_back(r.q_rad);
+    temperature.push_back(r.temperature_c);
+    stamp.push_back(r.stamp_s);
+  }
+  const DriverTable drivers = driversFromSequence(q, temperature, stamp);
+  in.data.has_thermal = drivers.has_thermal;
+  in.data.thermal_source = drivers.thermal_source;
+  for (size_t i = 0; i < rows.size(); ++i) {
+    const Observation o =
+        toObservation(rows[i], in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180);
+    const bool to_verify = a.split == "alternate" ? (i % 2 == 1) : (i >= rows.size() / 2);
+    (to_verify ? in.data.verification : in.data.identification).push_back(o);
+    (to_verify ? in.data.verification_drivers : in.data.identification_drivers).push_back(drivers.rows[i]);
+  }
+  if (in.data.identification.size() < 8 || in.data.verification.empty())
+    throw std::runtime_error(a.data + ": too few rows (" + std::to_string(rows.size()) + ")");
+  const auto t0 = std::chrono::steady_clock::now();
+  in.start = in.robot.nominal;
+  in.registration_rms_mm = std::nan("");
+  if (!a.no_register) {
+    const RegistrationResult reg = registerFrames(in.robot, in.robot.nominal, in.data.identification);
+    in.start = reg.params;
+    in.registration_rms_mm = reg.rms_position_m * 1e3;
+  }
+  in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return in;
+}
+
+void addInputOptions(CLI::App* cmd, InputArgs& a) {
+  cmd->add_option("--robot", a.robot, "robot file (YAML)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--data", a.data, "measurement file (CSV v1, docs/measurement-csv.md)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--split", a.split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
+  cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
+  cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
+  cmd->add_flag("--position-only", a.position_only, "use positions only, even where orientations are given");
+  cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
+  cmd->add_flag("--no-register", a.no_register, "trust the robot file's base and tool frames as the start");
+}
+
+}  // namespace cellcal::cli

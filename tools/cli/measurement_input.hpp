@@ -1,0 +1,38 @@
+// What `calibrate` and `diagnose` share: reading a measurement file, splitting it, the drivers of each row and the
+// registered start model.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/diagnosis.hpp"
+#include "cellcal/core/measurement_csv.hpp"
+#include "cellcal/core/robot_model.hpp"
+
+namespace cellcal::cli {
+
+struct InputArgs {
+  std::string robot, data, split = "alternate";
+  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
+  bool position_only = false, skip_bad_rows = false, no_register = false;
+};
+
+struct LoadedInput {
+  RobotModel robot;
+  MeasurementFile file;
+  MeasurementKind kind = MeasurementKind::kPose6D;
+  DiagnosisData data;        // identification / verification rows with their drivers (computed in visiting order)
+  Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
+  double registration_rms_mm = 0;  // NaN with --no-register
+  double registration_s = 0;
+};
+
+// Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies.
+// Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
+LoadedInput loadInput(const InputArgs& a);
+
+// Adds --robot --data --split --sigma-* --position-only --skip-bad-rows --no-register to a subcommand.
+void addInputOptions(CLI::App* cmd, InputArgs& a);
+
+}  // namespace cellcal::cli
