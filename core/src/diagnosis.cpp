@@ -34,12 +34,6 @@ std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const Eigen::VectorX
   return B;
 }
 
-std::vector<Extension> extensionsOf(const ExtendedFit& f) {
-  if (!f.extensions.empty()) return f.extensions;
-  if (f.extension.cause == Cause::kNone) return {};
-  return {f.extension};
-}
-
 // Stacked whitened residual and Jacobian [d/dparams (all), d/de (all)] of the extended model.
 void stackExtended(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& e,
                    const std::vector<Observation>& obs, const std::vector<Eigen::MatrixXd>& B, Eigen::VectorXd& r,
@@ -79,14 +73,6 @@ double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::V
   return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
 }
 
-// Gravity torque on joint j of the robot file's masses (N m), or without masses of a unit mass at the target (N m/kg).
-double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad, int j) {
-  if (!model.links.empty()) return gravityTorques(model, params, q_rad)[j];
-  const std::vector<Pose> F = chainFrames(model, params, q_rad);
-  const Eigen::Vector3d g = F[0].linear() * model.gravity_in_base_mps2;
-  return F[j].linear().col(2).dot((F.back().translation() - F[j].translation()).cross(g));
-}
-
 Eigen::VectorXd rowParams(const ExtendedFit& fit, const Eigen::MatrixXd& B) {
   return fit.extension_params.size() ? Eigen::VectorXd(fit.params + B * fit.extension_params) : fit.params;
 }
@@ -114,7 +100,6 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   if (start.size() != model.numParams()) throw std::invalid_argument("fitExtended: start has the wrong size");
   if (obs.empty()) throw std::invalid_argument("fitExtended: no observations");
   ExtendedFit fit;
-  fit.extension = extensions.empty() ? Extension{} : extensions.front();
   fit.extensions = extensions;
   int k = 0;
   for (const auto& e : extensions) {
@@ -163,7 +148,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
 
 std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers) {
-  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, extensionsOf(fit), obs, drivers);
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, fit.extensions, obs, drivers);
   KinematicsData data(model);
   std::vector<Eigen::Vector3d> out;
   out.reserve(obs.size());
@@ -175,7 +160,7 @@ std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const Ex
 
 ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers) {
-  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, extensionsOf(fit), obs, drivers);
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, fit.extensions, obs, drivers);
   KinematicsData data(model);
   ErrorStats s;
   s.rows = static_cast<int>(obs.size());
@@ -361,8 +346,8 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
     }
     out.chosen = static_cast<int>(pick);
     const CandidateResult& b = out.candidates[pick];
-    out.cause = b.fit.extension.cause;
-    if (b.fit.extension.joint >= 0) out.joints = {b.fit.extension.joint};
+    out.cause = b.fit.extension().cause;
+    if (b.fit.extension().joint >= 0) out.joints = {b.fit.extension().joint};
   }
   const CandidateResult& best = out.best();
   out.gain_pct = 100.0 * (1.0 - best.verification.mean_mm / out.geometric.verification.mean_mm);
@@ -380,7 +365,7 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
 CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geometric, const ExtendedFit& extended,
                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                               const std::string& thermal_source) {
-  const Extension ext = extended.extension;
+  const Extension ext = extended.extension();
   if (ext.cause == Cause::kNone) throw std::invalid_argument("causeSignature: the extended fit has no cause");
   CauseSignature sig;
   const int j = ext.joint;

@@ -128,6 +128,12 @@ Eigen::VectorXd gravityTorques(const RobotModel& model, const Eigen::VectorXd& p
   return tau;
 }
 
+double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad, int j) {
+  if (!model.links.empty()) return gravityTorques(model, params, q_rad)[j];
+  const std::vector<Pose> F = chainFrames(model, params, q_rad);
+  return unitTorque(F, j, F.back().translation(), gravityInTracker(model, F));
+}
+
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal) {
   if (ext.cause == Cause::kThermalDrift && ext.joint == -1) return has_thermal;  // lengths only
   if (ext.joint < 0 || ext.joint >= model.numJoints()) return false;
@@ -194,12 +200,13 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(model.numParams(), k);
   if (k == 0) return B;
   const int j = ext.joint;
-  if (ext.cause == Cause::kThermalDrift && j < 0) {
+  if (ext.cause == Cause::kThermalDrift) {  // column 0: every length grows with itself; column 1: joint j's zero
     for (int i = 0; i < model.numJoints(); ++i)
       for (JointParam p : {JointParam::kA, JointParam::kD}) {
         const int idx = model.jointParam(i, p);
         B(idx, 0) = drivers.thermal * params[idx];
       }
+    if (j >= 0) B(model.jointParam(j, JointParam::kThetaOffset), 1) = drivers.thermal;
     return B;
   }
   const int th = model.jointParam(j, JointParam::kThetaOffset);
@@ -223,13 +230,7 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
       }
       break;
     }
-    case Cause::kThermalDrift:
-      for (int i = 0; i < model.numJoints(); ++i)
-        for (JointParam p : {JointParam::kA, JointParam::kD}) {
-          const int idx = model.jointParam(i, p);
-          B(idx, 0) = drivers.thermal * params[idx];
-        }
-      B(th, 1) = drivers.thermal;
+    case Cause::kThermalDrift:  // above
       break;
     case Cause::kCyclicTransmission:
       B(th, 0) = std::sin(q);

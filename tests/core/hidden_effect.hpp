@@ -154,16 +154,13 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
 
   const SimulatedCell cell(nominal, sc);
   h.model = cell.model();
-  std::vector<Observation> all, exact;
+  std::vector<Observation> all;
   std::vector<std::optional<double>> temperature, stamp;
   std::normal_distribution<double> thermometer(0.0, 0.01);  // a PT100 read to 0.01 K
   for (int i = 0; i < poses; ++i) {
     const double t_h = hours * i / poses;
     const Eigen::VectorXd* before = i ? &qs[i - 1] : nullptr;
     all.push_back(cell.measure(qs[i], before, t_h, rng, kind));
-    Observation x = all.back();
-    x.measured_in_tracker = cell.truePose(qs[i], t_h, before);
-    exact.push_back(x);
     temperature.push_back(cell.temperatureC(t_h) + thermometer(rng));
     stamp.push_back(t_h * 3600.0);
     MeasurementRow row;
@@ -176,35 +173,36 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
     h.file.rows.push_back(row);
   }
   const DriverTable d = driversFromSequence(qs, temperature, stamp);
-  std::vector<Observation> exact_verify;
-  std::vector<Drivers> exact_ident_drivers;
   for (int i = 0; i < poses; ++i) {
     const bool ident = i % 2 == 0;
     (ident ? h.data.identification : h.data.verification).push_back(all[i]);
     (ident ? h.data.identification_drivers : h.data.verification_drivers).push_back(d.rows[i]);
-    if (!ident) exact_verify.push_back(exact[i]);
-    if (ident) exact_ident_drivers.push_back(d.rows[i]);
   }
   h.data.has_thermal = d.has_thermal;
   h.data.thermal_source = d.thermal_source;
 
-  // Grading figures from the truth.
-  auto unabsorbedMm = [&](const SimulatedCell& c) {
-    std::vector<Observation> ident, verify;
+  // Grading figures from the truth: the rows as a cell's true robot reaches them, without noise.
+  auto exactRows = [&](const SimulatedCell& c, std::vector<Observation>& ident, std::vector<Observation>& verify) {
     for (int i = 0; i < poses; ++i) {
       Observation x = all[i];
       x.measured_in_tracker = c.truePose(qs[i], hours * i / poses, i ? &qs[i - 1] : nullptr);
       (i % 2 == 0 ? ident : verify).push_back(x);
     }
-    const ExtendedFit geo = fitExtended(h.model, h.model.nominal, ident, exact_ident_drivers, Extension{});
+  };
+  auto unabsorbedMm = [&](const std::vector<Observation>& ident, const std::vector<Observation>& verify) {
+    const ExtendedFit geo = fitExtended(h.model, h.model.nominal, ident, h.data.identification_drivers, Extension{});
     return errorStats(h.model, geo, verify, h.data.verification_drivers).rms_mm;
   };
-  h.effect_rms_mm = unabsorbedMm(cell);
+  std::vector<Observation> exact_ident, exact_verify;
+  exactRows(cell, exact_ident, exact_verify);
+  h.effect_rms_mm = unabsorbedMm(exact_ident, exact_verify);
   h.joint_effect_rms_mm = h.effect_rms_mm;
   if (h.draw.cause == Cause::kThermalDrift) {
     SimulationConfig zeros_only = sc;
     zeros_only.expansion_per_K = 0;
-    h.joint_effect_rms_mm = unabsorbedMm(SimulatedCell(nominal, zeros_only));
+    std::vector<Observation> ident, verify;
+    exactRows(SimulatedCell(nominal, zeros_only), ident, verify);
+    h.joint_effect_rms_mm = unabsorbedMm(ident, verify);
   }
   double noise = 0;
   for (size_t i = 0; i < exact_verify.size(); ++i)

@@ -82,10 +82,14 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   const std::string cause = j["cause"];
   std::vector<int> joints = j["joints"].get<std::vector<int>>();
   const bool large = h.draw.cause != Cause::kNone && h.effect_rms_mm > h.noise_rms_mm;
-  if (h.draw.cause == Cause::kNone) EXPECT_EQ(cause, "none") << p.log();
+  if (h.draw.cause == Cause::kNone) {
+    EXPECT_EQ(cause, "none") << p.log();
+  }
   if (large) {
     EXPECT_EQ(cause, causeName(h.draw.cause)) << p.log();
-    if (h.joint_effect_rms_mm > h.noise_rms_mm) EXPECT_EQ(joints, std::vector<int>{h.draw.joint + 1}) << p.log();
+    if (h.joint_effect_rms_mm > h.noise_rms_mm) {
+      EXPECT_EQ(joints, std::vector<int>{h.draw.joint + 1}) << p.log();
+    }
     EXPECT_LT(j["extended"]["verify_rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << p.log();
     EXPECT_GT(j["gain_pct"].get<double>(), 0.0);
     EXPECT_TRUE(std::filesystem::exists(dir + "/report/signature.svg"));

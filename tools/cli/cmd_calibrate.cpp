@@ -20,12 +20,6 @@
 namespace cellcal::cli {
 namespace {
 
-nlohmann::json toJson(const ErrorStats& s) {
-  nlohmann::json j = {{"mean_mm", s.mean_mm}, {"rms_mm", s.rms_mm}, {"max_mm", s.max_mm}};
-  if (s.oriented) j.update({{"mean_deg", s.mean_deg}, {"rms_deg", s.rms_deg}, {"max_deg", s.max_deg}});
-  return j;
-}
-
 struct CalibrateArgs {
   InputArgs input;
   std::string json, model = "geometric", solver = "gn";
@@ -166,8 +160,8 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"converged", converged}, {"iterations", iterations},
                         {"registration_rms_mm", in.registration_rms_mm}, {"registration_time_s", reg_s},
                         {"solve_time_s", solve_s},
-                        {"identification", {{"before", toJson(ib)}, {"after", toJson(ia)}}},
-                        {"verification", {{"before", toJson(vb)}, {"after", toJson(va)}}},
+                        {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
+                        {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
                         {"parameters", params}, {"extension_params", ext}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }

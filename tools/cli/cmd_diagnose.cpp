@@ -32,16 +32,9 @@ nlohmann::json jointsJson(const Extension& e) {
   return j;
 }
 
-nlohmann::json statsJson(const ErrorStats& s, const char* prefix) {
-  const std::string p = prefix;
-  nlohmann::json j = {{p + "_mean_mm", s.mean_mm}, {p + "_rms_mm", s.rms_mm}, {p + "_max_mm", s.max_mm}};
-  if (s.oriented) j.update({{p + "_mean_deg", s.mean_deg}, {p + "_rms_deg", s.rms_deg}, {p + "_max_deg", s.max_deg}});
-  return j;
-}
-
 nlohmann::json fitJson(const CandidateResult& c) {
-  nlohmann::json j = statsJson(c.verification, "verify");
-  j.update(statsJson(c.identification, "ident"));
+  nlohmann::json j = errorStatsJson(c.verification, "verify_");
+  j.update(errorStatsJson(c.identification, "ident_"));
   return j;
 }
 
@@ -88,7 +81,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
     std::snprintf(buf, sizeof buf,
                   "**%s**: verification mean position error %.4f -> %.4f mm (gain %.1f %%), RMS %.4f -> %.4f mm; "
                   "%.1f standard errors better than the geometric model on the verification rows.\n\n",
-                  causeLabel(b.fit.extension).c_str(), g.verification.mean_mm, b.verification.mean_mm, d.gain_pct,
+                  causeLabel(b.fit.extension()).c_str(), g.verification.mean_mm, b.verification.mean_mm, d.gain_pct,
                   g.verification.rms_mm, b.verification.rms_mm, b.z);
     md << buf;
   }
@@ -113,7 +106,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
   std::snprintf(buf, sizeof buf, "| geometric | 0 | %.4f | %.4f | |\n", g.verification.mean_mm, g.verification.rms_mm);
   md << buf;
   for (const auto& c : d.candidates) {
-    std::snprintf(buf, sizeof buf, "| %s | %d | %.4f | %.4f | %.1f |\n", causeLabel(c.fit.extension).c_str(),
+    std::snprintf(buf, sizeof buf, "| %s | %d | %.4f | %.4f | %.1f |\n", causeLabel(c.fit.extension()).c_str(),
                   c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z);
     md << buf;
   }
@@ -121,7 +114,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
     const CauseSignature sig = causeSignature(in.robot, g.fit, b.fit, in.data.verification,
                                               in.data.verification_drivers, in.data.thermal_source);
     std::ofstream(a.report + "/signature.svg")
-        << scatterSvg({{"geometric model", sig.x, sig.y_before}, {"with " + causeLabel(b.fit.extension), sig.x, sig.y_after}},
+        << scatterSvg({{"geometric model", sig.x, sig.y_before}, {"with " + causeLabel(b.fit.extension()), sig.x, sig.y_after}},
                       sig.x_label, sig.y_label);
     md << "\n## The cause in the data\n\nVerification rows: the residual as the cause's own quantity against its "
           "driver, before and after the extension.\n\n![signature](signature.svg)\n\nExtension parameters:\n\n";
@@ -144,11 +137,11 @@ int runDiagnose(const DiagnoseArgs& a) {
   std::printf("\n%-34s %6s %12s %12s %8s\n", "model (verification rows)", "params", "mean mm", "rms mm", "z");
   std::printf("%-34s %6s %12.4f %12.4f\n", "geometric", "-", g.verification.mean_mm, g.verification.rms_mm);
   for (const auto& c : d.candidates)
-    std::printf("%-34s %6d %12.4f %12.4f %8.1f%s\n", causeLabel(c.fit.extension).c_str(), c.fit.numEstimatedExtension(),
+    std::printf("%-34s %6d %12.4f %12.4f %8.1f%s\n", causeLabel(c.fit.extension()).c_str(), c.fit.numEstimatedExtension(),
                 c.verification.mean_mm, c.verification.rms_mm, c.z, &c == &b ? "   <- chosen" : "");
   std::printf("\nresidual structure before (adjusted R^2): %s\n", structureLine(d.structure_before, 4).c_str());
   if (d.chosen >= 0) std::printf("residual structure after:                  %s\n", structureLine(d.structure_after, 4).c_str());
-  std::printf("\ncause: %s", d.chosen >= 0 ? causeLabel(b.fit.extension).c_str() : "none");
+  std::printf("\ncause: %s", d.chosen >= 0 ? causeLabel(b.fit.extension()).c_str() : "none");
   std::printf("  (verification mean %.4f -> %.4f mm, gain %.1f %%)\n", g.verification.mean_mm, b.verification.mean_mm,
               d.gain_pct);
   std::printf("unexplained: %.4f mm RMS beyond the expected noise of %.4f mm RMS (diagnosis %.2f s)\n",
@@ -156,14 +149,14 @@ int runDiagnose(const DiagnoseArgs& a) {
   if (!a.json.empty()) {
     nlohmann::json cands = nlohmann::json::array();
     for (const auto& c : d.candidates)
-      cands.push_back({{"cause", causeName(c.fit.extension.cause)}, {"joints", jointsJson(c.fit.extension)},
+      cands.push_back({{"cause", causeName(c.fit.extension().cause)}, {"joints", jointsJson(c.fit.extension())},
                        {"verify_mean_mm", c.verification.mean_mm}, {"verify_rms_mm", c.verification.rms_mm},
                        {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
                        {"score_m2", c.score}});
     nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
                         {"split", a.input.split}, {"measurement", in.kind == MeasurementKind::kPose6D ? "pose6d" : "position3d"},
                         {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
-                        {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(b.fit.extension) : nlohmann::json::array()},
+                        {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(b.fit.extension()) : nlohmann::json::array()},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
                         {"extension_params", d.chosen >= 0 ? paramsJson(b.fit) : nlohmann::json::object()},
                         {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},

@@ -51,6 +51,13 @@ LoadedInput loadInput(const InputArgs& a) {
   return in;
 }
 
+nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix) {
+  const std::string& p = prefix;
+  nlohmann::json j = {{p + "mean_mm", s.mean_mm}, {p + "rms_mm", s.rms_mm}, {p + "max_mm", s.max_mm}};
+  if (s.oriented) j.update({{p + "mean_deg", s.mean_deg}, {p + "rms_deg", s.rms_deg}, {p + "max_deg", s.max_deg}});
+  return j;
+}
+
 void addInputOptions(CLI::App* cmd, InputArgs& a) {
   cmd->add_option("--robot", a.robot, "robot file (YAML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--data", a.data, "measurement file (CSV v1, docs/measurement-csv.md)")->required()->check(CLI::ExistingFile);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,9 @@ struct LoadedInput {
 // Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies.
 // Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
+
+// {"<prefix>mean_mm", "<prefix>rms_mm", "<prefix>max_mm"} and, with 6D rows, the same in _deg.
+nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix = "");
 
 // Adds --robot --data --split --sigma-* --position-only --skip-bad-rows --no-register to a subcommand.
 void addInputOptions(CLI::App* cmd, InputArgs& a);

@@ -27,8 +27,8 @@
 namespace cellcal {
 
 struct ExtendedFit {
-  Extension extension;                    // the (first) extension
-  std::vector<Extension> extensions;      // all of them, their parameters in this order (fitExtended with a list)
+  std::vector<Extension> extensions;      // in the order of their parameters; empty: the geometric model
+  Extension extension() const { return extensions.empty() ? Extension{} : extensions.front(); }  // the (first) one
   bool converged = false;
   int iterations = 0;
   std::string message;

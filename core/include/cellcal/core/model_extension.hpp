@@ -63,6 +63,10 @@ std::vector<Pose> chainFrames(const RobotModel& model, const Eigen::VectorXd& pa
 // Gravity torque on each joint (N m, about its axis) of the masses in model.links at (params, q).
 Eigen::VectorXd gravityTorques(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad);
 
+// The driver of joint_compliance on joint j: the gravity torque of the robot file's masses (N m), or without masses
+// that of a unit mass at the target (N m/kg).
+double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad, int j);
+
 // Whether the cause applies to this joint with these data (e.g. no compliance on a joint gravity never loads).
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal);
 int numExtensionParams(const RobotModel& model, const Extension& ext);
