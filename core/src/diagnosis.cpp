@@ -13,25 +13,27 @@ namespace cellcal {
 
 namespace {
 
+// B_i of every observation; a backlash's play state evaluated at the width in `evaluated_at` (empty: width 0).
 std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const Eigen::VectorXd& params,
                                    const std::vector<Extension>& exts, const std::vector<Observation>& obs,
-                                   const std::vector<Drivers>& drivers) {
+                                   const std::vector<Drivers>& drivers, const Eigen::VectorXd& evaluated_at) {
   if (drivers.size() != obs.size()) throw std::invalid_argument("diagnosis: one Drivers entry per observation needed");
-  int k = 0;
-  for (const auto& e : exts) k += numExtensionParams(model, e);
   std::vector<Eigen::MatrixXd> B;
   B.reserve(obs.size());
-  for (size_t i = 0; i < obs.size(); ++i) {
-    Eigen::MatrixXd b(model.numParams(), k);
-    int c = 0;
-    for (const auto& e : exts) {
-      const Eigen::MatrixXd be = extensionBasis(model, params, e, obs[i].q_rad, drivers[i]);
-      b.middleCols(c, be.cols()) = be;
-      c += static_cast<int>(be.cols());
-    }
-    B.push_back(std::move(b));
-  }
+  for (size_t i = 0; i < obs.size(); ++i)
+    B.push_back(extensionBasis(model, params, exts, obs[i].q_rad, drivers[i], evaluated_at));
   return B;
+}
+
+std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                                   const std::vector<Drivers>& drivers) {
+  return bases(model, fit.params, fit.extensions, obs, drivers, fit.extension_params);
+}
+
+bool hasBacklash(const std::vector<Extension>& exts) {
+  for (const auto& e : exts)
+    if (e.cause == Cause::kBacklash) return true;
+  return false;
 }
 
 // Stacked whitened residual and Jacobian [d/dparams (all), d/de (all)] of the extended model.
@@ -107,7 +109,8 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
     k += numExtensionParams(model, e);
   }
   const int np = model.numParams();
-  const std::vector<Eigen::MatrixXd> B = bases(model, start, extensions, obs, drivers);
+  Eigen::VectorXd evaluated_at = Eigen::VectorXd::Zero(k);  // the widths the backlash bases are evaluated at
+  std::vector<Eigen::MatrixXd> B = bases(model, start, extensions, obs, drivers, evaluated_at);
   const Eigen::VectorXd p0 = warm_start ? *warm_start : start;
 
   // Which columns to estimate: canonical kinematic parameters first, extension parameters last.
@@ -138,17 +141,48 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   };
   Eigen::VectorXd x0(m);
   for (Eigen::Index c = 0; c < m; ++c) x0[c] = cols[c] < np ? p0[cols[c]] : 0.0;
-  const internal::GaussNewtonOutcome gn = internal::gaussNewton(eval, x0, solver);
+  internal::GaussNewtonOutcome gn = internal::gaussNewton(eval, x0, solver);
   unpack(gn.x, fit.params, fit.extension_params);
+  int iterations = gn.iterations;
+  // A backlash basis depends on its own width (the play state): re-evaluate it at the fitted width and refit until
+  // the width settles (a fixed point; it moves only through rows whose moves were smaller than the width).
+  for (int pass = 0; pass < 8 && hasBacklash(extensions); ++pass) {
+    const Eigen::VectorXd moved = fit.extension_params.cwiseAbs() - evaluated_at.cwiseAbs();
+    if ((moved.array().abs() <= 1e-3 * fit.extension_params.array().abs() + 1e-12).all()) break;
+    evaluated_at = fit.extension_params;
+    B = bases(model, start, extensions, obs, drivers, evaluated_at);
+    gn = internal::gaussNewton(eval, gn.x, solver);
+    unpack(gn.x, fit.params, fit.extension_params);
+    iterations += gn.iterations;
+  }
   fit.converged = gn.converged;
-  fit.iterations = gn.iterations;
+  fit.iterations = iterations;
   fit.message = gn.message;
+  Eigen::VectorXd b;
+  Eigen::MatrixXd A;
+  eval(gn.x, b, &A);
+  const Eigen::MatrixXd info = A.transpose() * A;
+  fit.covariance = info.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
   return fit;
+}
+
+double ExtendedFit::paramStddev(int i) const {
+  const auto it = std::find(estimated.begin(), estimated.end(), i);
+  if (it == estimated.end() || covariance.rows() == 0) return std::nan("");
+  const auto c = it - estimated.begin();
+  return std::sqrt(covariance(c, c));
+}
+
+double ExtendedFit::extensionStddev(int k) const {
+  const auto it = std::find(estimated_extension.begin(), estimated_extension.end(), k);
+  if (it == estimated_extension.end() || covariance.rows() == 0) return std::nan("");
+  const auto c = static_cast<Eigen::Index>(estimated.size()) + (it - estimated_extension.begin());
+  return std::sqrt(covariance(c, c));
 }
 
 std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers) {
-  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, fit.extensions, obs, drivers);
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
   std::vector<Eigen::Vector3d> out;
   out.reserve(obs.size());
@@ -160,7 +194,7 @@ std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const Ex
 
 ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers) {
-  const std::vector<Eigen::MatrixXd> B = bases(model, fit.params, fit.extensions, obs, drivers);
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
   ErrorStats s;
   s.rows = static_cast<int>(obs.size());

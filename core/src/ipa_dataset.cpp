@@ -1,6 +1,7 @@
 #include "cellcal/core/ipa_dataset.hpp"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <fstream>
@@ -108,14 +109,34 @@ MeasurementFile readIpaSeries(const std::string& path, const RobotModel& robot, 
                           joints[j] + ": outside the joint limits of " + robot.name);
     f.rows.push_back(std::move(r));
   }
-  if (stamps_ok && stamps.size() == f.rows.size())
+  // The CSV's row order is the visiting order: with usable stamps, rows are written in time order (stable), and the
+  // notes say how many were not, how long the stamps span and in how many sessions (gaps over an hour) the robot was
+  // measured.
+  size_t out_of_order = 0, sessions = 0;
+  double span_h = 0, measured_h = 0;
+  if (stamps_ok && stamps.size() == f.rows.size() && !stamps.empty()) {
     for (size_t i = 0; i < f.rows.size(); ++i) f.rows[i].stamp_s = stamps[i];
+    for (size_t i = 1; i < stamps.size(); ++i) out_of_order += stamps[i] < stamps[i - 1];
+    std::stable_sort(f.rows.begin(), f.rows.end(),
+                     [](const MeasurementRow& a, const MeasurementRow& b) { return *a.stamp_s < *b.stamp_s; });
+    const double t0 = *f.rows.front().stamp_s;
+    for (auto& r : f.rows) *r.stamp_s -= t0;
+    span_h = *f.rows.back().stamp_s / 3600.0;
+    sessions = 1;
+    for (size_t i = 1; i < f.rows.size(); ++i) {
+      const double gap_h = (*f.rows[i].stamp_s - *f.rows[i - 1].stamp_s) / 3600.0;
+      if (gap_h > 1.0) ++sessions;
+      else measured_h += gap_h;
+    }
+  }
   if (notes) {
     std::ostringstream n;
     n << f.rows.size() << " rows from " << path << "; ";
-    if (stamps_ok && !stamps.empty())
-      n << "stamps over " << std::fixed << std::setprecision(2) << stamps.back() / 3600.0 << " h";
-    else
+    if (stamps_ok && !stamps.empty()) {
+      n << "stamps span " << std::fixed << std::setprecision(2) << span_h << " h in " << sessions
+        << " session(s) (gaps over 1 h between them), " << measured_h << " h of measuring";
+      if (out_of_order) n << "; " << out_of_order << " rows out of time order in the source, written in time order";
+    } else
       n << "timestamps unusable (damaged, e.g. '2,02011E+13'): row order only";
     if (tmax >= tmin) n << "; temperature " << std::fixed << std::setprecision(2) << tmin << " .. " << tmax << " C";
     *notes = n.str();

@@ -84,14 +84,27 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
   }
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Index nj = q_rad[i].size();
-    t.rows[i].motion_direction = i == 0 ? Eigen::VectorXd::Zero(nj) : t.rows[i - 1].motion_direction;
+    Drivers& d = t.rows[i];
+    d.motion_direction = i == 0 ? Eigen::VectorXd::Zero(nj) : t.rows[i - 1].motion_direction;
+    d.recent_steps_rad = Eigen::MatrixXd::Zero(nj, kPlayHistory);
     if (i == 0) continue;
+    if (t.rows[i - 1].recent_steps_rad.rows() == nj)
+      d.recent_steps_rad.leftCols(kPlayHistory - 1) = t.rows[i - 1].recent_steps_rad.rightCols(kPlayHistory - 1);
     for (Eigen::Index j = 0; j < nj; ++j) {
       const double dq = q_rad[i][j] - q_rad[i - 1][j];
-      if (std::abs(dq) >= kStillRad) t.rows[i].motion_direction[j] = dq > 0 ? 1.0 : -1.0;
+      d.recent_steps_rad(j, kPlayHistory - 1) = dq;
+      if (std::abs(dq) >= kStillRad) d.motion_direction[j] = dq > 0 ? 1.0 : -1.0;
     }
   }
   return t;
+}
+
+double playState(const Drivers& drivers, int j, double width_rad) {
+  if (!(width_rad > 0)) return drivers.motion_direction.size() > j ? drivers.motion_direction[j] : 0.0;
+  if (drivers.recent_steps_rad.rows() <= j) return 0.0;
+  double s = 0.0;
+  for (Eigen::Index c = 0; c < drivers.recent_steps_rad.cols(); ++c) s = playStep(s, drivers.recent_steps_rad(j, c), width_rad);
+  return s;
 }
 
 std::vector<Pose> chainFrames(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad) {
@@ -195,7 +208,7 @@ std::vector<std::string> extensionParamNames(const RobotModel& model, const Exte
 }
 
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
-                               const Eigen::VectorXd& q_rad, const Drivers& drivers) {
+                               const Eigen::VectorXd& q_rad, const Drivers& drivers, double backlash_width_rad) {
   const int k = numExtensionParams(model, ext);
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(model.numParams(), k);
   if (k == 0) return B;
@@ -242,8 +255,27 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
       B(th, 0) = q;
       break;
     case Cause::kBacklash:
-      B(th, 0) = 0.5 * (drivers.motion_direction.size() > j ? drivers.motion_direction[j] : 0.0);
+      B(th, 0) = 0.5 * playState(drivers, j, backlash_width_rad);
       break;
+  }
+  return B;
+}
+
+int numExtensionParams(const RobotModel& model, const std::vector<Extension>& exts) {
+  int k = 0;
+  for (const auto& e : exts) k += numExtensionParams(model, e);
+  return k;
+}
+
+Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                               const Eigen::VectorXd& q_rad, const Drivers& drivers, const Eigen::VectorXd& evaluated_at) {
+  Eigen::MatrixXd B(model.numParams(), numExtensionParams(model, exts));
+  int c = 0;
+  for (const auto& e : exts) {
+    const int k = numExtensionParams(model, e);
+    const double width = e.cause == Cause::kBacklash && evaluated_at.size() > c ? std::abs(evaluated_at[c]) : 0.0;
+    B.middleCols(c, k) = extensionBasis(model, params, e, q_rad, drivers, width);
+    c += k;
   }
   return B;
 }

@@ -117,25 +117,74 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& par
     : model_(&model), params_(params), estimated_(estimated), rls_(select(params, estimated), covariance, options.rls),
       data_(model) {}
 
-double RlsCalibrator::normalizedInnovation(const Observation& obs) {
-  const int rows = whitenedResidual(*model_, data_, params_, obs, r_, &J_);
-  A_.resize(rows, static_cast<Eigen::Index>(estimated_.size()));
-  for (size_t k = 0; k < estimated_.size(); ++k) A_.col(k) = J_.col(estimated_[k]);
+namespace {
+Eigen::VectorXd initialState(const ExtendedFit& f) {
+  Eigen::VectorXd x(f.estimated.size() + f.estimated_extension.size());
+  Eigen::Index c = 0;
+  for (int i : f.estimated) x[c++] = f.params[i];
+  for (int k : f.estimated_extension) x[c++] = f.extension_params[k];
+  return x;
+}
+}  // namespace
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(initial.params),
+      estimated_(initial.estimated),
+      extensions_(initial.extensions),
+      extension_params_(initial.extension_params),
+      estimated_extension_(initial.estimated_extension),
+      rls_(initialState(initial), initial.covariance, options.rls),
+      data_(model) {}
+
+Eigen::VectorXd RlsCalibrator::rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers) {
+  if (extensions_.empty()) {
+    B_.resize(0, 0);
+    return params_;
+  }
+  if (!drivers) throw std::invalid_argument("RlsCalibrator: an extended model needs the pose's Drivers");
+  B_ = extensionBasis(*model_, params_, extensions_, q_rad, *drivers, extension_params_);
+  return params_ + B_ * extension_params_;
+}
+
+int RlsCalibrator::linearize(const Observation& obs, const Drivers* drivers) {
+  const Eigen::VectorXd p = rowParams(obs.q_rad, drivers);
+  const int rows = whitenedResidual(*model_, data_, p, obs, r_, &J_);
+  const auto ne = static_cast<Eigen::Index>(estimated_.size());
+  A_.resize(rows, ne + static_cast<Eigen::Index>(estimated_extension_.size()));
+  for (Eigen::Index k = 0; k < ne; ++k) A_.col(k) = J_.col(estimated_[k]).head(rows);
+  if (!estimated_extension_.empty()) {
+    const Eigen::MatrixXd JB = J_.topRows(rows) * B_;
+    for (size_t k = 0; k < estimated_extension_.size(); ++k) A_.col(ne + k) = JB.col(estimated_extension_[k]);
+  }
+  return rows;
+}
+
+void RlsCalibrator::writeBack() {
+  const auto ne = estimated_.size();
+  for (size_t k = 0; k < ne; ++k) params_[estimated_[k]] = rls_.x()[k];
+  for (size_t k = 0; k < estimated_extension_.size(); ++k) extension_params_[estimated_extension_[k]] = rls_.x()[ne + k];
+}
+
+double RlsCalibrator::normalizedInnovation(const Observation& obs, const Drivers* drivers) {
+  const int rows = linearize(obs, drivers);
   const Eigen::MatrixXd S = A_ * rls_.P() * A_.transpose() + Eigen::MatrixXd::Identity(rows, rows);
   return r_.head(rows).dot(S.ldlt().solve(r_.head(rows)));
 }
 
-double RlsCalibrator::addObservation(const Observation& obs) {
-  const int rows = whitenedResidual(*model_, data_, params_, obs, r_, &J_);
-  A_.resize(rows, static_cast<Eigen::Index>(estimated_.size()));
-  for (size_t k = 0; k < estimated_.size(); ++k) A_.col(k) = J_.col(estimated_[k]);
+double RlsCalibrator::addObservation(const Observation& obs, const Drivers* drivers) {
+  const int rows = linearize(obs, drivers);
   rls_.updateWithInnovation(A_, r_.head(rows));
-  for (size_t k = 0; k < estimated_.size(); ++k) params_[estimated_[k]] = rls_.x()[k];
+  writeBack();
   return rls_.lastNormalizedInnovation();
 }
 
+Pose RlsCalibrator::predict(const Eigen::VectorXd& q_rad, const Drivers* drivers) {
+  return forwardKinematics(*model_, data_, rowParams(q_rad, drivers), q_rad);
+}
+
 void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full) {
-  Eigen::VectorXd q(estimated_.size());
+  Eigen::VectorXd q = Eigen::VectorXd::Zero(rls_.x().size());
   for (size_t k = 0; k < estimated_.size(); ++k) q[k] = sigma_full[estimated_[k]] * sigma_full[estimated_[k]];
   rls_.addProcessNoise(q);
 }
@@ -159,7 +208,8 @@ GaussianPrior RlsCalibrator::asPrior() const {
   GaussianPrior p;
   p.mean = params_;
   p.indices = estimated_;
-  p.covariance = rls_.P();
+  const auto ne = static_cast<Eigen::Index>(estimated_.size());
+  p.covariance = rls_.P().topLeftCorner(ne, ne);
   return p;
 }
 

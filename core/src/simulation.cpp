@@ -69,7 +69,7 @@ std::vector<Eigen::VectorXd> SimulatedCell::randomConfigurations(int n, std::mt1
   return out;
 }
 
-Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before,
+Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const HiddenJointState* state,
                                                    double t_h) const {
   const HiddenJointEffect& h = config_.hidden;
   Eigen::VectorXd dq = Eigen::VectorXd::Zero(model_.numJoints());
@@ -97,18 +97,24 @@ Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad,
     case Cause::kJointScale:
       e = h.scale * q;
       break;
-    case Cause::kBacklash: {
-      const double dir = (q_before && q < (*q_before)[h.joint]) ? -1.0 : 1.0;
-      e = -0.5 * h.backlash_width_rad * dir;
+    case Cause::kBacklash:
+      e = -0.5 * h.backlash_width_rad * (state ? state->backlash_play : 1.0);
       break;
-    }
   }
   return dq;
 }
 
-Pose SimulatedCell::truePose(const Eigen::VectorXd& q_rad, double t_h, const Eigen::VectorXd* q_before) const {
+HiddenJointState SimulatedCell::advanceHiddenState(HiddenJointState state, const Eigen::VectorXd& q_from_rad,
+                                                   const Eigen::VectorXd& q_to_rad) const {
+  const HiddenJointEffect& h = config_.hidden;
+  if (h.cause == Cause::kBacklash && h.backlash_width_rad > 0)
+    state.backlash_play = playStep(state.backlash_play, q_to_rad[h.joint] - q_from_rad[h.joint], h.backlash_width_rad);
+  return state;
+}
+
+Pose SimulatedCell::truePose(const Eigen::VectorXd& q_rad, double t_h, const HiddenJointState* state) const {
   if (config_.hidden.cause == Cause::kNone) return forwardKinematics(model_, trueParams(t_h), q_rad);
-  return forwardKinematics(model_, trueParams(t_h), Eigen::VectorXd(q_rad + hiddenJointErrorRad(q_rad, q_before, t_h)));
+  return forwardKinematics(model_, trueParams(t_h), Eigen::VectorXd(q_rad + hiddenJointErrorRad(q_rad, state, t_h)));
 }
 
 Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
@@ -116,10 +122,10 @@ Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, double t_h, std
   return measure(q_rad, nullptr, t_h, rng, kind);
 }
 
-Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h,
+Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h,
                                    std::mt19937_64& rng, MeasurementKind kind) const {
   std::normal_distribution<double> g(0.0, 1.0);
-  Pose T = truePose(q_rad, t_h, q_before);
+  Pose T = truePose(q_rad, t_h, state);
   const double sigma_rep = config_.repeatability_m / 2.0;
   const double sigma_p = config_.tracker.sigmaPosition(T.translation().norm());
   const double sigma_o = config_.tracker.sigmaOrientation();

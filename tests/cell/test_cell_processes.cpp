@@ -75,9 +75,14 @@ TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
     EXPECT_GT(s["topics"][t]["received"].get<int>(), 0) << t;
   }
   const double before = s["verify_before_mm"], after = s["verify_after_mm"], ref = s["in_process_verify_after_mm"];
+  // The 9 s run measures the 50 initial poses and one group of 15; the cell clock then runs on for ~0.8 h of
+  // simulated warm-up with no new pose, so the end-of-run error includes drift no engine could have seen (it
+  // depends on the seed's drift rate). Convergence is judged at the time of the last update; the end-of-run
+  // error against the uncalibrated robot and against the in-process engine at the same time.
+  const double at_update = s["verify_after_last_update_mm"];
   EXPECT_GT(before, 0.3);
+  EXPECT_LT(at_update, 0.05);
   EXPECT_LT(after, before / 10);
-  EXPECT_LT(after, 0.1);
   // Through the processes as good as core's engine fed the same program in-process.
   EXPECT_LT(after, 1.5 * ref + 0.005) << "in-process " << ref;
   const auto& r = s["robots"][0];

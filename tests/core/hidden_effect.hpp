@@ -157,10 +157,12 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
   std::vector<Observation> all;
   std::vector<std::optional<double>> temperature, stamp;
   std::normal_distribution<double> thermometer(0.0, 0.01);  // a PT100 read to 0.01 K
+  // The hidden state along the path (backlash: the play, exact, including moves that cross the gap only partly).
+  std::vector<HiddenJointState> state(poses);
+  for (int i = 1; i < poses; ++i) state[i] = cell.advanceHiddenState(state[i - 1], qs[i - 1], qs[i]);
   for (int i = 0; i < poses; ++i) {
     const double t_h = hours * i / poses;
-    const Eigen::VectorXd* before = i ? &qs[i - 1] : nullptr;
-    all.push_back(cell.measure(qs[i], before, t_h, rng, kind));
+    all.push_back(cell.measure(qs[i], &state[i], t_h, rng, kind));
     temperature.push_back(cell.temperatureC(t_h) + thermometer(rng));
     stamp.push_back(t_h * 3600.0);
     MeasurementRow row;
@@ -185,7 +187,7 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
   auto exactRows = [&](const SimulatedCell& c, std::vector<Observation>& ident, std::vector<Observation>& verify) {
     for (int i = 0; i < poses; ++i) {
       Observation x = all[i];
-      x.measured_in_tracker = c.truePose(qs[i], hours * i / poses, i ? &qs[i - 1] : nullptr);
+      x.measured_in_tracker = c.truePose(qs[i], hours * i / poses, &state[i]);
       (i % 2 == 0 ? ident : verify).push_back(x);
     }
   };

@@ -67,15 +67,26 @@ TEST_P(ExtensionReproducesTheEffect, ForEveryCauseAndJoint) {
       const Extension ext{cause, j};
       if (cause == Cause::kJointCompliance && !applicable(m, ext, false)) continue;
       ASSERT_EQ(numExtensionParams(m, ext), ext_params.size()) << causeName(cause);
-      const auto qs = cell.randomConfigurations(5, rng);
+      // A path of large moves, each followed by small ones (a fraction of the backlash width, either way): the play
+      // is crossed fully and partly.
+      std::vector<Eigen::VectorXd> qs;
+      for (const auto& q : cell.randomConfigurations(4, rng)) {
+        qs.push_back(q);
+        for (int s = 0; s < 2; ++s)
+          qs.push_back(qs.back() + Eigen::VectorXd::NullaryExpr(q.size(), [&] { return 1e-3 * u(rng); }));
+      }
+      const DriverTable table = driversFromSequence(qs, {}, {});
+      HiddenJointState state;
       for (size_t i = 1; i < qs.size(); ++i) {
+        state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
+        if (i < 3) continue;  // the play is known only after the first large move (qs[3])
         const double t_h = 0.7 * static_cast<double>(i);
-        Drivers d = driversFromSequence({qs[i - 1], qs[i]}, {}, {}).rows[1];
+        Drivers d = table.rows[i];
         d.thermal = cell.temperatureRiseK(t_h);  // reference: the cold robot
         const Eigen::VectorXd true0 = cell.trueParams(0.0);
-        const Eigen::MatrixXd B = extensionBasis(m, true0, ext, qs[i], d);
+        const Eigen::MatrixXd B = extensionBasis(m, true0, ext, qs[i], d, e.backlash_width_rad);
         const Pose predicted = forwardKinematics(m, Eigen::VectorXd(true0 + B * ext_params), qs[i]);
-        const Pose actual = cell.truePose(qs[i], t_h, &qs[i - 1]);
+        const Pose actual = cell.truePose(qs[i], t_h, &state);
         EXPECT_LT((predicted.translation() - actual.translation()).norm(), 1e-9)
             << causeName(cause) << " joint " << j + 1 << " pose " << i;
         EXPECT_LT(logSO3(predicted.linear() * actual.linear().transpose()).norm(), 1e-9)
@@ -119,6 +130,14 @@ TEST(Drivers, DirectionAndThermalSources) {
   EXPECT_EQ(none.rows[1].motion_direction, Eigen::Vector2d(1, -1));
   EXPECT_EQ(none.rows[2].motion_direction, Eigen::Vector2d(1, 1));   // joint 1 still: keeps its last direction
   EXPECT_EQ(none.rows[3].motion_direction, Eigen::Vector2d(-1, 1));
+  // Play state. Joint 1 moves +0.1, 0, -0.05: a 0.1 rad play goes 0 -> 1 -> 1 -> 0 (half the gap crossed back),
+  // a 0.4 rad one 0 -> 0.5 -> 0.5 -> 0.25. Joint 2 moves -0.1, +0.1, +0.2: crossed fully each time.
+  EXPECT_DOUBLE_EQ(playState(none.rows[1], 0, 0.1), 1.0);
+  EXPECT_DOUBLE_EQ(playState(none.rows[3], 0, 0.1), 0.0);
+  EXPECT_DOUBLE_EQ(playState(none.rows[3], 0, 0.4), 0.25);  // 0 -> 0.5 -> 0.5 -> 0.25
+  EXPECT_DOUBLE_EQ(playState(none.rows[3], 1, 0.1), 1.0);
+  EXPECT_DOUBLE_EQ(playState(none.rows[3], 1, 0.0), 1.0);   // width 0: the direction of the last move
+  EXPECT_DOUBLE_EQ(playState(none.rows[0], 0, 0.1), 0.0);   // nothing known before the first move
   const DriverTable time = driversFromSequence(q, {}, {0.0, 3600.0, 7200.0, 9000.0});
   EXPECT_EQ(time.thermal_source, "stamp_s");
   EXPECT_DOUBLE_EQ(time.rows[3].thermal, 2.5);
@@ -127,6 +146,53 @@ TEST(Drivers, DirectionAndThermalSources) {
   EXPECT_DOUBLE_EQ(temp.rows[0].thermal, -1.5);
   const DriverTable partial = driversFromSequence(q, {20.0, std::nullopt, 22.0, 23.0}, {});
   EXPECT_FALSE(partial.has_thermal);  // a thermal driver only when every row has one
+}
+
+// The extended fit's covariance describes the scatter of its estimates: the same robot with a hidden joint scale
+// error (random joint and size) measured again and again with fresh noise; the estimates' errors in units of their
+// reported sigma have unit RMS. Backlash too (its basis is iterated to the fitted width).
+TEST(ExtendedFit, CovarianceMatchesTheScatterOfEstimates) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const RobotModel nominal = test::robot("staubli_tx60");
+  for (Cause cause : {Cause::kJointScale, Cause::kBacklash}) {
+    SimulationConfig sc;
+    sc.seed = rng();
+    sc.zero_drift_per_K_max_rad = sc.zero_wear_per_h_max_rad = 0;
+    sc.warmup_K = 0;
+    sc.hidden.cause = cause;
+    sc.hidden.joint = std::uniform_int_distribution<int>(0, 5)(rng);
+    sc.hidden.scale = (u(rng) < 0.5 ? -1 : 1) * (2e-4 + 1e-3 * u(rng));
+    sc.hidden.backlash_width_rad = 2e-4 + 1e-3 * u(rng);
+    const double truth = cause == Cause::kJointScale ? sc.hidden.scale : -sc.hidden.backlash_width_rad;
+    const SimulatedCell cell(nominal, sc);
+    const Extension ext{cause, sc.hidden.joint};
+    double z2 = 0;
+    const int trials = 60;
+    for (int t = 0; t < trials; ++t) {
+      const auto qs = cell.randomConfigurations(120, rng);
+      std::vector<Observation> obs;
+      HiddenJointState state;
+      for (size_t i = 0; i < qs.size(); ++i) {
+        if (i) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
+        obs.push_back(cell.measure(qs[i], &state, 0.0, rng));
+      }
+      // The first row's play state is unknown to anyone (no move before it): it is left out.
+      const DriverTable d = driversFromSequence(qs, {}, {});
+      obs.erase(obs.begin());
+      const std::vector<Drivers> drivers(d.rows.begin() + 1, d.rows.end());
+      const ExtendedFit f = fitExtended(cell.model(), cell.nominalParams(), obs, drivers, ext);
+      ASSERT_TRUE(f.converged) << f.message;
+      ASSERT_EQ(f.estimated_extension.size(), 1u);
+      ASSERT_EQ(f.covariance.rows(), static_cast<Eigen::Index>(f.estimated.size() + 1));
+      const double z = (f.extension_params[0] - truth) / f.extensionStddev(0);
+      z2 += z * z;
+    }
+    const double z_rms = std::sqrt(z2 / trials);
+    // The RMS of 60 unit normals: 1 +- 0.09; these bounds are 3.8 sigma off (a covariance 1.5x off fails).
+    EXPECT_GT(z_rms, 0.65) << causeName(cause);
+    EXPECT_LT(z_rms, 1.35) << causeName(cause) << " joint " << ext.joint + 1;
+  }
 }
 
 TEST(DiagnosisOptions, IsValidNamesTheField) {

@@ -123,6 +123,24 @@ TEST(IpaSeries, DecimalCommasEulerXYZAndStamps) {
   std::filesystem::remove(p);
 }
 
+// Series A's rows are not all in time order and its stamps span days with long pauses: rows are written in time
+// order and the notes say so.
+TEST(IpaSeries, RowsOutOfTimeOrderAreWrittenInTimeOrderAndSessionsCounted) {
+  const std::string row = ";0;0;0;0;0;0;-1,5708;-1,5708;0,0;-1,5708;0,0;0,0;23;1;2;3;0;0;0\n";
+  const std::string p = writeTemp("ipa_order", kIpaHeader + "20200714163904" + row + "20200714170904" + row +
+                                                   "20200715000000" + row + "20200714164904" + row);
+  std::string notes;
+  const MeasurementFile f = readIpaSeries(p, test::robot("ur10"), &notes);
+  ASSERT_EQ(f.rows.size(), 4u);
+  std::vector<double> t;
+  for (const auto& r : f.rows) t.push_back(*r.stamp_s);
+  EXPECT_EQ(t, (std::vector<double>{0.0, 600.0, 1800.0, 26456.0}));
+  EXPECT_EQ(f.rows[1].line, 5);  // the row keeps its source line
+  EXPECT_NE(notes.find("2 session(s)"), std::string::npos) << notes;
+  EXPECT_NE(notes.find("1 rows out of time order"), std::string::npos) << notes;
+  std::filesystem::remove(p);
+}
+
 TEST(IpaSeries, DamagedStampsKeepRowOrderAndBadCellsNameLineAndColumn) {
   const std::string ok = writeTemp("ipa_b", kIpaHeader +
                                                 "2,02011E+13;0;0;0;0;0;0;0;0;0;0;0;0;22;1;2;3;0;0;0\n");

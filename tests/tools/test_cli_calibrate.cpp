@@ -50,6 +50,55 @@ TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   EXPECT_LT(j["solve_time_s"].get<double>(), 5.0);
 }
 
+// `cellcal continuous` on a file of a simulated robot warming up over 6 h (stamps and temperatures in the file,
+// placement unknown to the robot file): RLS with 18 fresh poses per half hour beats the one-off calibration, and a
+// file without stamps is refused with its line named.
+TEST(CliContinuous, RunsAFileInTimeOrder) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  SimulationConfig sc;
+  sc.seed = seed;
+  sc.warmup_K = 8.0;
+  const SimulatedCell cell(robot("staubli_tx60"), sc);
+  std::mt19937_64 rng(seed);
+  MeasurementFile f;
+  const auto qs = cell.randomConfigurations(720, rng);
+  for (size_t i = 0; i < qs.size(); ++i) {
+    const double t_h = static_cast<double>(i) / 120.0;
+    const Observation o = cell.measure(qs[i], t_h, rng);
+    MeasurementRow r;
+    r.line = static_cast<int>(i) + 2;
+    r.q_rad = qs[i];
+    r.position_m = o.measured_in_tracker.translation();
+    r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    r.stamp_s = t_h * 3600.0;
+    r.temperature_c = cell.temperatureC(t_h);
+    f.rows.push_back(r);
+  }
+  {
+    std::ofstream out(dir + "/m.csv");
+    writeMeasurementCsv(out, f, 6, "simulated TX60 warming up");
+  }
+  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
+  Process p(dir, "continuous", {"cellcal", "continuous", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                                dir + "/c.json", "--sigma-position-mm", "0.012", "--quiet"});
+  ASSERT_EQ(p.wait(60), 0) << p.log();
+  const auto j = readJson(dir + "/c.json");
+  EXPECT_EQ(j["updates"], 11) << p.log();
+  EXPECT_EQ(j["intervals"].size(), 11u);
+  EXPECT_EQ(j["intervals"][0]["poses_used"], 18);
+  EXPECT_LT(j["rls"]["mean_mm"].get<double>(), j["static"]["mean_mm"].get<double>()) << p.log();
+  for (auto& r : f.rows) r.stamp_s.reset();
+  {
+    std::ofstream out(dir + "/nostamp.csv");
+    writeMeasurementCsv(out, f, 6, "no stamps");
+  }
+  Process bad(dir, "continuous_bad", {"cellcal", "continuous", "--robot", robot_file, "--data", dir + "/nostamp.csv"});
+  EXPECT_NE(bad.wait(30), 0);
+  EXPECT_NE(bad.log().find("nostamp.csv:"), std::string::npos) << bad.log();
+  EXPECT_NE(bad.log().find("stamp_s"), std::string::npos) << bad.log();
+}
+
 TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {
   const std::string dir = testDir();
   std::ofstream(dir + "/bad.csv") << "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n1,2,3,4,5,6,1,2,3\n1,2,3,4,5,six,1,2,3\n";

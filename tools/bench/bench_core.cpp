@@ -164,7 +164,7 @@ void BM_Diagnose(benchmark::State& state) {
   std::vector<Observation> all;
   for (int i = 0; i < n; ++i) {
     const double t_h = 4.0 * i / n;
-    all.push_back(cell.measure(qs[i], i ? &qs[i - 1] : nullptr, t_h, rng));
+    all.push_back(cell.measure(qs[i], t_h, rng));
     temperature.push_back(cell.temperatureC(t_h));
     stamp.push_back(t_h * 3600);
   }

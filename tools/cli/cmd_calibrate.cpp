@@ -32,36 +32,6 @@ ExtendedFit asFit(const Eigen::VectorXd& params) {
   return f;
 }
 
-// "backlash:3,joint_compliance:2" or "thermal_drift" (lengths) -> extensions; joints 1-based.
-std::vector<Extension> parseModel(const std::string& spec, const RobotModel& robot) {
-  std::vector<Extension> out;
-  std::stringstream ss(spec);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    const auto colon = item.find(':');
-    const std::string name = item.substr(0, colon);
-    const auto cause = causeFromName(name);
-    if (!cause || *cause == Cause::kNone)
-      throw std::runtime_error("--model: '" + name + "' is not a cause (joint_compliance, thermal_drift, "
-                               "cyclic_transmission, joint_scale, backlash), nor geometric or auto");
-    Extension e{*cause, -1};
-    if (colon != std::string::npos) {
-      try {
-        e.joint = std::stoi(item.substr(colon + 1)) - 1;
-      } catch (const std::exception&) {
-        throw std::runtime_error("--model: '" + item + "': the joint after ':' must be a number (1-based)");
-      }
-    } else if (*cause != Cause::kThermalDrift) {
-      throw std::runtime_error("--model: '" + item + "' needs a joint, e.g. " + name + ":2");
-    }
-    if (!applicable(robot, e, true))
-      throw std::runtime_error("--model: '" + item + "' does not apply to " + robot.name);
-    out.push_back(e);
-  }
-  if (out.empty()) throw std::runtime_error("--model: empty");
-  return out;
-}
-
 int runCalibrate(const CalibrateArgs& a) {
   const LoadedInput in = loadInput(a.input);
   const RobotModel& robot = in.robot;
@@ -136,7 +106,8 @@ int runCalibrate(const CalibrateArgs& a) {
   if (!after.estimated_extension.empty()) {
     std::printf("extension parameters:");
     for (int k : after.estimated_extension)
-      std::printf(" %s=%.6g", after.extension_names[k].c_str(), after.extension_params[k]);
+      std::printf(" %s=%.6g (sd %.2g)", after.extension_names[k].c_str(), after.extension_params[k],
+                  after.extensionStddev(k));
     std::printf("\n");
   }
   if (!a.json.empty()) {
@@ -145,13 +116,19 @@ int runCalibrate(const CalibrateArgs& a) {
       for (const auto& np : r.parameters(robot, start))
         params.push_back({{"name", np.name}, {"initial", np.initial}, {"value", np.value}, {"stddev", np.stddev},
                           {"estimated", np.estimated}});
-    } else {  // SI names and values (no covariance for extended fits yet)
-      for (int i = 0; i < robot.numParams(); ++i)
+    } else {  // SI names and values; stddev from the extended fit's covariance (reading sigmas)
+      for (int i = 0; i < robot.numParams(); ++i) {
+        const double sd = after.paramStddev(i);
         params.push_back({{"name", robot.paramName(i)}, {"initial", start[i]}, {"value", after.params[i]},
-                          {"estimated", std::find(after.estimated.begin(), after.estimated.end(), i) != after.estimated.end()}});
+                          {"stddev", std::isnan(sd) ? nlohmann::json(nullptr) : nlohmann::json(sd)},
+                          {"estimated", !std::isnan(sd)}});
+      }
     }
-    nlohmann::json ext = nlohmann::json::object();
-    for (int k : after.estimated_extension) ext[after.extension_names[k]] = after.extension_params[k];
+    nlohmann::json ext = nlohmann::json::object(), ext_sd = nlohmann::json::object();
+    for (int k : after.estimated_extension) {
+      ext[after.extension_names[k]] = after.extension_params[k];
+      ext_sd[after.extension_names[k]] = after.extensionStddev(k);
+    }
     nlohmann::json j = {{"data", a.input.data}, {"robot", robot.name}, {"rows", in.file.rows.size()},
                         {"skipped_rows", in.file.skipped_rows}, {"split", a.input.split},
                         {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
@@ -162,7 +139,7 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"solve_time_s", solve_s},
                         {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
                         {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
-                        {"parameters", params}, {"extension_params", ext}};
+                        {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
   return converged ? 0 : 3;

@@ -38,9 +38,9 @@ nlohmann::json fitJson(const CandidateResult& c) {
   return j;
 }
 
-nlohmann::json paramsJson(const ExtendedFit& f) {
+nlohmann::json paramsJson(const ExtendedFit& f, bool stddev = false) {
   nlohmann::json p = nlohmann::json::object();
-  for (int k : f.estimated_extension) p[f.extension_names[k]] = f.extension_params[k];
+  for (int k : f.estimated_extension) p[f.extension_names[k]] = stddev ? f.extensionStddev(k) : f.extension_params[k];
   return p;
 }
 
@@ -119,7 +119,8 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
     md << "\n## The cause in the data\n\nVerification rows: the residual as the cause's own quantity against its "
           "driver, before and after the extension.\n\n![signature](signature.svg)\n\nExtension parameters:\n\n";
     for (int k : b.fit.estimated_extension) {
-      std::snprintf(buf, sizeof buf, "- `%s` = %.6g\n", b.fit.extension_names[k].c_str(), b.fit.extension_params[k]);
+      std::snprintf(buf, sizeof buf, "- `%s` = %.6g (1σ %.2g, from the reading sigmas)\n", b.fit.extension_names[k].c_str(),
+                    b.fit.extension_params[k], b.fit.extensionStddev(k));
       md << buf;
     }
   }
@@ -159,6 +160,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                         {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(b.fit.extension()) : nlohmann::json::array()},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
                         {"extension_params", d.chosen >= 0 ? paramsJson(b.fit) : nlohmann::json::object()},
+                        {"extension_stddev", d.chosen >= 0 ? paramsJson(b.fit, true) : nlohmann::json::object()},
                         {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
                         {"structure_after", structureJson(d.structure_after)}, {"noise_rms_mm", d.noise_rms_mm},
                         {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s}};

@@ -20,6 +20,8 @@ Runner addCalibrateCommand(CLI::App& app);
 Runner addImportCommand(CLI::App& app);
 // Adds `diagnose` (model diagnosis of a measurement file).
 Runner addDiagnoseCommand(CLI::App& app);
+// cmd_continuous.cpp
+Runner addContinuousCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
 // Returns false with a message in *error when gnuplot is missing or fails.

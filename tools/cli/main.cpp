@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   auto calibrate = cellcal::cli::addCalibrateCommand(app);
   auto import_ = cellcal::cli::addImportCommand(app);
   auto diagnose = cellcal::cli::addDiagnoseCommand(app);
+  auto continuous = cellcal::cli::addContinuousCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -31,6 +32,7 @@ int main(int argc, char** argv) {
     if (app.got_subcommand("calibrate")) return calibrate();
     if (app.got_subcommand("import")) return import_();
     if (app.got_subcommand("diagnose")) return diagnose();
+    if (app.got_subcommand("continuous")) return continuous();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

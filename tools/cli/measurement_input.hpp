@@ -33,6 +33,10 @@ struct LoadedInput {
 // Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
 
+// "backlash:3,joint_compliance:2" or "thermal_drift" (lengths only) -> extensions; joints 1-based. Throws
+// std::runtime_error naming the item that is not a cause or does not apply to the robot.
+std::vector<Extension> parseModel(const std::string& spec, const RobotModel& robot);
+
 // {"<prefix>mean_mm", "<prefix>rms_mm", "<prefix>max_mm"} and, with 6D rows, the same in _deg.
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix = "");
 

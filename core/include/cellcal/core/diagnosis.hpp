@@ -37,7 +37,14 @@ struct ExtendedFit {
   std::vector<int> estimated;             // kinematic parameters estimated
   std::vector<int> estimated_extension;   // extension parameters estimated (others held at 0: not identifiable)
   std::vector<std::string> extension_names;
+  // Covariance (SI) of the estimated parameters at the solution, (A^T A)^-1 of the whitened Jacobian: rows/cols are
+  // `estimated` then `estimated_extension`, in those orders. It assumes the readings' sigmas: scale it by the
+  // residual's ratio to them when the model leaves more than noise.
+  Eigen::MatrixXd covariance;
   int numEstimatedExtension() const { return static_cast<int>(estimated_extension.size()); }
+  // 1-sigma of kinematic parameter i / extension parameter k (NaN when not estimated).
+  double paramStddev(int i) const;
+  double extensionStddev(int k) const;
 };
 
 // Gauss-Newton on the geometric parameters identifiable from `obs` plus the extension's parameters (those the data

@@ -16,7 +16,11 @@
 //                        joint = -1: the lengths only (one parameter), when no joint zero drifts measurably.
 //   cyclic_transmission  dq_j = e_0 sin q_j + e_1 cos q_j + e_2 sin 2q_j + e_3 cos 2q_j.
 //   joint_scale          dq_j = e_0 q_j (transmission-ratio error).
-//   backlash             dq_j = e_0 * m_j / 2 with m_j = +-1 the direction joint j last moved (e_0: the width, rad).
+//   backlash             dq_j = e_0 * s_j / 2 with s_j in [-1, 1] the play state of joint j (|e_0|: the width, rad):
+//                        +-1 after the joint moved more than the width in the + / - direction; a smaller move crosses
+//                        the gap only partly, s_j <- clamp(s_j + 2 step / width, -1, 1). s_j depends on the width, so
+//                        the basis is evaluated at a width (fitExtended iterates it with the fit); width 0 is the
+//                        direction the joint last moved (Drivers::motion_direction).
 #pragma once
 
 #include <Eigen/Core>
@@ -39,7 +43,21 @@ const std::vector<Cause>& extensionCauses();                  // every cause exc
 struct Drivers {
   double thermal = 0.0;               // K above the reference temperature, or hours since the first row; see below
   Eigen::VectorXd motion_direction;   // per joint: +1 / -1 = sign of (q - q of the row visited before), 0 unknown
+  // Joints x kPlayHistory: the last moves of each joint up to this row (q - q of the row before; last column: the
+  // move onto this row), zero before the first row. Enough for the play state of any backlash narrower than the
+  // largest of these moves.
+  Eigen::MatrixXd recent_steps_rad;
 };
+constexpr int kPlayHistory = 8;
+
+// Play state of joint j at a row for a backlash of this width (see `backlash` above): from 0 (unknown) before the
+// recorded moves, each move shifts it by 2 step / width, clamped to [-1, 1]. width <= 0: motion_direction[j].
+double playState(const Drivers& drivers, int j, double width_rad);
+// The play operator itself: the state after one move.
+inline double playStep(double state, double step_rad, double width_rad) {
+  const double s = state + 2.0 * step_rad / width_rad;
+  return s > 1.0 ? 1.0 : (s < -1.0 ? -1.0 : s);
+}
 
 // Drivers of rows given in visiting order. thermal: temperature_c[i] - temperature reference (their mean) if every
 // row has a temperature; else (stamp_s[i] - stamp_s[0]) / 3600 if every row has a stamp; else none
@@ -72,8 +90,15 @@ bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal)
 int numExtensionParams(const RobotModel& model, const Extension& ext);
 std::vector<std::string> extensionParamNames(const RobotModel& model, const Extension& ext);
 
-// B_i of one observation (see the top of this file). `params` sets the geometry of the gravity basis.
+// B_i of one observation (see the top of this file). `params` sets the geometry of the gravity basis;
+// `backlash_width_rad` the width the play state is evaluated at (backlash only).
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
-                               const Eigen::VectorXd& q_rad, const Drivers& drivers);
+                               const Eigen::VectorXd& q_rad, const Drivers& drivers, double backlash_width_rad = 0.0);
+
+// Several extensions side by side (their parameters concatenated in list order). A backlash's play state is evaluated
+// at the absolute value of its parameter in `evaluated_at` (same layout; empty or zero: width 0).
+int numExtensionParams(const RobotModel& model, const std::vector<Extension>& exts);
+Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                               const Eigen::VectorXd& q_rad, const Drivers& drivers, const Eigen::VectorXd& evaluated_at);
 
 }  // namespace cellcal

@@ -10,6 +10,11 @@
 // RlsCalibrator applies it to the nonlinear kinematic model: each pose is linearized at the current estimate
 // (innovation = measured - model(x_k), A = whitened pose Jacobian), which equals the linear form above for a
 // linear model.
+//
+// With a model extension (model_extension.hpp, e.g. the joint compliance `cellcal diagnose` names) the state also holds
+// the extension's parameters, after the kinematic ones: x = [params[estimated]; extension[estimated_extension]], and a
+// pose's rows are [J_i(:, estimated), (J_i B_i)(:, estimated_extension)] at params + B_i e, with B_i from the pose's
+// joint angles and Drivers (thermal driver, play state). Drift process noise acts on the kinematic part only.
 #pragma once
 
 #include <Eigen/Core>
@@ -17,6 +22,7 @@
 #include <vector>
 
 #include "cellcal/core/calibration.hpp"
+#include "cellcal/core/diagnosis.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/observation.hpp"
 
@@ -83,24 +89,42 @@ class RlsCalibrator {
   RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
                 const Eigen::MatrixXd& covariance, RlsCalibratorOptions options = {});
 
-  // Linearize at the current estimate and update. Returns the normalized innovation squared.
-  double addObservation(const Observation& obs);
+  // Starts from an extended fit (fitExtended): its parameters, estimated sets and covariance.
+  RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options = {});
+
+  // Linearize at the current estimate and update. Returns the normalized innovation squared. `drivers` (the pose's
+  // thermal driver and play state) is required when the state has extension parameters.
+  double addObservation(const Observation& obs, const Drivers* drivers = nullptr);
   // Normalized innovation squared of `obs` against the current estimate, without updating (for outlier gating).
-  double normalizedInnovation(const Observation& obs);
+  double normalizedInnovation(const Observation& obs, const Drivers* drivers = nullptr);
+  // The model's pose for joint angles q (with the extension evaluated at `drivers` when there is one).
+  Pose predict(const Eigen::VectorXd& q_rad, const Drivers* drivers = nullptr);
   // Random-walk process noise: sigma (full parameter vector) of the change since the last update.
   void addProcessNoise(const Eigen::VectorXd& sigma_full);
 
   const Eigen::VectorXd& params() const { return params_; }
   const std::vector<int>& estimated() const { return estimated_; }
-  const Eigen::MatrixXd& covariance() const { return rls_.P(); }
+  const Eigen::MatrixXd& covariance() const { return rls_.P(); }  // over the whole state (kinematic, then extension)
   const RlsEstimator& estimator() const { return rls_; }
-  GaussianPrior asPrior() const;  // current estimate and covariance, e.g. for a batch solve
+  const std::vector<Extension>& extensions() const { return extensions_; }
+  const Eigen::VectorXd& extensionParams() const { return extension_params_; }
+  const std::vector<int>& estimatedExtension() const { return estimated_extension_; }
+  GaussianPrior asPrior() const;  // kinematic part of the estimate and covariance, e.g. for a batch solve
 
  private:
+  // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows.
+  int linearize(const Observation& obs, const Drivers* drivers);
+  Eigen::VectorXd rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers);
+  void writeBack();
+
   const RobotModel* model_;
   Eigen::VectorXd params_;
   std::vector<int> estimated_;
+  std::vector<Extension> extensions_;
+  Eigen::VectorXd extension_params_;
+  std::vector<int> estimated_extension_;
   RlsEstimator rls_;
+  Eigen::MatrixXd B_;
   KinematicsData data_;
   Eigen::MatrixXd J_, A_;
   Eigen::Matrix<double, 6, 1> r_;

@@ -31,7 +31,8 @@ struct TrackerSpec {
 //   kThermalDrift        dq_j = zero_drift_rad_per_K * temperature rise (lengths grow by expansion_per_K as always)
 //   kCyclicTransmission  dq_j = harmonics_rad . (sin q_j, cos q_j, sin 2q_j, cos 2q_j)
 //   kJointScale          dq_j = scale * q_j
-//   kBacklash            dq_j = -backlash_width_rad / 2 * sign(q_j - q_j before): the link lags the motor
+//   kBacklash            dq_j = -backlash_width_rad / 2 * s_j: the link lags the motor, s_j the play state
+//                        (HiddenJointState; +-1 after a move larger than the width, partly crossed by smaller ones)
 struct HiddenJointEffect {
   Cause cause = Cause::kNone;
   int joint = 0;  // 0-based
@@ -41,6 +42,11 @@ struct HiddenJointEffect {
   Eigen::Vector4d harmonics_rad = Eigen::Vector4d::Zero();
   double scale = 0.0;
   double backlash_width_rad = 0.0;
+};
+
+// State a hidden effect carries from pose to pose.
+struct HiddenJointState {
+  double backlash_play = 1.0;  // -1..1, see kBacklash
 };
 
 struct SimulationConfig {
@@ -87,12 +93,16 @@ class SimulatedCell {
   // A noisy tracker measurement at configuration q, time t (sigmas set from the spec).
   Observation measure(const Eigen::VectorXd& q_rad, double t_h, std::mt19937_64& rng,
                       MeasurementKind kind = MeasurementKind::kPose6D) const;
-  // q_before: the configuration the robot came from (backlash depends on it); none: every joint moved positive.
-  Observation measure(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h, std::mt19937_64& rng,
+  // state: what the hidden effect carries along the robot's path (backlash's play state; advance it with
+  // advanceHiddenState as the robot moves); none: the gap taken up moving positive.
+  Observation measure(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h, std::mt19937_64& rng,
                       MeasurementKind kind = MeasurementKind::kPose6D) const;
-  Pose truePose(const Eigen::VectorXd& q_rad, double t_h, const Eigen::VectorXd* q_before = nullptr) const;
+  Pose truePose(const Eigen::VectorXd& q_rad, double t_h, const HiddenJointState* state = nullptr) const;
   // The hidden effect's joint error (rad per joint) at this configuration (the truth, for tests).
-  Eigen::VectorXd hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const Eigen::VectorXd* q_before, double t_h) const;
+  Eigen::VectorXd hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h) const;
+  // The state after the robot moved from q_from to q_to (the play operator of the backlash joint).
+  HiddenJointState advanceHiddenState(HiddenJointState state, const Eigen::VectorXd& q_from_rad,
+                                      const Eigen::VectorXd& q_to_rad) const;
   double temperatureC(double t_h) const { return config_.ambient_temperature_c + temperatureRiseK(t_h); }
   const SimulationConfig& config() const { return config_; }
 
