@@ -10,37 +10,6 @@ namespace cellcal {
 
 namespace {
 
-// Mean / RMS / max of position (mm) and orientation (deg) errors, accumulated row by row.
-struct ErrorAccumulator {
-  ErrorStats s;
-  void add(const Observation& o, const Pose& predicted) {
-    const double e = (o.measured_in_tracker.translation() - predicted.translation()).norm() * 1e3;
-    ++s.rows;
-    s.mean_mm += e;
-    s.rms_mm += e * e;
-    s.max_mm = std::max(s.max_mm, e);
-    if (o.kind == MeasurementKind::kPose6D) {
-      const double a = logSO3(o.measured_in_tracker.linear() * predicted.linear().transpose()).norm() * 180 / kPi;
-      ++s.oriented;
-      s.mean_deg += a;
-      s.rms_deg += a * a;
-      s.max_deg = std::max(s.max_deg, a);
-    }
-  }
-  ErrorStats stats() const {
-    ErrorStats r = s;
-    if (r.rows) {
-      r.mean_mm /= r.rows;
-      r.rms_mm = std::sqrt(r.rms_mm / r.rows);
-    }
-    if (r.oriented) {
-      r.mean_deg /= r.oriented;
-      r.rms_deg = std::sqrt(r.rms_deg / r.oriented);
-    }
-    return r;
-  }
-};
-
 // k indices evenly spaced over [begin, end).
 std::vector<size_t> evenlySpaced(size_t begin, size_t end, int k) {
   std::vector<size_t> out;
@@ -126,7 +95,7 @@ ContinuousScenarioResult runContinuousScenario(const ContinuousScenario& sc) {
   res.poses_used = static_cast<int>(batch.size());
   const Eigen::VectorXd drift_sigma = sc.options.drift.sigmas(model) * sc.options.drift_scale;
 
-  ErrorAccumulator all_static, all_rls, all_ext;
+  ErrorStatsAccumulator all_static, all_rls, all_ext;
   KinematicsData kd(model);
   double last_update_s = rows[intervals[0].second - 1].stamp_s;
   for (size_t w = 1; w < intervals.size(); ++w) {
@@ -136,7 +105,7 @@ ContinuousScenarioResult runContinuousScenario(const ContinuousScenario& sc) {
     ir.end_h = (rows[e - 1].stamp_s - rows[0].stamp_s) / 3600.0;
     ir.rows = static_cast<int>(e - b);
     double temp = 0;
-    ErrorAccumulator acc_static, acc_rls, acc_ext;
+    ErrorStatsAccumulator acc_static, acc_rls, acc_ext;
     for (size_t i = b; i < e; ++i) {
       const Observation& o = rows[i].observation;
       const Pose p_static = forwardKinematics(model, kd, geo.params, o.q_rad);

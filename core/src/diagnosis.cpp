@@ -196,22 +196,29 @@ ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std
                       const std::vector<Drivers>& drivers) {
   const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
-  ErrorStats s;
-  s.rows = static_cast<int>(obs.size());
-  for (size_t i = 0; i < obs.size(); ++i) {
-    const Pose T = forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad);
-    const double e = (obs[i].measured_in_tracker.translation() - T.translation()).norm() * 1e3;
-    s.mean_mm += e;
-    s.rms_mm += e * e;
-    s.max_mm = std::max(s.max_mm, e);
-    if (obs[i].kind == MeasurementKind::kPose6D) {
-      const double a = logSO3(obs[i].measured_in_tracker.linear() * T.linear().transpose()).norm() * 180 / kPi;
-      s.mean_deg += a;
-      s.rms_deg += a * a;
-      s.max_deg = std::max(s.max_deg, a);
-      ++s.oriented;
-    }
+  ErrorStatsAccumulator acc;
+  for (size_t i = 0; i < obs.size(); ++i) acc.add(obs[i], forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad));
+  return acc.stats();
+}
+
+void ErrorStatsAccumulator::add(const Observation& obs, const Pose& predicted) {
+  ErrorStats& s = sums_;
+  const double e = (obs.measured_in_tracker.translation() - predicted.translation()).norm() * 1e3;
+  ++s.rows;
+  s.mean_mm += e;
+  s.rms_mm += e * e;
+  s.max_mm = std::max(s.max_mm, e);
+  if (obs.kind == MeasurementKind::kPose6D) {
+    const double a = logSO3(obs.measured_in_tracker.linear() * predicted.linear().transpose()).norm() * 180 / kPi;
+    ++s.oriented;
+    s.mean_deg += a;
+    s.rms_deg += a * a;
+    s.max_deg = std::max(s.max_deg, a);
   }
+}
+
+ErrorStats ErrorStatsAccumulator::stats() const {
+  ErrorStats s = sums_;
   const double n = std::max(1, s.rows);
   s.mean_mm /= n;
   s.rms_mm = std::sqrt(s.rms_mm / n);

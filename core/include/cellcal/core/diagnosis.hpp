@@ -73,6 +73,15 @@ struct ErrorStats {
 };
 ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers);
+// The same figures accumulated one observation and predicted pose at a time.
+class ErrorStatsAccumulator {
+ public:
+  void add(const Observation& obs, const Pose& predicted);
+  ErrorStats stats() const;
+
+ private:
+  ErrorStats sums_;
+};
 
 struct DiagnosisData {
   std::vector<Observation> identification, verification;
