@@ -65,6 +65,13 @@ int main(int argc, char** argv) {
                                                std::to_string(snap.poses_used) + " poses) from "
                                          : "starts uncalibrated; state in ")
                 << s.engine->stateFile() << "\n";
+      if (!r.extensions.empty()) {
+        std::cerr << "calibration_engine: " << r.robot_id << " model extensions:";
+        for (const auto& e : r.extensions) std::cerr << " " << extensionSpec(e);
+        std::cerr << " (" << snap.extension_params.size() << " extra parameters in the RLS state)\n";
+      }
+      if (!s.engine->restoreNote().empty())
+        std::cerr << "calibration_engine: " << r.robot_id << ": " << s.engine->restoreNote() << "\n";
     }
     DdsNode node(cell, "cellcal_calibration_engine");
     auto state_writer = node.writer<msg::CalibrationState>();

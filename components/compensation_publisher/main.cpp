@@ -3,6 +3,7 @@
 // (the nominal model's pose of those joints), the joints, the correction and the calibration version used.
 // Refuses (applied = false, with the reason) when no calibration is loaded, it is not healthy, the identified model
 // cannot reach the target, or the correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set).
+// A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).
 #include <unistd.h>
 
 #include <iostream>
@@ -109,8 +110,10 @@ int main(int argc, char** argv) {
         Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
                                                                  static_cast<Eigen::Index>(t.seed_position_rad().size()));
         if (seed.size() == 0) seed = r.last_q;
-        const CompensationResult c =
-            compensate(r.robot->model, r.calibration->params, toPose(t.position_m(), t.orientation_xyzw()), seed, cell.compensation);
+        // With model extensions, backlash's play is that of a move from the previous compensated target.
+        const IdentifiedModel identified{r.calibration->params, r.calibration->extensions, r.calibration->extension_params};
+        const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
+                                                seed, cell.compensation, r.last_q);
         out.applied(c.applied);
         out.clamped(c.clamped);
         out.reason(c.reason.substr(0, 255));

@@ -96,6 +96,21 @@ void syncStateFile(const std::string& path) {
 
 namespace {
 
+json driversToJson(const Drivers& d) {
+  return {{"motion_direction", std::vector<double>(d.motion_direction.data(), d.motion_direction.data() + d.motion_direction.size())},
+          {"recent_steps_rad", std::vector<double>(d.recent_steps_rad.data(), d.recent_steps_rad.data() + d.recent_steps_rad.size())}};
+}
+
+Drivers driversFromJson(const json& j) {
+  Drivers d;
+  const auto m = j.at("motion_direction").get<std::vector<double>>();
+  const auto r = j.at("recent_steps_rad").get<std::vector<double>>();
+  d.motion_direction = Eigen::Map<const Eigen::VectorXd>(m.data(), static_cast<Eigen::Index>(m.size()));
+  if (r.size() != m.size() * kPlayHistory) throw std::runtime_error("recent_steps_rad size");
+  d.recent_steps_rad = Eigen::Map<const Eigen::MatrixXd>(r.data(), static_cast<Eigen::Index>(m.size()), kPlayHistory);
+  return d;
+}
+
 json observationToJson(const PairedReading& p) {
   const Observation& o = p.observation;
   const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
@@ -148,7 +163,8 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
       settings_(&settings),
       time_compression_(time_compression),
       persist_(persist),
-      pairing_(robot.model, pairingOptions(robot, settings)) {
+      pairing_(robot.model, pairingOptions(robot, settings)),
+      play_(robot.model.numJoints(), settings.settle_tolerance_rad) {
   const RobotModel& m = robot.model;
   DriftModel drift;
   drift.joint_offset_rad = settings.drift_joint_offset_rad;
@@ -163,10 +179,31 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
     const GaussianPrior prior =
         diagonalPrior(m, m.nominal, m.canonicalParams(), settings.prior_length_m, settings.prior_angle_rad);
     rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot.measurement);
+    if (!robot.extensions.empty()) startExtensions(rls_->params(), rls_->estimated(), rls_->covariance());
     snap_.params = rls_->params();
     snap_.estimated = rls_->estimated();
     snap_.covariance = rls_->covariance();
   }
+  snap_.extensions = rls_->extensions();
+  snap_.extension_params = rls_->extensionParams();
+  snap_.estimated_extension = rls_->estimatedExtension();
+}
+
+// The extension parameters start at zero (no effect) with a prior whose 1 sigma makes a joint error of
+// prior_angle_rad, uncorrelated with the kinematic estimate.
+void CalibrationEngine::startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                                        const Eigen::MatrixXd& P) {
+  const RobotModel& m = robot_->model;
+  const auto& exts = robot_->extensions;
+  const Eigen::VectorXd sigma = extensionPriorSigma(m, params, exts, settings_->prior_angle_rad);
+  std::vector<int> acting;  // parameters whose basis column acts (extensionPriorSigma > 0)
+  for (Eigen::Index k = 0; k < sigma.size(); ++k)
+    if (sigma[k] > 0) acting.push_back(static_cast<int>(k));
+  const auto ne = static_cast<Eigen::Index>(estimated.size()), nx = static_cast<Eigen::Index>(acting.size());
+  Eigen::MatrixXd full = Eigen::MatrixXd::Zero(ne + nx, ne + nx);
+  full.topLeftCorner(ne, ne) = P.topLeftCorner(ne, ne);
+  for (Eigen::Index k = 0; k < nx; ++k) full(ne + k, ne + k) = sigma[acting[static_cast<size_t>(k)]] * sigma[acting[static_cast<size_t>(k)]];
+  rls_ = std::make_unique<RlsCalibrator>(m, params, estimated, exts, Eigen::VectorXd::Zero(sigma.size()), acting, full);
 }
 
 std::string CalibrationEngine::stateFile() const {
@@ -186,6 +223,7 @@ bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_
     reject(*r, robot_->robot_id + " " + detail);
     return false;
   }
+  play_.add(s.stamp_ns, s.q_rad);
   // Remember when the robot moved (a new stand-still starts a new pose).
   const bool moved = !s.settled || (last_joint_q_.size() == s.q_rad.size() &&
                                     (s.q_rad - last_joint_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad);
@@ -220,10 +258,12 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   PairingOutcome out = pairing_.poll(now_ns);
   for (const auto& [r, d] : out.rejected) reject(r, robot_->target_id + " " + d);
   bool changed = false;
+  const bool extended = !rls_->extensions().empty();
   for (const auto& p : out.paired) {
     const auto t0 = steadyNs();
+    Pending pending{p, extended ? play_.driversAt(p.joint_stamp_ns, p.observation.q_rad) : Drivers{}};
     if (settings_->outlier_gate_nis > 0) {
-      const double nis = rls_->normalizedInnovation(p.observation);
+      const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
       if (!(nis <= settings_->outlier_gate_nis)) {
         std::ostringstream m;
         m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
@@ -242,11 +282,11 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
     used_q_ = p.observation.q_rad;
     used_joint_stamp_ns_ = p.joint_stamp_ns;
     if (settings_->mode == EngineMode::kContinuous) {
-      applyPose(p);
+      applyPose(pending);
       finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
       changed = true;
     } else {
-      batch_.push_back(p);
+      batch_.push_back(std::move(pending));
       if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
         for (const auto& b : batch_) applyPose(b);
         batch_.clear();
@@ -264,19 +304,19 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   return changed;
 }
 
-void CalibrationEngine::applyPose(const PairedReading& p) {
-  const RobotModel& m = robot_->model;
+void CalibrationEngine::applyPose(const Pending& pending) {
+  const PairedReading& p = pending.reading;
+  const Drivers* drivers = rls_->extensions().empty() ? nullptr : &pending.drivers;
   // Random walk of the parameters over the cell time since the previous update.
   if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
     const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
     rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h));
   }
   snap_.last_update_stamp_ns = p.tracker_stamp_ns;
-  KinematicsData data(m);
   const Observation& o = p.observation;
-  const Pose before = forwardKinematics(m, data, rls_->params(), o.q_rad);
-  const double nis = rls_->addObservation(o);
-  const Pose after = forwardKinematics(m, data, rls_->params(), o.q_rad);
+  const Pose before = rls_->predict(o.q_rad, drivers);
+  const double nis = rls_->addObservation(o, drivers);
+  const Pose after = rls_->predict(o.q_rad, drivers);
   Recent r;
   r.prior_error_m = (o.measured_in_tracker.translation() - before.translation()).norm();
   r.post_error_m = (o.measured_in_tracker.translation() - after.translation()).norm();
@@ -294,6 +334,7 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
   snap_.params = rls_->params();
   snap_.estimated = rls_->estimated();
   snap_.covariance = rls_->covariance();
+  snap_.extension_params = rls_->extensionParams();
   snap_.last_measurement_stamp_ns = stamp_ns;
   snap_.last_tracker_sequence = sequence;
   pairing_.setAppliedUntil(stamp_ns);
@@ -323,7 +364,8 @@ void CalibrationEngine::refreshStatistics() {
   }
   // Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3).
   const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
-  const size_t needed = 2 * ((snap_.estimated.size() + rows - 1) / rows);
+  const size_t state = snap_.estimated.size() + snap_.estimated_extension.size();
+  const size_t needed = 2 * ((state + rows - 1) / rows);
   snap_.health = snap_.poses_used >= needed ? Health::kOk : Health::kUncalibrated;
 }
 
@@ -345,11 +387,28 @@ void CalibrationEngine::persist() {
   j["estimated"] = snap_.estimated;
   std::vector<double> cov(snap_.covariance.data(), snap_.covariance.data() + snap_.covariance.size());
   j["covariance"] = cov;
+  json exts = json::array();
+  for (const auto& e : rls_->extensions()) exts.push_back(extensionSpec(e));
+  j["extensions"] = exts;
+  const Eigen::VectorXd& xp = rls_->extensionParams();
+  j["extension_params"] = std::vector<double>(xp.data(), xp.data() + xp.size());
+  j["estimated_extension"] = rls_->estimatedExtension();
+  json play = json::array();
+  for (const auto& J : play_.joints()) {
+    json turns = json::array();
+    for (const auto& t : J.turns) turns.push_back({t.stamp_ns, t.q_rad});
+    play.push_back({{"turns", turns}, {"direction", J.direction}, {"extreme", {J.extreme.stamp_ns, J.extreme.q_rad}}});
+  }
+  j["play"] = {{"joints", play}, {"last_stamp_ns", play_.lastStampNs()}};
   json recent = json::array();
   for (const auto& r : recent_) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
   j["recent"] = recent;
   json batch = json::array();
-  for (const auto& b : batch_) batch.push_back(observationToJson(b));
+  for (const auto& b : batch_) {
+    json o = observationToJson(b.reading);
+    if (!rls_->extensions().empty()) o["drivers"] = driversToJson(b.drivers);
+    batch.push_back(o);
+  }
   j["pending_batch"] = batch;
   std::error_code ec;
   fs::create_directories(settings_->state_dir, ec);
@@ -390,14 +449,68 @@ bool CalibrationEngine::restore() {
     const auto estimated = j.at("estimated").get<std::vector<int>>();
     const auto cov = j.at("covariance").get<std::vector<double>>();
     const auto ne = static_cast<Eigen::Index>(estimated.size());
-    if (static_cast<int>(params.size()) != m.numParams() || static_cast<Eigen::Index>(cov.size()) != ne * ne)
+    if (static_cast<int>(params.size()) != m.numParams() || static_cast<Eigen::Index>(cov.size()) < ne * ne)
       fail("parameter or covariance size mismatch");
+    {
+      const auto nt = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(cov.size()))));
+      if (nt * nt != static_cast<Eigen::Index>(cov.size())) fail("covariance is not square");
+      if (!Eigen::Map<const Eigen::VectorXd>(cov.data(), static_cast<Eigen::Index>(cov.size())).allFinite())
+        fail("non-finite values");
+    }
     for (int e : estimated)
       if (e < 0 || e >= m.numParams()) fail("estimated index out of range");
     const Eigen::VectorXd p = Eigen::Map<const Eigen::VectorXd>(params.data(), m.numParams());
-    const Eigen::MatrixXd P = Eigen::Map<const Eigen::MatrixXd>(cov.data(), ne, ne);
-    if (!p.allFinite() || !P.allFinite()) fail("non-finite values");
-    rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, P);
+    if (!p.allFinite()) fail("non-finite values");
+    // Extensions: resumed when the cell file still names the same ones; else the kinematic estimate is kept and
+    // the cell file's extensions start from their prior (an extension added after `cellcal diagnose` does not
+    // throw away hours of calibration).
+    std::vector<std::string> saved, wanted;
+    if (j.contains("extensions")) saved = j.at("extensions").get<std::vector<std::string>>();
+    for (const auto& e : robot_->extensions) wanted.push_back(extensionSpec(e));
+    const auto nk = static_cast<Eigen::Index>(estimated.size());
+    if (saved == wanted && !saved.empty()) {
+      const auto xp = j.at("extension_params").get<std::vector<double>>();
+      const auto xe = j.at("estimated_extension").get<std::vector<int>>();
+      if (static_cast<int>(xp.size()) != numExtensionParams(m, robot_->extensions) ||
+          static_cast<Eigen::Index>(cov.size()) != (nk + static_cast<Eigen::Index>(xe.size())) * (nk + static_cast<Eigen::Index>(xe.size())))
+        fail("extension parameter or covariance size mismatch");
+      for (int e : xe)
+        if (e < 0 || e >= static_cast<int>(xp.size())) fail("estimated extension index out of range");
+      const auto nt = nk + static_cast<Eigen::Index>(xe.size());
+      const Eigen::MatrixXd Pf = Eigen::Map<const Eigen::MatrixXd>(cov.data(), nt, nt);
+      if (!Pf.allFinite()) fail("non-finite values");
+      rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, robot_->extensions,
+                                             Eigen::Map<const Eigen::VectorXd>(xp.data(), static_cast<Eigen::Index>(xp.size())),
+                                             xe, Pf);
+    } else {
+      const Eigen::Index nt = static_cast<Eigen::Index>(std::sqrt(static_cast<double>(cov.size())));
+      const Eigen::MatrixXd Pk = Eigen::Map<const Eigen::MatrixXd>(cov.data(), nt, nt).topLeftCorner(nk, nk);
+      if (robot_->extensions.empty())
+        rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, Pk);
+      else
+        startExtensions(p, estimated, Pk);
+      if (saved != wanted) {
+        auto list = [](const std::vector<std::string>& v) {
+          std::string s;
+          for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
+          return s.empty() ? std::string("none") : s;
+        };
+        restore_note_ = "extensions changed since the state was saved (" + list(saved) + " -> " + list(wanted) +
+                        "): kinematic estimate kept, extensions start from their prior";
+      }
+    }
+    if (j.contains("play")) {
+      const json& pl = j.at("play");
+      std::vector<PlayTracker::Joint> joints;
+      for (const auto& J : pl.at("joints")) {
+        PlayTracker::Joint x;
+        for (const auto& t : J.at("turns")) x.turns.push_back({t.at(0).get<std::int64_t>(), t.at(1).get<double>()});
+        x.direction = J.at("direction").get<int>();
+        x.extreme = {J.at("extreme").at(0).get<std::int64_t>(), J.at("extreme").at(1).get<double>()};
+        joints.push_back(std::move(x));
+      }
+      if (static_cast<int>(joints.size()) == m.numJoints()) play_.restore(std::move(joints), pl.at("last_stamp_ns").get<std::int64_t>());
+    }
     snap_.version = j.at("version").get<std::uint64_t>();
     snap_.poses_used = j.at("poses_used").get<std::uint32_t>();
     snap_.last_measurement_stamp_ns = j.at("last_measurement_stamp_ns").get<std::int64_t>();
@@ -405,13 +518,15 @@ bool CalibrationEngine::restore() {
     snap_.last_update_stamp_ns = j.at("last_update_stamp_ns").get<std::int64_t>();
     for (const auto& r : j.at("recent"))
       recent_.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>(), r.at(3).get<double>()});
-    for (const auto& b : j.at("pending_batch")) batch_.push_back(observationFromJson(b));
+    for (const auto& b : j.at("pending_batch"))
+      batch_.push_back({observationFromJson(b), b.contains("drivers") ? driversFromJson(b.at("drivers")) : Drivers{}});
   } catch (const json::exception& e) {
     fail(std::string("missing or malformed field: ") + e.what());
   }
   snap_.params = rls_->params();
   snap_.estimated = rls_->estimated();
   snap_.covariance = rls_->covariance();
+  snap_.extension_params = rls_->extensionParams();
   pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);
   if (snap_.version > 0) refreshStatistics();
   restored_ = true;

@@ -92,7 +92,8 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     const std::string f = "robots[" + std::to_string(i) + "]";
     const YAML::Node n = robots[i];
     r.requireMap(n, f);
-    r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange"});
+    r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange",
+                         "extensions"});
     CellRobot rb;
     rb.robot_id = r.string(r.required(n, "robot_id", f + ".robot_id"), f + ".robot_id");
     rb.target_id = r.string(r.required(n, "target_id", f + ".target_id"), f + ".target_id");
@@ -124,6 +125,26 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     }
     if (rb.base_in_tracker) rb.model.nominal.segment<6>(rb.model.baseParam(FrameParam::kX)) = *rb.base_in_tracker;
     if (rb.tool_in_flange) rb.model.nominal.segment<6>(rb.model.toolParam(FrameParam::kX)) = *rb.tool_in_flange;
+    if (n["extensions"].IsDefined() && !n["extensions"].IsNull()) {
+      const YAML::Node x = n["extensions"];
+      const std::string fx = f + ".extensions";
+      if (!x.IsSequence()) r.fail(x, fx, "expected a list, e.g. [joint_compliance:2]");
+      for (size_t k = 0; k < x.size(); ++k) {
+        const std::string fk = fx + "[" + std::to_string(k) + "]";
+        const std::string item = r.string(x[k], fk);
+        if (item.rfind("thermal_drift", 0) == 0)
+          r.fail(x[k], fk, "thermal_drift needs a temperature, which the cell's topics do not carry (the engine's "
+                           "drift model follows warm-up; engine.drift sets how fast)");
+        try {
+          const Extension ext = parseExtension(item, rb.model, false);
+          for (const auto& o : rb.extensions)
+            if (o.cause == ext.cause && o.joint == ext.joint) r.fail(x[k], fk, "'" + item + "' is listed twice");
+          rb.extensions.push_back(ext);
+        } catch (const std::invalid_argument& err) {
+          r.fail(x[k], fk, err.what());
+        }
+      }
+    }
     c.robots.push_back(std::move(rb));
   }
 
@@ -176,7 +197,8 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
 
   const Section s = section(r, root, "simulation",
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
-                             "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction"});
+                             "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
+                             "hidden_effect"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -192,6 +214,31 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   s.num("tracker_delay_fraction", c.simulation.tracker_delay_fraction, 1, 0);
   if (c.simulation.tracker_delay_fraction >= 1)
     r.fail(s.node["tracker_delay_fraction"], s.f("tracker_delay_fraction"), "must be < 1");
+  if (s.has("hidden_effect")) {
+    const YAML::Node h = s.node["hidden_effect"];
+    const std::string fh = "simulation.hidden_effect";
+    r.requireMap(h, fh);
+    r.checkKeys(h, fh, {"cause", "joint", "size_deg"});
+    const std::string cause = r.string(r.required(h, "cause", fh + ".cause"), fh + ".cause");
+    const auto ca = causeFromName(cause);
+    if (!ca || !(*ca == Cause::kNone || *ca == Cause::kJointCompliance || *ca == Cause::kCyclicTransmission ||
+                 *ca == Cause::kJointScale))
+      r.fail(h["cause"], fh + ".cause",
+             "expected none, joint_compliance, cyclic_transmission or joint_scale (effects that depend on the "
+             "configuration alone), got '" + cause + "'");
+    c.simulation.effect = *ca;
+    if (*ca != Cause::kNone) {
+      const long long j = r.integer(r.required(h, "joint", fh + ".joint"), fh + ".joint");
+      const Section hs{r, h, fh};
+      hs.num("size_deg", c.simulation.effect_size_rad, kDeg);
+      if (!hs.has("size_deg")) r.fail(h, fh, "size_deg (RMS joint error over the workspace) is required");
+      for (const auto& rb : c.robots)
+        if (j < 1 || j > rb.model.numJoints() || !applicable(rb.model, Extension{*ca, static_cast<int>(j - 1)}, false))
+          r.fail(h["joint"], fh + ".joint",
+                 "joint " + std::to_string(j) + ": " + cause + " does not apply to " + rb.model.name);
+      c.simulation.effect_joint = static_cast<int>(j - 1);
+    }
+  }
   return c;
 }
 

@@ -6,11 +6,34 @@
 
 namespace cellcal {
 
-CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified,
-                              const Pose& desired, const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
+namespace {
+// Drivers of the solution: a straight move from `from` (if known) to q.
+Drivers moveDrivers(const Eigen::VectorXd& from, const Eigen::VectorXd& q) {
+  Drivers d;
+  d.motion_direction = Eigen::VectorXd::Zero(q.size());
+  d.recent_steps_rad = Eigen::MatrixXd::Zero(q.size(), kPlayHistory);
+  if (from.size() == q.size() && from.allFinite()) {
+    d.recent_steps_rad.col(kPlayHistory - 1) = q - from;
+    for (Eigen::Index j = 0; j < q.size(); ++j) d.motion_direction[j] = q[j] > from[j] ? 1.0 : (q[j] < from[j] ? -1.0 : 0.0);
+  }
+  return d;
+}
+}  // namespace
+
+CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
+                              const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
+  return compensate(nominal, IdentifiedModel{identified, {}, {}}, desired, q_seed, s);
+}
+
+CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
+                              const Eigen::VectorXd& q_seed, const CompensationSettings& s,
+                              const Eigen::VectorXd& from_q) {
   CompensationResult out;
   out.corrected_in_tracker = desired;
-  if (identified.size() != nominal.numParams() || !identified.allFinite()) {
+  const Eigen::VectorXd& identified = model.params;
+  if (identified.size() != nominal.numParams() || !identified.allFinite() ||
+      model.extension_params.size() != numExtensionParams(nominal, model.extensions) ||
+      !model.extension_params.allFinite()) {
     out.reason = "identified parameters unusable (size or NaN)";
     return out;
   }
@@ -25,7 +48,24 @@ CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& 
   IkOptions ik_options;
   ik_options.max_iterations = 100;
   ik_options.restarts = 2;
-  const IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
+  IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
+  if (!model.extensions.empty() && ik.ok()) {
+    // Fixed point q = IK(params(q)).
+    constexpr int kPasses = 10;
+    double moved = 0.0;
+    for (int pass = 0; pass < kPasses; ++pass) {
+      const Eigen::VectorXd p = extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
+                                               moveDrivers(from_q.size() ? from_q : seed, ik.q_rad));
+      IkResult next = solveInverseKinematics(nominal, p, desired, ik.q_rad, ik_options);
+      moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
+      ik = std::move(next);
+      if (!ik.ok() || moved < 1e-10) break;
+    }
+    if (ik.ok() && moved > 1e-8) {
+      out.reason = "the extended model's joint solution did not settle";
+      return out;
+    }
+  }
   if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
     out.reason = "the identified model cannot reach the target: " + ik.message;
     return out;

@@ -1,6 +1,9 @@
 #include "cellcal/core/model_extension.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <random>
+#include <sstream>
 #include <stdexcept>
 
 #include "cellcal/core/kinematics.hpp"
@@ -278,6 +281,166 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
     c += k;
   }
   return B;
+}
+
+std::string extensionSpec(const Extension& ext) {
+  std::string s = causeName(ext.cause);
+  if (ext.joint >= 0) s += ":" + std::to_string(ext.joint + 1);
+  return s;
+}
+
+Extension parseExtension(const std::string& item, const RobotModel& model, bool has_thermal) {
+  const auto colon = item.find(':');
+  const std::string name = item.substr(0, colon);
+  const auto cause = causeFromName(name);
+  if (!cause || *cause == Cause::kNone)
+    throw std::invalid_argument("'" + name + "' is not a cause (joint_compliance, thermal_drift, cyclic_transmission, "
+                                "joint_scale, backlash)");
+  Extension e{*cause, -1};
+  if (colon != std::string::npos) {
+    const std::string joint = item.substr(colon + 1);
+    size_t used = 0;
+    int j = 0;
+    try {
+      j = std::stoi(joint, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != joint.size())
+      throw std::invalid_argument("'" + item + "': the joint after ':' must be a number (1-based)");
+    if (j < 1 || j > model.numJoints())
+      throw std::invalid_argument("'" + item + "': " + model.name + " has joints 1.." + std::to_string(model.numJoints()));
+    e.joint = j - 1;
+  } else if (*cause != Cause::kThermalDrift) {
+    throw std::invalid_argument("'" + item + "' needs a joint, e.g. " + name + ":2");
+  }
+  if (!applicable(model, e, has_thermal)) {
+    std::string why = "does not apply to " + model.name;
+    if (e.cause == Cause::kThermalDrift && !has_thermal) why += " without a temperature or time driver";
+    if (e.cause == Cause::kJointCompliance) why += " (gravity does not load that joint)";
+    throw std::invalid_argument("'" + item + "' " + why);
+  }
+  return e;
+}
+
+std::vector<Extension> parseExtensionList(const std::string& spec, const RobotModel& model, bool has_thermal) {
+  std::vector<Extension> out;
+  std::stringstream ss(spec);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    const Extension e = parseExtension(item, model, has_thermal);
+    for (const auto& o : out)
+      if (o.cause == e.cause && o.joint == e.joint) throw std::invalid_argument("'" + item + "' is listed twice");
+    out.push_back(e);
+  }
+  if (out.empty()) throw std::invalid_argument("empty list of extensions");
+  return out;
+}
+
+Eigen::VectorXd extendedParams(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                               const Eigen::VectorXd& extension_params, const Eigen::VectorXd& q_rad,
+                               const Drivers& drivers) {
+  if (exts.empty()) return params;
+  return params + extensionBasis(model, params, exts, q_rad, drivers, extension_params) * extension_params;
+}
+
+Eigen::VectorXd extensionPriorSigma(const RobotModel& model, const Eigen::VectorXd& params,
+                                    const std::vector<Extension>& exts, double joint_error_rad) {
+  const int n = model.numJoints();
+  constexpr int kSamples = 64;
+  std::mt19937_64 rng(20261123);
+  Eigen::VectorXd ms = Eigen::VectorXd::Zero(numExtensionParams(model, exts));
+  for (int s = 0; s < kSamples; ++s) {
+    Eigen::VectorXd q(n);
+    for (int j = 0; j < n; ++j) {
+      const double lo = std::max(model.limits[j].lower_rad, -kPi), hi = std::min(model.limits[j].upper_rad, kPi);
+      q[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
+    }
+    Drivers d;
+    d.motion_direction = Eigen::VectorXd::Constant(n, s % 2 ? 1.0 : -1.0);
+    d.thermal = 1.0;
+    const Eigen::MatrixXd B = extensionBasis(model, params, exts, q, d, Eigen::VectorXd());
+    ms += B.colwise().squaredNorm().transpose();
+  }
+  // Relative to the other parameters of the same extension: a column at rounding level does not act.
+  Eigen::VectorXd sigma = Eigen::VectorXd::Zero(ms.size());
+  Eigen::Index c = 0;
+  for (const auto& e : exts) {
+    const int k = numExtensionParams(model, e);
+    const Eigen::VectorXd rms = (ms.segment(c, k) / kSamples).cwiseSqrt();
+    for (int i = 0; i < k; ++i)
+      if (rms[i] > 1e-9 * rms.maxCoeff()) sigma[c + i] = joint_error_rad / rms[i];
+    c += k;
+  }
+  return sigma;
+}
+
+PlayTracker::PlayTracker(int joints, double hysteresis_rad)
+    : hysteresis_rad_(hysteresis_rad), joints_(static_cast<size_t>(joints)) {}
+
+void PlayTracker::add(std::int64_t stamp_ns, const Eigen::VectorXd& q_rad) {
+  if (q_rad.size() != static_cast<Eigen::Index>(joints_.size()) || stamp_ns < last_ns_ || !q_rad.allFinite()) return;
+  last_ns_ = stamp_ns;
+  for (size_t j = 0; j < joints_.size(); ++j) {
+    Joint& J = joints_[j];
+    const Turn now{stamp_ns, q_rad[static_cast<Eigen::Index>(j)]};
+    if (J.turns.empty()) {
+      J.turns.push_back(now);
+      J.extreme = now;
+      continue;
+    }
+    if (J.direction == 0) {
+      const double d = now.q_rad - J.turns.back().q_rad;
+      if (std::abs(d) > hysteresis_rad_) {
+        J.direction = d > 0 ? 1 : -1;
+        J.extreme = now;
+      }
+      continue;
+    }
+    if ((now.q_rad - J.extreme.q_rad) * J.direction > 0) {
+      J.extreme = now;
+    } else if ((J.extreme.q_rad - now.q_rad) * J.direction > hysteresis_rad_) {
+      J.turns.push_back(J.extreme);
+      while (J.turns.size() > kMaxTurns) J.turns.pop_front();
+      J.direction = -J.direction;
+      J.extreme = now;
+    }
+  }
+}
+
+Drivers PlayTracker::driversAt(std::int64_t stamp_ns, const Eigen::VectorXd& q_rad) const {
+  const auto n = static_cast<Eigen::Index>(joints_.size());
+  Drivers d;
+  d.motion_direction = Eigen::VectorXd::Zero(n);
+  d.recent_steps_rad = Eigen::MatrixXd::Zero(n, kPlayHistory);
+  if (q_rad.size() != n) return d;
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const auto& turns = joints_[static_cast<size_t>(j)].turns;
+    // Turning points up to the pose, then the pose itself.
+    std::vector<double> pts;
+    for (const auto& t : turns)
+      if (t.stamp_ns <= stamp_ns) pts.push_back(t.q_rad);
+    if (pts.empty()) continue;
+    pts.push_back(q_rad[j]);
+    const size_t first = pts.size() > static_cast<size_t>(kPlayHistory) + 1 ? pts.size() - kPlayHistory - 1 : 0;
+    const size_t steps = pts.size() - 1 - first;
+    for (size_t k = 0; k < steps; ++k)
+      d.recent_steps_rad(j, kPlayHistory - static_cast<Eigen::Index>(steps) + static_cast<Eigen::Index>(k)) =
+          pts[first + k + 1] - pts[first + k];
+    for (Eigen::Index c = kPlayHistory - 1; c >= 0; --c)
+      if (std::abs(d.recent_steps_rad(j, c)) >= kStillRad) {
+        d.motion_direction[j] = d.recent_steps_rad(j, c) > 0 ? 1.0 : -1.0;
+        break;
+      }
+  }
+  return d;
+}
+
+void PlayTracker::restore(std::vector<Joint> joints, std::int64_t last_stamp_ns) {
+  joints_ = std::move(joints);
+  last_ns_ = last_stamp_ns;
 }
 
 }  // namespace cellcal

@@ -118,12 +118,35 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& par
       data_(model) {}
 
 namespace {
-Eigen::VectorXd initialState(const ExtendedFit& f) {
-  Eigen::VectorXd x(f.estimated.size() + f.estimated_extension.size());
+Eigen::VectorXd stackState(const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                           const Eigen::VectorXd& extension_params, const std::vector<int>& estimated_extension) {
+  Eigen::VectorXd x(estimated.size() + estimated_extension.size());
   Eigen::Index c = 0;
-  for (int i : f.estimated) x[c++] = f.params[i];
-  for (int k : f.estimated_extension) x[c++] = f.extension_params[k];
+  for (int i : estimated) x[c++] = params[i];
+  for (int k : estimated_extension) x[c++] = extension_params[k];
   return x;
+}
+}  // namespace
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                             const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                             const std::vector<int>& estimated_extension, const Eigen::MatrixXd& covariance,
+                             RlsCalibratorOptions options)
+    : model_(&model),
+      params_(params),
+      estimated_(estimated),
+      extensions_(extensions),
+      extension_params_(extension_params),
+      estimated_extension_(estimated_extension),
+      rls_(stackState(params, estimated, extension_params, estimated_extension), covariance, options.rls),
+      data_(model) {
+  if (extension_params_.size() != numExtensionParams(model, extensions_))
+    throw std::invalid_argument("RlsCalibrator: extension parameters do not match the extensions");
+}
+
+namespace {
+Eigen::VectorXd initialState(const ExtendedFit& f) {
+  return stackState(f.params, f.estimated, f.extension_params, f.estimated_extension);
 }
 }  // namespace
 

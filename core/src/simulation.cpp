@@ -143,4 +143,18 @@ Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, const HiddenJoi
   return o;
 }
 
+std::vector<LinkInertia> plausibleLinks(const RobotModel& model, const Eigen::VectorXd& params, std::mt19937_64& rng) {
+  const int n = model.numJoints();
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> g(0.0, 0.02);
+  const std::vector<Pose> F = chainFrames(model, params, Eigen::VectorXd::Zero(n));
+  std::vector<LinkInertia> links(n);
+  for (int i = 1; i <= n; ++i) {
+    const Eigen::Vector3d next_in_i = F[i].inverse() * F[i + 1].translation();
+    links[i - 1].mass_kg = i <= 3 ? 2.0 + 10.0 * u(rng) : 0.5 + 2.5 * u(rng);
+    links[i - 1].com_m = u(rng) * next_in_i + Eigen::Vector3d(g(rng), g(rng), g(rng));
+  }
+  return links;
+}
+
 }  // namespace cellcal

@@ -44,19 +44,8 @@ struct HiddenEffectData {
   double joint_effect_rms_mm = 0;  // the same for the joint's part alone (thermal drift: without the lengths' growth)
 };
 
-// Random true link masses (kg) with centres of mass along each link, a few cm off it: a realistic arm.
 inline std::vector<LinkInertia> randomLinks(const RobotModel& model, const Eigen::VectorXd& params, std::mt19937_64& rng) {
-  const int n = model.numJoints();
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  std::normal_distribution<double> g(0.0, 0.02);
-  const std::vector<Pose> F = chainFrames(model, params, Eigen::VectorXd::Zero(n));
-  std::vector<LinkInertia> links(n);
-  for (int i = 1; i <= n; ++i) {
-    const Eigen::Vector3d next_in_i = F[i].inverse() * F[i + 1].translation();
-    links[i - 1].mass_kg = i <= 3 ? 2.0 + 10.0 * u(rng) : 0.5 + 2.5 * u(rng);
-    links[i - 1].com_m = u(rng) * next_in_i + Eigen::Vector3d(g(rng), g(rng), g(rng));
-  }
-  return links;
+  return plausibleLinks(model, params, rng);
 }
 
 // The joints gravity loads noticeably: torque RMS over the poses above 10 % of the largest joint's.

@@ -41,6 +41,16 @@ TEST(CellFile, ShippedCellLoadsWithItsRobotAndRegistration) {
   EXPECT_NEAR(c.compensation.max_correction_m, 5e-3, 1e-12);
 }
 
+TEST(CellFile, ExampleCellsLoad) {
+  int n = 0;
+  for (const auto& f : fs::directory_iterator(std::string(CELLCAL_CONFIG_DIR) + "/examples")) {
+    const CellConfig c = loadCellConfig(f.path().string());
+    EXPECT_FALSE(c.robots.empty()) << f.path();
+    ++n;
+  }
+  EXPECT_GE(n, 2);
+}
+
 std::string errorOf(const std::string& yaml) {
   try {
     parseCellConfig(yaml, "cell.yaml", CELLCAL_CONFIG_DIR);
@@ -65,6 +75,36 @@ TEST(CellFile, ErrorsNameLineAndField) {
   EXPECT_NE(errorOf(robot + "compensation: { max_correction_mm: -1 }\n").find("compensation.max_correction_mm: must be > "),
             std::string::npos);
   EXPECT_NE(errorOf("dds: {}\n").find("missing required key 'robots'"), std::string::npos);
+}
+
+TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
+  auto cell = [](const std::string& ext, const std::string& sim = "") {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml, extensions: " + ext + " }\n" + sim;
+  };
+  const CellConfig ok = parseCellConfig(cell("[joint_compliance:2, backlash:3]"), "cell.yaml", CELLCAL_CONFIG_DIR);
+  ASSERT_EQ(ok.robots[0].extensions.size(), 2u);
+  EXPECT_EQ(ok.robots[0].extensions[0].cause, Cause::kJointCompliance);
+  EXPECT_EQ(ok.robots[0].extensions[0].joint, 1);
+  EXPECT_EQ(extensionSpec(ok.robots[0].extensions[1]), "backlash:3");
+  EXPECT_NE(errorOf(cell("[joint_compliance:9]")).find("cell.yaml:2:77: robots[0].extensions[0]: 'joint_compliance:9': ur10 has joints 1..6"),
+            std::string::npos) << errorOf(cell("[joint_compliance:9]"));
+  EXPECT_NE(errorOf(cell("[gear_wear:2]")).find("'gear_wear' is not a cause"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[joint_scale]")).find("needs a joint"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[joint_scale:x]")).find("must be a number"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[thermal_drift]")).find("thermal_drift needs a temperature"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[backlash:2, backlash:2]")).find("listed twice"), std::string::npos);
+  EXPECT_NE(errorOf(cell("joint_scale:2")).find("expected a list"), std::string::npos);
+  const CellConfig hid = parseCellConfig(
+      cell("[]", "simulation:\n  hidden_effect: { cause: joint_compliance, joint: 3, size_deg: -0.02 }\n"), "cell.yaml",
+      CELLCAL_CONFIG_DIR);
+  EXPECT_EQ(hid.simulation.effect, Cause::kJointCompliance);
+  EXPECT_EQ(hid.simulation.effect_joint, 2);
+  EXPECT_NEAR(hid.simulation.effect_size_rad, -0.02 * kPi / 180, 1e-15);
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  hidden_effect: { cause: backlash, joint: 3, size_deg: 0.02 }\n"))
+                .find("simulation.hidden_effect.cause: expected none, joint_compliance"),
+            std::string::npos);
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  hidden_effect: { cause: joint_scale, joint: 3 }\n")).find("size_deg"),
+            std::string::npos);
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -180,6 +220,8 @@ struct Feed {
   std::int64_t epoch_ns = 1'700'000'000'000'000'000;
   double compression;
   std::uint64_t jseq = 0, tseq = 0;
+  HiddenJointState hidden{};  // the hidden effect's state along the path (backlash play)
+  Eigen::VectorXd last_q = Eigen::VectorXd();
 
   std::int64_t wallNs(double cell_s) const { return epoch_ns + static_cast<std::int64_t>(cell_s / compression * 1e9); }
 
@@ -194,10 +236,12 @@ struct Feed {
         bool read = false;
         for (double t = start; t < start + pose_time_s; t += joint_period_cell_s) {
           const SimRobotState st = program.at(t);
+          if (last_q.size()) hidden = cell.advanceHiddenState(hidden, last_q, st.q_rad);
+          last_q = st.q_rad;
           engine.onJointState({wallNs(t), ++jseq, st.q_rad, st.settled}, wallNs(t));
           if (!read && t >= read_at) {
             read = true;
-            const Observation o = cell.measure(st.q_rad, t / 3600.0, rng);
+            const Observation o = cell.measure(st.q_rad, &hidden, t / 3600.0, rng);
             TrackerSample s;
             s.stamp_ns = wallNs(t) - 1000;
             s.sequence = ++tseq;
@@ -304,6 +348,53 @@ TEST_F(EngineFixture, RestartFromPersistedStateContinuesExactlyWhereItStopped) {
   EXPECT_EQ(second.counters().rejected[static_cast<size_t>(Rejection::kAlreadyApplied)], 1u);
 }
 
+TEST_F(EngineFixture, ExtendedStateResumesAndAnAddedExtensionKeepsTheKinematics) {
+  CellRobot robot = config.robots[0];
+  robot.extensions = {Extension{Cause::kBacklash, 2}, Extension{Cause::kJointCompliance, 1}};
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const double pt = config.simulation.pose_time_s, sf = config.simulation.settle_fraction;
+  for (EngineMode mode : {EngineMode::kContinuous, EngineMode::kPeriodic}) {
+    config.engine.mode = mode;
+    config.engine.batch_poses = 7;  // the stop leaves a batch half full
+    fs::remove_all(config.engine.state_dir);
+    CalibrationEngine straight(robot, config.engine, config.time_compression, /*persist=*/false);
+    Feed f1{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+    f1.run(straight, 0, 3, dt, pt, sf);
+    Feed f2{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+    {
+      CalibrationEngine first(robot, config.engine, config.time_compression);
+      f2.run(first, 0, 2, dt, pt, sf);
+    }
+    CalibrationEngine second(robot, config.engine, config.time_compression);
+    ASSERT_TRUE(second.restored());
+    EXPECT_TRUE(second.restoreNote().empty()) << second.restoreNote();
+    f2.run(second, 2, 3, dt, pt, sf);
+    EXPECT_EQ(second.snapshot().version, straight.snapshot().version);
+    EXPECT_LT((second.snapshot().params - straight.snapshot().params).cwiseAbs().maxCoeff(), 1e-12);
+    EXPECT_LT((second.snapshot().extension_params - straight.snapshot().extension_params).cwiseAbs().maxCoeff(), 1e-15);
+    EXPECT_LT((second.snapshot().covariance - straight.snapshot().covariance).cwiseAbs().maxCoeff(), 1e-18);
+  }
+  // A geometric state; then the cell file names an extension: the kinematic estimate carries over.
+  config.engine.mode = EngineMode::kContinuous;
+  fs::remove_all(config.engine.state_dir);
+  const CellRobot& geometric = config.robots[0];
+  Eigen::VectorXd kinematic;
+  {
+    CalibrationEngine e(geometric, config.engine, config.time_compression);
+    Feed f{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+    f.run(e, 0, 1, dt, pt, sf);
+    kinematic = e.snapshot().params;
+  }
+  CalibrationEngine extended(robot, config.engine, config.time_compression);
+  ASSERT_TRUE(extended.restored());
+  EXPECT_NE(extended.restoreNote().find("none -> backlash:3, joint_compliance:2"), std::string::npos) << extended.restoreNote();
+  EXPECT_EQ(extended.snapshot().params, kinematic);
+  EXPECT_EQ(extended.snapshot().extensions.size(), 2u);
+  EXPECT_TRUE(extended.snapshot().extension_params.isZero());
+}
+
 TEST_F(EngineFixture, StateOfAnotherModelIsRefusedWithTheFileNamed) {
   const CellRobot& robot = config.robots[0];
   { CalibrationEngine e(robot, config.engine, 1.0); }
@@ -398,6 +489,106 @@ TEST_F(EngineFixture, PeriodicModeUpdatesOncePerBatch) {
 }
 
 // ---------------------------------------------------------------------------------------------------------------
+// The cell file names a model extension (what `cellcal diagnose` found): the engine estimates its parameters in the
+// RLS state along with the kinematics. Each draw hides one effect (cause, joint, size, sign at random) in the
+// simulated robot; the engine is told the cause and joint, never the size. Three engines see the same samples: a
+// geometric one on a robot without the effect (the floor), a geometric one and an extended one on the robot with it.
+struct ExtensionDraw {
+  Cause cause;
+  int joint;
+  double size_rad;
+};
+
+ExtensionDraw drawExtension(const RobotModel& m, std::mt19937_64& rng) {
+  const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
+  ExtensionDraw d;
+  d.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
+  // Compliance: the joints gravity loads most (shoulder, elbow, wrist pitch carry the arm).
+  const std::vector<int> joints = d.cause == Cause::kJointCompliance ? std::vector<int>{1, 2, 4} : std::vector<int>{0, 1, 2, 3, 4, 5};
+  d.joint = joints[std::uniform_int_distribution<size_t>(0, joints.size() - 1)(rng)];
+  const double size_deg = std::exp(std::uniform_real_distribution<double>(std::log(0.01), std::log(0.05))(rng));
+  d.size_rad = (std::uniform_int_distribution<int>(0, 1)(rng) ? 1 : -1) * size_deg * kPi / 180;
+  (void)m;
+  return d;
+}
+
+// Mean hold-out position error (m) of an engine's calibration over a tour of random configurations visited in order
+// (the play state of backlash follows the tour).
+double tourError(const SimulatedCell& cell, const CalibrationSnapshot& snap, double t_h, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const auto qs = cell.randomConfigurations(100, rng);
+  const DriverTable drivers = driversFromSequence(qs, {}, {});
+  const RobotModel& m = cell.model();
+  KinematicsData d(m);
+  HiddenJointState state;
+  double sum = 0;
+  for (size_t i = 0; i < qs.size(); ++i) {
+    if (i > 0) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
+    if (i < 4) continue;  // let the play settle from its unknown start
+    const Eigen::VectorXd p = extendedParams(m, snap.params, snap.extensions, snap.extension_params, qs[i], drivers.rows[i]);
+    sum += (forwardKinematics(m, d, p, qs[i]).translation() - cell.truePose(qs[i], t_h, &state).translation()).norm();
+  }
+  return sum / static_cast<double>(qs.size() - 4);
+}
+
+TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor) {
+  const CellRobot& plain_robot = config.robots[0];
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const double pt = config.simulation.pose_time_s, sf = config.simulation.settle_fraction;
+  std::mt19937_64 rng(seed);
+  constexpr int kDraws = 8;
+  int gained = 0;
+  for (int k = 0; k < kDraws; ++k) {
+    const ExtensionDraw draw = drawExtension(plain_robot.model, rng);
+    SimulationSettings ss = config.simulation;
+    ss.seed = rng();
+    const SimulatedCell plain = makeSimulatedCell(plain_robot, ss, 0);
+    SimulationConfig sc = plain.config();
+    if (draw.cause == Cause::kBacklash) {
+      sc.hidden.cause = Cause::kBacklash;
+      sc.hidden.joint = draw.joint;
+      sc.hidden.backlash_width_rad = 2 * std::abs(draw.size_rad);
+    } else {
+      ss.effect = draw.cause;
+      ss.effect_joint = draw.joint;
+      ss.effect_size_rad = draw.size_rad;
+      sc = makeSimulatedCell(plain_robot, ss, 0).config();
+    }
+    const SimulatedCell hidden(plain_robot.model, sc);
+    CellRobot extended_robot = plain_robot;
+    extended_robot.extensions = {Extension{draw.cause, draw.joint}};
+    const std::string what = std::string(causeName(draw.cause)) + " joint " + std::to_string(draw.joint + 1) + ", " +
+                             std::to_string(draw.size_rad * 180 / kPi) + " deg RMS, seed " + std::to_string(ss.seed);
+
+    const SimRobotProgram program(plain, ss);
+    auto run = [&](const SimulatedCell& cell, const CellRobot& robot) {
+      CalibrationEngine engine(robot, config.engine, config.time_compression, /*persist=*/false);
+      Feed feed{cell, program, std::mt19937_64(ss.seed + 1), 1'700'000'000'000'000'000, config.time_compression};
+      feed.run(engine, 0, 3, dt, pt, sf);
+      EXPECT_EQ(engine.snapshot().health, Health::kOk) << what;
+      return engine.snapshot();
+    };
+    const double t_h = program.campaignEnd_s(2) / 3600;
+    const double floor = tourError(plain, run(plain, plain_robot), t_h, ss.seed + 5);
+    const double geometric = tourError(hidden, run(hidden, plain_robot), t_h, ss.seed + 5);
+    const CalibrationSnapshot ext = run(hidden, extended_robot);
+    const double extended = tourError(hidden, ext, t_h, ss.seed + 5);
+    ASSERT_EQ(ext.extensions.size(), 1u);
+    ASSERT_EQ(ext.extension_params.size(), numExtensionParams(plain_robot.model, ext.extensions));
+    EXPECT_EQ(static_cast<Eigen::Index>(ext.estimated.size() + ext.estimated_extension.size()), ext.covariance.rows());
+    std::printf("  %-50s floor %.4f  geometric %.4f  extended %.4f mm (engine verify %.4f)\n", what.c_str(), floor * 1e3, geometric * 1e3,
+                extended * 1e3, ext.verification_mean_position_m * 1e3);
+    // The extended engine comes close to the geometric one on a robot without the effect. It estimates more
+    // parameters from the same 80 poses (a compliance without link masses: 4 per link beyond the joint), so a little
+    // more noise gets into the model: over 248 draws the ratio was at most 1.30 (median 1.02).
+    EXPECT_LT(extended, 1.5 * floor) << what;
+    if (geometric > 1.5 * floor) ++gained;
+  }
+  // The effects are large enough to matter: most draws leave the geometric engine well above the floor.
+  EXPECT_GE(gained, kDraws / 2);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
 TEST(Compensation, TheTrueRobotLandsOnTheTargetWithTheCorrectedCommand) {
   const std::uint64_t seed = test::testSeed();
   const CellConfig config = loadCellConfig(kCell);
@@ -430,6 +621,83 @@ TEST(Compensation, TheTrueRobotLandsOnTheTargetWithTheCorrectedCommand) {
     ++checked;
   }
   EXPECT_GE(checked, 16) << refused << " of 20 targets refused";
+}
+
+TEST(Compensation, AnExtendedModelIsSolvedAtItsFixedPoint) {
+  // The true robot has an effect the extension represents exactly (drawn at random: cause, joint, size); the
+  // identified model is the truth in extension form. The real robot must land on the target.
+  const std::uint64_t seed = test::testSeed();
+  const CellConfig config = loadCellConfig(kCell);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int checked = 0;
+  for (int draw = 0; draw < 6; ++draw) {
+    SimulationSettings ss = config.simulation;
+    ss.seed = rng();
+    SimulationConfig sc = makeSimulatedCell(config.robots[0], ss, 0).config();
+    const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
+    HiddenJointEffect& e = sc.hidden;
+    e.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
+    e.joint = std::uniform_int_distribution<int>(1, 4)(rng);
+    const double size = (0.01 + 0.04 * u(rng)) * kPi / 180;
+    RobotModel m = config.robots[0].model;
+    Eigen::VectorXd ext(1);
+    switch (e.cause) {
+      case Cause::kJointCompliance:
+      {
+        m.links = plausibleLinks(m, m.nominal, rng);  // known masses: one compliance parameter
+        e.links = m.links;
+        double ms = 0;
+        for (const auto& q : SimulatedCell(m, sc).randomConfigurations(50, rng)) ms += std::pow(gravityTorques(m, m.nominal, q)[e.joint], 2);
+        e.compliance_rad_per_Nm = ext[0] = size / std::sqrt(ms / 50);
+        break;
+      }
+      case Cause::kCyclicTransmission:
+        e.harmonics_rad = Eigen::Vector4d::Random().normalized() * size;
+        ext = e.harmonics_rad;
+        break;
+      case Cause::kJointScale:
+        e.scale = ext[0] = size;
+        break;
+      default:
+        e.backlash_width_rad = 2 * size;
+        ext[0] = -2 * size;  // the link lags the motor: dq = -width/2 * play
+        break;
+    }
+    const SimulatedCell cell(m, sc);
+    const Eigen::VectorXd truth = cell.trueParams(0.0);
+    const IdentifiedModel identified{truth, {Extension{e.cause, e.joint}}, ext};
+    KinematicsData d(m);
+    Eigen::VectorXd from = cell.randomConfigurations(1, rng)[0];
+    HiddenJointState state;
+    double worst_landed = 0, geometric_miss = 0;
+    int geometric_n = 0;
+    for (const auto& q : cell.randomConfigurations(8, rng)) {
+      const Pose desired = forwardKinematics(m, d, m.nominal, q);
+      const CompensationResult c = compensate(m, identified, desired, q, config.compensation, from);
+      if (!c.applied) continue;
+      const IkResult ctrl = solveInverseKinematics(m, m.nominal, c.corrected_in_tracker, c.q_rad);
+      ASSERT_TRUE(ctrl.ok());
+      const HiddenJointState before = state;
+      state = cell.advanceHiddenState(state, from, ctrl.q_rad);
+      worst_landed = std::max(worst_landed, (cell.truePose(ctrl.q_rad, 0.0, &state).translation() - desired.translation()).norm());
+      // Without the extension the same model misses by the effect.
+      const CompensationResult g = compensate(m, truth, desired, q, config.compensation);
+      if (g.applied) {
+        const IkResult gc = solveInverseKinematics(m, m.nominal, g.corrected_in_tracker, g.q_rad);
+        const HiddenJointState gs = cell.advanceHiddenState(before, from, gc.q_rad);
+        geometric_miss += (cell.truePose(gc.q_rad, 0.0, &gs).translation() - desired.translation()).norm();
+        ++geometric_n;
+      }
+      from = ctrl.q_rad;
+      ++checked;
+    }
+    const std::string what = std::string(causeName(e.cause)) + " joint " + std::to_string(e.joint + 1);
+    EXPECT_LT(worst_landed, 1e-6) << what;
+    ASSERT_GT(geometric_n, 0);
+    EXPECT_GT(geometric_miss / geometric_n, 10 * worst_landed) << what;
+  }
+  EXPECT_GE(checked, 30);
 }
 
 TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {

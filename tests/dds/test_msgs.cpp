@@ -2,26 +2,16 @@
 // TypeObjects that recorders and other vendors see are the ones documented.
 #include <gtest/gtest.h>
 
-#include <fastdds/rtps/common/SerializedPayload.h>
 #include <fastrtps/rtps/common/InstanceHandle.h>
 
+#include "cdr_round_trip.hpp"
 #include "cellcal_msgsPubSubTypes.h"
 #include "cellcal_msgsTypeObject.h"
 
 namespace {
 
 using eprosima::fastrtps::rtps::InstanceHandle_t;
-using eprosima::fastrtps::rtps::SerializedPayload_t;
-
-template <typename PubSubType, typename T>
-T roundTrip(const T& in) {
-  PubSubType type;
-  SerializedPayload_t payload(type.getSerializedSizeProvider(const_cast<T*>(&in))());
-  EXPECT_TRUE(type.serialize(const_cast<T*>(&in), &payload));
-  T out;
-  EXPECT_TRUE(type.deserialize(&payload, &out));
-  return out;
-}
+using cellcal::test::roundTrip;
 
 template <typename PubSubType, typename T>
 InstanceHandle_t keyOf(const T& sample) {

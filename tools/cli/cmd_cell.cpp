@@ -22,6 +22,7 @@
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/calibration_engine.hpp"
+#include "cellcal/core/compensation.hpp"
 #include "cellcal/core/inverse_kinematics.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/sim_program.hpp"
@@ -122,18 +123,23 @@ struct Judge {
   std::vector<Eigen::VectorXd> target_qs;
   double cell_time_s = 0;
   std::uint64_t version = 0;
-  Eigen::VectorXd params;
+  IdentifiedModel identified;  // the latest calibration received (with its model extensions, if any)
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
   std::uint64_t target_seq = 0, applied = 0, refused = 0;
   std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
 
-  double verify(const Eigen::VectorXd& p, double t_h) const {
-    KinematicsData d(sim.model());
+  double verify(const IdentifiedModel& m, double t_h) const {
+    const RobotModel& model = sim.model();
+    KinematicsData d(model);
     double s = 0;
-    for (const auto& q : holdout) s += (forwardKinematics(sim.model(), d, p, q).translation() - sim.truePose(q, t_h).translation()).norm();
+    for (const auto& q : holdout) {
+      const Eigen::VectorXd p = extendedParams(model, m.params, m.extensions, m.extension_params, q, Drivers{});
+      s += (forwardKinematics(model, d, p, q).translation() - sim.truePose(q, t_h).translation()).norm();
+    }
     return s / static_cast<double>(holdout.size()) * 1e3;
   }
+  double verifyNominal(double t_h) const { return verify(IdentifiedModel{sim.nominalParams(), {}, {}}, t_h); }
 };
 
 // The same robot program and tracker model, through core's CalibrationEngine in this process (no DDS): what the
@@ -161,7 +167,8 @@ double inProcessReference(const CellConfig& cell, const CellRobot& robot, int in
       engine.onJointState({wall(t_read) + 1000, ++seq, q, true}, wall(t_read));
       engine.process(wall(t_read) + 2000);
     }
-  return judge.verify(engine.snapshot().params, cell_time_end_s / 3600.0);
+  const CalibrationSnapshot& snap = engine.snapshot();
+  return judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0);
 }
 
 int runCell(const CellArgs& a) {
@@ -178,7 +185,7 @@ int runCell(const CellArgs& a) {
     std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);
     j.holdout = j.sim.randomConfigurations(a.holdout_poses, rng);
     j.target_qs = j.sim.randomConfigurations(200, rng);
-    j.params = j.sim.nominalParams();
+    j.identified.params = j.sim.nominalParams();
     judges.push_back(std::move(j));
   }
   std::mutex mutex;
@@ -235,15 +242,15 @@ int runCell(const CellArgs& a) {
         tracker_to_state_us.push_back((now - static_cast<std::int64_t>(m.last_measurement_stamp_ns())) / 1e3);
       ++updates_seen;
       j->version = c->version;
-      j->params = c->params;
+      j->identified = IdentifiedModel{c->params, c->extensions, c->extension_params};
       double cell_time;
       {
         std::lock_guard<std::mutex> lock(mutex);
         cell_time = j->cell_time_s;
       }
       const double t_h = cell_time / 3600.0;
-      j->verify_mm = j->verify(j->params, t_h);
-      j->nominal_mm = j->verify(j->sim.nominalParams(), t_h);
+      j->verify_mm = j->verify(j->identified, t_h);
+      j->nominal_mm = j->verifyNominal(t_h);
       if (!a.quiet) {
         const double corr = j->correction_mm.empty() ? std::nan("") : j->correction_mm.back();
         std::printf("[%6.2f s] %-8s v%-4llu poses %-4u cell time %5.2f h | hold-out error %.4f mm (uncalibrated %.3f mm) | "
@@ -372,7 +379,7 @@ int runCell(const CellArgs& a) {
   for (size_t i = 0; i < judges.size(); ++i) {
     Judge& j = judges[i];
     const double t_h = j.cell_time_s / 3600.0;
-    const double vb = j.verify(j.sim.nominalParams(), t_h), va = j.verify(j.params, t_h);
+    const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
     const double ref = a.in_process_reference ? inProcessReference(cell, *j.robot, static_cast<int>(i), j.cell_time_s, j) : std::nan("");
     before += vb / judges.size();
     after += va / judges.size();

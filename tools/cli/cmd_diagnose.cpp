@@ -147,6 +147,23 @@ int runDiagnose(const DiagnoseArgs& a) {
               d.gain_pct);
   std::printf("unexplained: %.4f mm RMS beyond the expected noise of %.4f mm RMS (diagnosis %.2f s)\n",
               d.unexplained_rms_mm, d.noise_rms_mm, d.solve_time_s);
+  // What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model).
+  std::vector<std::string> cell_extensions;
+  bool thermal = false;
+  if (d.chosen >= 0)
+    for (const auto& e : b.fit.extensions) {
+      if (e.cause == Cause::kThermalDrift) thermal = true;
+      else cell_extensions.push_back(extensionSpec(e));
+    }
+  if (!cell_extensions.empty()) {
+    std::string list;
+    for (const auto& e : cell_extensions) list += (list.empty() ? "" : ", ") + e;
+    std::printf("calibration engine: add `extensions: [%s]` to this robot in the cell file (RLS state with the extension)\n",
+                list.c_str());
+  }
+  if (thermal)
+    std::printf("calibration engine: thermal_drift is left to the engine's drift model (the cell's topics carry no "
+                "temperature)\n");
   if (!a.json.empty()) {
     nlohmann::json cands = nlohmann::json::array();
     for (const auto& c : d.candidates)
@@ -161,7 +178,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
                         {"extension_params", d.chosen >= 0 ? paramsJson(b.fit) : nlohmann::json::object()},
                         {"extension_stddev", d.chosen >= 0 ? paramsJson(b.fit, true) : nlohmann::json::object()},
-                        {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
+                        {"cell_extensions", cell_extensions}, {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
                         {"structure_after", structureJson(d.structure_after)}, {"noise_rms_mm", d.noise_rms_mm},
                         {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s}};
     std::ofstream o(a.json);

@@ -54,32 +54,11 @@ LoadedInput loadInput(const InputArgs& a) {
 
 // "backlash:3,joint_compliance:2" or "thermal_drift" (lengths) -> extensions; joints 1-based.
 std::vector<Extension> parseModel(const std::string& spec, const RobotModel& robot) {
-  std::vector<Extension> out;
-  std::stringstream ss(spec);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    const auto colon = item.find(':');
-    const std::string name = item.substr(0, colon);
-    const auto cause = causeFromName(name);
-    if (!cause || *cause == Cause::kNone)
-      throw std::runtime_error("--model: '" + name + "' is not a cause (joint_compliance, thermal_drift, "
-                               "cyclic_transmission, joint_scale, backlash), nor geometric or auto");
-    Extension e{*cause, -1};
-    if (colon != std::string::npos) {
-      try {
-        e.joint = std::stoi(item.substr(colon + 1)) - 1;
-      } catch (const std::exception&) {
-        throw std::runtime_error("--model: '" + item + "': the joint after ':' must be a number (1-based)");
-      }
-    } else if (*cause != Cause::kThermalDrift) {
-      throw std::runtime_error("--model: '" + item + "' needs a joint, e.g. " + name + ":2");
-    }
-    if (!applicable(robot, e, true))
-      throw std::runtime_error("--model: '" + item + "' does not apply to " + robot.name);
-    out.push_back(e);
+  try {
+    return parseExtensionList(spec, robot);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(std::string("--model: ") + e.what() + " (or geometric, auto)");
   }
-  if (out.empty()) throw std::runtime_error("--model: empty");
-  return out;
 }
 
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix) {

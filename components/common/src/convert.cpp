@@ -75,6 +75,21 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
     m.parameter_values().push_back(s.params[i]);
     m.parameter_stddevs().push_back(sigma[i]);
   }
+  for (const auto& e : s.extensions) m.model_extensions().push_back(extensionSpec(e));
+  std::vector<std::string> ext_names;
+  for (const auto& e : s.extensions)
+    for (auto& n : extensionParamNames(model, e)) ext_names.push_back(std::move(n));
+  Eigen::VectorXd ext_sigma = Eigen::VectorXd::Zero(s.extension_params.size());
+  const auto nk = static_cast<Eigen::Index>(s.estimated.size());
+  for (size_t k = 0; k < s.estimated_extension.size(); ++k) {
+    const auto c = nk + static_cast<Eigen::Index>(k);
+    ext_sigma[s.estimated_extension[k]] = std::sqrt(std::max(0.0, s.covariance(c, c)));
+  }
+  for (size_t k = 0; k < ext_names.size(); ++k) {
+    m.parameter_names().push_back(ext_names[k]);
+    m.parameter_values().push_back(s.extension_params[static_cast<Eigen::Index>(k)]);
+    m.parameter_stddevs().push_back(ext_sigma[static_cast<Eigen::Index>(k)]);
+  }
   m.residual_rms_position_m(s.residual_rms_position_m);
   m.residual_rms_orientation_rad(s.residual_rms_orientation_rad);
   m.verification_mean_position_m(s.verification_mean_position_m);
@@ -91,10 +106,23 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
   };
   if (m.robot_model().to_string() != model.name)
     return fail("model '" + m.robot_model().to_string() + "', expected '" + model.name + "'");
+  ReceivedCalibration r;
+  for (const auto& spec : m.model_extensions()) {
+    try {
+      r.extensions.push_back(parseExtension(spec.to_string(), model, false));
+    } catch (const std::invalid_argument& e) {
+      return fail(std::string("model_extensions: ") + e.what());
+    }
+  }
+  // Kinematic parameters at their index; extension parameters after them, by their names.
   std::map<std::string, int> index;
   for (int i = 0; i < model.numParams(); ++i) index[model.paramName(i)] = i;
-  ReceivedCalibration r;
-  r.params = model.nominal;
+  int next = model.numParams();
+  for (const auto& e : r.extensions)
+    for (const auto& n : extensionParamNames(model, e)) index[n] = next++;
+  Eigen::VectorXd values(next);
+  values << model.nominal, Eigen::VectorXd::Zero(next - model.numParams());
+  std::vector<bool> given(static_cast<size_t>(next), false);
   if (m.parameter_values().size() != m.parameter_names().size())
     return fail("parameter_names and parameter_values differ in length");
   for (size_t k = 0; k < m.parameter_names().size(); ++k) {
@@ -102,8 +130,17 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
     const auto it = index.find(name);
     if (it == index.end()) return fail("unknown parameter '" + name + "'");
     if (!std::isfinite(m.parameter_values()[k])) return fail("parameter '" + name + "' is not finite");
-    r.params[it->second] = m.parameter_values()[k];
+    values[it->second] = m.parameter_values()[k];
+    given[static_cast<size_t>(it->second)] = true;
   }
+  // An extension's parameters must all be there (a missing one would silently mean "no effect").
+  for (int i = model.numParams(); i < next; ++i)
+    if (!given[static_cast<size_t>(i)]) {
+      for (const auto& [n, idx] : index)
+        if (idx == i) return fail("extension parameter '" + n + "' missing");
+    }
+  r.params = values.head(model.numParams());
+  r.extension_params = values.tail(next - model.numParams());
   r.version = m.version();
   r.health = m.health();
   r.poses_used = m.poses_used();

@@ -38,7 +38,11 @@ struct CalibrationSnapshot {
   std::uint32_t poses_used = 0;
   Eigen::VectorXd params;             // full SI vector (RobotModel layout)
   std::vector<int> estimated;         // indices of params the RLS estimates
-  Eigen::MatrixXd covariance;         // over `estimated`
+  // Model extensions of the cell file (CellRobot::extensions) and their parameters (extensionParamNames order).
+  std::vector<Extension> extensions;
+  Eigen::VectorXd extension_params;
+  std::vector<int> estimated_extension;  // indices of extension_params the RLS estimates
+  Eigen::MatrixXd covariance;         // over `estimated`, then `estimated_extension`
   double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
   double residual_rms_orientation_rad = 0;
   double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
@@ -70,6 +74,9 @@ class CalibrationEngine {
 
   std::string stateFile() const;
   bool restored() const { return restored_; }
+  // What the restore did beyond resuming (e.g. the cell file added an extension: kinematic estimate kept, the
+  // extension started from its prior); empty otherwise.
+  const std::string& restoreNote() const { return restore_note_; }
 
   // Returns false (and counts the rejection) for a sample that will never be used.
   bool onJointState(const JointSample& s, std::int64_t receive_ns);
@@ -95,7 +102,12 @@ class CalibrationEngine {
   std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
 
  private:
-  void applyPose(const PairedReading& p);
+  struct Pending {
+    PairedReading reading;
+    Drivers drivers;  // play state when it was paired (the joint history moves on while a batch fills)
+  };
+  void applyPose(const Pending& p);
+  void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
   void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
   void refreshStatistics();
   bool samePoseAsLastUsed(const PairedReading& p) const;
@@ -108,12 +120,14 @@ class CalibrationEngine {
   double time_compression_;
   bool persist_;
   bool restored_ = false;
+  std::string restore_note_;
   PairingBuffer pairing_;
   std::unique_ptr<RlsCalibrator> rls_;
   Eigen::VectorXd drift_sigma_;       // accumulated over settings.drift_per_h
   CalibrationSnapshot snap_;
   EngineCounters counters_;
-  std::vector<PairedReading> batch_;  // periodic mode: poses waiting for the batch to fill
+  std::vector<Pending> batch_;        // periodic mode: poses waiting for the batch to fill
+  PlayTracker play_;                  // joint paths, for extensions whose driver is the play state (backlash)
   struct Recent {
     double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/core/model_extension.hpp"
 #include "cellcal/core/observation.hpp"
 #include "cellcal/core/robot_model.hpp"
 #include "cellcal/core/robot_yaml.hpp"
@@ -31,6 +32,9 @@ struct CellRobot {
   MeasurementKind measurement = MeasurementKind::kPose6D;
   // Registration of this cell (override the robot file when given), SI: x, y, z (m), roll, pitch, yaw (rad).
   std::optional<Eigen::Matrix<double, 6, 1>> base_in_tracker, tool_in_flange;
+  // Model extensions the engine estimates with the kinematic parameters (what `cellcal diagnose` named), e.g.
+  // [joint_compliance:2]. Not thermal_drift: the cell's topics carry no temperature (the drift model follows warm-up).
+  std::vector<Extension> extensions;
   // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig.
   RobotModel model;
 };
@@ -78,6 +82,12 @@ struct SimulationSettings {
   double joint_rate_hz = 500.0;                // JointState rate (wall clock)
   int tracker_readings_per_pose = 1;
   double tracker_delay_fraction = 0.3;         // tracker reads this far into the settled part
+  // An effect the geometric model lacks, hidden in every simulated robot (to demonstrate extensions):
+  // joint_compliance, cyclic_transmission or joint_scale on `effect_joint`, making an RMS joint error of
+  // `effect_size_rad` over the workspace (negative: the opposite sign). kNone: none.
+  Cause effect = Cause::kNone;
+  int effect_joint = -1;                       // 0-based
+  double effect_size_rad = 0.0;
 };
 
 struct CellConfig {

@@ -8,6 +8,12 @@
 // Poses are in the tracker (cell) frame, like TargetPose; a controller wanting its base frame applies the nominal
 // base_in_tracker inverse. A correction beyond the bound is refused (the desired pose is returned unchanged,
 // applied = false) or, with ExceedAction::kClamp, scaled down to the bound along the same direction.
+//
+// With model extensions (model_extension.hpp) the identified model's parameters depend on the joints:
+// params(q) = params + B(q) e. q* is then the fixed point q = IK(params(q), desired), found by iterating from the seed
+// (B e changes little with q: a joint error of 1e-4 rad changes by far less when q moves by it, so two or three
+// passes settle to the solver tolerance). Backlash's play state is that of a straight move from `from_q_rad` (the joints the robot
+// comes from, e.g. the previous compensated target) to q*.
 #pragma once
 
 #include <Eigen/Core>
@@ -15,6 +21,7 @@
 
 #include "cellcal/core/cell_config.hpp"
 #include "cellcal/core/inverse_kinematics.hpp"
+#include "cellcal/core/model_extension.hpp"
 #include "cellcal/core/se3.hpp"
 
 namespace cellcal {
@@ -29,6 +36,16 @@ struct CompensationResult {
   double correction_orientation_rad = 0;
 };
 
+struct IdentifiedModel {
+  Eigen::VectorXd params;                  // full kinematic vector (RobotModel layout)
+  std::vector<Extension> extensions;       // empty: the geometric model
+  Eigen::VectorXd extension_params;
+};
+
+CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,
+                              const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
+                              const CompensationSettings& settings, const Eigen::VectorXd& from_q_rad = {});
+// The geometric model.
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified_params,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
                               const CompensationSettings& settings);

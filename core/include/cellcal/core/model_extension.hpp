@@ -24,6 +24,8 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
+#include <deque>
 #include <optional>
 #include <string>
 #include <vector>
@@ -100,5 +102,59 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
 int numExtensionParams(const RobotModel& model, const std::vector<Extension>& exts);
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
                                const Eigen::VectorXd& q_rad, const Drivers& drivers, const Eigen::VectorXd& evaluated_at);
+
+// Written and read form of an extension: "joint_compliance:2" (cause, then the 1-based joint), "thermal_drift"
+// (lengths only). parseExtensionList takes a comma-separated list; errors (std::invalid_argument) name the item and
+// say what is wrong (unknown cause, missing or bad joint, not applicable to `model`).
+std::string extensionSpec(const Extension& ext);
+Extension parseExtension(const std::string& item, const RobotModel& model, bool has_thermal = true);
+std::vector<Extension> parseExtensionList(const std::string& spec, const RobotModel& model, bool has_thermal = true);
+
+// The kinematic parameters of one pose under an extended model: params + B(q, drivers) e (backlash evaluated at its
+// width |e|). With no extensions: params.
+Eigen::VectorXd extendedParams(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                               const Eigen::VectorXd& extension_params, const Eigen::VectorXd& q_rad,
+                               const Drivers& drivers);
+
+// A prior for extension parameters nothing is known about: 1 sigma of each parameter is the value whose basis column
+// makes an RMS joint error of `joint_error_rad` over configurations spread through the joint limits (deterministic).
+// 0 for a parameter whose column does not act (rounding level against the extension's others, e.g. a link's moment
+// along an axis parallel to the joint's): such a parameter cannot be estimated and stays out of an RLS state.
+Eigen::VectorXd extensionPriorSigma(const RobotModel& model, const Eigen::VectorXd& params,
+                                    const std::vector<Extension>& exts, double joint_error_rad);
+
+// Drivers from a joint-state stream instead of a list of rows: the play state of a pose depends on the path the
+// joint took to it, not only on the previous measured pose (the robot works between measurements). Keeps each
+// joint's turning points (reversals larger than `hysteresis_rad`, so encoder noise does not fill the history) and
+// gives, for a pose reached at stamp t, the last kPlayHistory monotone moves of each joint ending at the pose
+// (Drivers::recent_steps_rad, per joint: the columns of different joints are not simultaneous, which playState does
+// not need). Thermal driver: 0 (the stream has no temperature).
+class PlayTracker {
+ public:
+  struct Turn {
+    std::int64_t stamp_ns;
+    double q_rad;
+  };
+  struct Joint {
+    std::deque<Turn> turns;   // confirmed turning points, oldest first (the first sample opens the history)
+    int direction = 0;        // of the move in progress: +1, -1, 0 not yet moved
+    Turn extreme{0, 0.0};     // furthest point of the move in progress
+  };
+  static constexpr size_t kMaxTurns = 4 * kPlayHistory;
+
+  explicit PlayTracker(int joints = 0, double hysteresis_rad = 1e-5);
+  // Joint readings in time order (older or wrong-sized readings are ignored).
+  void add(std::int64_t stamp_ns, const Eigen::VectorXd& q_rad);
+  Drivers driversAt(std::int64_t stamp_ns, const Eigen::VectorXd& q_rad) const;
+  const std::vector<Joint>& joints() const { return joints_; }
+  // Restores a saved history (e.g. the engine's state file).
+  void restore(std::vector<Joint> joints, std::int64_t last_stamp_ns);
+  std::int64_t lastStampNs() const { return last_ns_; }
+
+ private:
+  double hysteresis_rad_;
+  std::vector<Joint> joints_;
+  std::int64_t last_ns_ = 0;
+};
 
 }  // namespace cellcal

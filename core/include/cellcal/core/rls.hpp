@@ -85,9 +85,14 @@ class RlsCalibrator {
                 MeasurementKind kind, RlsCalibratorOptions options = {});
   // Starts from the parameters and covariance of a batch result (the paper's P0 = (A0^T A0)^-1 when it had no prior).
   RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options = {});
-  // Resumes a saved estimate: full parameter vector, estimated indices, covariance over them.
+  // Resumes a saved estimate: full parameter vector, estimated indices, covariance over the state (the estimated
+  // kinematic parameters, then the estimated extension parameters).
   RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
                 const Eigen::MatrixXd& covariance, RlsCalibratorOptions options = {});
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                const std::vector<int>& estimated_extension, const Eigen::MatrixXd& covariance,
+                RlsCalibratorOptions options = {});
 
   // Starts from an extended fit (fitExtended): its parameters, estimated sets and covariance.
   RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options = {});

@@ -44,6 +44,10 @@ struct HiddenJointEffect {
   double backlash_width_rad = 0.0;
 };
 
+// Random true link masses (kg) with centres of mass along each link, a few cm off it: a realistic arm (2-12 kg for
+// links 1-3, 0.5-3 kg beyond), for a simulated joint compliance when the robot file gives no masses.
+std::vector<LinkInertia> plausibleLinks(const RobotModel& model, const Eigen::VectorXd& params, std::mt19937_64& rng);
+
 // State a hidden effect carries from pose to pose.
 struct HiddenJointState {
   double backlash_play = 1.0;  // -1..1, see kBacklash

@@ -31,6 +31,8 @@ struct ReceivedCalibration {
   std::uint64_t version = 0;
   msg::CalibrationHealth health = msg::HEALTH_UNCALIBRATED;
   Eigen::VectorXd params;
+  std::vector<Extension> extensions;  // model extensions and their parameters (empty: geometric model)
+  Eigen::VectorXd extension_params;
   std::uint32_t poses_used = 0;
   double verification_mean_position_m = 0;
 };
