@@ -165,6 +165,7 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
       persist_(persist),
       pairing_(robot.model, pairingOptions(robot, settings)),
       play_(robot.model.numJoints(), settings.settle_tolerance_rad) {
+  for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || e.cause == Cause::kBacklash;
   const RobotModel& m = robot.model;
   DriftModel drift;
   drift.joint_offset_rad = settings.drift_joint_offset_rad;
@@ -223,7 +224,7 @@ bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_
     reject(*r, robot_->robot_id + " " + detail);
     return false;
   }
-  play_.add(s.stamp_ns, s.q_rad);
+  if (tracks_play_) play_.add(s.stamp_ns, s.q_rad);
   // Remember when the robot moved (a new stand-still starts a new pose).
   const bool moved = !s.settled || (last_joint_q_.size() == s.q_rad.size() &&
                                     (s.q_rad - last_joint_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad);
@@ -393,13 +394,15 @@ void CalibrationEngine::persist() {
   const Eigen::VectorXd& xp = rls_->extensionParams();
   j["extension_params"] = std::vector<double>(xp.data(), xp.data() + xp.size());
   j["estimated_extension"] = rls_->estimatedExtension();
-  json play = json::array();
-  for (const auto& J : play_.joints()) {
-    json turns = json::array();
-    for (const auto& t : J.turns) turns.push_back({t.stamp_ns, t.q_rad});
-    play.push_back({{"turns", turns}, {"direction", J.direction}, {"extreme", {J.extreme.stamp_ns, J.extreme.q_rad}}});
+  if (tracks_play_) {
+    json play = json::array();
+    for (const auto& J : play_.joints()) {
+      json turns = json::array();
+      for (const auto& t : J.turns) turns.push_back({t.stamp_ns, t.q_rad});
+      play.push_back({{"turns", turns}, {"direction", J.direction}, {"extreme", {J.extreme.stamp_ns, J.extreme.q_rad}}});
+    }
+    j["play"] = {{"joints", play}, {"last_stamp_ns", play_.lastStampNs()}};
   }
-  j["play"] = {{"joints", play}, {"last_stamp_ns", play_.lastStampNs()}};
   json recent = json::array();
   for (const auto& r : recent_) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
   j["recent"] = recent;
@@ -448,43 +451,35 @@ bool CalibrationEngine::restore() {
     const auto params = j.at("params").get<std::vector<double>>();
     const auto estimated = j.at("estimated").get<std::vector<int>>();
     const auto cov = j.at("covariance").get<std::vector<double>>();
+    // The covariance is over the state: the estimated kinematic parameters, then any estimated extension ones.
     const auto ne = static_cast<Eigen::Index>(estimated.size());
-    if (static_cast<int>(params.size()) != m.numParams() || static_cast<Eigen::Index>(cov.size()) < ne * ne)
+    const auto nt = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(cov.size()))));
+    if (static_cast<int>(params.size()) != m.numParams() || nt * nt != static_cast<Eigen::Index>(cov.size()) || nt < ne)
       fail("parameter or covariance size mismatch");
-    {
-      const auto nt = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(cov.size()))));
-      if (nt * nt != static_cast<Eigen::Index>(cov.size())) fail("covariance is not square");
-      if (!Eigen::Map<const Eigen::VectorXd>(cov.data(), static_cast<Eigen::Index>(cov.size())).allFinite())
-        fail("non-finite values");
-    }
     for (int e : estimated)
       if (e < 0 || e >= m.numParams()) fail("estimated index out of range");
     const Eigen::VectorXd p = Eigen::Map<const Eigen::VectorXd>(params.data(), m.numParams());
-    if (!p.allFinite()) fail("non-finite values");
+    const Eigen::MatrixXd P = Eigen::Map<const Eigen::MatrixXd>(cov.data(), nt, nt);
+    if (!p.allFinite() || !P.allFinite()) fail("non-finite values");
     // Extensions: resumed when the cell file still names the same ones; else the kinematic estimate is kept and
     // the cell file's extensions start from their prior (an extension added after `cellcal diagnose` does not
     // throw away hours of calibration).
     std::vector<std::string> saved, wanted;
     if (j.contains("extensions")) saved = j.at("extensions").get<std::vector<std::string>>();
     for (const auto& e : robot_->extensions) wanted.push_back(extensionSpec(e));
-    const auto nk = static_cast<Eigen::Index>(estimated.size());
     if (saved == wanted && !saved.empty()) {
       const auto xp = j.at("extension_params").get<std::vector<double>>();
       const auto xe = j.at("estimated_extension").get<std::vector<int>>();
       if (static_cast<int>(xp.size()) != numExtensionParams(m, robot_->extensions) ||
-          static_cast<Eigen::Index>(cov.size()) != (nk + static_cast<Eigen::Index>(xe.size())) * (nk + static_cast<Eigen::Index>(xe.size())))
+          nt != ne + static_cast<Eigen::Index>(xe.size()))
         fail("extension parameter or covariance size mismatch");
       for (int e : xe)
         if (e < 0 || e >= static_cast<int>(xp.size())) fail("estimated extension index out of range");
-      const auto nt = nk + static_cast<Eigen::Index>(xe.size());
-      const Eigen::MatrixXd Pf = Eigen::Map<const Eigen::MatrixXd>(cov.data(), nt, nt);
-      if (!Pf.allFinite()) fail("non-finite values");
       rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, robot_->extensions,
                                              Eigen::Map<const Eigen::VectorXd>(xp.data(), static_cast<Eigen::Index>(xp.size())),
-                                             xe, Pf);
+                                             xe, P);
     } else {
-      const Eigen::Index nt = static_cast<Eigen::Index>(std::sqrt(static_cast<double>(cov.size())));
-      const Eigen::MatrixXd Pk = Eigen::Map<const Eigen::MatrixXd>(cov.data(), nt, nt).topLeftCorner(nk, nk);
+      const Eigen::MatrixXd Pk = P.topLeftCorner(ne, ne);
       if (robot_->extensions.empty())
         rls_ = std::make_unique<RlsCalibrator>(m, p, estimated, Pk);
       else
@@ -499,7 +494,7 @@ bool CalibrationEngine::restore() {
                         "): kinematic estimate kept, extensions start from their prior";
       }
     }
-    if (j.contains("play")) {
+    if (tracks_play_ && j.contains("play")) {
       const json& pl = j.at("play");
       std::vector<PlayTracker::Joint> joints;
       for (const auto& J : pl.at("joints")) {

@@ -7,16 +7,10 @@
 namespace cellcal {
 
 namespace {
-// Drivers of the solution: a straight move from `from` (if known) to q.
+// Drivers of the solution: a straight move from `from` (if known) to q, as the second row of a visiting sequence.
 Drivers moveDrivers(const Eigen::VectorXd& from, const Eigen::VectorXd& q) {
-  Drivers d;
-  d.motion_direction = Eigen::VectorXd::Zero(q.size());
-  d.recent_steps_rad = Eigen::MatrixXd::Zero(q.size(), kPlayHistory);
-  if (from.size() == q.size() && from.allFinite()) {
-    d.recent_steps_rad.col(kPlayHistory - 1) = q - from;
-    for (Eigen::Index j = 0; j < q.size(); ++j) d.motion_direction[j] = q[j] > from[j] ? 1.0 : (q[j] < from[j] ? -1.0 : 0.0);
-  }
-  return d;
+  if (from.size() != q.size() || !from.allFinite()) return Drivers{};
+  return driversFromSequence({from, q}, {}, {}).rows[1];
 }
 }  // namespace
 

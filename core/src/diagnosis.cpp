@@ -103,11 +103,8 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   if (obs.empty()) throw std::invalid_argument("fitExtended: no observations");
   ExtendedFit fit;
   fit.extensions = extensions;
-  int k = 0;
-  for (const auto& e : extensions) {
-    for (auto& n : extensionParamNames(model, e)) fit.extension_names.push_back(n);
-    k += numExtensionParams(model, e);
-  }
+  fit.extension_names = extensionParamNames(model, extensions);
+  const int k = numExtensionParams(model, extensions);
   const int np = model.numParams();
   Eigen::VectorXd evaluated_at = Eigen::VectorXd::Zero(k);  // the widths the backlash bases are evaluated at
   std::vector<Eigen::MatrixXd> B = bases(model, start, extensions, obs, drivers, evaluated_at);

@@ -270,6 +270,13 @@ int numExtensionParams(const RobotModel& model, const std::vector<Extension>& ex
   return k;
 }
 
+std::vector<std::string> extensionParamNames(const RobotModel& model, const std::vector<Extension>& exts) {
+  std::vector<std::string> out;
+  for (const auto& e : exts)
+    for (auto& n : extensionParamNames(model, e)) out.push_back(std::move(n));
+  return out;
+}
+
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
                                const Eigen::VectorXd& q_rad, const Drivers& drivers, const Eigen::VectorXd& evaluated_at) {
   Eigen::MatrixXd B(model.numParams(), numExtensionParams(model, exts));

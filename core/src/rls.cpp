@@ -144,12 +144,6 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& par
     throw std::invalid_argument("RlsCalibrator: extension parameters do not match the extensions");
 }
 
-namespace {
-Eigen::VectorXd initialState(const ExtendedFit& f) {
-  return stackState(f.params, f.estimated, f.extension_params, f.estimated_extension);
-}
-}  // namespace
-
 RlsCalibrator::RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options)
     : model_(&model),
       params_(initial.params),
@@ -157,7 +151,8 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const ExtendedFit& initial
       extensions_(initial.extensions),
       extension_params_(initial.extension_params),
       estimated_extension_(initial.estimated_extension),
-      rls_(initialState(initial), initial.covariance, options.rls),
+      rls_(stackState(initial.params, initial.estimated, initial.extension_params, initial.estimated_extension),
+           initial.covariance, options.rls),
       data_(model) {}
 
 Eigen::VectorXd RlsCalibrator::rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers) {

@@ -20,36 +20,10 @@ SimulatedCell makeSimulatedCell(const CellRobot& robot, const SimulationSettings
   std::mt19937_64 rng(c.seed * 1000003ULL + 424243ULL);
   const std::vector<Eigen::VectorXd> qs = plain.randomConfigurations(200, rng);
   const Eigen::VectorXd true0 = plain.trueParams(0.0);
-  HiddenJointEffect& e = c.hidden;
-  e.cause = settings.effect;
-  e.joint = settings.effect_joint;
-  const double size = settings.effect_size_rad;
-  auto rms = [&](auto f) {
-    double s = 0;
-    for (const auto& q : qs) s += f(q) * f(q);
-    return std::sqrt(s / static_cast<double>(qs.size()));
-  };
-  switch (e.cause) {
-    case Cause::kJointCompliance: {
-      RobotModel m = plain.model();
-      if (m.links.empty()) m.links = plausibleLinks(m, true0, rng);
-      e.links = m.links;
-      e.compliance_rad_per_Nm = size / rms([&](const Eigen::VectorXd& q) { return gravityTorques(m, true0, q)[e.joint]; });
-      break;
-    }
-    case Cause::kCyclicTransmission: {
-      std::normal_distribution<double> g(0.0, 1.0);
-      const Eigen::Vector4d v(g(rng), g(rng), g(rng), g(rng));
-      e.harmonics_rad = v.normalized() * size * std::sqrt(2.0);
-      break;
-    }
-    case Cause::kJointScale:
-      e.scale = size / rms([&](const Eigen::VectorXd& q) { return q[e.joint]; });
-      break;
-    default:
-      throw std::invalid_argument(std::string("simulation: hidden effect ") + causeName(e.cause) +
-                                  " is not simulated in the cell");
-  }
+  std::vector<LinkInertia> links = robot.model.links;
+  if (settings.effect == Cause::kJointCompliance && links.empty()) links = plausibleLinks(plain.model(), true0, rng);
+  c.hidden = scaledHiddenEffect(plain.model(), true0, settings.effect, settings.effect_joint, settings.effect_size_rad,
+                                links, qs, rng);
   return SimulatedCell(robot.model, c);
 }
 

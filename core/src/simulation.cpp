@@ -157,4 +157,38 @@ std::vector<LinkInertia> plausibleLinks(const RobotModel& model, const Eigen::Ve
   return links;
 }
 
+HiddenJointEffect scaledHiddenEffect(const RobotModel& model, const Eigen::VectorXd& true_params, Cause cause, int joint,
+                                     double size_rad, const std::vector<LinkInertia>& links,
+                                     const std::vector<Eigen::VectorXd>& qs, std::mt19937_64& rng) {
+  HiddenJointEffect e;
+  e.cause = cause;
+  e.joint = joint;
+  auto rms = [&](auto f) {
+    double s = 0;
+    for (const auto& q : qs) s += f(q) * f(q);
+    return std::sqrt(s / static_cast<double>(qs.size()));
+  };
+  switch (cause) {
+    case Cause::kJointCompliance: {
+      RobotModel m = model;
+      m.links = links;
+      e.links = links;
+      e.compliance_rad_per_Nm = size_rad / rms([&](const Eigen::VectorXd& q) { return gravityTorques(m, true_params, q)[joint]; });
+      break;
+    }
+    case Cause::kCyclicTransmission: {
+      std::normal_distribution<double> g(0.0, 1.0);
+      const Eigen::Vector4d v(g(rng), g(rng), g(rng), g(rng));
+      e.harmonics_rad = v.normalized() * size_rad * std::sqrt(2.0);
+      break;
+    }
+    case Cause::kJointScale:
+      e.scale = size_rad / rms([&](const Eigen::VectorXd& q) { return q[joint]; });
+      break;
+    default:
+      throw std::invalid_argument(std::string("scaledHiddenEffect: ") + causeName(cause) + " is not scaled by size alone");
+  }
+  return e;
+}
+
 }  // namespace cellcal

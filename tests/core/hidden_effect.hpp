@@ -89,11 +89,6 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
 
   HiddenJointEffect& e = sc.hidden;
   e.cause = h.draw.cause;
-  auto rms = [&](auto f) {
-    double s = 0;
-    for (const auto& q : qs) s += f(q) * f(q);
-    return std::sqrt(s / static_cast<double>(qs.size()));
-  };
   const double amp = h.draw.amplitude_rad;
   switch (h.draw.cause) {
     case Cause::kNone:
@@ -103,10 +98,8 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
       RobotModel m = plain.model();
       m.links = randomLinks(m, true0, rng);
       const std::vector<int> loaded = gravityLoadedJoints(m, true0, qs);
-      e.joint = loaded[std::uniform_int_distribution<size_t>(0, loaded.size() - 1)(rng)];
-      e.links = m.links;
-      e.compliance_rad_per_Nm =
-          sign * amp / rms([&](const Eigen::VectorXd& q) { return gravityTorques(m, true0, q)[e.joint]; });
+      const int joint = loaded[std::uniform_int_distribution<size_t>(0, loaded.size() - 1)(rng)];
+      e = scaledHiddenEffect(m, true0, Cause::kJointCompliance, joint, sign * amp, m.links, qs, rng);
       break;
     }
     case Cause::kThermalDrift:
@@ -123,17 +116,14 @@ inline HiddenEffectData makeHiddenEffectData(const RobotModel& nominal, std::uin
         e.zero_drift_rad_per_K = sign * amp / std::sqrt(v);
       }
       break;
-    case Cause::kCyclicTransmission: {
-      e.joint = std::uniform_int_distribution<int>(0, n - 1)(rng);
-      std::normal_distribution<double> g(0.0, 1.0);
-      Eigen::Vector4d v(g(rng), g(rng), g(rng), g(rng));
-      e.harmonics_rad = v.normalized() * amp * std::sqrt(2.0);
+    case Cause::kCyclicTransmission:
+    case Cause::kJointScale: {
+      const int joint = std::uniform_int_distribution<int>(0, n - 1)(rng);
+      // Cyclic: the harmonics' random direction carries the sign.
+      e = scaledHiddenEffect(plain.model(), true0, h.draw.cause, joint,
+                             h.draw.cause == Cause::kCyclicTransmission ? amp : sign * amp, {}, qs, rng);
       break;
     }
-    case Cause::kJointScale:
-      e.joint = std::uniform_int_distribution<int>(0, n - 1)(rng);
-      e.scale = sign * amp / rms([&](const Eigen::VectorXd& q) { return q[e.joint]; });
-      break;
     case Cause::kBacklash:
       e.joint = std::uniform_int_distribution<int>(0, n - 1)(rng);
       e.backlash_width_rad = 2 * amp;

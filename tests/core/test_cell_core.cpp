@@ -499,7 +499,7 @@ struct ExtensionDraw {
   double size_rad;
 };
 
-ExtensionDraw drawExtension(const RobotModel& m, std::mt19937_64& rng) {
+ExtensionDraw drawExtension(std::mt19937_64& rng) {
   const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
   ExtensionDraw d;
   d.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
@@ -508,7 +508,6 @@ ExtensionDraw drawExtension(const RobotModel& m, std::mt19937_64& rng) {
   d.joint = joints[std::uniform_int_distribution<size_t>(0, joints.size() - 1)(rng)];
   const double size_deg = std::exp(std::uniform_real_distribution<double>(std::log(0.01), std::log(0.05))(rng));
   d.size_rad = (std::uniform_int_distribution<int>(0, 1)(rng) ? 1 : -1) * size_deg * kPi / 180;
-  (void)m;
   return d;
 }
 
@@ -539,7 +538,7 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
   constexpr int kDraws = 8;
   int gained = 0;
   for (int k = 0; k < kDraws; ++k) {
-    const ExtensionDraw draw = drawExtension(plain_robot.model, rng);
+    const ExtensionDraw draw = drawExtension(rng);
     SimulationSettings ss = config.simulation;
     ss.seed = rng();
     const SimulatedCell plain = makeSimulatedCell(plain_robot, ss, 0);
@@ -636,33 +635,23 @@ TEST(Compensation, AnExtendedModelIsSolvedAtItsFixedPoint) {
     ss.seed = rng();
     SimulationConfig sc = makeSimulatedCell(config.robots[0], ss, 0).config();
     const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
-    HiddenJointEffect& e = sc.hidden;
-    e.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
-    e.joint = std::uniform_int_distribution<int>(1, 4)(rng);
+    const Cause cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
+    const int joint = std::uniform_int_distribution<int>(1, 4)(rng);
     const double size = (0.01 + 0.04 * u(rng)) * kPi / 180;
     RobotModel m = config.robots[0].model;
+    HiddenJointEffect& e = sc.hidden;
     Eigen::VectorXd ext(1);
-    switch (e.cause) {
-      case Cause::kJointCompliance:
-      {
-        m.links = plausibleLinks(m, m.nominal, rng);  // known masses: one compliance parameter
-        e.links = m.links;
-        double ms = 0;
-        for (const auto& q : SimulatedCell(m, sc).randomConfigurations(50, rng)) ms += std::pow(gravityTorques(m, m.nominal, q)[e.joint], 2);
-        e.compliance_rad_per_Nm = ext[0] = size / std::sqrt(ms / 50);
-        break;
-      }
-      case Cause::kCyclicTransmission:
-        e.harmonics_rad = Eigen::Vector4d::Random().normalized() * size;
-        ext = e.harmonics_rad;
-        break;
-      case Cause::kJointScale:
-        e.scale = ext[0] = size;
-        break;
-      default:
-        e.backlash_width_rad = 2 * size;
-        ext[0] = -2 * size;  // the link lags the motor: dq = -width/2 * play
-        break;
+    if (cause == Cause::kBacklash) {
+      e.cause = cause;
+      e.joint = joint;
+      e.backlash_width_rad = 2 * size;
+      ext[0] = -2 * size;  // the link lags the motor: dq = -width/2 * play
+    } else {
+      if (cause == Cause::kJointCompliance) m.links = plausibleLinks(m, m.nominal, rng);  // known masses: one parameter
+      e = scaledHiddenEffect(m, m.nominal, cause, joint, size, m.links, SimulatedCell(m, sc).randomConfigurations(50, rng), rng);
+      if (cause == Cause::kJointCompliance) ext[0] = e.compliance_rad_per_Nm;
+      if (cause == Cause::kCyclicTransmission) ext = e.harmonics_rad;
+      if (cause == Cause::kJointScale) ext[0] = e.scale;
     }
     const SimulatedCell cell(m, sc);
     const Eigen::VectorXd truth = cell.trueParams(0.0);

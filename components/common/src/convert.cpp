@@ -76,9 +76,7 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
     m.parameter_stddevs().push_back(sigma[i]);
   }
   for (const auto& e : s.extensions) m.model_extensions().push_back(extensionSpec(e));
-  std::vector<std::string> ext_names;
-  for (const auto& e : s.extensions)
-    for (auto& n : extensionParamNames(model, e)) ext_names.push_back(std::move(n));
+  const std::vector<std::string> ext_names = extensionParamNames(model, s.extensions);
   Eigen::VectorXd ext_sigma = Eigen::VectorXd::Zero(s.extension_params.size());
   const auto nk = static_cast<Eigen::Index>(s.estimated.size());
   for (size_t k = 0; k < s.estimated_extension.size(); ++k) {
@@ -118,8 +116,7 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
   std::map<std::string, int> index;
   for (int i = 0; i < model.numParams(); ++i) index[model.paramName(i)] = i;
   int next = model.numParams();
-  for (const auto& e : r.extensions)
-    for (const auto& n : extensionParamNames(model, e)) index[n] = next++;
+  for (const auto& n : extensionParamNames(model, r.extensions)) index[n] = next++;
   Eigen::VectorXd values(next);
   values << model.nominal, Eigen::VectorXd::Zero(next - model.numParams());
   std::vector<bool> given(static_cast<size_t>(next), false);

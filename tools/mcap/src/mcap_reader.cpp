@@ -66,7 +66,6 @@ class Reader {
           case detail::kChannel: addChannel(parseChannel(in), pos); break;
           case detail::kMessage: addMessage(parseMessage(in), pos); break;
           case detail::kChunk: chunk(in, pos); break;
-          case detail::kMessageIndex: ++message_indexes_; break;
           case detail::kDataEnd: {
             const std::uint32_t crc = in.u<std::uint32_t>();
             if (crc != 0 && crc != crc32(b_.data(), pos)) fail(pos, "data section CRC mismatch");
@@ -153,7 +152,6 @@ class Reader {
 
   void summary(std::size_t pos) {
     std::size_t footer_at = 0;
-    bool summary_seen = false;
     while (true) {
       std::uint8_t op = 0;
       const std::string body = record(pos, &op);
@@ -162,16 +160,14 @@ class Reader {
         if (op == detail::kFooter) {
           footer_at = pos;
           const std::uint64_t summary_start = in.u<std::uint64_t>();
-          const std::uint64_t summary_offset_start = in.u<std::uint64_t>();
+          in.u<std::uint64_t>();  // summary offset start: the reader walks the summary section in order
           const std::uint32_t crc = in.u<std::uint32_t>();
-          (void)summary_offset_start;
           if (summary_start != 0 && crc != 0 &&
               crc != crc32(b_.data() + summary_start, footer_at + 1 + 8 + 8 + 8 - summary_start))
             fail(pos, "summary CRC mismatch");
           out_.has_summary = summary_start != 0;
           break;
         }
-        summary_seen = true;
         switch (op) {
           case detail::kStatistics: {
             Statistics& s = out_.summary_statistics;
@@ -210,7 +206,6 @@ class Reader {
     pos = footer_at + 9 + 20;
     if (b_.size() - pos < 8) throw Truncated{"file ends before the closing magic"};
     if (b_.compare(pos, 8, std::string(detail::kMagic, 8)) != 0) fail(pos, "closing magic missing");
-    (void)summary_seen;
     if (out_.has_summary) {
       const Statistics& s = out_.summary_statistics;
       if (s.message_count != out_.messages.size())
@@ -227,7 +222,6 @@ class Reader {
   const std::string& b_;
   ReadResult& out_;
   std::vector<std::size_t> chunk_offsets_;
-  std::uint64_t message_indexes_ = 0;
 };
 
 }  // namespace

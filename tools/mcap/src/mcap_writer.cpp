@@ -28,14 +28,14 @@ Writer::~Writer() {
   }
 }
 
-void Writer::writeRecord(std::uint8_t opcode, const std::string& body) {
+void Writer::writeRecord(std::uint8_t opcode, const std::string& body, std::uint32_t* crc) {
   Out r;
   r.u<std::uint8_t>(opcode);
   r.u<std::uint64_t>(body.size());
   r.b += body;
   if (std::fwrite(r.b.data(), 1, r.b.size(), file_) != r.b.size())
     throw std::runtime_error(path_ + ": write failed: " + std::strerror(errno));
-  data_crc_ = crc32(r.b.data(), r.b.size(), data_crc_);
+  *crc = crc32(r.b.data(), r.b.size(), *crc);
   offset_ += r.b.size();
 }
 
@@ -156,12 +156,7 @@ void Writer::close() {
   std::vector<std::pair<std::uint8_t, std::pair<std::uint64_t, std::uint64_t>>> groups;
   auto summaryRecord = [&](std::uint8_t op, const std::string& body) {
     const std::uint64_t before = offset_;
-    writeRecord(op, body);
-    Out r;
-    r.u<std::uint8_t>(op);
-    r.u<std::uint64_t>(body.size());
-    summary_crc = crc32(r.b.data(), r.b.size(), summary_crc);
-    summary_crc = crc32(body.data(), body.size(), summary_crc);
+    writeRecord(op, body, &summary_crc);
     if (groups.empty() || groups.back().first != op) groups.push_back({op, {before, 0}});
     groups.back().second.second = offset_ - groups.back().second.first;
   };
@@ -194,13 +189,12 @@ void Writer::close() {
     summaryRecord(detail::kChunkIndex, o.b);
   }
   const std::uint64_t summary_offset_start = offset_;
-  const auto summary_groups = groups;
-  for (const auto& [op, range] : summary_groups) {
+  for (const auto& [op, range] : groups) {
     Out o;
     o.u<std::uint8_t>(op);
     o.u<std::uint64_t>(range.first);
     o.u<std::uint64_t>(range.second);
-    summaryRecord(detail::kSummaryOffset, o.b);
+    writeRecord(detail::kSummaryOffset, o.b, &summary_crc);
   }
   // Footer: the summary CRC covers the summary and summary offset sections and the footer up to its own field.
   Out f;

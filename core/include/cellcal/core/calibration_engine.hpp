@@ -127,7 +127,10 @@ class CalibrationEngine {
   CalibrationSnapshot snap_;
   EngineCounters counters_;
   std::vector<Pending> batch_;        // periodic mode: poses waiting for the batch to fill
-  PlayTracker play_;                  // joint paths, for extensions whose driver is the play state (backlash)
+  // Joint paths, for extensions whose driver is the play state (backlash): fed and persisted only when the cell file
+  // names one (the joint-state path runs at the controller's rate).
+  bool tracks_play_ = false;
+  PlayTracker play_;
   struct Recent {
     double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };

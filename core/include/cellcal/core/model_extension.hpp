@@ -100,6 +100,7 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
 // Several extensions side by side (their parameters concatenated in list order). A backlash's play state is evaluated
 // at the absolute value of its parameter in `evaluated_at` (same layout; empty or zero: width 0).
 int numExtensionParams(const RobotModel& model, const std::vector<Extension>& exts);
+std::vector<std::string> extensionParamNames(const RobotModel& model, const std::vector<Extension>& exts);
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Extension>& exts,
                                const Eigen::VectorXd& q_rad, const Drivers& drivers, const Eigen::VectorXd& evaluated_at);
 

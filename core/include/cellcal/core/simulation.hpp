@@ -48,6 +48,15 @@ struct HiddenJointEffect {
 // links 1-3, 0.5-3 kg beyond), for a simulated joint compliance when the robot file gives no masses.
 std::vector<LinkInertia> plausibleLinks(const RobotModel& model, const Eigen::VectorXd& params, std::mt19937_64& rng);
 
+// A hidden effect of `cause` on `joint` scaled to an RMS joint error of `size_rad` over the configurations `qs`
+// (negative: the other sign): joint_compliance from the gravity torque of `links` at `true_params`, joint_scale from
+// the joint angle. cyclic_transmission draws the direction of its four harmonics from `rng` (the direction is random,
+// so the sign only flips it). Throws std::invalid_argument for the causes that need more (thermal drift: a warm-up;
+// backlash: a width, hiddenEffect.backlash_width_rad = 2 size).
+HiddenJointEffect scaledHiddenEffect(const RobotModel& model, const Eigen::VectorXd& true_params, Cause cause, int joint,
+                                     double size_rad, const std::vector<LinkInertia>& links,
+                                     const std::vector<Eigen::VectorXd>& qs, std::mt19937_64& rng);
+
 // State a hidden effect carries from pose to pose.
 struct HiddenJointState {
   double backlash_play = 1.0;  // -1..1, see kBacklash

@@ -87,7 +87,9 @@ class Writer {
   std::uint64_t messagesInFile() const { return messages_flushed_; }  // in complete chunks
 
  private:
-  void writeRecord(std::uint8_t opcode, const std::string& body);
+  // Appends one record; `crc` accumulates its bytes (the data section's CRC unless told otherwise).
+  void writeRecord(std::uint8_t opcode, const std::string& body, std::uint32_t* crc);
+  void writeRecord(std::uint8_t opcode, const std::string& body) { writeRecord(opcode, body, &data_crc_); }
   void endChunk();
   std::string path_;
   WriterOptions options_;
@@ -125,7 +127,7 @@ struct ReadResult {
 };
 
 // Reads every record; checks the chunk and data CRCs, the summary CRC and that the summary agrees with the data
-// (statistics, chunk indexes, message indexes). Throws std::runtime_error "<file>: at byte <n>: <what>".
+// (message count, one chunk index per chunk at its offset). Message Index records are skipped, not checked. Throws std::runtime_error "<file>: at byte <n>: <what>".
 ReadResult readFile(const std::string& path, const ReadOptions& options = {});
 
 // Rewrites a (possibly truncated) recording as a complete file: every message of its complete chunks, with a summary.
