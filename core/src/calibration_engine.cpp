@@ -20,6 +20,16 @@
 #include "cellcal/core/kinematics.hpp"
 
 namespace cellcal {
+
+PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& s) {
+  PairingOptions o;
+  o.max_skew_s = s.max_pairing_skew_s;
+  o.settle_tolerance_rad = s.settle_tolerance_rad;
+  o.max_sample_age_s = s.max_sample_age_s;
+  o.kind = robot.measurement;
+  return o;
+}
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -33,14 +43,6 @@ std::int64_t steadyNs() {
       .count();
 }
 
-PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& s) {
-  PairingOptions o;
-  o.max_skew_s = s.max_pairing_skew_s;
-  o.settle_tolerance_rad = s.settle_tolerance_rad;
-  o.max_sample_age_s = s.max_sample_age_s;
-  o.kind = robot.measurement;
-  return o;
-}
 
 void writeAll(int fd, const std::string& data, const std::string& path) {
   size_t off = 0;

@@ -163,7 +163,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   if (e.has("state_dir")) c.engine.state_dir = resolve(base_dir, r.string(e.node["state_dir"], e.f("state_dir")));
   e.num("max_pairing_skew_ms", c.engine.max_pairing_skew_s, 1e-3, 0, true);
   e.num("settle_tolerance_deg", c.engine.settle_tolerance_rad, kDeg, 0);
-  e.num("max_sample_age_s", c.engine.max_sample_age_s, 1, 0, true);
+  e.num("max_sample_age_s", c.engine.max_sample_age_s, 1, 0, false);
   e.num("stale_input_s", c.engine.stale_input_s, 1, 0, true);
   e.num("republish_period_s", c.engine.republish_period_s, 1, 0, true);
   e.num("outlier_gate_nis", c.engine.outlier_gate_nis, 1, 0);

@@ -19,6 +19,7 @@ void setDetail(std::string* d, Args&&... args) {
 
 std::optional<Rejection> checkStamp(std::int64_t stamp_ns, std::int64_t receive_ns, double max_age_s, std::string* d,
                                     const char* stream, std::uint64_t seq) {
+  if (max_age_s == 0) return std::nullopt;  // off: stamps are not compared with the receiver's clock (replays)
   const std::int64_t age = receive_ns - stamp_ns;
   if (age < -toNs(max_age_s)) {
     setDetail(d, stream, " #", seq, ": stamp ", -age / 1e6, " ms ahead of the receiver's clock (clocks not synchronized?)");
@@ -49,7 +50,7 @@ bool PairingOptions::IsValid(std::string* error) const {
   };
   if (!(max_skew_s > 0)) return fail("max_skew_s must be > 0");
   if (!(settle_tolerance_rad >= 0)) return fail("settle_tolerance_rad must be >= 0");
-  if (!(max_sample_age_s > 0)) return fail("max_sample_age_s must be > 0");
+  if (!(max_sample_age_s >= 0)) return fail("max_sample_age_s must be >= 0 (0: off)");
   if (!(history_s >= 0)) return fail("history_s must be >= 0");
   if (!(default_sigma_position_m > 0 && default_sigma_orientation_rad > 0)) return fail("default sigmas must be > 0");
   return true;
@@ -161,7 +162,10 @@ PairingOutcome PairingBuffer::poll(std::int64_t now_ns) {
         break;
       }
     }
-    if (!after && now_ns - std::max(received, t) < skew) break;  // still waiting for the next joint state
+    // Stamps ahead of the receive clock wait for their time, unless stamps are not compared with the clock
+    // (max_sample_age_s = 0: a replay faster than real time, where stamps run ahead of it by design).
+    const std::int64_t waiting_since = opt_.max_sample_age_s == 0 ? received : std::max(received, t);
+    if (!after && now_ns - waiting_since < skew) break;  // still waiting for the next joint state
     std::string detail;
     std::optional<Rejection> why;
     if (!before || !after || t - before->stamp_ns > skew || after->stamp_ns - t > skew) {

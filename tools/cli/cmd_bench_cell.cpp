@@ -40,13 +40,8 @@ struct BenchArgs {
   double duration_s = 20;
   int domain_id = 220;
   std::string json;
+  std::string record;  // MCAP file of a recorder running beside the cell
 };
-
-double pct(std::vector<double> v, double p) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())))];
-}
 
 // utime + stime of a process, seconds.
 double cpuSeconds(pid_t pid) {
@@ -111,6 +106,13 @@ int runBench(const BenchArgs& a) {
   const pid_t comp = spawnQuiet((bin / "cellcal_compensation_publisher").string(),
                                 {"--config", cfg, "--wait-for-calibration-s", "0", "--stats-json", (dir / "comp.json").string()},
                                 (dir / "comp.log").string());
+  // Optionally a recorder of every topic beside them (does it keep up?).
+  const pid_t recorder = a.record.empty() ? -1
+      : spawnQuiet(fs::read_symlink("/proc/self/exe").string(),
+                   {"record", "--config", cfg, "--out", fs::absolute(a.record).string(), "--quiet", "--json",
+                    (dir / "record.json").string()},
+                   (dir / "record.log").string());
+  const int readers_wanted = recorder > 0 ? 2 : 1;
 
   DdsNode node(cell, "cellcal_bench_cell");
   auto js = node.writer<msg::JointState>();
@@ -142,7 +144,7 @@ int runBench(const BenchArgs& a) {
     js.entity()->get_publication_matched_status(s1);
     tp.entity()->get_publication_matched_status(s2);
     tg.entity()->get_publication_matched_status(s3);
-    if (s1.current_count >= 1 && s2.current_count >= 1 && s3.current_count >= 1) break;
+    if (s1.current_count >= readers_wanted && s2.current_count >= readers_wanted && s3.current_count >= readers_wanted) break;
     if (std::chrono::steady_clock::now() > deadline) throw std::runtime_error("engine/compensation not discovered (see " + dir.string() + ")");
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -161,6 +163,7 @@ int runBench(const BenchArgs& a) {
   std::map<std::uint64_t, std::int64_t> target_sent;
   std::uint64_t seq = 0, target_seq = 0, standstills = 0, late_ticks = 0;
   const double cpu0_engine = cpuSeconds(engine), cpu0_comp = cpuSeconds(comp), cpu0_self = cpuSeconds(::getpid());
+  const double cpu0_recorder = recorder > 0 ? cpuSeconds(recorder) : 0;
   const auto t0 = std::chrono::steady_clock::now();
   const auto period = std::chrono::duration<double>(1.0 / a.rate_hz);
   KinematicsData kd(cell.robots[0].model);
@@ -211,10 +214,14 @@ int runBench(const BenchArgs& a) {
   const double cpu_engine = (cpuSeconds(engine) - cpu0_engine) / wall, cpu_comp = (cpuSeconds(comp) - cpu0_comp) / wall;
   const double cpu_self = (cpuSeconds(::getpid()) - cpu0_self) / wall;
   const double rss_engine = peakRssMb(engine), rss_comp = peakRssMb(comp);
+  const double cpu_recorder = recorder > 0 ? (cpuSeconds(recorder) - cpu0_recorder) / wall : 0;
+  const double rss_recorder = recorder > 0 ? peakRssMb(recorder) : 0;
   ::kill(engine, SIGINT);
   ::kill(comp, SIGINT);
+  if (recorder > 0) ::kill(recorder, SIGINT);
   ::waitpid(engine, nullptr, 0);
   ::waitpid(comp, nullptr, 0);
+  if (recorder > 0) ::waitpid(recorder, nullptr, 0);
   node.shutdown();
 
   // Latencies: each new version once; first, middle and last thirds to see whether it grows.
@@ -238,9 +245,9 @@ int runBench(const BenchArgs& a) {
   const std::uint64_t tp_rx = es.is_discarded() ? 0 : es["topics"]["cellcal/tracker_pose"].value("received", 0ULL);
   nlohmann::json out = {
       {"robots", a.robots}, {"rate_hz_per_stream", a.rate_hz}, {"targets_hz_per_robot", a.targets_hz}, {"duration_s", wall},
-      {"tracker_to_state_us", {{"p50", pct(state_us, 0.5)}, {"p99", pct(state_us, 0.99)}, {"samples", state_us.size()},
-                               {"p50_first_third", pct(first_third, 0.5)}, {"p50_last_third", pct(last_third, 0.5)}}},
-      {"target_to_compensated_us", {{"p50", pct(comp_us, 0.5)}, {"p99", pct(comp_us, 0.99)}, {"samples", comp_us.size()},
+      {"tracker_to_state_us", {{"p50", percentile(state_us, 0.5)}, {"p99", percentile(state_us, 0.99)}, {"samples", state_us.size()},
+                               {"p50_first_third", percentile(first_third, 0.5)}, {"p50_last_third", percentile(last_third, 0.5)}}},
+      {"target_to_compensated_us", {{"p50", percentile(comp_us, 0.5)}, {"p99", percentile(comp_us, 0.99)}, {"samples", comp_us.size()},
                                     {"sent", target_seq}}},
       {"joint_states", {{"published", js_pub}, {"received_by_engine", js_rx}}},
       {"tracker_readings", {{"published", js_pub}, {"received_by_engine", tp_rx}}},
@@ -249,17 +256,31 @@ int runBench(const BenchArgs& a) {
       {"peak_rss_mb", {{"engine", rss_engine}, {"compensation_publisher", rss_comp}}},
       {"cores", std::thread::hardware_concurrency()}};
   std::printf("                                     p50 us    p99 us   samples\n");
-  std::printf("tracker reading -> CalibrationState %8.0f  %8.0f  %8zu\n", pct(state_us, 0.5), pct(state_us, 0.99), state_us.size());
-  std::printf("TargetPose -> CompensatedTarget     %8.0f  %8.0f  %8zu\n", pct(comp_us, 0.5), pct(comp_us, 0.99), comp_us.size());
+  std::printf("tracker reading -> CalibrationState %8.0f  %8.0f  %8zu\n", percentile(state_us, 0.5), percentile(state_us, 0.99), state_us.size());
+  std::printf("TargetPose -> CompensatedTarget     %8.0f  %8.0f  %8zu\n", percentile(comp_us, 0.5), percentile(comp_us, 0.99), comp_us.size());
   std::printf("engine received %llu of %llu joint states and %llu of %llu tracker readings; %llu updates for %llu stand-stills\n",
               static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(versions), static_cast<unsigned long long>(standstills));
   std::printf("tracker -> state p50 first third %.0f us, last third %.0f us (growing = falling behind)\n",
-              pct(first_third, 0.5), pct(last_third, 0.5));
+              percentile(first_third, 0.5), percentile(last_third, 0.5));
   std::printf("CPU (share of one core): engine %.2f, compensation %.2f, this publisher %.2f; peak RSS engine %.1f MB, "
               "compensation %.1f MB; %u cores\n",
               cpu_engine, cpu_comp, cpu_self, rss_engine, rss_comp, std::thread::hardware_concurrency());
+  if (recorder > 0) {
+    const auto rj = nlohmann::json::parse(std::ifstream((dir / "record.json").string()), nullptr, false);
+    if (rj.is_discarded()) throw std::runtime_error("the recorder wrote no counts (see " + (dir / "record.log").string() + ")");
+    const std::uint64_t rec_js = rj["topics"]["cellcal/joint_state"].value("received", 0ULL);
+    const std::uint64_t rec_tp = rj["topics"]["cellcal/tracker_pose"].value("received", 0ULL);
+    std::printf("recorder: %llu messages to %s; joint states %llu of %llu, tracker readings %llu of %llu; %llu lost "
+                "(writer sequence gaps); CPU %.2f of a core, peak RSS %.1f MB\n",
+                static_cast<unsigned long long>(rj.value("messages", 0ULL)), a.record.c_str(),
+                static_cast<unsigned long long>(rec_js), static_cast<unsigned long long>(js_pub),
+                static_cast<unsigned long long>(rec_tp), static_cast<unsigned long long>(js_pub),
+                static_cast<unsigned long long>(rj.value("lost", 0ULL)), cpu_recorder, rss_recorder);
+    out["recorder"] = {{"messages", rj["messages"]}, {"joint_states_received", rec_js}, {"tracker_readings_received", rec_tp},
+                       {"lost", rj["lost"]}, {"cpu_share_of_one_core", cpu_recorder}, {"peak_rss_mb", rss_recorder}};
+  }
   if (!a.json.empty()) writeJsonFile(a.json, out);
   fs::remove_all(dir);
   return 0;
@@ -278,6 +299,7 @@ Runner addBenchCellCommand(CLI::App& app) {
   cmd->add_option("--duration-s", a->duration_s, "measuring time")->capture_default_str();
   cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
   cmd->add_option("--json", a->json, "write the figures as JSON");
+  cmd->add_option("--record", a->record, "also run `cellcal record` of every topic into this MCAP file");
   return [a, cmd]() -> int {
     if (!*cmd) return 0;
     installStopHandlers();

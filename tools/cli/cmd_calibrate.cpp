@@ -178,7 +178,7 @@ Runner addImportCommand(CLI::App& app) {
   auto robot = std::make_shared<std::string>(defaultRobotFile("ur10.yaml"));
   auto in = std::make_shared<std::string>();
   auto out = std::make_shared<std::string>();
-  CLI::App* imp = app.add_subcommand("import", "Convert measurements from other formats to CSV v1");
+  CLI::App* imp = app.add_subcommand("import", "Convert measurements: other formats to CSV v1, CSV v1 to a recording");
   imp->require_subcommand(1);
   CLI::App* ipa = imp->add_subcommand("ipa", "A series of ../shared/datasets/ipa-robot-accuracy (UR10, Leica + T-Mac)");
   ipa->add_option("series", *in, "Series_A/measurements_grid.csv or Series_B/measurements_joint_configurations.csv")
@@ -186,7 +186,26 @@ Runner addImportCommand(CLI::App& app) {
       ->check(CLI::ExistingFile);
   ipa->add_option("--out", *out, "CSV v1 file to write")->required();
   ipa->add_option("--robot", *robot, "robot file (joint limits are checked)")->capture_default_str();
+  auto csv = std::make_shared<ImportCsvArgs>();
+  CLI::App* c = imp->add_subcommand(
+      "csv", "A measurement file (CSV v1) as a recording (MCAP) of JointState and TrackerPose streams, for replay "
+             "and validate: per row, the robot stands settled --bracket-s before and after the reading");
+  c->add_option("file", csv->csv, "CSV v1 measurement file")->required()->check(CLI::ExistingFile);
+  c->add_option("--robot", csv->robot_file, "robot file (YAML)")->required()->check(CLI::ExistingFile);
+  c->add_option("--out", csv->out, "MCAP file to write")->required();
+  c->add_option("--robot-id", csv->robot_id, "JointState robot_id (default: the robot file's name)");
+  c->add_option("--target-id", csv->target_id, "TrackerPose target_id (default: <robot_id>_target)");
+  c->add_option("--start-unix-s", csv->start_unix_s, "Unix time of the first row")->capture_default_str();
+  c->add_option("--period-s", csv->period_s, "seconds between rows without stamp_s")->capture_default_str();
+  c->add_option("--bracket-s", csv->bracket_s, "settled joint states this long before and after each reading")
+      ->capture_default_str();
+  c->add_option("--sigma-position-mm", csv->sigma_position_mm, "1-sigma of a reading's position (its covariance)")
+      ->capture_default_str();
+  c->add_option("--sigma-orientation-deg", csv->sigma_orientation_deg, "1-sigma of a reading's orientation")
+      ->capture_default_str();
+  c->add_flag("--skip-bad-rows", csv->skip_bad_rows, "skip (and count) bad rows instead of stopping");
   return [=]() -> int {
+    if (*c) return importCsvToRecording(*csv);
     if (!*ipa) return 0;
     const RobotModel r = loadRobotModel(*robot);
     std::string notes;

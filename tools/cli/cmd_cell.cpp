@@ -44,6 +44,7 @@ struct CellArgs {
   int holdout_poses = 100;
   bool quiet = false;
   bool in_process_reference = true;
+  std::string record;  // MCAP file: a recorder process records every topic
 };
 
 struct Child {
@@ -53,12 +54,14 @@ struct Child {
   int exit_code = -1;
 };
 
-Child spawn(const std::string& name, const std::vector<std::string>& args, const std::string& work_dir) {
+// Starts bin/cellcal_<name> (or `cellcal <args>` when `self`) with its output in <work_dir>/<name>.log.
+Child spawn(const std::string& name, const std::vector<std::string>& args, const std::string& work_dir, bool self = false) {
   Child c;
   c.name = name;
   c.stats_file = (fs::path(work_dir) / (name + ".stats.json")).string();
   c.log_file = (fs::path(work_dir) / (name + ".log")).string();
-  const fs::path exe = fs::read_symlink("/proc/self/exe").parent_path() / ("cellcal_" + name);
+  const fs::path exe = self ? fs::read_symlink("/proc/self/exe")
+                            : fs::read_symlink("/proc/self/exe").parent_path() / ("cellcal_" + name);
   if (!fs::exists(exe)) throw std::runtime_error(exe.string() + " not found (build all targets)");
   std::vector<std::string> full = {exe.string()};
   full.insert(full.end(), args.begin(), args.end());
@@ -105,13 +108,6 @@ void stopChildren(std::vector<Child>& children) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
   }
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  return v[k];
 }
 
 // The judge's view of one robot: truth, hold-out poses, calibrations, targets.
@@ -290,13 +286,17 @@ int runCell(const CellArgs& a) {
   };
 
   std::vector<Child> children;
+  // The recorder first: the robot program waits for its RobotTruth reader too, so the recording starts with the program.
+  if (!a.record.empty())
+    children.push_back(spawn("recorder", [&] { auto v = common; v.insert(v.begin(), "record"); v.insert(v.end(), {"--out", fs::absolute(a.record).string(), "--quiet"}); return v; }(), a.work_dir, true));
   children.push_back(spawn("calibration_engine", [&] { auto v = common; v.insert(v.end(), {"--state-dir", state_dir, "--quiet"}); return v; }(), a.work_dir));
   children.push_back(spawn("compensation_publisher", common, a.work_dir));
   children.push_back(spawn("tracker_adapter", [&] { auto v = common; v.insert(v.end(), {"--source", "sim"}); return v; }(), a.work_dir));
   // The robot starts its program once the engine and the tracker listen (discovery on loopback takes a moment).
-  children.push_back(spawn("joint_state_adapter", [&] { auto v = common; v.insert(v.end(), {"--source", "sim", "--wait-for-readers", "2"}); return v; }(), a.work_dir));
-  std::printf("cell: 4 processes on domain %d (%s), cell time x%g, %zu robot(s); logs in %s\n", cell.dds.domain_id,
-              cell.dds.participant_profile.c_str(), cell.time_compression, cell.robots.size(), a.work_dir.c_str());
+  children.push_back(spawn("joint_state_adapter", [&] { auto v = common; v.insert(v.end(), {"--source", "sim", "--wait-for-readers", a.record.empty() ? "2" : "3"}); return v; }(), a.work_dir));
+  std::printf("cell: %zu processes on domain %d (%s), cell time x%g, %zu robot(s); logs in %s\n", children.size(),
+              cell.dds.domain_id, cell.dds.participant_profile.c_str(), cell.time_compression, cell.robots.size(),
+              a.work_dir.c_str());
   for (const auto& c : children) std::printf("cell:   %-24s pid %d\n", c.name.c_str(), c.pid);
   std::fflush(stdout);
 
@@ -371,6 +371,7 @@ int runCell(const CellArgs& a) {
       summary["engine"] = s["extra"];
     }
     if (c.name == "compensation_publisher") summary["compensation"] = s["extra"];
+    if (c.name == "recorder") summary["recorder"] = s["extra"];
   }
   summary["topics"] = topics;
   summary["calibration_updates"] = calibration_updates;
@@ -448,6 +449,7 @@ Runner addCellCommand(CLI::App& app) {
   cmd->add_flag("--resume", a->resume, "keep the engine state of a previous run (default: start uncalibrated)");
   cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses published per second and robot")->capture_default_str();
   cmd->add_flag("--quiet", a->quiet, "no line per update");
+  cmd->add_option("--record", a->record, "also run `cellcal record` on every topic into this MCAP file");
   return [a, cmd]() -> int {
     if (!*cmd) return 0;
     installStopHandlers();

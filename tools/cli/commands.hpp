@@ -2,8 +2,11 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cmath>
 #include <functional>
 #include <string>
+#include <vector>
 
 namespace cellcal::cli {
 
@@ -20,6 +23,19 @@ Runner addCalibrateCommand(CLI::App& app);
 Runner addImportCommand(CLI::App& app);
 // Adds `diagnose` (model diagnosis of a measurement file).
 Runner addDiagnoseCommand(CLI::App& app);
+// Adds `record`, `replay`, `validate` and `export` (recordings of a cell, MCAP).
+Runner addRecordingCommands(CLI::App& app);
+// `import csv`: a measurement file (CSV v1) as a recording: per row, the robot settled bracket_s before and after
+// the reading (two JointStates) and the TrackerPose at the row's time.
+struct ImportCsvArgs {
+  std::string csv, robot_file, out, robot_id, target_id;
+  double start_unix_s = 1.7e9;  // stamp_s = 0 (or the first row) at this Unix time
+  double period_s = 30;         // rows without stamp_s: this far apart
+  double bracket_s = 0.01;
+  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
+  bool skip_bad_rows = false;
+};
+int importCsvToRecording(const ImportCsvArgs& args);
 // cmd_continuous.cpp
 Runner addContinuousCommand(CLI::App& app);
 
@@ -29,5 +45,13 @@ bool renderGnuplot(const std::string& dir, const std::string& name, const std::s
                    const std::string& script, std::string* error);
 
 std::string defaultRobotFile(const std::string& name);
+
+// The p-quantile (0..1) of v by rank (element floor(p n)); NaN when empty.
+inline double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return std::nan("");
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
 
 }  // namespace cellcal::cli

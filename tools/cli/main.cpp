@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   auto import_ = cellcal::cli::addImportCommand(app);
   auto diagnose = cellcal::cli::addDiagnoseCommand(app);
   auto continuous = cellcal::cli::addContinuousCommand(app);
+  auto recording = cellcal::cli::addRecordingCommands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -33,6 +34,8 @@ int main(int argc, char** argv) {
     if (app.got_subcommand("import")) return import_();
     if (app.got_subcommand("diagnose")) return diagnose();
     if (app.got_subcommand("continuous")) return continuous();
+    for (const char* c : {"record", "replay", "validate", "export"})
+      if (app.got_subcommand(c)) return recording();
     return experiment();
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";

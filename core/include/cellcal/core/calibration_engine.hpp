@@ -143,6 +143,9 @@ class CalibrationEngine {
   std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
 };
 
+// The pairing the engine does for `robot` (cellcal export pairs a recording the same way).
+PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& settings);
+
 // fsync of a file and its folder.
 void syncStateFile(const std::string& path);
 

@@ -45,7 +45,7 @@ struct EngineSettings {
   std::string state_dir = "state";             // absolute path after loading; one JSON file per robot
   double max_pairing_skew_s = 0.05;            // joint state used for a tracker reading: at most this far in time
   double settle_tolerance_rad = 1e-5;          // joints of the bracketing states may differ by at most this
-  double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem
+  double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem; 0 = off
   double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
   double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
   double outlier_gate_nis = 0.0;               // reject a pose whose normalized innovation exceeds this (0 = off)

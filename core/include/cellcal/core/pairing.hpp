@@ -64,7 +64,7 @@ struct TrackerSample {
 struct PairingOptions {
   double max_skew_s = 0.05;
   double settle_tolerance_rad = 1e-5;
-  double max_sample_age_s = 5.0;
+  double max_sample_age_s = 5.0;         // 0: off (a replay faster than real time keeps the recorded stamps)
   double history_s = 2.0;                // joint states kept (beyond max_skew_s)
   MeasurementKind kind = MeasurementKind::kPose6D;  // position3d robots ignore the orientation
   double default_sigma_position_m = 10e-6;           // used when the reading has no covariance
