@@ -20,9 +20,12 @@ build: configure
 
 # The four-process cell on localhost against the simulated Staubli TX60 (the paper's continuous scenario: 50 poses,
 # then 15 fresh poses every 2 h of cell time, 720x compressed).
+# A recorder runs beside it; the recording is then validated (the engine's logic in-process, compared with the
+# recorded calibrations; docs/recording.md).
 demo: build
 	$(BUILD_DIR)/bin/cellcal cell --duration-s 32 --work-dir $(BUILD_DIR)/demo/cell \
-	  --summary-json $(BUILD_DIR)/demo/cell-summary.json
+	  --summary-json $(BUILD_DIR)/demo/cell-summary.json --record $(BUILD_DIR)/demo/demo.mcap
+	$(BUILD_DIR)/bin/cellcal validate $(BUILD_DIR)/demo/demo.mcap --json $(BUILD_DIR)/demo/validate.json --require-match
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
