@@ -209,6 +209,8 @@ int runReplay(const ReplayArgs& a) {
       outs[*m->topic] = std::move(o);
     });
   }
+  std::vector<Out*> out_of;  // per message, resolved once (not a map lookup per publish)
+  for (const auto* m : msgs) out_of.push_back(&outs.at(*m->topic));
   // Subscribers first: a sample published before discovery is lost (volatile topics).
   const auto wait_until = std::chrono::steady_clock::now() + std::chrono::duration<double>(a.wait_s);
   while (a.wait_for_readers > 0 && std::chrono::steady_clock::now() < wait_until && !stopRequested()) {
@@ -268,7 +270,7 @@ int runReplay(const ReplayArgs& a) {
         }
         timing_error_us.push_back(std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - due).count());
       }
-      Out& o = outs[*msgs[i]->topic];
+      Out& o = *out_of[i];
       std::string error;
       const int r = o.publish(m.data, shift_ns, &error);
       if (r == 1) ++o.sent, ++published;
@@ -338,21 +340,14 @@ struct ValidateArgs {
   bool require_match = false, no_progress = false;
 };
 
-struct Calibration {
-  std::uint64_t version = 0;
-  std::uint32_t poses_used = 0;
-  Eigen::VectorXd params, extension_params;
-  double verification_m = std::nan("");
-  std::uint64_t log_time_ns = 0;
-};
-
 struct Difference {
   double length_m = 0, angle_rad = 0, other = 0, verification_m = 0;
   std::string worst;  // the parameter that differs most (relative to its tolerance)
   double worst_ratio = 0;
 };
 
-Difference compare(const RobotModel& model, const std::vector<Extension>& exts, const Calibration& a, const Calibration& b,
+Difference compare(const RobotModel& model, const std::vector<Extension>& exts, const ReceivedCalibration& a,
+                   const ReceivedCalibration& b,
                    double tol_m, double tol_rad) {
   Difference d;
   auto consider = [&](const std::string& name, double delta) {
@@ -371,8 +366,8 @@ Difference compare(const RobotModel& model, const std::vector<Extension>& exts, 
       consider(names[static_cast<size_t>(i)], a.extension_params[i] - b.extension_params[i]);
   else
     d.worst = "model extensions differ", d.worst_ratio = INFINITY;
-  const bool both_nan = std::isnan(a.verification_m) && std::isnan(b.verification_m);
-  d.verification_m = both_nan ? 0 : std::abs(a.verification_m - b.verification_m);
+  const bool both_nan = std::isnan(a.verification_mean_position_m) && std::isnan(b.verification_mean_position_m);
+  d.verification_m = both_nan ? 0 : std::abs(a.verification_mean_position_m - b.verification_mean_position_m);
   if (std::isnan(d.verification_m)) d.verification_m = INFINITY;
   return d;
 }
@@ -384,9 +379,9 @@ int runValidate(const ValidateArgs& a) {
   struct Run {
     const CellRobot* robot;
     std::unique_ptr<CalibrationEngine> engine;
-    std::vector<Calibration> reproduced;
-    std::map<std::uint64_t, Calibration> recorded;
-    std::uint64_t joint_states = 0, tracker_readings = 0, recorded_states = 0;
+    std::vector<ReceivedCalibration> reproduced;
+    std::map<std::uint64_t, ReceivedCalibration> recorded;  // first CalibrationState of each version
+    std::uint64_t joint_states = 0, tracker_readings = 0;
   };
   std::map<std::string, Run> runs;
   std::map<std::string, Run*> by_target;
@@ -405,13 +400,13 @@ int runValidate(const ValidateArgs& a) {
   auto step = [&](Run& run, std::int64_t now) {
     if (!run.engine->process(now)) return;
     const auto& s = run.engine->snapshot();
-    Calibration c;
+    ReceivedCalibration c;
     c.version = s.version;
     c.poses_used = s.poses_used;
     c.params = s.params;
+    c.extensions = s.extensions;
     c.extension_params = s.extension_params;
-    c.verification_m = s.verification_mean_position_m;
-    c.log_time_ns = static_cast<std::uint64_t>(now);
+    c.verification_mean_position_m = s.verification_mean_position_m;
     run.reproduced.push_back(std::move(c));
   };
   const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
@@ -446,18 +441,10 @@ int runValidate(const ValidateArgs& a) {
       if (!decodeCdr(m.data, &cs, &error)) { note(undecodable, where() + ": " + error); continue; }
       auto it = runs.find(cs.robot_id().to_string());
       if (it == runs.end()) { note(unknown_keys, where() + ": robot_id '" + cs.robot_id().to_string() + "' not in " + cell.source); continue; }
-      ++it->second.recorded_states;
       if (cs.version() == 0 || it->second.recorded.count(cs.version())) continue;  // republished
       auto rc = fromCalibrationState(it->second.robot->model, cs, &error);
       if (!rc) { note(state_errors, where() + ": " + error); continue; }
-      Calibration c;
-      c.version = rc->version;
-      c.poses_used = rc->poses_used;
-      c.params = rc->params;
-      c.extension_params = rc->extension_params;
-      c.verification_m = rc->verification_mean_position_m;
-      c.log_time_ns = m.log_time_ns;
-      it->second.recorded[c.version] = std::move(c);
+      it->second.recorded[rc->version] = std::move(*rc);
     }
     // The engine process also polls every robot every 5 ms (readings whose joint state never came time out).
     if (now >= next_tick) {
@@ -493,7 +480,7 @@ int runValidate(const ValidateArgs& a) {
     for (const auto& c : run.reproduced) {
       reproduced_versions.insert(c.version);
       nlohmann::json row = {{"version", c.version}, {"poses_used", c.poses_used},
-                            {"verification_mm", std::isfinite(c.verification_m) ? nlohmann::json(c.verification_m * 1e3) : nlohmann::json()}};
+                            {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()}};
       auto it = run.recorded.find(c.version);
       if (it == run.recorded.end()) {
         ++not_recorded;
@@ -502,7 +489,7 @@ int runValidate(const ValidateArgs& a) {
       }
       ++compared;
       const Difference d = compare(model, exts, c, it->second, a.tolerance_m, a.tolerance_rad);
-      row["recorded_verification_mm"] = std::isfinite(it->second.verification_m) ? nlohmann::json(it->second.verification_m * 1e3) : nlohmann::json();
+      row["recorded_verification_mm"] = std::isfinite(it->second.verification_mean_position_m) ? nlohmann::json(it->second.verification_mean_position_m * 1e3) : nlohmann::json();
       row["max_difference_m"] = d.length_m;
       row["max_difference_rad"] = d.angle_rad;
       series.push_back(row);
@@ -523,21 +510,21 @@ int runValidate(const ValidateArgs& a) {
     for (const auto& [v, c] : run.recorded)
       if (!reproduced_versions.count(v)) ++missing;
     if (mismatched || missing) all_match = false;
-    const Calibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
-    const Calibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
+    const ReceivedCalibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
+    const ReceivedCalibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
     std::printf("validate: %s: %llu joint states, %llu tracker readings -> %zu calibrations (last v%llu, %u poses, "
                 "verification %.4f mm)\n",
                 id.c_str(), static_cast<unsigned long long>(run.joint_states),
                 static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
                 static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
-                last_rep ? last_rep->verification_m * 1e3 : std::nan(""));
+                last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
     if (run.recorded.empty()) {
       std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
     } else {
       std::printf("validate: %s: %zu recorded calibrations (last v%llu, verification %.4f mm): %llu compared, %llu differ, "
                   "%llu recorded but not reproduced, %llu reproduced but not recorded\n",
                   id.c_str(), run.recorded.size(), static_cast<unsigned long long>(last_rec->version),
-                  last_rec->verification_m * 1e3, static_cast<unsigned long long>(compared),
+                  last_rec->verification_mean_position_m * 1e3, static_cast<unsigned long long>(compared),
                   static_cast<unsigned long long>(mismatched), static_cast<unsigned long long>(missing),
                   static_cast<unsigned long long>(not_recorded));
       std::printf("validate: %s: largest differences: %.3g m, %.3g rad, verification %.3g m (tolerance %.0e m, %.0e rad)%s\n",
@@ -563,7 +550,7 @@ int runValidate(const ValidateArgs& a) {
                   {"max_difference_verification_m", worst.verification_m},
                   {"first_difference", first_mismatch},
                   {"final_version", last_rep ? last_rep->version : 0},
-                  {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_m) ? nlohmann::json(last_rep->verification_m * 1e3) : nlohmann::json()},
+                  {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
                   {"final_parameters", [&] {
                      nlohmann::json p = nlohmann::json::object();
                      if (!last_rep) return p;

@@ -2,8 +2,6 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
-#include <algorithm>
-#include <cmath>
 #include <functional>
 #include <string>
 #include <vector>
@@ -47,11 +45,6 @@ bool renderGnuplot(const std::string& dir, const std::string& name, const std::s
 std::string defaultRobotFile(const std::string& name);
 
 // The p-quantile (0..1) of v by rank (element floor(p n)); NaN when empty.
-inline double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return std::nan("");
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
-  return v[k];
-}
+double percentile(std::vector<double> v, double p);
 
 }  // namespace cellcal::cli

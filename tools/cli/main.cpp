@@ -1,4 +1,6 @@
 // cellcal: command-line entry point. Subcommands live in cmd_*.cpp.
+#include <algorithm>
+#include <cmath>
 #include <iostream>
 
 #include "cellcal/core/robot_yaml.hpp"
@@ -6,6 +8,13 @@
 
 namespace cellcal::cli {
 std::string defaultRobotFile(const std::string& name) { return std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name; }
+
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return std::nan("");
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
 }  // namespace cellcal::cli
 
 int main(int argc, char** argv) {

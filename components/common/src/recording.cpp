@@ -84,10 +84,7 @@ Recording readRecording(const std::string& path, bool tolerate_truncation) {
   r.file = mcap::readFile(path, o);
   for (const auto& c : r.file.channels) {
     const bool known = std::any_of(cellTopics().begin(), cellTopics().end(), [&](const auto& t) { return t.topic == c.topic; });
-    if (known && c.message_encoding == "cdr")
-      r.topic_of_channel[c.id] = c.topic;
-    else
-      r.foreign_topics.push_back(c.topic + " (" + c.message_encoding + ")");
+    if (known && c.message_encoding == "cdr") r.topic_of_channel[c.id] = c.topic;
   }
   for (const auto& m : r.file.messages) {
     auto it = r.topic_of_channel.find(m.channel_id);

@@ -167,8 +167,7 @@ struct Recording {
   std::map<std::uint16_t, std::string> topic_of_channel;
   std::vector<RecordedMessage> in_log_order;
   std::uint64_t start_ns = 0, end_ns = 0;  // log times of the first and last message
-  std::map<std::string, std::uint64_t> messages_per_topic;
-  std::vector<std::string> foreign_topics;  // channels that are not cellcal topics or not CDR (left out)
+  std::map<std::string, std::uint64_t> messages_per_topic;  // channels of other topics or encodings are left out
 };
 // Reads a recording (tolerating a file cut short when `tolerate_truncation`; `file.complete` says which).
 // Throws std::runtime_error naming the file and byte when it is not MCAP.
