@@ -499,15 +499,29 @@ struct ExtensionDraw {
   double size_rad;
 };
 
-ExtensionDraw drawExtension(std::mt19937_64& rng) {
+// The size is drawn as the effect's reach at the target (0.1..0.5 mm, log-uniform), then divided by the joint's mean
+// lever arm over random configurations of `cell`: a joint-angle size drawn alike for every joint made wrist effects
+// (lever ~0.1 m) too small to matter beside the 0.02 mm repeatability, against 0.6 m at the shoulder.
+ExtensionDraw drawExtension(std::mt19937_64& rng, const SimulatedCell& cell) {
   const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
   ExtensionDraw d;
   d.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
   // Compliance: the joints gravity loads most (shoulder, elbow, wrist pitch carry the arm).
   const std::vector<int> joints = d.cause == Cause::kJointCompliance ? std::vector<int>{1, 2, 4} : std::vector<int>{0, 1, 2, 3, 4, 5};
   d.joint = joints[std::uniform_int_distribution<size_t>(0, joints.size() - 1)(rng)];
-  const double size_deg = std::exp(std::uniform_real_distribution<double>(std::log(0.01), std::log(0.05))(rng));
-  d.size_rad = (std::uniform_int_distribution<int>(0, 1)(rng) ? 1 : -1) * size_deg * kPi / 180;
+  const double reach_m = std::exp(std::uniform_real_distribution<double>(std::log(0.1e-3), std::log(0.5e-3))(rng));
+  const RobotModel& m = cell.model();
+  KinematicsData data(m);
+  Eigen::MatrixXd Jq(6, m.numJoints());
+  std::mt19937_64 config_rng(rng());
+  double lever_m = 0;
+  const auto qs = cell.randomConfigurations(50, config_rng);
+  for (const auto& q : qs) {
+    forwardKinematics(m, data, m.nominal, q);
+    computeJointJacobian(m, data, Jq);
+    lever_m += Jq.col(d.joint).head<3>().norm() / static_cast<double>(qs.size());
+  }
+  d.size_rad = (std::uniform_int_distribution<int>(0, 1)(rng) ? 1 : -1) * reach_m / lever_m;
   return d;
 }
 
@@ -538,10 +552,10 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
   constexpr int kDraws = 8;
   int gained = 0;
   for (int k = 0; k < kDraws; ++k) {
-    const ExtensionDraw draw = drawExtension(rng);
     SimulationSettings ss = config.simulation;
     ss.seed = rng();
     const SimulatedCell plain = makeSimulatedCell(plain_robot, ss, 0);
+    const ExtensionDraw draw = drawExtension(rng, plain);
     SimulationConfig sc = plain.config();
     if (draw.cause == Cause::kBacklash) {
       sc.hidden.cause = Cause::kBacklash;
