@@ -83,6 +83,18 @@ int main(int argc, char** argv) {
       auto m = toCalibrationState(*s.robot, s.engine->snapshot(), wallNs(), ++s.state_seq);
       state_writer.write(m);
     };
+    // Per stream: nothing received for engine.stale_input_s, or no writer left (a killed adapter is unmatched when its
+    // participant lease expires).
+    auto staleInputs = [&](Slot& s, std::int64_t now) {
+      std::string out = s.engine->staleInputs(now);
+      auto noWriter = [&](const char* topic, int writers) {
+        if (writers == 0) out += std::string(out.empty() ? "" : "; ") + topic + ": no writer";
+      };
+      noWriter("joint_state", node.matchedWriters<msg::JointState>());
+      noWriter("tracker_pose", node.matchedWriters<msg::TrackerPose>());
+      return out;
+    };
+    std::map<std::string, std::string> reported;  // last stale / persist message printed per robot
     auto publishDiagnostics = [&](Slot& s, std::int64_t now) {
       const auto& c = s.engine->counters();
       msg::CalibrationDiagnostics d;
@@ -94,9 +106,16 @@ int main(int argc, char** argv) {
         d.rejection_reasons().push_back(rejectionName(static_cast<Rejection>(k)));
         d.rejection_counts().push_back(c.rejected[k]);
       }
-      d.drift_alarm(s.engine->snapshot().drift_alarm);
-      d.stale_input(s.engine->lastInputReceiveNs() == 0 ||
-                    now - s.engine->lastInputReceiveNs() > static_cast<std::int64_t>(cell.engine.stale_input_s * 1e9));
+      const auto& snap = s.engine->snapshot();
+      d.drift_alarm(snap.drift_alarm);
+      const std::string stale = staleInputs(s, now);
+      d.stale_input(!stale.empty());
+      d.stale_inputs(stale.substr(0, 255));
+      d.health(static_cast<msg::CalibrationHealth>(static_cast<int>(snap.health)));
+      d.health_reason(snap.health_reason.substr(0, 255));
+      d.prediction_sigma_position_m(snap.prediction_sigma_position_m);
+      d.persist_failures(s.engine->persistFailures());
+      d.persist_error(s.engine->persistError().substr(0, 255));
       d.identifiable_parameters(static_cast<std::uint32_t>(s.engine->snapshot().estimated.size()));
       d.condition_number(s.engine->snapshot().condition_number);
       d.pairing_latency_p99_ns(p99(s.pairing_ns));
@@ -106,6 +125,16 @@ int main(int argc, char** argv) {
       d.poses_paired(c.paired);
       d.last_rejection(c.last_rejection.substr(0, 255));
       diag_writer.write(d);
+      // Say it once on stderr when it changes (the diagnostics topic carries it every republish period).
+      const std::string line = stale + "|" + s.engine->persistError() + "|" + snap.health_reason;
+      if (reported[s.robot->robot_id] != line) {
+        reported[s.robot->robot_id] = line;
+        if (!stale.empty()) std::cerr << "calibration_engine: " << s.robot->robot_id << ": stale input: " << stale << "\n";
+        if (!s.engine->persistError().empty())
+          std::cerr << "calibration_engine: " << s.robot->robot_id << ": " << s.engine->persistError() << "\n";
+        if (snap.health != Health::kOk && snap.health != Health::kUncalibrated)
+          std::cerr << "calibration_engine: " << s.robot->robot_id << ": health " << healthName(snap.health) << ": " << snap.health_reason << "\n";
+      }
     };
     // Pairs and updates; publishes a new version at once (the latency path).
     auto step = [&](Slot& s, std::int64_t now) {
@@ -195,6 +224,9 @@ int main(int argc, char** argv) {
                     {"recent_nis_per_row", snap.recent_nis_per_row},
                     {"drift_alarm", snap.drift_alarm},
                     {"condition_number", snap.condition_number},
+                    {"health_reason", snap.health_reason},
+                    {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
+                    {"persist_failures", s.engine->persistFailures()},
                     {"rejected", rej},
                     {"pairing_latency_p99_ns", p99(s.pairing_ns)},
                     {"update_latency_p99_ns", p99(s.update_ns)}};

@@ -1,8 +1,11 @@
 // cellcal_compensation_publisher: for every cellcal/target_pose, solves the identified model for the joints that
 // reach the target and publishes on cellcal/compensated_target the pose to command the unmodified controller
 // (the nominal model's pose of those joints), the joints, the correction and the calibration version used.
-// Refuses (applied = false, with the reason) when no calibration is loaded, it is not healthy, the identified model
-// cannot reach the target, or the correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set).
+// Uses the latest calibration whose health is ok. When the engine's latest is not ok (degraded: drift alarm;
+// hold_last_good; uncalibrated after a reset) it keeps applying the last ok one it had and says so in `reason`; it
+// also says when the engine reports stale inputs (the tracker or the controller stopped). Refuses (applied = false,
+// with the reason) when it never had an ok calibration, the identified model cannot reach the target, or the
+// correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
 // A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).
 #include <unistd.h>
 
@@ -33,12 +36,14 @@ int main(int argc, char** argv) {
     const CellConfig cell = loadCell(o);
     struct Robot {
       const CellRobot* robot;
-      std::optional<ReceivedCalibration> calibration;
+      std::optional<ReceivedCalibration> calibration;  // the latest received
+      std::optional<ReceivedCalibration> last_ok;      // the latest received with health ok (the one applied)
       Eigen::VectorXd last_q;
       std::uint64_t seq = 0;
+      std::string engine_warning;                      // from the engine's diagnostics: stale inputs
     };
     std::map<std::string, Robot> robots;
-    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, Eigen::VectorXd()};
+    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, Eigen::VectorXd(), 0, ""};
     std::mutex mutex;
     std::uint64_t applied = 0, refused = 0, clamped = 0, bad_states = 0;
 
@@ -55,12 +60,26 @@ int main(int argc, char** argv) {
         std::cerr << "compensation_publisher: ignored: " << error << "\n";
         return;
       }
-      if (!it->second.calibration || it->second.calibration->version != c->version) {
-        if (!it->second.calibration)
-          std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " received ("
-                    << c->poses_used << " poses)\n";
-        it->second.calibration = std::move(c);
-      }
+      Robot& r = it->second;
+      // A new calibration, or the same version number made again by an engine that restarted from an older state.
+      const bool changed = !r.calibration || r.calibration->version != c->version ||
+                           r.calibration->last_measurement_stamp_ns != c->last_measurement_stamp_ns ||
+                           r.calibration->health != c->health;
+      if (!changed) return;
+      if (!r.calibration)
+        std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " received ("
+                  << c->poses_used << " poses)\n";
+      if (c->health != msg::HEALTH_OK && (!r.calibration || r.calibration->health == msg::HEALTH_OK) && r.last_ok)
+        std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " has health "
+                  << static_cast<int>(c->health) << ": keeping v" << r.last_ok->version << "\n";
+      if (c->health == msg::HEALTH_OK) r.last_ok = *c;
+      r.calibration = std::move(c);
+    });
+    node.reader<msg::CalibrationDiagnostics>([&](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> lock(mutex);
+      auto it = robots.find(d.robot_id().to_string());
+      if (it == robots.end()) return;
+      it->second.engine_warning = d.stale_inputs().size() == 0 ? "" : "engine input stale: " + d.stale_inputs().to_string();
     });
     // Targets are taken only once every robot's calibration is here (TRANSIENT_LOCAL delivers the latest at once
     // on discovery) or after --wait-for-calibration-s: a restarted publisher never answers from an empty state
@@ -101,22 +120,29 @@ int main(int argc, char** argv) {
         out.reason("target rejected: non-finite position or non-unit quaternion");
       } else if (!r.calibration) {
         out.reason("no calibration received yet");
-      } else if (r.calibration->health != msg::HEALTH_OK) {
+      } else if (!r.last_ok) {
         out.calibration_version(r.calibration->version);
         out.reason("calibration v" + std::to_string(r.calibration->version) + " is not healthy (health " +
-                   std::to_string(static_cast<int>(r.calibration->health)) + ")");
+                   std::to_string(static_cast<int>(r.calibration->health)) + ") and none was before");
       } else {
-        out.calibration_version(r.calibration->version);
+        const ReceivedCalibration& use = *r.last_ok;
+        out.calibration_version(use.version);
+        // Said in `reason` even when applied: what the operator should know about the calibration used.
+        std::string note;
+        if (r.calibration->health != msg::HEALTH_OK)
+          note = "holding v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
+                 " has health " + std::to_string(static_cast<int>(r.calibration->health));
+        if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
         Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
                                                                  static_cast<Eigen::Index>(t.seed_position_rad().size()));
         if (seed.size() == 0) seed = r.last_q;
         // With model extensions, backlash's play is that of a move from the previous compensated target.
-        const IdentifiedModel identified{r.calibration->params, r.calibration->extensions, r.calibration->extension_params};
+        const IdentifiedModel identified{use.params, use.extensions, use.extension_params};
         const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
                                                 seed, cell.compensation, r.last_q);
         out.applied(c.applied);
         out.clamped(c.clamped);
-        out.reason(c.reason.substr(0, 255));
+        out.reason((c.reason.empty() ? note : note.empty() ? c.reason : c.reason + "; " + note).substr(0, 255));
         out.correction_position_m(c.correction_position_m);
         out.correction_orientation_rad(c.correction_orientation_rad);
         if (c.applied) {

@@ -10,14 +10,17 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <random>
 
 #include <Eigen/Eigenvalues>
 #include <nlohmann/json.hpp>
+#include <iomanip>
 #include <sstream>
 #include <stdexcept>
 
 #include "cellcal/core/calibration.hpp"
 #include "cellcal/core/kinematics.hpp"
+#include "cellcal/core/statistics.hpp"
 
 namespace cellcal {
 
@@ -71,7 +74,11 @@ void atomicWrite(const std::string& path, const std::string& data) {
     ::unlink(tmp.c_str());
     throw;
   }
-  ::close(fd);
+  if (::close(fd) != 0) {  // NFS and some filesystems report a full disk only here
+    const std::string err = std::strerror(errno);
+    ::unlink(tmp.c_str());
+    throw std::runtime_error(tmp + ": close failed: " + err);
+  }
   if (::rename(tmp.c_str(), path.c_str()) != 0) {
     const std::string err = std::strerror(errno);
     ::unlink(tmp.c_str());
@@ -178,6 +185,16 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
   drift_sigma_ = drift.sigmas(m);
   snap_.mode = settings.mode;
   snap_.verification_mean_position_m = std::nan("");
+  // Reference configurations for the predicted error: fixed (the same in every process and after a restart), spread
+  // over 80 % of each joint's range (at most +-180 deg).
+  std::mt19937_64 ref_rng(0x63656c6c63616cULL);
+  for (int k = 0; k < 16; ++k) {
+    Eigen::VectorXd q(m.numJoints());
+    for (int j = 0; j < m.numJoints(); ++j)
+      q[j] = std::uniform_real_distribution<double>(0.8 * std::max(m.limits[j].lower_rad, -kPi),
+                                                    0.8 * std::min(m.limits[j].upper_rad, kPi))(ref_rng);
+    reference_q_.push_back(q);
+  }
   if (!(persist_ && restore())) {
     const GaussianPrior prior =
         diagonalPrior(m, m.nominal, m.canonicalParams(), settings.prior_length_m, settings.prior_angle_rad);
@@ -220,7 +237,7 @@ void CalibrationEngine::reject(Rejection r, const std::string& detail) {
 
 bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_ns) {
   ++counters_.joint_states;
-  last_input_ns_ = receive_ns;
+  last_input_ns_ = last_joint_ns_ = receive_ns;
   std::string detail;
   if (auto r = pairing_.addJointState(s, receive_ns, &detail)) {
     reject(*r, robot_->robot_id + " " + detail);
@@ -238,17 +255,34 @@ bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_
   return true;
 }
 
-bool CalibrationEngine::samePoseAsLastUsed(const PairedReading& p) const {
-  if (used_q_.size() != p.observation.q_rad.size()) return false;
-  if ((p.observation.q_rad - used_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad) return false;
+// Same stand-still as the one whose joints were q at stamp_ns: same joints, and no motion seen in between.
+bool CalibrationEngine::samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const {
+  if (q.size() != p.observation.q_rad.size()) return false;
+  if ((p.observation.q_rad - q).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad) return false;
   for (std::int64_t t : motion_stamps_ns_)
-    if (t > used_joint_stamp_ns_ && t <= p.joint_stamp_ns) return false;
+    if (t > stamp_ns && t <= p.joint_stamp_ns) return false;
   return true;
+}
+
+std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const {
+  const auto limit = static_cast<std::int64_t>(settings_->stale_input_s * 1e9);
+  std::string out;
+  auto check = [&](const char* topic, std::int64_t last) {
+    if (last != 0 && now_ns - last <= limit) return;
+    std::ostringstream m;
+    m << (out.empty() ? "" : "; ") << topic << ": ";
+    if (last == 0) m << "nothing received yet";
+    else m << "nothing for " << std::fixed << std::setprecision(1) << (now_ns - last) * 1e-9 << " s";
+    out += m.str();
+  };
+  check("joint_state", last_joint_ns_);
+  check("tracker_pose", last_tracker_ns_);
+  return out;
 }
 
 bool CalibrationEngine::onTrackerSample(const TrackerSample& s, std::int64_t receive_ns) {
   ++counters_.tracker_readings;
-  last_input_ns_ = receive_ns;
+  last_input_ns_ = last_tracker_ns_ = receive_ns;
   std::string detail;
   if (auto r = pairing_.addTrackerSample(s, receive_ns, &detail)) {
     reject(*r, robot_->target_id + " " + detail);
@@ -265,36 +299,69 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   for (const auto& p : out.paired) {
     const auto t0 = steadyNs();
     Pending pending{p, extended ? play_.driversAt(p.joint_stamp_ns, p.observation.q_rad) : Drivers{}};
-    if (settings_->outlier_gate_nis > 0) {
+    if (settings_->outlier_gate_nis_per_row > 0) {
       const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
-      if (!(nis <= settings_->outlier_gate_nis)) {
+      const int rows = p.observation.rows();
+      // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate
+      // scales with the recent median NIS per row when that is above 1. A gross error (a bumped target, a beam
+      // break caught mid-reading) is hundreds of sigmas and stays far outside.
+      // The median is over every new stand-still, gated or not: when most poses look like outliers the model (or the
+      // station) changed, the gate opens within half a window, and the drift alarm says so, instead of the engine
+      // freezing on an estimate that no longer fits.
+      double scale = 1;
+      if (gate_window_.size() >= 5) {
+        std::vector<double> v(gate_window_.begin(), gate_window_.end());
+        std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+        scale = std::max(1.0, v[v.size() / 2]);
+      }
+      const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
+      const bool new_stand_still = !samePose(p, used_q_, used_joint_stamp_ns_) && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+      if (new_stand_still && std::isfinite(nis)) {
+        gate_window_.push_back(nis / rows);
+        while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
+      }
+      if (!(nis <= gate)) {
         std::ostringstream m;
         m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
-          << " above the gate " << settings_->outlier_gate_nis;
+          << " above the gate " << gate << " (" << rows << " rows)";
         reject(Rejection::kOutlier, m.str());
+        if (new_stand_still) {
+          ++consecutive_outliers_;
+          gated_q_ = p.observation.q_rad;
+          gated_joint_stamp_ns_ = p.joint_stamp_ns;
+          const Health before = snap_.health;
+          decideHealth();
+          if (snap_.health != before) changed = true;  // publish the hold at once
+        }
         continue;
       }
     }
+    consecutive_outliers_ = 0;
+    gated_q_.resize(0);
     ++counters_.paired;
     // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
     // using them as independent observations would overweight the pose. The first reading is used at once.
-    if (samePoseAsLastUsed(p)) {
+    if (samePose(p, used_q_, used_joint_stamp_ns_)) {
       ++counters_.same_pose;
       continue;
     }
     used_q_ = p.observation.q_rad;
     used_joint_stamp_ns_ = p.joint_stamp_ns;
     if (settings_->mode == EngineMode::kContinuous) {
-      applyPose(pending);
-      finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
-      changed = true;
+      if (applyPose(pending)) {
+        finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+        changed = true;
+      }
     } else {
       batch_.push_back(std::move(pending));
       if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
-        for (const auto& b : batch_) applyPose(b);
+        bool any = false;
+        for (const auto& b : batch_) any = applyPose(b) || any;
         batch_.clear();
-        finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
-        changed = true;
+        if (any) {
+          finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+          changed = true;
+        }
       } else {
         snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
         snap_.last_tracker_sequence = p.tracker_sequence;
@@ -307,19 +374,29 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   return changed;
 }
 
-void CalibrationEngine::applyPose(const Pending& pending) {
+bool CalibrationEngine::applyPose(const Pending& pending) {
   const PairedReading& p = pending.reading;
   const Drivers* drivers = rls_->extensions().empty() ? nullptr : &pending.drivers;
+  const RlsCalibrator before_update = *rls_;  // for a roll-back (a 30x30 covariance: cheap beside the update)
   // Random walk of the parameters over the cell time since the previous update.
   if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
     const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
     rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h));
   }
-  snap_.last_update_stamp_ns = p.tracker_stamp_ns;
   const Observation& o = p.observation;
   const Pose before = rls_->predict(o.q_rad, drivers);
   const double nis = rls_->addObservation(o, drivers);
   const Pose after = rls_->predict(o.q_rad, drivers);
+  if (!std::isfinite(nis) || !rls_->params().allFinite() || !rls_->extensionParams().allFinite() ||
+      !rls_->covariance().allFinite() || !after.matrix().allFinite()) {
+    *rls_ = before_update;
+    std::ostringstream m;
+    m << robot_->target_id << " tracker reading #" << p.tracker_sequence
+      << ": the update made the estimate non-finite; rolled back to version " << snap_.version;
+    reject(Rejection::kUnsafeUpdate, m.str());
+    return false;
+  }
+  snap_.last_update_stamp_ns = p.tracker_stamp_ns;
   Recent r;
   r.prior_error_m = (o.measured_in_tracker.translation() - before.translation()).norm();
   r.post_error_m = (o.measured_in_tracker.translation() - after.translation()).norm();
@@ -330,6 +407,7 @@ void CalibrationEngine::applyPose(const Pending& pending) {
   recent_.push_back(r);
   while (recent_.size() > kRecentWindow) recent_.pop_front();
   ++snap_.poses_used;
+  return true;
 }
 
 void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence) {
@@ -342,7 +420,88 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
   snap_.last_tracker_sequence = sequence;
   pairing_.setAppliedUntil(stamp_ns);
   refreshStatistics();
+  decideHealth();
   if (persist_) persist();
+}
+
+// Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state.
+double CalibrationEngine::predictionSigma() const {
+  const RobotModel& m = robot_->model;
+  KinematicsData data(m);
+  Eigen::MatrixXd J(6, m.numParams());
+  const auto& est = rls_->estimated();
+  const auto n = static_cast<Eigen::Index>(est.size());
+  const Eigen::MatrixXd P = rls_->covariance().topLeftCorner(n, n);
+  Eigen::MatrixXd Js(3, n);
+  double worst = 0;
+  for (const auto& q : reference_q_) {
+    forwardKinematics(m, data, rls_->params(), q);
+    computePoseJacobian(m, data, J);
+    for (Eigen::Index k = 0; k < n; ++k) Js.col(k) = J.col(est[static_cast<size_t>(k)]).head<3>();
+    const double var = (Js * P * Js.transpose()).trace();
+    worst = std::max(worst, std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity());
+  }
+  return worst;
+}
+
+// Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3); then ok,
+// degraded (drift alarm) or hold_last_good (outliers in a row, predicted error above the bound).
+void CalibrationEngine::decideHealth() {
+  const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
+  const size_t state = rls_->estimated().size() + rls_->estimatedExtension().size();
+  const size_t needed = 2 * ((state + rows - 1) / rows);
+  snap_.prediction_sigma_position_m = predictionSigma();
+  snap_.health_reason.clear();
+  snap_.held_version = 0;
+  auto publishEstimate = [&] {
+    snap_.params = rls_->params();
+    snap_.estimated = rls_->estimated();
+    snap_.covariance = rls_->covariance();
+    snap_.extension_params = rls_->extensionParams();
+  };
+  std::ostringstream why;
+  if (consecutive_outliers_ >= settings_->outlier_hold_after) {
+    why << consecutive_outliers_ << " poses in a row beyond the outlier gate: the robot, the target or the tracker "
+        << "moved (check the station and the target, then re-register if it was bumped)";
+    snap_.drift_alarm = true;
+  } else if (snap_.prediction_sigma_position_m > settings_->hold_prediction_sigma_m) {
+    why << "predicted position error " << snap_.prediction_sigma_position_m * 1e3 << " mm (1 sigma) above the bound "
+        << settings_->hold_prediction_sigma_m * 1e3 << " mm: the recent poses do not pin the model down";
+  }
+  if (snap_.poses_used < needed) {
+    publishEstimate();
+    snap_.health = Health::kUncalibrated;
+    snap_.health_reason = std::to_string(snap_.poses_used) + " of the " + std::to_string(needed) + " poses needed";
+    return;
+  }
+  if (!why.str().empty()) {
+    if (last_good_) {
+      snap_.health = Health::kHoldLastGood;
+      snap_.held_version = last_good_->version;
+      snap_.params = last_good_->params;
+      snap_.estimated = last_good_->estimated;
+      snap_.covariance = last_good_->covariance;
+      snap_.extension_params = last_good_->extension_params;
+      snap_.health_reason = "holding v" + std::to_string(last_good_->version) + ": " + why.str();
+    } else {
+      publishEstimate();
+      snap_.health = Health::kUncalibrated;
+      snap_.health_reason = "nothing good to hold yet: " + why.str();
+    }
+    return;
+  }
+  publishEstimate();
+  if (snap_.drift_alarm) {
+    snap_.health = Health::kDegraded;
+    std::ostringstream d;
+    d << "drift alarm: recent normalized innovation " << snap_.recent_nis_per_row << " per row (alarm above "
+      << settings_->drift_alarm_nis_per_row << "): the estimate follows something the noise and drift models do not "
+      << "allow (a biased tracker, a missing model effect)";
+    snap_.health_reason = d.str();
+    return;
+  }
+  snap_.health = Health::kOk;
+  last_good_ = Good{snap_.version, snap_.params, snap_.extension_params, snap_.estimated, snap_.covariance};
 }
 
 void CalibrationEngine::refreshStatistics() {
@@ -359,17 +518,13 @@ void CalibrationEngine::refreshStatistics() {
   snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
   snap_.recent_nis_per_row = recent_.empty() ? 0.0 : nis / n;
   snap_.drift_alarm = recent_.size() >= 10 && snap_.recent_nis_per_row > settings_->drift_alarm_nis_per_row;
-  if (snap_.covariance.rows() > 0) {
-    const Eigen::VectorXd d = snap_.covariance.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
-    const Eigen::MatrixXd corr = d.asDiagonal() * snap_.covariance * d.asDiagonal();
+  const Eigen::MatrixXd& P = rls_->covariance();
+  if (P.rows() > 0) {
+    const Eigen::VectorXd d = P.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+    const Eigen::MatrixXd corr = d.asDiagonal() * P * d.asDiagonal();
     const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(corr, Eigen::EigenvaluesOnly).eigenvalues();
     snap_.condition_number = ev.minCoeff() > 0 ? ev.maxCoeff() / ev.minCoeff() : std::numeric_limits<double>::infinity();
   }
-  // Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3).
-  const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
-  const size_t state = snap_.estimated.size() + snap_.estimated_extension.size();
-  const size_t needed = 2 * ((state + rows - 1) / rows);
-  snap_.health = snap_.poses_used >= needed ? Health::kOk : Health::kUncalibrated;
 }
 
 void CalibrationEngine::persist() {
@@ -386,10 +541,22 @@ void CalibrationEngine::persist() {
   j["last_tracker_sequence"] = snap_.last_tracker_sequence;
   j["last_update_stamp_ns"] = snap_.last_update_stamp_ns;
   j["nominal"] = std::vector<double>(m.nominal.data(), m.nominal.data() + m.nominal.size());
-  j["params"] = std::vector<double>(snap_.params.data(), snap_.params.data() + snap_.params.size());
-  j["estimated"] = snap_.estimated;
-  std::vector<double> cov(snap_.covariance.data(), snap_.covariance.data() + snap_.covariance.size());
-  j["covariance"] = cov;
+  // The estimator's state (what a restart resumes), which is not what is published while holding a good version.
+  const Eigen::VectorXd& params = rls_->params();
+  const Eigen::MatrixXd& P = rls_->covariance();
+  j["params"] = std::vector<double>(params.data(), params.data() + params.size());
+  j["estimated"] = rls_->estimated();
+  j["covariance"] = std::vector<double>(P.data(), P.data() + P.size());
+  j["consecutive_outliers"] = consecutive_outliers_;
+  j["gate_window"] = std::vector<double>(gate_window_.begin(), gate_window_.end());
+  if (last_good_ && snap_.health != Health::kOk) {
+    const Good& g = *last_good_;
+    j["last_good"] = {{"version", g.version},
+                      {"params", std::vector<double>(g.params.data(), g.params.data() + g.params.size())},
+                      {"extension_params", std::vector<double>(g.extension_params.data(), g.extension_params.data() + g.extension_params.size())},
+                      {"estimated", g.estimated},
+                      {"covariance", std::vector<double>(g.covariance.data(), g.covariance.data() + g.covariance.size())}};
+  }
   json exts = json::array();
   for (const auto& e : rls_->extensions()) exts.push_back(extensionSpec(e));
   j["extensions"] = exts;
@@ -415,10 +582,18 @@ void CalibrationEngine::persist() {
     batch.push_back(o);
   }
   j["pending_batch"] = batch;
-  std::error_code ec;
-  fs::create_directories(settings_->state_dir, ec);
-  atomicWrite(stateFile(), j.dump());
-  unsynced_ = true;
+  // A failed write (disk full, read-only, permissions) leaves the previous file whole (atomicWrite): the update stays
+  // in memory, the error is reported, and the next update writes the whole state again.
+  try {
+    std::error_code ec;
+    fs::create_directories(settings_->state_dir, ec);
+    atomicWrite(stateFile(), j.dump());
+    persist_error_.clear();
+    unsynced_ = true;
+  } catch (const std::exception& e) {
+    ++persist_failures_;
+    persist_error_ = std::string("state not saved (the previous file is intact; retried with the next update): ") + e.what();
+  }
 }
 
 void CalibrationEngine::syncToDisk() {
@@ -517,6 +692,26 @@ bool CalibrationEngine::restore() {
       recent_.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>(), r.at(3).get<double>()});
     for (const auto& b : j.at("pending_batch"))
       batch_.push_back({observationFromJson(b), b.contains("drivers") ? driversFromJson(b.at("drivers")) : Drivers{}});
+    if (j.contains("consecutive_outliers")) consecutive_outliers_ = j.at("consecutive_outliers").get<int>();
+    if (j.contains("gate_window"))
+      for (double v : j.at("gate_window").get<std::vector<double>>()) gate_window_.push_back(v);
+    if (j.contains("last_good")) {
+      const json& g = j.at("last_good");
+      Good good;
+      good.version = g.at("version").get<std::uint64_t>();
+      const auto gp = g.at("params").get<std::vector<double>>();
+      const auto gx = g.at("extension_params").get<std::vector<double>>();
+      const auto gc = g.at("covariance").get<std::vector<double>>();
+      good.estimated = g.at("estimated").get<std::vector<int>>();
+      const auto gn = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(gc.size()))));
+      if (static_cast<int>(gp.size()) != m.numParams() || gn * gn != static_cast<Eigen::Index>(gc.size()))
+        fail("last_good: parameter or covariance size mismatch");
+      good.params = Eigen::Map<const Eigen::VectorXd>(gp.data(), m.numParams());
+      good.extension_params = Eigen::Map<const Eigen::VectorXd>(gx.data(), static_cast<Eigen::Index>(gx.size()));
+      good.covariance = Eigen::Map<const Eigen::MatrixXd>(gc.data(), gn, gn);
+      if (!good.params.allFinite() || !good.covariance.allFinite()) fail("last_good: non-finite values");
+      last_good_ = std::move(good);
+    }
   } catch (const json::exception& e) {
     fail(std::string("missing or malformed field: ") + e.what());
   }
@@ -525,7 +720,10 @@ bool CalibrationEngine::restore() {
   snap_.covariance = rls_->covariance();
   snap_.extension_params = rls_->extensionParams();
   pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);
-  if (snap_.version > 0) refreshStatistics();
+  if (snap_.version > 0) {
+    refreshStatistics();
+    decideHealth();
+  }
   restored_ = true;
   return true;
 }

@@ -38,7 +38,8 @@ const char* rejectionName(Rejection r) {
   static const char* names[] = {"non_finite",       "wrong_joint_count", "joints_outside_limits", "non_unit_quaternion",
                                 "bad_covariance",   "tracker_invalid",   "duplicate",             "out_of_order",
                                 "stamp_in_future",  "stamp_too_old",     "no_joint_state",        "robot_moving",
-                                "robot_moved",      "already_applied",   "outlier",               "unknown_key"};
+                                "robot_moved",      "already_applied",   "outlier",               "unknown_key",
+                                "implausible_value", "unsafe_update"};
   static_assert(sizeof(names) / sizeof(names[0]) == static_cast<size_t>(Rejection::kCount));
   return names[static_cast<int>(r)];
 }
@@ -113,6 +114,22 @@ std::optional<Rejection> PairingBuffer::addTrackerSample(const TrackerSample& s,
     if (std::abs(n - 1.0) > 1e-6) {
       setDetail(d, "tracker reading #", s.sequence, ": quaternion norm ", n, " (expected 1)");
       return Rejection::kNonUnitQuaternion;
+    }
+  }
+  // A laser tracker measures up to ~160 m: a reading farther than this is in the wrong unit (millimetres sent as
+  // metres) or garbage, and would drag the estimate by metres if it got through.
+  constexpr double kMaxRange_m = 200.0;
+  if (s.position_m.norm() > kMaxRange_m) {
+    setDetail(d, "tracker reading #", s.sequence, ": position ", s.position_m.norm(), " m from the tracker, beyond any tracker's range (",
+              kMaxRange_m, " m): millimetres sent as metres?");
+    return Rejection::kImplausible;
+  }
+  for (int i = 0; i < 3; ++i) {
+    const double v = s.covariance[i * 7];
+    if (v > 0 && v < 1e-14) {  // (0.1 um)^2
+      setDetail(d, "tracker reading #", s.sequence, ": covariance[", i * 7, "] = ", v,
+                " m^2 claims better than 0.1 um (a variance in mm^2 or um^2 sent as m^2?)");
+      return Rejection::kImplausible;
     }
   }
   for (int i = 0; i < 6; ++i) {

@@ -168,6 +168,70 @@ TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   EXPECT_GT(first.correction_position_m(), 1e-5);  // the hidden errors are corrected
 }
 
+// The tracker adapter is SIGKILLed at a random moment: the engine's diagnostics name the stale stream within
+// stale_input_s (3 s) + one republish period, and the compensation publisher keeps applying the last good
+// calibration, saying in each answer that the engine's input is stale.
+TEST(CellProcesses, ADeadTrackerAdapterIsReportedAndCompensationKeepsTheLastGoodCalibration) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}},
+                                    "  initial_poses: 200\n  groups: 1\n");
+  const CellConfig cell = loadCellConfig(cfg);
+  Probe probe(cell);
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
+  Process comp(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg});
+  Process tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg});
+  Process joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--wait-for-readers", "1"});
+  std::mt19937_64 rng(seed);
+  const int kill_after = std::uniform_int_distribution<int>(20, 60)(rng);
+  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= static_cast<std::uint64_t>(kill_after); }, 30))
+      << engine.log();
+  ASSERT_EQ(tracker.stop(SIGKILL), 128 + SIGKILL);
+  const auto killed = std::chrono::steady_clock::now();
+  const auto killed_ns = static_cast<std::uint64_t>(wallNs());
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // readings already on the wire are in
+  const std::uint64_t last = probe.latestVersion("tx60");
+  std::string stale;
+  ASSERT_TRUE(waitUntil([&] {
+    std::lock_guard<std::mutex> l(probe.mutex);
+    for (const auto& d : probe.diagnostics)
+      if (d.source_stamp_ns() > killed_ns && d.stale_input() && d.stale_inputs().to_string().find("tracker_pose") != std::string::npos) stale = d.stale_inputs().to_string();
+    return !stale.empty();
+  }, 10)) << engine.log();
+  const double noticed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();
+  std::printf("  tracker adapter killed at v%llu; engine reported '%s' after %.2f s\n",
+              static_cast<unsigned long long>(last), stale.c_str(), noticed_s);
+  EXPECT_LT(noticed_s, cell.engine.stale_input_s + 2 * cell.engine.republish_period_s + 0.5);
+  EXPECT_EQ(stale.find("joint_state"), std::string::npos) << stale;  // the controller still streams
+  EXPECT_EQ(probe.latestVersion("tx60"), last);                     // nothing to learn from
+  // Compensation: applied with the last calibration, and says the input is stale.
+  auto targets = probe.node.writer<msg::TargetPose>();
+  const RobotModel& m = cell.robots[0].model;
+  KinematicsData d(m);
+  const Eigen::VectorXd q = Eigen::VectorXd::Constant(6, 0.3);
+  msg::TargetPose t;
+  t.robot_id("tx60");
+  fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
+  t.seed_position_rad(std::vector<double>(q.data(), q.data() + 6));
+  std::uint64_t seq = 1000;
+  ASSERT_TRUE(waitUntil([&] {
+    t.sequence_number(++seq);
+    targets.write(t);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    std::lock_guard<std::mutex> l(probe.mutex);
+    for (const auto& c : probe.compensated)
+      if (c.target_sequence() > 1000 && c.reason().to_string().find("engine input stale") != std::string::npos) return true;
+    return false;
+  }, 10)) << comp.log();
+  std::lock_guard<std::mutex> l(probe.mutex);
+  for (const auto& c : probe.compensated) {
+    if (c.target_sequence() <= 1000 || c.reason().to_string().find("engine input stale") == std::string::npos) continue;
+    EXPECT_TRUE(c.applied()) << c.reason();
+    EXPECT_EQ(c.calibration_version(), last);
+    EXPECT_NE(c.reason().to_string().find("tracker_pose"), std::string::npos) << c.reason();
+  }
+}
+
 TEST(CellProcesses, EngineKilledMidRunResumesFromItsStateWithNoUpdateLost) {
   const std::string dir = testDir();
   const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},

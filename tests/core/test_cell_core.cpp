@@ -578,7 +578,10 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
       CalibrationEngine engine(robot, config.engine, config.time_compression, /*persist=*/false);
       Feed feed{cell, program, std::mt19937_64(ss.seed + 1), 1'700'000'000'000'000'000, config.time_compression};
       feed.run(engine, 0, 3, dt, pt, sf);
-      EXPECT_EQ(engine.snapshot().health, Health::kOk) << what;
+      // A geometric engine on a robot with the effect may be right to raise the drift alarm (degraded).
+      const Health h = engine.snapshot().health;
+      EXPECT_TRUE(h == Health::kOk || (h == Health::kDegraded && &cell == &hidden && robot.extensions.empty()))
+          << what << ": " << healthName(h) << " " << engine.snapshot().health_reason;
       return engine.snapshot();
     };
     const double t_h = program.campaignEnd_s(2) / 3600;

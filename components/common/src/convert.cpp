@@ -140,6 +140,7 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
   r.extension_params = values.tail(next - model.numParams());
   r.version = m.version();
   r.health = m.health();
+  r.last_measurement_stamp_ns = m.last_measurement_stamp_ns();
   r.poses_used = m.poses_used();
   r.verification_mean_position_m = m.verification_mean_position_m();
   return r;

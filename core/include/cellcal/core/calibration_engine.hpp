@@ -11,6 +11,19 @@
 // periodic batch) is written atomically (temporary file, rename) before process() returns; syncToDisk() then
 // fsyncs it (the engine process calls it right after publishing, so the disk is off the latency path). A restarted engine
 // resumes from it and rejects readings at or before the last applied one, so no update is lost or applied twice.
+// A write that fails (disk full, read-only) leaves the previous file intact: the engine keeps the update in memory,
+// says so (persistError()) and writes the whole state again with the next update.
+//
+// Safety (docs/RELIABILITY.md):
+//  - gate: a pose whose normalized innovation is beyond the chi-square gate (EngineSettings::outlier_gate_probability)
+//    is rejected as an outlier; outlier_hold_after stand-stills gated in a row mean the robot or the tracker changed
+//    (a bumped station): drift alarm and health hold_last_good until a pose passes the gate again;
+//  - an update that would make the estimate non-finite is rolled back (unsafe_update);
+//  - the published calibration is the estimate while it is healthy. When the model's predicted position error
+//    (1 sigma, worst of 16 reference configurations) exceeds hold_prediction_sigma_m (covariance blow-up, or
+//    directions the recent poses no longer excite), the engine keeps learning but publishes the last good
+//    calibration with health hold_last_good; a drift alarm (recent NIS per row too high: a slowly biased tracker,
+//    a missing model effect) publishes the estimate with health degraded, and compensation keeps its last ok one.
 #pragma once
 
 #include <Eigen/Core>
@@ -56,6 +69,12 @@ struct CalibrationSnapshot {
   bool drift_alarm = false;
   // Condition number of the estimate's correlation matrix (scale-free): large = parameters hard to separate.
   double condition_number = 0;
+  // Predicted 1-sigma position error of the estimate (worst of the reference configurations), m.
+  double prediction_sigma_position_m = 0;
+  // Why health is not ok (empty when it is), e.g. "holding v52: 5 poses in a row beyond the outlier gate".
+  std::string health_reason;
+  // When health is hold_last_good: the version whose parameters are published (params, covariance, ... are its).
+  std::uint64_t held_version = 0;
 };
 
 struct EngineCounters {
@@ -98,6 +117,12 @@ class CalibrationEngine {
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
   std::int64_t lastInputReceiveNs() const { return last_input_ns_; }
+  // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
+  // A stream counts as stale after EngineSettings::stale_input_s without a sample (or before its first one).
+  std::string staleInputs(std::int64_t now_ns) const;
+  // The last failed write of the state file (empty once a write succeeds again) and how many failed.
+  const std::string& persistError() const { return persist_error_; }
+  std::uint64_t persistFailures() const { return persist_failures_; }
   // Wall time of the last update (linearization + RLS + persistence), ns.
   std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
 
@@ -106,11 +131,13 @@ class CalibrationEngine {
     PairedReading reading;
     Drivers drivers;  // play state when it was paired (the joint history moves on while a batch fills)
   };
-  void applyPose(const Pending& p);
+  bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
+  bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
+  double predictionSigma() const;
+  void decideHealth();
   void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
   void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
   void refreshStatistics();
-  bool samePoseAsLastUsed(const PairedReading& p) const;
   void persist();
   bool restore();
   void reject(Rejection r, const std::string& detail);
@@ -135,7 +162,21 @@ class CalibrationEngine {
     double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };
   std::deque<Recent> recent_;
-  std::int64_t last_input_ns_ = 0;
+  std::int64_t last_input_ns_ = 0, last_joint_ns_ = 0, last_tracker_ns_ = 0;
+  struct Good {  // the last version published with health ok
+    std::uint64_t version = 0;
+    Eigen::VectorXd params, extension_params;
+    std::vector<int> estimated;
+    Eigen::MatrixXd covariance;
+  };
+  std::optional<Good> last_good_;
+  int consecutive_outliers_ = 0;
+  std::deque<double> gate_window_;  // NIS per row of the recent new stand-stills, gated or not
+  Eigen::VectorXd gated_q_;
+  std::int64_t gated_joint_stamp_ns_ = 0;
+  std::vector<Eigen::VectorXd> reference_q_;
+  std::string persist_error_;
+  std::uint64_t persist_failures_ = 0;
   std::int64_t last_update_duration_ns_ = 0;
   bool unsynced_ = false;
   Eigen::VectorXd last_joint_q_, used_q_;

@@ -48,7 +48,16 @@ struct EngineSettings {
   double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem; 0 = off
   double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
   double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
-  double outlier_gate_nis = 0.0;               // reject a pose whose normalized innovation exceeds this (0 = off)
+  // Outlier gate on a pose's normalized innovation squared (NIS; chi-square with the measurement rows as dof when the
+  // noise model holds, mean 1 per row): gated above this many per row, times the recent median NIS per row when that
+  // is above 1 (a noise model too optimistic for the cell does not gate good poses). 50 per row is a chi-square
+  // tail of 3e-32 for 3 rows, 8e-62 for 6; good poses of the simulated cell reach 17 per row after a 2 h pause (drift
+  // faster than its model), a target bumped by 0.5 mm under 0.05 mm noise 100. 0 = off.
+  double outlier_gate_nis_per_row = 50;
+  int outlier_hold_after = 5;                  // this many stand-stills gated in a row: hold last good + drift alarm
+  // The model's predicted 1-sigma position error (worst of 16 reference configurations over the joint limits) above
+  // this: the engine publishes its last good calibration (health hold_last_good) until the estimate is back under it.
+  double hold_prediction_sigma_m = 1e-3;
   double drift_alarm_nis_per_row = 3.0;        // recent mean NIS per row above this: drift alarm
   double prior_length_m = 1e-3;                // 1 sigma of the uncalibrated robot (manufacturing + registration)
   double prior_angle_rad = 0.1 * 3.14159265358979323846 / 180.0;

@@ -40,6 +40,9 @@ enum class Rejection {
   kAlreadyApplied,         // reading at or before the last one in the persisted state (restart)
   kOutlier,                // normalized innovation above the gate
   kUnknownKey,             // robot_id / target_id not in the cell file
+  kImplausible,            // finite but impossible: a position beyond any tracker's range (mm sent as m?), a
+                           // covariance claiming better than 0.1 um
+  kUnsafeUpdate,           // the update would make the estimate non-finite: rolled back, the estimate kept
   kCount
 };
 const char* rejectionName(Rejection r);  // snake_case, e.g. "robot_moving"

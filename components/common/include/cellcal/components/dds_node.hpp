@@ -50,6 +50,7 @@ CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_strea
 
 struct TopicCounters {
   std::atomic<std::uint64_t> published{0}, received{0};
+  std::atomic<int> matched_writers{0};  // writers our reader of the topic is matched with (a dead peer leaves on lease expiry)
 };
 
 template <class M>
@@ -114,6 +115,12 @@ class DdsNode {
 
   // {"<topic>": {"published": n, "received": n}}
   nlohmann::json stats() const;
+  // Writers matched with our reader of M (0 before reader<M>() and once every writer left: the participant lease
+  // of the profile, 3 s, bounds how late a killed peer is noticed).
+  template <class M>
+  int matchedWriters() {
+    return counters(TopicOf<M>::name)->matched_writers.load();
+  }
   fdds::DomainParticipant* participant() const { return participant_; }
   int domainId() const { return domain_id_; }
 
@@ -132,6 +139,9 @@ class DdsNode {
         ++counters->received;
         fn(sample, info);
       }
+    }
+    void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& status) override {
+      counters->matched_writers = status.current_count;
     }
     std::function<void(const M&, const fdds::SampleInfo&)> fn;
     std::shared_ptr<TopicCounters> counters;
