@@ -11,6 +11,7 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev
   libfastrtps-dev fastddsgen
   gnuplot-nox
+  clang libclang-rt-14-dev          # tools/fuzz.sh (libFuzzer + sanitizers)
 )
 
 missing=()

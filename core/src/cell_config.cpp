@@ -64,7 +64,7 @@ const CellRobot* CellConfig::robotByTarget(const std::string& id) const {
   return nullptr;
 }
 
-CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir) {
+CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir) try {
   YamlReader r(source);
   const YAML::Node root = r.load(yaml_text);
   if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with dds, robots, engine, ...");
@@ -243,6 +243,9 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     }
   }
   return c;
+} catch (const YAML::Exception& e) {
+  // The checks above name file, line and field; a yaml-cpp error that slips past them still names the file.
+  throw ConfigError(source + ": " + e.what());
 }
 
 CellConfig loadCellConfig(const std::string& path) {

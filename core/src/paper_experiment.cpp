@@ -150,7 +150,9 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
 
   double rls_time = 0;
   int rls_poses = 0;
-  for (const auto& [mode, k] : schedules) {
+  for (const auto& schedule : schedules) {
+    const auto& mode = schedule.first;  // not a structured binding: lambdas below capture it (C++17, clang)
+    const auto& k = schedule.second;
     // RLS: prior at group 0, process noise between groups (a random walk toward the previous estimate).
     {
       RlsCalibrator rls(model, p0, prior0, cfg.kind);

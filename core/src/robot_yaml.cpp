@@ -1,5 +1,7 @@
 #include "cellcal/core/robot_yaml.hpp"
 
+#include <cmath>
+
 #include <yaml-cpp/yaml.h>
 
 #include <fstream>
@@ -20,7 +22,7 @@ void readFrame(const YamlReader& r, const YAML::Node& node, const std::string& f
 
 }  // namespace
 
-RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) {
+RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) try {
   YamlReader r(source);
   const YAML::Node root = r.load(yaml_text);
   if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with name, joints, ...");
@@ -92,9 +94,21 @@ RobotModel parseRobotModel(const std::string& yaml_text, const std::string& sour
   if (const YAML::Node t = root["tool_in_flange"]; t.IsDefined() && !t.IsNull())
     readFrame(r, t, "tool_in_flange", m, m.toolParam(FrameParam::kX));
 
+  // Wrong units: the smallest industrial arms reach ~300 mm; link lengths adding up to under 50 mm are metres
+  // written in the _mm fields.
+  double reach_m = 0;
+  for (int j = 0; j < n; ++j)
+    reach_m += std::abs(m.nominal[m.jointParam(j, JointParam::kA)]) + std::abs(m.nominal[m.jointParam(j, JointParam::kD)]);
+  if (reach_m < 0.05)
+    r.fail(joints, "joints[*].a_mm/d_mm",
+           "the link lengths add up to " + std::to_string(reach_m * 1e3) +
+               " mm: no robot arm is that small; metres written where millimetres are expected?");
   std::string err;
   if (!m.IsValid(&err)) throw ConfigError(source + ": " + err);
   return m;
+} catch (const YAML::Exception& e) {
+  // The checks above name file, line and field; a yaml-cpp error that slips past them still names the file.
+  throw ConfigError(source + ": " + e.what());
 }
 
 RobotModel loadRobotModel(const std::string& path) {

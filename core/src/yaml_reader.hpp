@@ -37,7 +37,8 @@ class YamlReader {
   void checkKeys(const YAML::Node& node, const std::string& field, const std::set<std::string>& allowed) const {
     std::set<std::string> seen;
     for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) fail(kv.first, field.empty() ? "<document>" : field, "expected a plain key, got a list or mapping as a key");
+      const std::string key = kv.first.Scalar();
       const std::string where = field.empty() ? key : field + "." + key;
       if (!allowed.count(key)) {
         std::string list;

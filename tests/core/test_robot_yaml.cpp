@@ -77,6 +77,19 @@ TEST(RobotYaml, UnknownJointKeyNamesFieldAndLine) {
   EXPECT_NE(e.find("joints[1].a_m"), std::string::npos) << e;
 }
 
+// Found by tools/fuzz.sh: a list used as a key threw yaml-cpp's bare "bad conversion" without the file.
+TEST(RobotYaml, AListAsAKeyIsAnErrorNamingFileAndLine) {
+  const std::string e = errorOf(replace(kValid, "a_mm: 300", "a_mm: 300, [1, 2]"));
+  EXPECT_NE(e.find("<test>:4:"), std::string::npos) << e;
+  EXPECT_NE(e.find("plain key"), std::string::npos) << e;
+}
+
+TEST(RobotYaml, MetresInMillimetreFieldsAreCalledOut) {
+  const std::string metres = replace(replace(kValid, "a_mm: 300", "a_mm: 0.3"), "d_mm: 100", "d_mm: 0.1");
+  const std::string e = errorOf(metres);
+  EXPECT_NE(e.find("metres written where millimetres are expected"), std::string::npos) << e << "\n" << metres;
+}
+
 TEST(RobotYaml, MissingKeyIsNamed) {
   const std::string e = errorOf(replace(kValid, "d_mm: 0, a_mm: 300", "a_mm: 300"));
   EXPECT_NE(e.find("joints[1].d_mm"), std::string::npos) << e;
