@@ -237,7 +237,7 @@ void CalibrationEngine::reject(Rejection r, const std::string& detail) {
 
 bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_ns) {
   ++counters_.joint_states;
-  last_input_ns_ = last_joint_ns_ = receive_ns;
+  last_joint_ns_ = receive_ns;
   std::string detail;
   if (auto r = pairing_.addJointState(s, receive_ns, &detail)) {
     reject(*r, robot_->robot_id + " " + detail);
@@ -282,7 +282,7 @@ std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const {
 
 bool CalibrationEngine::onTrackerSample(const TrackerSample& s, std::int64_t receive_ns) {
   ++counters_.tracker_readings;
-  last_input_ns_ = last_tracker_ns_ = receive_ns;
+  last_tracker_ns_ = receive_ns;
   std::string detail;
   if (auto r = pairing_.addTrackerSample(s, receive_ns, &detail)) {
     reject(*r, robot_->target_id + " " + detail);
@@ -299,6 +299,7 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   for (const auto& p : out.paired) {
     const auto t0 = steadyNs();
     Pending pending{p, extended ? play_.driversAt(p.joint_stamp_ns, p.observation.q_rad) : Drivers{}};
+    const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
     if (settings_->outlier_gate_nis_per_row > 0) {
       const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
       const int rows = p.observation.rows();
@@ -315,7 +316,7 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
         scale = std::max(1.0, v[v.size() / 2]);
       }
       const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
-      const bool new_stand_still = !samePose(p, used_q_, used_joint_stamp_ns_) && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+      const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
       if (new_stand_still && std::isfinite(nis)) {
         gate_window_.push_back(nis / rows);
         while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
@@ -341,7 +342,7 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
     ++counters_.paired;
     // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
     // using them as independent observations would overweight the pose. The first reading is used at once.
-    if (samePose(p, used_q_, used_joint_stamp_ns_)) {
+    if (same_as_used) {
       ++counters_.same_pose;
       continue;
     }
@@ -410,12 +411,9 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
   return true;
 }
 
+// decideHealth() sets the published parameters: the estimate, or the last good version while holding.
 void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence) {
   ++snap_.version;
-  snap_.params = rls_->params();
-  snap_.estimated = rls_->estimated();
-  snap_.covariance = rls_->covariance();
-  snap_.extension_params = rls_->extensionParams();
   snap_.last_measurement_stamp_ns = stamp_ns;
   snap_.last_tracker_sequence = sequence;
   pairing_.setAppliedUntil(stamp_ns);

@@ -57,6 +57,18 @@ struct Probe {
   std::vector<msg::CalibrationDiagnostics> diagnostics;
 };
 
+// A target of the first robot its nominal model reaches at joints 0.3 rad, with those joints as the seed.
+msg::TargetPose reachableTarget(const CellConfig& cell) {
+  const RobotModel& m = cell.robots[0].model;
+  KinematicsData d(m);
+  const Eigen::VectorXd q = Eigen::VectorXd::Constant(m.numJoints(), 0.3);
+  msg::TargetPose t;
+  t.robot_id(cell.robots[0].robot_id);
+  fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
+  t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+  return t;
+}
+
 TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
@@ -146,13 +158,7 @@ TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   Process comp(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg});
   auto targets = probe.node.writer<msg::TargetPose>();
   // Ask at once and keep asking: the first answer must already use the latest calibration.
-  const RobotModel& m = cell.robots[0].model;
-  KinematicsData d(m);
-  const Eigen::VectorXd q = Eigen::VectorXd::Constant(6, 0.3);
-  msg::TargetPose t;
-  t.robot_id("tx60");
-  fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
-  t.seed_position_rad(std::vector<double>(q.data(), q.data() + 6));
+  msg::TargetPose t = reachableTarget(cell);
   std::uint64_t seq = 0;
   ASSERT_TRUE(waitUntil([&] {
     t.sequence_number(++seq);
@@ -206,13 +212,7 @@ TEST(CellProcesses, ADeadTrackerAdapterIsReportedAndCompensationKeepsTheLastGood
   EXPECT_EQ(probe.latestVersion("tx60"), last);                     // nothing to learn from
   // Compensation: applied with the last calibration, and says the input is stale.
   auto targets = probe.node.writer<msg::TargetPose>();
-  const RobotModel& m = cell.robots[0].model;
-  KinematicsData d(m);
-  const Eigen::VectorXd q = Eigen::VectorXd::Constant(6, 0.3);
-  msg::TargetPose t;
-  t.robot_id("tx60");
-  fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
-  t.seed_position_rad(std::vector<double>(q.data(), q.data() + 6));
+  msg::TargetPose t = reachableTarget(cell);
   std::uint64_t seq = 1000;
   ASSERT_TRUE(waitUntil([&] {
     t.sequence_number(++seq);

@@ -79,6 +79,13 @@ struct SafetyFixture : ::testing::Test {
 
 double maxAbsDiff(const Eigen::VectorXd& a, const Eigen::VectorXd& b) { return (a - b).cwiseAbs().maxCoeff(); }
 
+// Uniform on the unit sphere.
+Eigen::Vector3d randomDirection(std::mt19937_64& rng) {
+  std::normal_distribution<double> n;
+  const double x = n(rng), y = n(rng), z = n(rng);
+  return Eigen::Vector3d(x, y, z).normalized();
+}
+
 TEST(ChiSquare, TailProbabilitiesMatchTables) {
   // Table values (upper 5 % and 0.1 % points).
   EXPECT_NEAR(chiSquareSurvival(3.841, 1), 0.05, 1e-4);
@@ -105,9 +112,7 @@ TEST_F(SafetyFixture, AGrossOutlierIsGatedAndTheEstimateIsAsIfItNeverCame) {
   const int at = std::uniform_int_distribution<int>(20, 70)(rng);
   const int kind = std::uniform_int_distribution<int>(0, 2)(rng);
   const double size = std::exp(std::uniform_real_distribution<double>(0, std::log(20.0))(rng));  // 1..20
-  Eigen::Vector3d dir(std::normal_distribution<double>()(rng), std::normal_distribution<double>()(rng),
-                      std::normal_distribution<double>()(rng));
-  dir.normalize();
+  const Eigen::Vector3d dir = randomDirection(rng);
   // The streams: 80 good stand-stills; the dirty one has one more, with a corrupted reading, after stand-still `at`.
   struct Event {
     Eigen::VectorXd q;
@@ -221,9 +226,7 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
   CalibrationEngine engine(robot, config.engine, 1.0, /*persist=*/false);
   Stream st{sim, rng};
   const auto qs = sim.randomConfigurations(120, rng);
-  Eigen::Vector3d offset(std::normal_distribution<double>()(rng), std::normal_distribution<double>()(rng),
-                         std::normal_distribution<double>()(rng));
-  offset = offset.normalized() * std::uniform_real_distribution<double>(1e-3, 5e-3)(rng);
+  const Eigen::Vector3d offset = randomDirection(rng) * std::uniform_real_distribution<double>(1e-3, 5e-3)(rng);
   const int bump_at = std::uniform_int_distribution<int>(50, 60)(rng);
   std::uint64_t good_version = 0;
   Eigen::VectorXd good_params;
@@ -241,7 +244,9 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
       good_params = snap.params;
     }
     if (k >= bump_at && snap.health == Health::kHoldLastGood) {
-      if (!held) EXPECT_EQ(k - bump_at + 1, config.engine.outlier_hold_after) << "held after " << k - bump_at + 1 << " poses";
+      if (!held) {
+        EXPECT_EQ(k - bump_at + 1, config.engine.outlier_hold_after) << "held after " << k - bump_at + 1 << " poses";
+      }
       held = true;
       EXPECT_EQ(snap.held_version, good_version);
       EXPECT_EQ(maxAbsDiff(snap.params, good_params), 0.0);
@@ -305,27 +310,28 @@ TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration)
   EXPECT_GT(maxAbsDiff(engine.snapshot().params, good_params), 0.0);
 }
 
-// A slowly biased tracker: the estimate would follow it; the engine raises the drift alarm and marks its calibration
-// degraded (compensation keeps its last ok one).
+// A slowly biased tracker (a drifting or bumped station; rate and direction drawn at random): the estimate would
+// follow it; the engine raises the drift alarm, never before the bias, and marks its calibration degraded
+// (compensation keeps its last ok one).
 TEST_F(SafetyFixture, ASlowlyBiasedTrackerDegradesHealth) {
   const CellRobot& robot = config.robots[0];
   const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
   std::mt19937_64 rng(seed);
   CalibrationEngine engine(robot, config.engine, 1.0, /*persist=*/false);
   Stream st{sim, rng};
-  Eigen::Vector3d dir(std::normal_distribution<double>()(rng), std::normal_distribution<double>()(rng),
-                      std::normal_distribution<double>()(rng));
-  dir.normalize();
+  const Eigen::Vector3d dir = randomDirection(rng);
   const double creep_m_per_pose = std::uniform_real_distribution<double>(0.02e-3, 0.05e-3)(rng);
   const auto qs = sim.randomConfigurations(140, rng);
-  bool degraded_before = false;
+  bool degraded_before = false, alarm_before_bias = false;
   for (size_t k = 0; k < qs.size(); ++k) {
     st.advance(100);
     TrackerSample s = st.reading(qs[k]);
     if (k >= 80) s.position_m += creep_m_per_pose * static_cast<double>(k - 80) * dir;
     st.feed(engine, qs[k], s);
     if (k < 80 && engine.snapshot().health != Health::kOk && engine.snapshot().poses_used > 20) degraded_before = true;
+    if (k == 79) alarm_before_bias = engine.snapshot().drift_alarm;
   }
+  EXPECT_FALSE(alarm_before_bias);
   EXPECT_FALSE(degraded_before);
   EXPECT_TRUE(engine.snapshot().drift_alarm) << "NIS per row " << engine.snapshot().recent_nis_per_row;
   EXPECT_NE(engine.snapshot().health, Health::kOk);

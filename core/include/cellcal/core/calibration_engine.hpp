@@ -116,7 +116,6 @@ class CalibrationEngine {
   const CalibrationSnapshot& snapshot() const { return snap_; }
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
-  std::int64_t lastInputReceiveNs() const { return last_input_ns_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
   // A stream counts as stale after EngineSettings::stale_input_s without a sample (or before its first one).
   std::string staleInputs(std::int64_t now_ns) const;
@@ -162,7 +161,7 @@ class CalibrationEngine {
     double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };
   std::deque<Recent> recent_;
-  std::int64_t last_input_ns_ = 0, last_joint_ns_ = 0, last_tracker_ns_ = 0;
+  std::int64_t last_joint_ns_ = 0, last_tracker_ns_ = 0;  // receive time of the last sample per stream
   struct Good {  // the last version published with health ok
     std::uint64_t version = 0;
     Eigen::VectorXd params, extension_params;
