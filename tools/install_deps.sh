@@ -10,6 +10,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev
   libfastrtps-dev fastddsgen
+  openssl                           # config/security/make_pki.sh (DDS Security test CA and certificates)
   gnuplot-nox
   clang libclang-rt-14-dev          # tools/fuzz.sh (libFuzzer + sanitizers)
 )

@@ -73,7 +73,7 @@ int main(int argc, char** argv) {
       if (!s.engine->restoreNote().empty())
         std::cerr << "calibration_engine: " << r.robot_id << ": " << s.engine->restoreNote() << "\n";
     }
-    DdsNode node(cell, "cellcal_calibration_engine");
+    DdsNode node(cell, "cellcal_calibration_engine", identity::kCalibrationEngine);
     auto state_writer = node.writer<msg::CalibrationState>();
     auto diag_writer = node.writer<msg::CalibrationDiagnostics>();
     std::mutex mutex;

@@ -47,7 +47,7 @@ int main(int argc, char** argv) {
     std::mutex mutex;
     std::uint64_t applied = 0, refused = 0, clamped = 0, bad_states = 0;
 
-    DdsNode node(cell, "cellcal_compensation_publisher");
+    DdsNode node(cell, "cellcal_compensation_publisher", identity::kCompensationPublisher);
     auto writer = node.writer<msg::CompensatedTarget>();
     node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
       std::lock_guard<std::mutex> lock(mutex);

@@ -202,7 +202,7 @@ int main(int argc, char** argv) {
     nlohmann::json extra;
     int rc = 0;
     {
-      DdsNode node(cell, "cellcal_joint_state_adapter");
+      DdsNode node(cell, "cellcal_joint_state_adapter", identity::kJointStateAdapter);
       rc = o.source == "sim" ? runSim(cell, node, o, extra)
            : o.source == "csv" ? runCsv(cell, node, o, extra)
                                : runUdp(cell, node, o, extra);

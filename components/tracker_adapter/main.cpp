@@ -188,7 +188,7 @@ int main(int argc, char** argv) {
     nlohmann::json extra;
     int rc = 0;
     {
-      DdsNode node(cell, "cellcal_tracker_adapter");
+      DdsNode node(cell, "cellcal_tracker_adapter", identity::kTrackerAdapter);
       rc = o.source == "sim" ? runSim(cell, node, o, extra)
            : o.source == "csv" ? runCsv(cell, node, o, extra)
                                : runUdp(cell, node, o, extra);

@@ -73,12 +73,13 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   c.source = source;
   constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile"});
+  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile", "security_dir"});
   dds.integer("domain_id", c.dds.domain_id, 0, 232);
   c.dds.profiles_file = resolve(base_dir, "dds/cellcal_qos.xml");
   if (dds.has("profiles_file")) c.dds.profiles_file = resolve(base_dir, r.string(dds.node["profiles_file"], dds.f("profiles_file")));
   if (dds.has("participant_profile"))
     c.dds.participant_profile = r.string(dds.node["participant_profile"], dds.f("participant_profile"));
+  if (dds.has("security_dir")) c.dds.security_dir = resolve(base_dir, r.string(dds.node["security_dir"], dds.f("security_dir")));
 
   if (root["time_compression"].IsDefined()) {
     c.time_compression = r.number(root["time_compression"], "time_compression");

@@ -101,6 +101,30 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   if (!solver.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
   if (start.size() != model.numParams()) throw std::invalid_argument("fitExtended: start has the wrong size");
   if (obs.empty()) throw std::invalid_argument("fitExtended: no observations");
+  if (drivers.size() != obs.size()) throw std::invalid_argument("fitExtended: one Drivers entry per observation needed");
+  // Rows where a backlash joint has not moved yet since the data began: which side of the gap it rests on is unknown
+  // to anyone (a half-width error the model cannot predict), so they do not take part in the fit.
+  std::vector<Observation> kept_obs;
+  std::vector<Drivers> kept_drivers;
+  int left_out = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    bool unknown = false;
+    for (const auto& e : extensions)
+      if (e.cause == Cause::kBacklash)
+        unknown = unknown || drivers[i].motion_direction.size() <= e.joint || drivers[i].motion_direction[e.joint] == 0.0;
+    if (unknown) {
+      ++left_out;
+    } else {
+      kept_obs.push_back(obs[i]);
+      kept_drivers.push_back(drivers[i]);
+    }
+  }
+  if (left_out > 0) {
+    if (kept_obs.empty()) throw std::invalid_argument("fitExtended: no row has a known backlash play state");
+    ExtendedFit fit = fitExtended(model, start, kept_obs, kept_drivers, extensions, solver, identifiability, warm_start);
+    fit.rows_left_out = left_out;
+    return fit;
+  }
   ExtendedFit fit;
   fit.extensions = extensions;
   fit.extension_names = extensionParamNames(model, extensions);

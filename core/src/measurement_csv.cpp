@@ -7,6 +7,7 @@
 #include <map>
 #include <sstream>
 
+#include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/se3.hpp"
 
 namespace cellcal {
@@ -35,6 +36,41 @@ struct RowError {
 
 }  // namespace
 
+namespace {
+
+// RMS distance of points about their centre (the same in any frame).
+double rmsSpread(const std::vector<Eigen::Vector3d>& p) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& x : p) c += x;
+  c /= static_cast<double>(p.size());
+  double s = 0;
+  for (const auto& x : p) s += (x - c).squaredNorm();
+  return std::sqrt(s / static_cast<double>(p.size()));
+}
+
+// Metres in the _mm columns: the readings spread a thousandth of what the rows' joint angles move the target under
+// the nominal model (registration and tool offsets change that by far less than the factor 20 allowed here).
+void checkPositionUnits(const MeasurementFile& f, const RobotModel& robot, const std::string& where) {
+  if (f.rows.size() < 3) return;
+  KinematicsData d(robot);
+  std::vector<Eigen::Vector3d> measured, nominal;
+  for (const auto& r : f.rows) {
+    measured.push_back(r.position_m);
+    nominal.push_back(forwardKinematics(robot, d, robot.nominal, r.q_rad).translation());
+  }
+  const double moved_mm = rmsSpread(nominal) * 1e3, read_mm = rmsSpread(measured) * 1e3;
+  if (moved_mm < 20.0 || read_mm * 20.0 >= moved_mm) return;
+  char buf[400];
+  std::snprintf(buf, sizeof buf,
+                ": x_mm, y_mm, z_mm: the readings spread %.3g mm about their centre (RMS over %zu rows) while the "
+                "rows' joint angles move the target %.0f mm under the nominal model: metres written where millimetres "
+                "are expected? (multiply by 1000)",
+                read_mm, f.rows.size(), moved_mm);
+  throw ConfigError(where + buf);
+}
+
+}  // namespace
+
 MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
                                     const MeasurementCsvOptions& options) {
   MeasurementFile f;
@@ -51,6 +87,7 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     break;
   }
   if (header.empty()) throw ConfigError(source + ": no header row (expected q1_deg.., x_mm, y_mm, z_mm, ...)");
+  const int header_line = lineno;
   const int n = robot.numJoints();
   std::map<std::string, int> col;
   for (size_t i = 0; i < header.size(); ++i) {
@@ -165,6 +202,7 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     }
     f.rows.push_back(std::move(row));
   }
+  checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["x_mm"] + 1));
   return f;
 }
 

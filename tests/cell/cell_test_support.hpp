@@ -46,11 +46,14 @@ struct RobotEntry {
 };
 
 // A cell file for a test: loopback profile, its own domain and state folder, a short simulated program.
+// `security_dir`: DDS Security on, with the files config/security/make_pki.sh made there.
 inline std::string writeCell(const std::string& dir, int domain, std::uint64_t seed, const std::vector<RobotEntry>& robots,
-                             const std::string& simulation_extra = "", const std::string& engine_extra = "") {
+                             const std::string& simulation_extra = "", const std::string& engine_extra = "",
+                             const std::string& security_dir = "", const std::string& name = "cell") {
   std::ostringstream y;
   y << "dds: { domain_id: " << domain << ", profiles_file: " << CELLCAL_CONFIG_DIR
-    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback }\n"
+    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback"
+    << (security_dir.empty() ? "" : ", security_dir: " + security_dir) << " }\n"
     << "time_compression: 720\nrobots:\n";
   for (const auto& r : robots)
     y << "  - { robot_id: " << r.robot_id << ", target_id: " << r.target_id << ", robot_file: " << CELLCAL_CONFIG_DIR
@@ -59,7 +62,7 @@ inline std::string writeCell(const std::string& dir, int domain, std::uint64_t s
       << (r.extensions.empty() ? "" : ", extensions: " + r.extensions) << " }\n";
   y << "engine:\n  state_dir: " << dir << "/state\n" << engine_extra
     << "simulation:\n  seed: " << seed << "\n  joint_rate_hz: 1000\n" << simulation_extra;
-  const std::string path = dir + "/cell.yaml";
+  const std::string path = dir + "/" + name + ".yaml";
   std::ofstream(path) << y.str();
   return path;
 }

@@ -29,7 +29,7 @@ const char* kShortProgram = "  initial_poses: 50\n  poses_per_group: 15\n  group
 
 // A test participant on the cell's domain that records CalibrationState and CompensatedTarget.
 struct Probe {
-  explicit Probe(const CellConfig& cell) : node(cell, "cellcal_test_probe") {
+  explicit Probe(const CellConfig& cell) : node(cell, "cellcal_test_probe", identity::kObserver) {
     node.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) {
       std::lock_guard<std::mutex> l(mutex);
       states.push_back(m);

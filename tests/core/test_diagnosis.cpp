@@ -177,12 +177,12 @@ TEST(ExtendedFit, CovarianceMatchesTheScatterOfEstimates) {
         if (i) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
         obs.push_back(cell.measure(qs[i], &state, 0.0, rng));
       }
-      // The first row's play state is unknown to anyone (no move before it): it is left out.
+      // The first row's play state is unknown to anyone (no move before it; the simulator starts it at one side of
+      // the gap): a backlash fit leaves it out by itself.
       const DriverTable d = driversFromSequence(qs, {}, {});
-      obs.erase(obs.begin());
-      const std::vector<Drivers> drivers(d.rows.begin() + 1, d.rows.end());
-      const ExtendedFit f = fitExtended(cell.model(), cell.nominalParams(), obs, drivers, ext);
+      const ExtendedFit f = fitExtended(cell.model(), cell.nominalParams(), obs, d.rows, ext);
       ASSERT_TRUE(f.converged) << f.message;
+      EXPECT_EQ(f.rows_left_out, cause == Cause::kBacklash ? 1 : 0);
       ASSERT_EQ(f.estimated_extension.size(), 1u);
       ASSERT_EQ(f.covariance.rows(), static_cast<Eigen::Index>(f.estimated.size() + 1));
       const double z = (f.extension_params[0] - truth) / f.extensionStddev(0);
@@ -218,7 +218,7 @@ TEST(DiagnosisOptions, IsValidNamesTheField) {
 //   - no cause named on noise-only draws;
 //   - when the cause is named right, the extended model's verification RMS within 1.2x the noise floor.
 // A thermal drift whose joint-zero part is itself below the noise may be named with no joint (lengths only).
-// CELLCAL_DIAGNOSIS_DRAWS overrides the number of draws.
+// CELLCAL_DIAGNOSIS_DRAWS overrides the (minimum) number of draws.
 struct DrawCase {
   std::string robot;
   MeasurementKind kind;
@@ -237,7 +237,10 @@ TEST_P(HiddenEffects, DiagnoseNamesTheCauseAndJoint) {
   std::mt19937_64 rng(test::testSeed() ^ std::hash<std::string>{}(::testing::UnitTest::GetInstance()->current_test_info()->name()));
   int large = 0, large_right = 0, noise_only = 0, false_cause = 0, small = 0, small_other_cause = 0;
   double worst_ratio = 0;
-  for (int i = 0; i < draws; ++i) {
+  // At least `draws` draws, and on until a quarter of them are effects above the noise (which share of the draws is
+  // above the noise is itself random: 21 of 90 happened), at most 4x as many.
+  int drawn = 0;
+  for (; (drawn < draws || large < draws / 4) && drawn < 4 * draws; ++drawn) {
     const test::HiddenEffectData h = test::makeHiddenEffectData(nominal, rng(), GetParam().kind);
     const DiagnosisResult d = diagnose(h.model, h.model.nominal, h.data);
     const bool joint_ok = d.joints == std::vector<int>{h.draw.joint} ||
@@ -269,7 +272,7 @@ TEST_P(HiddenEffects, DiagnoseNamesTheCauseAndJoint) {
   }
   std::printf("  %d draws: %d/%d effects above the noise named right (cause and joint), %d/%d noise-only named none,\n"
               "  %d/%d effects below the noise named as another cause; worst extended/noise RMS %.3f\n",
-              draws, large_right, large, noise_only - false_cause, noise_only, small_other_cause, small, worst_ratio);
+              drawn, large_right, large, noise_only - false_cause, noise_only, small_other_cause, small, worst_ratio);
   ASSERT_GE(large, draws / 4) << "too few effects above the noise to judge";
   EXPECT_GE(large_right, 0.95 * large);
   EXPECT_EQ(false_cause, 0);

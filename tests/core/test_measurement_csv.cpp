@@ -1,7 +1,12 @@
 // CSV v1 measurement files: columns, units, optional orientation, and errors naming file:line:column.
 #include <gtest/gtest.h>
 
+#include <random>
+#include <sstream>
+
+#include "cellcal/core/ipa_dataset.hpp"
 #include "cellcal/core/measurement_csv.hpp"
+#include "cellcal/core/simulation.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -52,6 +57,39 @@ TEST(MeasurementCsv, BadRowsNameFileLineAndColumn) {
             std::string::npos);
   EXPECT_NE(errorOf("q1_deg,x_mm,y_mm,z_mm\n1,2,3,4\n").find("missing column q2_deg"), std::string::npos);
   EXPECT_NE(errorOf("# only comments\n").find("no header row"), std::string::npos);
+}
+
+// A measured file (random robot, poses and count) is read as written; the same file with its positions written in
+// metres is refused, naming the file, the header line and x_mm's column.
+TEST(MeasurementCsv, MetresInMillimetreColumnsAreCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  for (int trial = 0; trial < 20; ++trial) {
+    const RobotModel m = test::robot(rng() % 2 ? "staubli_tx60" : "ur10");
+    SimulationConfig sc;
+    sc.seed = rng();
+    const SimulatedCell cell(m, sc);
+    MeasurementFile f;
+    for (const auto& q : cell.randomConfigurations(3 + static_cast<int>(rng() % 40), rng)) {
+      MeasurementRow r;
+      r.q_rad = q;
+      r.position_m = cell.measure(q, 0.0, rng).measured_in_tracker.translation();
+      f.rows.push_back(r);
+    }
+    std::ostringstream good, metres;
+    writeMeasurementCsv(good, f, m.numJoints(), "");
+    EXPECT_EQ(parseMeasurementCsv(good.str(), "m.csv", cell.model()).rows.size(), f.rows.size());
+    for (auto& r : f.rows) r.position_m /= 1000.0;  // what a file with metres in x_mm reads as
+    writeMeasurementCsv(metres, f, m.numJoints(), "");
+    try {
+      parseMeasurementCsv(metres.str(), "m.csv", cell.model());
+      ADD_FAILURE() << "metres accepted, " << f.rows.size() << " rows";
+    } catch (const ConfigError& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.rfind("m.csv:", 0), 0u) << what;
+      EXPECT_NE(what.find(": x_mm, y_mm, z_mm: "), std::string::npos) << what;
+      EXPECT_NE(what.find("metres written where millimetres are expected"), std::string::npos) << what;
+    }
+  }
 }
 
 TEST(MeasurementCsv, SkipBadRowsKeepsTheGoodOnesAndCountsTheRest) {

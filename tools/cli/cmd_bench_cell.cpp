@@ -5,7 +5,9 @@
 //   tracker reading published -> CalibrationState received   (p50/p99 over the poses)
 //   TargetPose published -> CompensatedTarget received         (p50/p99)
 // whether the engine kept up (every sample received, one update per stand-still, latency not growing), and the
-// CPU (share of one core) and peak RSS of the engine and compensation processes.
+// CPU (share of one core) and peak RSS of the engine and compensation processes. For soaks (minutes to hours): RSS of
+// each process and the received calibrations' error against the simulated truth, sampled once a second, compared
+// between the end of the first third of the run and its end.
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -17,6 +19,7 @@
 #include <fstream>
 #include <iostream>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -39,8 +42,10 @@ struct BenchArgs {
   double targets_hz = 100;
   double duration_s = 20;
   int domain_id = 220;
+  std::uint64_t seed = 1;  // the simulated robots' hidden errors, their poses and the tracker noise
   std::string json;
   std::string record;  // MCAP file of a recorder running beside the cell
+  std::string series_csv;  // once a second: RSS of the processes, calibration error against the truth
 };
 
 // utime + stime of a process, seconds.
@@ -59,13 +64,16 @@ double cpuSeconds(pid_t pid) {
   return (ut + st) / static_cast<double>(::sysconf(_SC_CLK_TCK));
 }
 
-double peakRssMb(pid_t pid) {
+// A memory figure of /proc/<pid>/status in MB: "VmHWM:" (peak resident) or "VmRSS:" (resident now).
+double statusMb(pid_t pid, const std::string& field) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/status");
   std::string line;
   while (std::getline(in, line))
-    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+    if (line.rfind(field, 0) == 0) return std::stod(line.substr(field.size())) / 1024.0;
   return std::nan("");
 }
+double peakRssMb(pid_t pid) { return statusMb(pid, "VmHWM:"); }
+double rssMb(pid_t pid) { return statusMb(pid, "VmRSS:"); }
 
 pid_t spawnQuiet(const std::string& exe, const std::vector<std::string>& args, const std::string& log) {
   const pid_t pid = ::fork();
@@ -114,7 +122,7 @@ int runBench(const BenchArgs& a) {
                    (dir / "record.log").string());
   const int readers_wanted = recorder > 0 ? 2 : 1;
 
-  DdsNode node(cell, "cellcal_bench_cell");
+  DdsNode node(cell, "cellcal_bench_cell", identity::kReplay);
   auto js = node.writer<msg::JointState>();
   auto tp = node.writer<msg::TrackerPose>();
   auto tg = node.writer<msg::TargetPose>();
@@ -127,10 +135,44 @@ int runBench(const BenchArgs& a) {
   };
   std::vector<Rx> states;
   std::vector<std::pair<std::int64_t, std::uint64_t>> comps;  // receipt, target sequence (unique over robots)
+  // The simulated robots (hidden geometric errors, fixed in time) and hold-out configurations to judge the received
+  // calibrations against the truth: mean position error over them.
+  std::vector<SimulatedCell> sims;
+  std::vector<std::vector<Eigen::VectorXd>> poses, holdout;
+  std::map<std::string, int> index_of;
+  std::vector<Eigen::VectorXd> latest;  // per robot: the newest calibration received (nominal until one arrives)
+  for (int i = 0; i < a.robots; ++i) {
+    SimulationSettings settings;
+    settings.seed = a.seed;
+    sims.push_back(makeSimulatedCell(cell.robots[i], settings, i));
+    std::mt19937_64 rng(a.seed * 1000003ULL + 1000 + i);
+    poses.push_back(sims.back().randomConfigurations(64, rng));
+    holdout.push_back(sims.back().randomConfigurations(32, rng));
+    index_of[cell.robots[i].robot_id] = i;
+    latest.push_back(sims.back().nominalParams());
+  }
+  auto meanErrorMm = [&](const std::vector<Eigen::VectorXd>& params) {
+    double s = 0;
+    size_t n = 0;
+    for (int i = 0; i < a.robots; ++i) {
+      KinematicsData d(sims[i].model());
+      for (const auto& q : holdout[i]) {
+        s += (forwardKinematics(sims[i].model(), d, params[i], q).translation() - sims[i].truePose(q, 0.0).translation()).norm();
+        ++n;
+      }
+    }
+    return s / static_cast<double>(n) * 1e3;
+  };
+  std::uint64_t bad_states = 0;
   node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
     const std::int64_t now = wallNs();
+    const auto it = index_of.find(m.robot_id().to_string());
+    std::optional<ReceivedCalibration> c;
+    if (it != index_of.end()) c = fromCalibrationState(sims[it->second].model(), m, nullptr);
     std::lock_guard<std::mutex> l(mutex);
     states.push_back({now, static_cast<std::int64_t>(m.last_measurement_stamp_ns()), m.version(), m.robot_id().to_string()});
+    if (c) latest[it->second] = c->params;
+    else ++bad_states;
   });
   node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
     const std::int64_t now = wallNs();
@@ -150,14 +192,7 @@ int runBench(const BenchArgs& a) {
   }
   std::this_thread::sleep_for(std::chrono::seconds(1));
 
-  std::vector<SimulatedCell> sims;
-  std::vector<std::vector<Eigen::VectorXd>> poses;
-  for (int i = 0; i < a.robots; ++i) {
-    sims.push_back(makeSimulatedCell(cell.robots[i], SimulationSettings{}, i));
-    std::mt19937_64 rng(1000 + i);
-    poses.push_back(sims.back().randomConfigurations(64, rng));
-  }
-  std::mt19937_64 rng(5);
+  std::mt19937_64 rng(a.seed * 1000003ULL + 5);
   const int ticks_per_pose = static_cast<int>(std::lround(0.050 * a.rate_hz)), moving_ticks = ticks_per_pose * 2 / 5;
   const int target_every = std::max(1, static_cast<int>(std::lround(a.rate_hz / a.targets_hz)));
   std::map<std::uint64_t, std::int64_t> target_sent;
@@ -171,7 +206,23 @@ int runBench(const BenchArgs& a) {
   std::printf("bench-cell: %d robots, joint states and tracker readings at %.0f Hz each per robot, targets at %.0f Hz "
               "per robot, %.0f s...\n", a.robots, a.rate_hz, a.targets_hz, a.duration_s);
   std::fflush(stdout);
+  // Once a second: resident memory of the processes and the calibrations' error against the truth.
+  struct Sample {
+    double t_s, engine_rss_mb, compensation_rss_mb, publisher_rss_mb, error_mm;
+  };
+  std::vector<Sample> series;
+  const double uncalibrated_mm = meanErrorMm(latest);
+  const auto ticks_per_sample = static_cast<std::int64_t>(std::lround(a.rate_hz));
   for (;; ++tick) {
+    if (tick % ticks_per_sample == 0) {
+      std::vector<Eigen::VectorXd> now_params;
+      {
+        std::lock_guard<std::mutex> l(mutex);
+        now_params = latest;
+      }
+      series.push_back({std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), rssMb(engine),
+                        rssMb(comp), rssMb(::getpid()), meanErrorMm(now_params)});
+    }
     const auto due = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * static_cast<double>(tick));
     if (std::chrono::steady_clock::now() > due + period) ++late_ticks;
     std::this_thread::sleep_until(due);
@@ -214,6 +265,14 @@ int runBench(const BenchArgs& a) {
   const double cpu_engine = (cpuSeconds(engine) - cpu0_engine) / wall, cpu_comp = (cpuSeconds(comp) - cpu0_comp) / wall;
   const double cpu_self = (cpuSeconds(::getpid()) - cpu0_self) / wall;
   const double rss_engine = peakRssMb(engine), rss_comp = peakRssMb(comp);
+  {
+    std::vector<Eigen::VectorXd> now_params;
+    {
+      std::lock_guard<std::mutex> l(mutex);
+      now_params = latest;
+    }
+    series.push_back({wall, rssMb(engine), rssMb(comp), rssMb(::getpid()), meanErrorMm(now_params)});
+  }
   const double cpu_recorder = recorder > 0 ? (cpuSeconds(recorder) - cpu0_recorder) / wall : 0;
   const double rss_recorder = recorder > 0 ? peakRssMb(recorder) : 0;
   ::kill(engine, SIGINT);
@@ -255,6 +314,31 @@ int runBench(const BenchArgs& a) {
       {"cpu_share_of_one_core", {{"engine", cpu_engine}, {"compensation_publisher", cpu_comp}, {"bench_publisher", cpu_self}}},
       {"peak_rss_mb", {{"engine", rss_engine}, {"compensation_publisher", rss_comp}}},
       {"cores", std::thread::hardware_concurrency()}};
+  // Soak figures: memory and error at the end of the first third (warm-up done) and at the end.
+  const Sample& third = *std::min_element(series.begin(), series.end(), [&](const Sample& x, const Sample& y) {
+    return std::abs(x.t_s - wall / 3) < std::abs(y.t_s - wall / 3);
+  });
+  const Sample& end = series.back();
+  const double minutes = std::max(1e-9, (end.t_s - third.t_s) / 60.0);
+  out["soak"] = {{"uncalibrated_error_mm", uncalibrated_mm},
+                 {"error_mm_first_third", third.error_mm},
+                 {"error_mm_end", end.error_mm},
+                 {"bad_calibration_states", bad_states},
+                 {"rss_mb_first_third", {{"engine", third.engine_rss_mb}, {"compensation_publisher", third.compensation_rss_mb}, {"bench_publisher", third.publisher_rss_mb}}},
+                 {"rss_mb_end", {{"engine", end.engine_rss_mb}, {"compensation_publisher", end.compensation_rss_mb}, {"bench_publisher", end.publisher_rss_mb}}},
+                 {"rss_growth_mb_per_min_after_first_third",
+                  {{"engine", (end.engine_rss_mb - third.engine_rss_mb) / minutes},
+                   {"compensation_publisher", (end.compensation_rss_mb - third.compensation_rss_mb) / minutes},
+                   {"bench_publisher", (end.publisher_rss_mb - third.publisher_rss_mb) / minutes}}},
+                 {"minutes_compared", minutes}};
+  if (!a.series_csv.empty()) {
+    std::ofstream csv(a.series_csv);
+    if (!csv) throw std::runtime_error(a.series_csv + ": cannot be written");
+    csv << "t_s,engine_rss_mb,compensation_rss_mb,bench_publisher_rss_mb,mean_error_mm\n";
+    for (const auto& x : series)
+      csv << x.t_s << ',' << x.engine_rss_mb << ',' << x.compensation_rss_mb << ',' << x.publisher_rss_mb << ','
+          << x.error_mm << '\n';
+  }
   std::printf("                                     p50 us    p99 us   samples\n");
   std::printf("tracker reading -> CalibrationState %8.0f  %8.0f  %8zu\n", percentile(state_us, 0.5), percentile(state_us, 0.99), state_us.size());
   std::printf("TargetPose -> CompensatedTarget     %8.0f  %8.0f  %8zu\n", percentile(comp_us, 0.5), percentile(comp_us, 0.99), comp_us.size());
@@ -267,6 +351,13 @@ int runBench(const BenchArgs& a) {
   std::printf("CPU (share of one core): engine %.2f, compensation %.2f, this publisher %.2f; peak RSS engine %.1f MB, "
               "compensation %.1f MB; %u cores\n",
               cpu_engine, cpu_comp, cpu_self, rss_engine, rss_comp, std::thread::hardware_concurrency());
+  std::printf("memory (RSS MB) at %.0f s / at %.0f s: engine %.1f / %.1f, compensation %.1f / %.1f, this publisher "
+              "%.1f / %.1f\n",
+              third.t_s, end.t_s, third.engine_rss_mb, end.engine_rss_mb, third.compensation_rss_mb,
+              end.compensation_rss_mb, third.publisher_rss_mb, end.publisher_rss_mb);
+  std::printf("calibration error against the truth (mean of %d robots x 32 hold-out poses): uncalibrated %.3f mm, at "
+              "%.0f s %.4f mm, at the end %.4f mm\n",
+              a.robots, uncalibrated_mm, third.t_s, third.error_mm, end.error_mm);
   if (recorder > 0) {
     const auto rj = nlohmann::json::parse(std::ifstream((dir / "record.json").string()), nullptr, false);
     if (rj.is_discarded()) throw std::runtime_error("the recorder wrote no counts (see " + (dir / "record.log").string() + ")");
@@ -298,8 +389,13 @@ Runner addBenchCellCommand(CLI::App& app) {
   cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses per second and robot")->capture_default_str();
   cmd->add_option("--duration-s", a->duration_s, "measuring time")->capture_default_str();
   cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
+  cmd->add_option("--seed", a->seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
+      ->capture_default_str();
   cmd->add_option("--json", a->json, "write the figures as JSON");
   cmd->add_option("--record", a->record, "also run `cellcal record` of every topic into this MCAP file");
+  cmd->add_option("--series-csv", a->series_csv,
+                  "write, once a second: RSS of the engine, compensation and this process, and the mean error of the "
+                  "received calibrations against the simulated truth (a soak's record)");
   return [a, cmd]() -> int {
     if (!*cmd) return 0;
     installStopHandlers();

@@ -190,7 +190,7 @@ int runCell(const CellArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
 
-  DdsNode node(cell, "cellcal_cell_launcher");
+  DdsNode node(cell, "cellcal_cell_launcher", identity::kApplication);
   auto targets = node.writer<msg::TargetPose>();
   auto findJudge = [&](const std::string& id) -> Judge* {
     for (auto& j : judges)

@@ -86,7 +86,7 @@ int runRecord(const RecordArgs& a) {
   std::mutex mutex;
   std::map<std::string, TopicStats> stats;
   for (const auto& t : topics) stats[t];
-  DdsNode node(cell, "cellcal_recorder");
+  DdsNode node(cell, "cellcal_recorder", identity::kObserver);
   for (const auto& topic : topics) {
     visitTopic(topic, [&](auto tag) {
       using M = typename decltype(tag)::type;
@@ -186,7 +186,7 @@ int runReplay(const ReplayArgs& a) {
                              (have.empty() ? std::string(" nothing") : have));
   }
   const CellConfig cell = loadCell(a.common);
-  DdsNode node(cell, "cellcal_replay");
+  DdsNode node(cell, "cellcal_replay", identity::kReplay);
   struct Out {
     std::function<int(const std::string&, std::int64_t, std::string*)> publish;  // 1 sent, 0 refused, -1 undecodable
     fdds::DataWriter* writer = nullptr;

@@ -1,12 +1,42 @@
 #include "cellcal/components/dds_node.hpp"
 
+#include "cellcal/components/dds_security.hpp"
+
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 
 #include <filesystem>
 
 namespace cellcal::components {
 
-DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name) : domain_id_(cell.dds.domain_id) {
+namespace {
+
+// The DDS Security properties of `identity` from the folder make_pki.sh filled; every file must exist.
+void addSecurity(fdds::DomainParticipantQos& qos, const std::string& dir, const std::string& identity) {
+  const std::filesystem::path d(dir);
+  auto file = [&](const std::string& name) {
+    const std::filesystem::path p = d / name;
+    if (!std::filesystem::is_regular_file(p))
+      throw std::runtime_error("DDS Security: " + p.string() + " does not exist (identity '" + identity +
+                               "'; make the folder with config/security/make_pki.sh, dds.security_dir / "
+                               "CELLCAL_SECURITY_DIR)");
+    return "file://" + std::filesystem::absolute(p).string();
+  };
+  auto& props = qos.properties().properties();
+  props.emplace_back("dds.sec.auth.plugin", "builtin.PKI-DH");
+  props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_ca", file("ca.cert.pem"));
+  props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_certificate", file(identity + ".cert.pem"));
+  props.emplace_back("dds.sec.auth.builtin.PKI-DH.private_key", file(identity + ".key.pem"));
+  props.emplace_back("dds.sec.access.plugin", "builtin.Access-Permissions");
+  props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions_ca", file("ca.cert.pem"));
+  props.emplace_back("dds.sec.access.builtin.Access-Permissions.governance", file("governance.p7s"));
+  props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions", file("permissions.p7s"));
+  props.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+}
+
+}  // namespace
+
+DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std::string& identity)
+    : domain_id_(cell.dds.domain_id), secure_(!cell.dds.security_dir.empty()) {
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   if (!std::filesystem::exists(cell.dds.profiles_file))
     throw std::runtime_error(cell.source + ": dds.profiles_file: " + cell.dds.profiles_file + " does not exist");
@@ -17,10 +47,20 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name) : domain_
     throw std::runtime_error(cell.dds.profiles_file + ": no participant profile '" + cell.dds.participant_profile +
                              "' (cell file dds.participant_profile / CELLCAL_DDS_PROFILE)");
   qos.name(node_name);
+  if (!cell.dds.security_dir.empty()) addSecurity(qos, cell.dds.security_dir, identity);
   participant_ = factory->create_participant(domain_id_, qos);
-  if (!participant_)
+  if (!participant_) {
+    std::string why;
+    if (!cell.dds.security_dir.empty()) {
+      const std::string found = explainSecurityRefusal(cell.dds.security_dir, identity);
+      why = " as identity '" + identity + "' under DDS Security: " +
+            (found.empty() ? "Fast DDS refused its security files in " + cell.dds.security_dir +
+                                 " (its log above may say why)"
+                           : found);
+    }
     throw std::runtime_error("cannot create the DDS participant on domain " + std::to_string(domain_id_) +
-                             " with profile " + cell.dds.participant_profile);
+                             " with profile " + cell.dds.participant_profile + why);
+  }
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
   if (!publisher_ || !subscriber_) throw std::runtime_error("cannot create the DDS publisher/subscriber");

@@ -34,6 +34,8 @@ CellConfig loadCell(const ProcessOptions& o) {
     c.dds.domain_id = static_cast<int>(v);
   }
   if (const char* env = std::getenv("CELLCAL_DDS_PROFILE"); env && *env) c.dds.participant_profile = env;
+  if (const char* env = std::getenv("CELLCAL_SECURITY_DIR"); env && *env)
+    c.dds.security_dir = std::filesystem::absolute(env).string();
   if (o.domain_id) c.dds.domain_id = *o.domain_id;
   if (!o.participant_profile.empty()) c.dds.participant_profile = o.participant_profile;
   if (!o.state_dir.empty()) c.engine.state_dir = std::filesystem::absolute(o.state_dir).string();

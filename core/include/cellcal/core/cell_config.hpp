@@ -23,6 +23,9 @@ struct DdsSettings {
   int domain_id = 0;                           // 0..232; CELLCAL_DOMAIN_ID or --domain-id override it
   std::string profiles_file;                   // absolute path (resolved against the cell file's folder)
   std::string participant_profile = "cellcal"; // "cellcal_loopback": UDP on 127.0.0.1 only
+  // DDS Security (authentication, access control, encryption): the folder config/security/make_pki.sh filled, absolute;
+  // empty: off. Each process uses its own identity from it (docs/SECURITY.md). CELLCAL_SECURITY_DIR overrides it.
+  std::string security_dir;
 };
 
 struct CellRobot {

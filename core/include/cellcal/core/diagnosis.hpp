@@ -37,6 +37,8 @@ struct ExtendedFit {
   std::vector<int> estimated;             // kinematic parameters estimated
   std::vector<int> estimated_extension;   // extension parameters estimated (others held at 0: not identifiable)
   std::vector<std::string> extension_names;
+  // Rows the fit left out: with a backlash, those where its joint had not moved yet (play state unknown).
+  int rows_left_out = 0;
   // Covariance (SI) of the estimated parameters at the solution, (A^T A)^-1 of the whitened Jacobian: rows/cols are
   // `estimated` then `estimated_extension`, in those orders. It assumes the readings' sigmas: scale it by the
   // residual's ratio to them when the model leaves more than noise.
@@ -49,6 +51,8 @@ struct ExtendedFit {
 
 // Gauss-Newton on the geometric parameters identifiable from `obs` plus the extension's parameters (those the data
 // separate from the geometric ones; extension columns have the lowest priority). `start`: full kinematic vector.
+// `drivers`: one per observation. With a backlash, rows where its joint has not moved yet are left out of the fit
+// (`rows_left_out`); they are still predicted (play state 0, the middle of the gap) by errorStats and the like.
 // `warm_start` (optional): kinematic parameters to start from instead (e.g. a geometric fit); `start` still decides
 // which parameters are candidates and what the held ones are.
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,

@@ -70,11 +70,24 @@ class Writer {
   std::shared_ptr<TopicCounters> c_;
 };
 
+// Who a participant is under DDS Security: the certificate <security_dir>/<identity>.cert.pem and the grant of that
+// name in permissions.p7s (config/security/permissions.xml says what each may publish and subscribe).
+namespace identity {
+constexpr const char* kTrackerAdapter = "tracker_adapter";
+constexpr const char* kJointStateAdapter = "joint_state_adapter";
+constexpr const char* kCalibrationEngine = "calibration_engine";
+constexpr const char* kCompensationPublisher = "compensation_publisher";
+constexpr const char* kApplication = "application";  // the cell's program: sends TargetPose, reads everything
+constexpr const char* kObserver = "observer";        // recorder, status, tests: reads everything, publishes nothing
+constexpr const char* kReplay = "replay";            // replay and bench-cell: publishes recorded/synthetic inputs
+}  // namespace identity
+
 class DdsNode {
  public:
-  // Loads the cell's profile file and creates the participant from dds.participant_profile on dds.domain_id.
-  // Throws std::runtime_error naming the file/profile when that fails.
-  DdsNode(const CellConfig& cell, const std::string& node_name);
+  // Loads the cell's profile file and creates the participant from dds.participant_profile on dds.domain_id; with
+  // dds.security_dir set, as `identity` under DDS Security (PKI-DH authentication, signed governance and permissions,
+  // AES-GCM-GMAC). Throws std::runtime_error naming the file/profile/identity when that fails.
+  DdsNode(const CellConfig& cell, const std::string& node_name, const std::string& identity);
   ~DdsNode();
   DdsNode(const DdsNode&) = delete;
   DdsNode& operator=(const DdsNode&) = delete;
@@ -83,8 +96,9 @@ class DdsNode {
   Writer<M> writer() {
     fdds::Topic* t = topic<M>();
     fdds::DataWriter* w = publisher_->create_datawriter_with_profile(t, TopicOf<M>::profile);
-    if (!w) throw std::runtime_error(std::string("cannot create a writer on ") + TopicOf<M>::name + " with profile " +
-                                     TopicOf<M>::profile);
+    if (!w)
+      throw std::runtime_error(std::string("cannot create a writer on ") + TopicOf<M>::name + " with profile " +
+                               TopicOf<M>::profile + (secure_ ? " (DDS Security: the permissions may not grant it)" : ""));
     return Writer<M>(w, counters(TopicOf<M>::name));
   }
 
@@ -95,7 +109,9 @@ class DdsNode {
     fdds::Topic* t = topic<M>();
     auto l = std::make_unique<Listener<M>>(std::move(on_sample), counters(TopicOf<M>::name));
     fdds::DataReader* r = subscriber_->create_datareader_with_profile(t, TopicOf<M>::profile, l.get());
-    if (!r) throw std::runtime_error(std::string("cannot create a reader on ") + TopicOf<M>::name);
+    if (!r)
+      throw std::runtime_error(std::string("cannot create a reader on ") + TopicOf<M>::name +
+                               (secure_ ? " (DDS Security: the permissions may not grant it)" : ""));
     listeners_.push_back(std::move(l));
     return r;
   }
@@ -162,6 +178,7 @@ class DdsNode {
   std::shared_ptr<TopicCounters> counters(const std::string& topic);
 
   int domain_id_ = 0;
+  bool secure_ = false;
   fdds::DomainParticipant* participant_ = nullptr;
   fdds::Publisher* publisher_ = nullptr;
   fdds::Subscriber* subscriber_ = nullptr;

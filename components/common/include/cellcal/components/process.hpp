@@ -1,7 +1,8 @@
 // What every cellcal process shares: the common command line, the cell file with its overrides, clean stop on
 // SIGINT/SIGTERM, the wall clock, and the exit summary.
 //
-// Overrides, strongest last: cell file < environment (CELLCAL_DOMAIN_ID, CELLCAL_DDS_PROFILE) < command line.
+// Overrides, strongest last: cell file < environment (CELLCAL_DOMAIN_ID, CELLCAL_DDS_PROFILE, CELLCAL_SECURITY_DIR)
+// < command line.
 #pragma once
 
 #include <CLI/CLI.hpp>
