@@ -5,7 +5,7 @@ BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 
-.PHONY: all deps configure build demo test bench clean
+.PHONY: all deps configure build demo test bench install clean
 
 all: build
 
@@ -33,6 +33,11 @@ test: build
 bench: build
 	$(BUILD_DIR)/bin/cellcal_bench
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
+
+# Installs into PREFIX (default /usr/local) with the same script docker/Dockerfile runs (tools/build_install.sh).
+PREFIX ?= /usr/local
+install: deps
+	bash tools/build_install.sh $(PREFIX)
 
 clean:
 	rm -rf $(BUILD_DIR)

@@ -11,6 +11,7 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev
   libfastrtps-dev fastddsgen
   openssl                           # config/security/make_pki.sh (DDS Security test CA and certificates)
+  cyclonedds-dev cyclonedds-tools   # tests/interop (a Cyclone DDS peer from cellcal's IDL)
   gnuplot-nox
   clang libclang-rt-14-dev          # tools/fuzz.sh (libFuzzer + sanitizers)
 )

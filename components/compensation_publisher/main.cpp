@@ -39,11 +39,12 @@ int main(int argc, char** argv) {
       std::optional<ReceivedCalibration> calibration;  // the latest received
       std::optional<ReceivedCalibration> last_ok;      // the latest received with health ok (the one applied)
       Eigen::VectorXd last_q;
+      std::vector<Eigen::VectorXd> path;  // the last compensated targets' joints, oldest first (backlash's play state)
       std::uint64_t seq = 0;
       std::string engine_warning;                      // from the engine's diagnostics: stale inputs
     };
     std::map<std::string, Robot> robots;
-    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, Eigen::VectorXd(), 0, ""};
+    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, Eigen::VectorXd(), {}, 0, ""};
     std::mutex mutex;
     std::uint64_t applied = 0, refused = 0, clamped = 0, bad_states = 0;
 
@@ -139,7 +140,7 @@ int main(int argc, char** argv) {
         // With model extensions, backlash's play is that of a move from the previous compensated target.
         const IdentifiedModel identified{use.params, use.extensions, use.extension_params};
         const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
-                                                seed, cell.compensation, r.last_q);
+                                                seed, cell.compensation, r.path);
         out.applied(c.applied);
         out.clamped(c.clamped);
         out.reason((c.reason.empty() ? note : note.empty() ? c.reason : c.reason + "; " + note).substr(0, 255));
@@ -149,6 +150,8 @@ int main(int argc, char** argv) {
           fromPose(c.corrected_in_tracker, out.corrected_position_m(), out.corrected_orientation_xyzw());
           out.joint_position_rad(std::vector<double>(c.q_rad.data(), c.q_rad.data() + c.q_rad.size()));
           r.last_q = c.q_rad;
+          r.path.push_back(c.q_rad);
+          if (r.path.size() > static_cast<size_t>(kPlayHistory)) r.path.erase(r.path.begin());
         }
       }
       out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));

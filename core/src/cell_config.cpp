@@ -1,5 +1,8 @@
 #include "cellcal/core/cell_config.hpp"
 
+#include <algorithm>
+#include <cmath>
+
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -73,12 +76,14 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   c.source = source;
   constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile", "security_dir"});
+  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile", "security_dir",
+                                                      "type_information"});
   dds.integer("domain_id", c.dds.domain_id, 0, 232);
   c.dds.profiles_file = resolve(base_dir, "dds/cellcal_qos.xml");
   if (dds.has("profiles_file")) c.dds.profiles_file = resolve(base_dir, r.string(dds.node["profiles_file"], dds.f("profiles_file")));
   if (dds.has("participant_profile"))
     c.dds.participant_profile = r.string(dds.node["participant_profile"], dds.f("participant_profile"));
+  if (dds.has("type_information")) c.dds.type_information = r.boolean(dds.node["type_information"], dds.f("type_information"));
   if (dds.has("security_dir")) c.dds.security_dir = resolve(base_dir, r.string(dds.node["security_dir"], dds.f("security_dir")));
 
   if (root["time_compression"].IsDefined()) {
@@ -111,12 +116,26 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
       else r.fail(n["measurement"], f + ".measurement", "expected pose6d or position3d, got '" + m + "'");
     }
     double v[6];
+    // Metres written in the _mm fields. The robot base's origin lies inside its casing: a tracker can't stand
+    // within 100 mm of it, unless the tracker frame was aligned to the base (then within 1 mm and 1 deg of identity).
+    // A target's centre lies at least an SMR's radius off the flange: 0-5 mm, other than exactly 0 (not known yet).
+    auto checkUnits = [&](const char* key, double hi_m, bool identity_ok) {
+      const double d = Eigen::Vector3d(v[0], v[1], v[2]).norm();
+      const double angle = std::max({std::abs(v[3]), std::abs(v[4]), std::abs(v[5])});
+      const bool identity = d <= 1e-3 && angle <= 3.14159265358979323846 / 180.0;
+      if (d > 0.0 && d < hi_m && !(identity_ok && identity))
+        r.fail(n[key], f + "." + key,
+               "x_mm, y_mm, z_mm put it " + std::to_string(d * 1e3) +
+                   " mm from the origin, which no real cell has: metres written where millimetres are expected?");
+    };
     if (n["base_in_tracker"].IsDefined()) {
       r.frame(n["base_in_tracker"], f + ".base_in_tracker", v);
+      checkUnits("base_in_tracker", 0.1, true);
       rb.base_in_tracker = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
     }
     if (n["tool_in_flange"].IsDefined()) {
       r.frame(n["tool_in_flange"], f + ".tool_in_flange", v);
+      checkUnits("tool_in_flange", 5e-3, false);
       rb.tool_in_flange = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
     }
     try {

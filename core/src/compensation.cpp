@@ -7,10 +7,15 @@
 namespace cellcal {
 
 namespace {
-// Drivers of the solution: a straight move from `from` (if known) to q, as the second row of a visiting sequence.
-Drivers moveDrivers(const Eigen::VectorXd& from, const Eigen::VectorXd& q) {
-  if (from.size() != q.size() || !from.allFinite()) return Drivers{};
-  return driversFromSequence({from, q}, {}, {}).rows[1];
+// Drivers of the solution: the visited path (oldest first), then a straight move to q; the last row of that sequence.
+Drivers moveDrivers(const std::vector<Eigen::VectorXd>& path, const Eigen::VectorXd& q) {
+  std::vector<Eigen::VectorXd> seq;
+  const size_t first = path.size() > static_cast<size_t>(kPlayHistory) ? path.size() - kPlayHistory : 0;
+  for (size_t i = first; i < path.size(); ++i)
+    if (path[i].size() == q.size() && path[i].allFinite()) seq.push_back(path[i]);
+  if (seq.empty()) return Drivers{};
+  seq.push_back(q);
+  return driversFromSequence(seq, {}, {}).rows.back();
 }
 }  // namespace
 
@@ -21,7 +26,7 @@ CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& 
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
                               const Eigen::VectorXd& q_seed, const CompensationSettings& s,
-                              const Eigen::VectorXd& from_q) {
+                              const std::vector<Eigen::VectorXd>& path) {
   CompensationResult out;
   out.corrected_in_tracker = desired;
   const Eigen::VectorXd& identified = model.params;
@@ -49,7 +54,7 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     double moved = 0.0;
     for (int pass = 0; pass < kPasses; ++pass) {
       const Eigen::VectorXd p = extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
-                                               moveDrivers(from_q.size() ? from_q : seed, ik.q_rad));
+                                               moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, ik.q_rad));
       IkResult next = solveInverseKinematics(nominal, p, desired, ik.q_rad, ik_options);
       moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
       ik = std::move(next);

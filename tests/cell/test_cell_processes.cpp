@@ -141,6 +141,44 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
   EXPECT_NE(text.find("model extensions: joint_compliance:" + std::to_string(joint)), std::string::npos) << text;
 }
 
+// `cellcal status` beside a running cell: once (JSON) it reports the robot's version, health, poses, verification
+// estimate and the corrections sent, agreeing with what a probe of its own receives; --watch redraws.
+TEST(CellProcesses, StatusShowsTheRunningCell) {
+  const std::string dir = testDir();
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
+                                    "  initial_poses: 40\n  poses_per_group: 15\n  groups: 1\n");
+  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "10", "--work-dir", dir + "/run", "--quiet"});
+  Probe probe(loadCellConfig(cfg));
+  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 10; }, 30)) << cell.log();
+  Process status(dir, "status", {"cellcal", "status", "--config", cfg, "--wait-s", "2", "--json", dir + "/status.json"});
+  ASSERT_EQ(status.wait(30), 0) << status.log();
+  Process watch(dir, "watch", {"cellcal", "status", "--config", cfg, "--watch", "--period-s", "0.5", "--duration-s", "2"});
+  ASSERT_EQ(watch.wait(30), 0) << watch.log();
+  const std::uint64_t seen_by_probe = probe.latestVersion("tx60");
+  ASSERT_EQ(cell.wait(60), 0) << cell.log();
+  const auto j = readJson(dir + "/status.json");
+  ASSERT_FALSE(j.is_discarded()) << status.log();
+  EXPECT_TRUE(j["engine_seen"].get<bool>());
+  const auto& r = j["robots"]["tx60"];
+  EXPECT_GE(r["version"].get<std::uint64_t>(), 10u) << j.dump(1);
+  EXPECT_LE(r["version"].get<std::uint64_t>(), seen_by_probe);
+  EXPECT_EQ(r["poses_used"].get<std::uint64_t>(), r["version"].get<std::uint64_t>());
+  EXPECT_EQ(r["health"], "ok") << j.dump(1);
+  EXPECT_GT(r["verification_mean_position_mm"].get<double>(), 0.0);
+  EXPECT_LT(r["predicted_sigma_position_mm"].get<double>(), 1.0);
+  EXPECT_GT(r["compensated_targets"].get<int>(), 0);
+  EXPECT_GT(r["max_correction_mm"].get<double>(), 0.1);  // the simulated robot's errors are ~1 mm
+  const std::string printed = status.log();
+  EXPECT_NE(printed.find("tx60"), std::string::npos) << printed;
+  EXPECT_NE(printed.find("v" + std::to_string(r["version"].get<std::uint64_t>())), std::string::npos) << printed;
+  // --watch: redrawn every 0.5 s for 2 s.
+  const std::string live = watch.log();
+  size_t frames = 0;
+  for (size_t at = live.find("cellcal status"); at != std::string::npos; at = live.find("cellcal status", at + 1)) ++frames;
+  EXPECT_GE(frames, 3u) << live;
+  std::printf("%s", printed.c_str());
+}
+
 TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   const std::string dir = testDir();
   const int domain = domainForTest();

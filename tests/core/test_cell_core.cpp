@@ -3,6 +3,10 @@
 // seed; the engine only sees samples.
 #include <gtest/gtest.h>
 
+#include <iomanip>
+#include <random>
+#include <sstream>
+
 #include <filesystem>
 #include <fstream>
 
@@ -75,6 +79,41 @@ TEST(CellFile, ErrorsNameLineAndField) {
   EXPECT_NE(errorOf(robot + "compensation: { max_correction_mm: -1 }\n").find("compensation.max_correction_mm: must be > "),
             std::string::npos);
   EXPECT_NE(errorOf("dds: {}\n").find("missing required key 'robots'"), std::string::npos);
+}
+
+// A registration drawn at random (tracker 0.5-5 m from the base, target 10-300 mm off the flange, any rotation) loads;
+// the same numbers in metres in the _mm fields are refused naming the field and line. A base aligned with the tracker
+// frame (within 1 mm, no rotation) and a tool not known yet (0) load.
+TEST(CellFile, MetresInTheRegistrationAreCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Eigen::Vector3d rpy_deg;
+  auto frame = [&](const Eigen::Vector3d& p_mm) {
+    std::ostringstream o;
+    o << std::setprecision(10) << "{ x_mm: " << p_mm.x() << ", y_mm: " << p_mm.y() << ", z_mm: " << p_mm.z()
+      << ", roll_deg: " << rpy_deg.x() << ", pitch_deg: " << rpy_deg.y() << ", yaw_deg: " << rpy_deg.z() << " }";
+    return o.str();
+  };
+  auto cell = [&](const Eigen::Vector3d& base_mm, const Eigen::Vector3d& tool_mm) {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml,\n      base_in_tracker: " +
+           frame(base_mm) + ",\n      tool_in_flange: " + frame(tool_mm) + " }\n";
+  };
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::Vector3d dir_b = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+    const Eigen::Vector3d dir_t = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+    const Eigen::Vector3d base_mm = dir_b * (500 + 4500 * (0.5 + 0.5 * u(rng)));
+    const Eigen::Vector3d tool_mm = dir_t * (10 + 290 * (0.5 + 0.5 * u(rng)));
+    rpy_deg = Eigen::Vector3d(180 * u(rng), 90 * u(rng), 180 * u(rng));
+    EXPECT_EQ(errorOf(cell(base_mm, tool_mm)), "") << base_mm.transpose() << " / " << tool_mm.transpose();
+    const std::string base_err = errorOf(cell(base_mm / 1000, tool_mm));
+    EXPECT_NE(base_err.find("cell.yaml:3:24: robots[0].base_in_tracker: "), std::string::npos) << base_err;
+    EXPECT_NE(base_err.find("metres written where millimetres are expected"), std::string::npos) << base_err;
+    const std::string tool_err = errorOf(cell(base_mm, tool_mm / 1000));
+    EXPECT_NE(tool_err.find("cell.yaml:4:23: robots[0].tool_in_flange: "), std::string::npos) << tool_err;
+    EXPECT_EQ(errorOf(cell(base_mm, Eigen::Vector3d::Zero())), "");  // tool not known yet
+    rpy_deg = Eigen::Vector3d(0.5 * u(rng), 0.5 * u(rng), 0.5 * u(rng));
+    EXPECT_EQ(errorOf(cell(dir_b * 0.5 * (0.5 + 0.5 * u(rng)), tool_mm)), "");  // tracker frame aligned to the base
+  }
 }
 
 TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
@@ -642,12 +681,13 @@ TEST(Compensation, AnExtendedModelIsSolvedAtItsFixedPoint) {
     const IdentifiedModel identified{truth, {Extension{e.cause, e.joint}}, ext};
     KinematicsData d(m);
     Eigen::VectorXd from = cell.randomConfigurations(1, rng)[0];
+    std::vector<Eigen::VectorXd> path = {from};  // what the compensation publisher commanded before
     HiddenJointState state;
     double worst_landed = 0, geometric_miss = 0;
     int geometric_n = 0;
     for (const auto& q : cell.randomConfigurations(8, rng)) {
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
-      const CompensationResult c = compensate(m, identified, desired, q, config.compensation, from);
+      const CompensationResult c = compensate(m, identified, desired, q, config.compensation, path);
       if (!c.applied) continue;
       const IkResult ctrl = solveInverseKinematics(m, m.nominal, c.corrected_in_tracker, c.q_rad);
       ASSERT_TRUE(ctrl.ok());
@@ -663,6 +703,7 @@ TEST(Compensation, AnExtendedModelIsSolvedAtItsFixedPoint) {
         ++geometric_n;
       }
       from = ctrl.q_rad;
+      path.push_back(ctrl.q_rad);
       ++checked;
     }
     const std::string what = std::string(causeName(e.cause)) + " joint " + std::to_string(e.joint + 1);

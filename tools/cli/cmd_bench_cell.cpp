@@ -98,10 +98,10 @@ int runBench(const BenchArgs& a) {
   const std::string cfg = (dir / "cell.yaml").string();
   {
     std::ofstream y(cfg);
-    y << "dds: { domain_id: " << a.domain_id << ", profiles_file: " << CELLCAL_CONFIG_DIR
+    y << "dds: { domain_id: " << a.domain_id << ", profiles_file: " << configDir()
       << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback }\nrobots:\n";
     for (int i = 0; i < a.robots; ++i)
-      y << "  - { robot_id: r" << i << ", target_id: t" << i << ", robot_file: " << CELLCAL_CONFIG_DIR
+      y << "  - { robot_id: r" << i << ", target_id: t" << i << ", robot_file: " << configDir()
         << "/robots/staubli_tx60.yaml, base_in_tracker: { x_mm: 2200, y_mm: " << 400 + 1500 * i
         << ", z_mm: -300, roll_deg: 0, pitch_deg: 0, yaw_deg: 160 } }\n";
     y << "engine: { state_dir: " << (dir / "state").string() << " }\n";

@@ -36,6 +36,8 @@ struct ImportCsvArgs {
 int importCsvToRecording(const ImportCsvArgs& args);
 // cmd_continuous.cpp
 Runner addContinuousCommand(CLI::App& app);
+// cmd_status.cpp: the cell at a glance (--watch: live).
+Runner addStatusCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
 // Returns false with a message in *error when gnuplot is missing or fails.

@@ -3,11 +3,12 @@
 #include <cmath>
 #include <iostream>
 
+#include "cellcal/components/process.hpp"
 #include "cellcal/core/robot_yaml.hpp"
 #include "commands.hpp"
 
 namespace cellcal::cli {
-std::string defaultRobotFile(const std::string& name) { return std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name; }
+std::string defaultRobotFile(const std::string& name) { return components::configDir() + "/robots/" + name; }
 
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return std::nan("");
@@ -31,6 +32,7 @@ int main(int argc, char** argv) {
   auto diagnose = cellcal::cli::addDiagnoseCommand(app);
   auto continuous = cellcal::cli::addContinuousCommand(app);
   auto recording = cellcal::cli::addRecordingCommands(app);
+  auto status = cellcal::cli::addStatusCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -43,6 +45,7 @@ int main(int argc, char** argv) {
     if (app.got_subcommand("import")) return import_();
     if (app.got_subcommand("diagnose")) return diagnose();
     if (app.got_subcommand("continuous")) return continuous();
+    if (app.got_subcommand("status")) return status();
     for (const char* c : {"record", "replay", "validate", "export"})
       if (app.got_subcommand(c)) return recording();
     return experiment();

@@ -36,7 +36,9 @@ void addSecurity(fdds::DomainParticipantQos& qos, const std::string& dir, const 
 }  // namespace
 
 DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std::string& identity)
-    : domain_id_(cell.dds.domain_id), secure_(!cell.dds.security_dir.empty()) {
+    : domain_id_(cell.dds.domain_id),
+      secure_(!cell.dds.security_dir.empty()),
+      type_information_(cell.dds.type_information) {
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   if (!std::filesystem::exists(cell.dds.profiles_file))
     throw std::runtime_error(cell.source + ": dds.profiles_file: " + cell.dds.profiles_file + " does not exist");

@@ -14,8 +14,18 @@ std::atomic<bool> g_stop{false};
 extern "C" void onSignal(int) { g_stop = true; }
 }  // namespace
 
+std::string configDir() {
+  std::error_code ec;
+  const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (!ec) {
+    const std::filesystem::path installed = exe.parent_path().parent_path() / "share" / "cellcal" / "config";
+    if (std::filesystem::is_regular_file(installed / "cell.yaml")) return installed.string();
+  }
+  return CELLCAL_CONFIG_DIR;
+}
+
 void addCommonOptions(CLI::App& app, ProcessOptions& o) {
-  o.config_path = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+  o.config_path = configDir() + "/cell.yaml";
   app.add_option("-c,--config", o.config_path, "cell file (YAML)")->capture_default_str();
   app.add_option("--domain-id", o.domain_id, "DDS domain id 0..232 (overrides the cell file and CELLCAL_DOMAIN_ID)")
       ->check(CLI::Range(0, 232));

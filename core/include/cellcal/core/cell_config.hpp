@@ -26,6 +26,10 @@ struct DdsSettings {
   // DDS Security (authentication, access control, encryption): the folder config/security/make_pki.sh filled, absolute;
   // empty: off. Each process uses its own identity from it (docs/SECURITY.md). CELLCAL_SECURITY_DIR overrides it.
   std::string security_dir;
+  // Send the types' TypeObject and TypeInformation in discovery (what lets tools learn the types). Cyclone DDS 0.10
+  // refuses Fast DDS 2.9's TypeInformation and drops the endpoint: false for a cell with Cyclone DDS peers
+  // (docs/interop.md).
+  bool type_information = true;
 };
 
 struct CellRobot {

@@ -12,8 +12,9 @@
 // With model extensions (model_extension.hpp) the identified model's parameters depend on the joints:
 // params(q) = params + B(q) e. q* is then the fixed point q = IK(params(q), desired), found by iterating from the seed
 // (B e changes little with q: a joint error of 1e-4 rad changes by far less when q moves by it, so two or three
-// passes settle to the solver tolerance). Backlash's play state is that of a straight move from `from_q_rad` (the joints the robot
-// comes from, e.g. the previous compensated target) to q*.
+// passes settle to the solver tolerance). Backlash's play state is that of the path the robot took: `path_rad`, the
+// joints it visited before, oldest first (e.g. the previous compensated targets; the last kPlayHistory matter), then a
+// straight move to q*. Without a path: a straight move from the seed.
 #pragma once
 
 #include <Eigen/Core>
@@ -44,7 +45,7 @@ struct IdentifiedModel {
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
-                              const CompensationSettings& settings, const Eigen::VectorXd& from_q_rad = {});
+                              const CompensationSettings& settings, const std::vector<Eigen::VectorXd>& path_rad = {});
 // The geometric model.
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified_params,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,

@@ -169,6 +169,8 @@ class DdsNode {
     auto it = topics_.find(TopicOf<M>::name);
     if (it != topics_.end()) return it->second;
     fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
+    type->auto_fill_type_object(type_information_);
+    type->auto_fill_type_information(type_information_);
     type.register_type(participant_);
     fdds::Topic* t = participant_->create_topic(TopicOf<M>::name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
     if (!t) throw std::runtime_error(std::string("cannot create topic ") + TopicOf<M>::name);
@@ -179,6 +181,7 @@ class DdsNode {
 
   int domain_id_ = 0;
   bool secure_ = false;
+  bool type_information_ = true;
   fdds::DomainParticipant* participant_ = nullptr;
   fdds::Publisher* publisher_ = nullptr;
   fdds::Subscriber* subscriber_ = nullptr;

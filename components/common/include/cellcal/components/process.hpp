@@ -24,6 +24,10 @@ struct ProcessOptions {
   std::string state_dir;      // engine only
 };
 
+// The shipped configuration (cell.yaml, robots/, dds/, security/): <prefix>/share/cellcal/config next to an
+// installed binary (<prefix>/bin), else the source tree's config/ the build came from.
+std::string configDir();
+
 void addCommonOptions(CLI::App& app, ProcessOptions& o);
 CellConfig loadCell(const ProcessOptions& o);
 

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# `cmake --install` of a build into a fresh prefix, then what a user of the installed tree does: the files are where
+# they should be, the installed binaries find the installed configuration, and a project of its own builds against
+# find_package(cellcal) / cellcal::core and runs. Usage: check_install.sh BUILD_DIR WORK_DIR
+set -euo pipefail
+build=$1
+work=$2
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+rm -rf "$work"
+mkdir -p "$work"
+prefix=$work/prefix
+cmake --install "$build" --prefix "$prefix" >"$work/install.log"
+
+fail() { echo "check_install: $*" >&2; exit 1; }
+for f in bin/cellcal bin/cellcal_tracker_adapter bin/cellcal_joint_state_adapter bin/cellcal_calibration_engine \
+         bin/cellcal_compensation_publisher lib/libcellcal_core.a include/cellcal/core/calibration.hpp \
+         include/cellcal/core/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
+         lib/cmake/cellcal/cellcalTargets.cmake share/cellcal/idl/cellcal_msgs.idl share/cellcal/config/cell.yaml \
+         share/cellcal/config/dds/cellcal_qos.xml share/cellcal/config/robots/staubli_tx60.yaml \
+         share/cellcal/config/security/permissions.xml; do
+  [[ -f $prefix/$f ]] || fail "$f was not installed"
+done
+[[ -x $prefix/share/cellcal/config/security/make_pki.sh ]] || fail "make_pki.sh is not executable"
+# Installed binaries default to the installed configuration, not the source tree they were built from.
+"$prefix/bin/cellcal_calibration_engine" --help >"$work/engine_help.txt"
+grep -q "$prefix/share/cellcal/config/cell.yaml" "$work/engine_help.txt" ||
+  fail "the installed engine's default --config is not $prefix/share/cellcal/config/cell.yaml: $(grep -- --config "$work/engine_help.txt")"
+
+cmake -S "$here/consumer" -B "$work/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DCMAKE_BUILD_TYPE=Release >"$work/consumer_configure.log" ||
+  { cat "$work/consumer_configure.log"; fail "the consumer project did not configure against $prefix"; }
+cmake --build "$work/consumer" >"$work/consumer_build.log" 2>&1 ||
+  { cat "$work/consumer_build.log"; fail "the consumer project did not build against $prefix"; }
+"$work/consumer/consumer"
+echo "check_install: installed tree in $prefix is complete and usable"

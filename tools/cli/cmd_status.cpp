@@ -1,0 +1,245 @@
+// `cellcal status [--watch]`: the cell at a glance, from its topics (identity observer under DDS Security). Per robot:
+// calibration version and health, poses used, the a-priori verification estimate and the predicted error, the
+// correction sizes the compensation publisher sent, rejected samples by reason, alarms and stale inputs.
+#include <ctime>
+#include <iomanip>
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/process.hpp"
+#include "commands.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+using namespace cellcal::components;
+
+struct StatusArgs {
+  ProcessOptions common;
+  bool watch = false;
+  double wait_s = 3;      // once: how long to listen before printing (transient-local samples come at once)
+  double period_s = 1;    // --watch: redraw period
+  double duration_s = 0;  // --watch: stop after this long (0: until SIGINT)
+  std::string json;
+};
+
+const char* healthName(msg::CalibrationHealth h) {
+  switch (h) {
+    case msg::HEALTH_UNCALIBRATED: return "uncalibrated";
+    case msg::HEALTH_OK: return "ok";
+    case msg::HEALTH_DEGRADED: return "degraded";
+    case msg::HEALTH_HOLD_LAST_GOOD: return "hold_last_good";
+  }
+  return "?";
+}
+
+struct RobotView {
+  bool has_state = false, has_diagnostics = false;
+  std::uint64_t version = 0, poses_used = 0, state_stamp_ns = 0;
+  std::string health = "-", model, extensions;
+  double verification_mm = std::nan(""), residual_mm = std::nan(""), predicted_mm = std::nan("");
+  std::map<std::string, std::uint64_t> rejections;
+  bool drift_alarm = false;
+  std::string health_reason, stale_inputs, persist_error, last_rejection;
+  std::uint64_t answers = 0, applied = 0;
+  double last_correction_mm = std::nan(""), last_correction_deg = std::nan(""), max_correction_mm = 0;
+  std::string last_reason;
+};
+
+std::string fmt(double v, int precision, const char* unit) {
+  if (!std::isfinite(v)) return "-";
+  std::ostringstream o;
+  o << std::fixed << std::setprecision(precision) << v << unit;
+  return o.str();
+}
+
+nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
+  nlohmann::json j = nlohmann::json::object();
+  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
+  for (const auto& [id, r] : robots)
+    j[id] = {{"version", r.version},
+             {"health", r.health},
+             {"health_reason", r.health_reason},
+             {"poses_used", r.poses_used},
+             {"verification_mean_position_mm", num(r.verification_mm)},
+             {"residual_rms_position_mm", num(r.residual_mm)},
+             {"predicted_sigma_position_mm", num(r.predicted_mm)},
+             {"model_extensions", r.extensions},
+             {"rejections", r.rejections},
+             {"drift_alarm", r.drift_alarm},
+             {"stale_inputs", r.stale_inputs},
+             {"persist_error", r.persist_error},
+             {"compensated_targets", r.answers},
+             {"applied", r.applied},
+             {"last_correction_mm", num(r.last_correction_mm)},
+             {"last_correction_deg", num(r.last_correction_deg)},
+             {"max_correction_mm", r.max_correction_mm},
+             {"last_reason", r.last_reason}};
+  return j;
+}
+
+void render(std::ostream& out, const CellConfig& cell, const std::map<std::string, RobotView>& robots, int engine_writers,
+            int compensation_writers) {
+  const std::time_t now = std::time(nullptr);
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", std::localtime(&now));
+  out << "cellcal status  " << when << "  domain " << cell.dds.domain_id << " (" << cell.dds.participant_profile
+      << ")  engine " << (engine_writers > 0 ? "seen" : "NOT SEEN") << ", compensation "
+      << (compensation_writers > 0 ? "seen" : "not seen") << "\n\n";
+  out << std::left << std::setw(12) << "robot" << std::setw(8) << "version" << std::setw(15) << "health"
+      << std::setw(7) << "poses" << std::setw(12) << "verify" << std::setw(12) << "predicted" << std::setw(12)
+      << "residual" << std::setw(34) << "correction: last (max)" << std::setw(10) << "rejected" << "\n";
+  for (const auto& [id, r] : robots) {
+    std::uint64_t rejected = 0;
+    for (const auto& [reason, n] : r.rejections) rejected += n;
+    out << std::left << std::setw(12) << id << std::setw(8) << ("v" + std::to_string(r.version)) << std::setw(15)
+        << r.health << std::setw(7) << r.poses_used << std::setw(12) << fmt(r.verification_mm, 4, " mm")
+        << std::setw(12) << fmt(r.predicted_mm, 4, " mm") << std::setw(12) << fmt(r.residual_mm, 4, " mm")
+        << std::setw(34)
+        << (fmt(r.last_correction_mm, 3, " mm") + " " + fmt(r.last_correction_deg, 3, " deg") + " (" +
+            fmt(r.max_correction_mm, 2, " mm)"))
+        << std::setw(10) << rejected << "\n";
+  }
+  out << "\n";
+  for (const auto& [id, r] : robots) {
+    std::vector<std::string> notes;
+    if (!r.has_state) notes.push_back("no CalibrationState yet");
+    if (!r.health_reason.empty()) notes.push_back("health: " + r.health_reason);
+    if (r.drift_alarm) notes.push_back("DRIFT ALARM");
+    if (!r.stale_inputs.empty()) notes.push_back("STALE INPUT: " + r.stale_inputs);
+    if (!r.persist_error.empty()) notes.push_back("STATE NOT SAVED: " + r.persist_error);
+    if (!r.rejections.empty()) {
+      std::string s = "rejected:";
+      for (const auto& [reason, n] : r.rejections) s += " " + reason + " " + std::to_string(n);
+      notes.push_back(s);
+    }
+    if (r.answers > 0)
+      notes.push_back("compensation: " + std::to_string(r.applied) + " of " + std::to_string(r.answers) +
+                      " targets corrected" + (r.last_reason.empty() ? "" : "; last: " + r.last_reason));
+    if (!r.extensions.empty()) notes.push_back("model: " + r.extensions);
+    for (const auto& n : notes) out << "  " << id << ": " << n << "\n";
+  }
+  for (const auto& rb : cell.robots)
+    if (!robots.count(rb.robot_id)) out << "  " << rb.robot_id << ": nothing received yet\n";
+}
+
+int runStatus(const StatusArgs& a) {
+  const CellConfig cell = loadCell(a.common);
+  DdsNode node(cell, "cellcal_status", identity::kObserver);
+  std::mutex mutex;
+  std::map<std::string, RobotView> robots;
+  for (const auto& r : cell.robots) robots[r.robot_id];
+  node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    RobotView& r = robots[m.robot_id().to_string()];
+    if (r.has_state && m.version() < r.version) return;
+    r.has_state = true;
+    r.version = m.version();
+    r.health = healthName(m.health());
+    r.poses_used = m.poses_used();
+    r.verification_mm = m.verification_mean_position_m() * 1e3;
+    r.residual_mm = m.residual_rms_position_m() * 1e3;
+    r.state_stamp_ns = m.source_stamp_ns();
+    r.model = m.robot_model().to_string();
+    r.extensions.clear();
+    for (const auto& e : m.model_extensions()) r.extensions += (r.extensions.empty() ? "" : ", ") + e.to_string();
+  });
+  node.reader<msg::CalibrationDiagnostics>([&](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    RobotView& r = robots[d.robot_id().to_string()];
+    r.has_diagnostics = true;
+    r.rejections.clear();
+    for (size_t i = 0; i < d.rejection_reasons().size() && i < d.rejection_counts().size(); ++i)
+      if (d.rejection_counts()[i] > 0) r.rejections[d.rejection_reasons()[i].to_string()] = d.rejection_counts()[i];
+    r.drift_alarm = d.drift_alarm();
+    r.health_reason = d.health_reason().to_string();
+    r.stale_inputs = d.stale_inputs().to_string();
+    r.persist_error = d.persist_error().to_string();
+    r.predicted_mm = d.prediction_sigma_position_m() * 1e3;
+    r.last_rejection = d.last_rejection().to_string();
+  });
+  node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& c, const fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    RobotView& r = robots[c.robot_id().to_string()];
+    ++r.answers;
+    r.last_reason = c.reason().to_string();
+    if (c.applied()) {
+      ++r.applied;
+      r.last_correction_mm = c.correction_position_m() * 1e3;
+      r.last_correction_deg = c.correction_orientation_rad() * 180 / kPi;
+      r.max_correction_mm = std::max(r.max_correction_mm, r.last_correction_mm);
+    }
+  });
+  const auto start = std::chrono::steady_clock::now();
+  if (!a.watch) {
+    sleepUntil(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(a.wait_s)));
+  } else {
+    for (int frame = 0;; ++frame) {
+      const auto next = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                    std::chrono::duration<double>(a.period_s * (frame + 1)));
+      {
+        std::lock_guard<std::mutex> l(mutex);
+        std::ostringstream screen;
+        render(screen, cell, robots, node.matchedWriters<msg::CalibrationState>(),
+               node.matchedWriters<msg::CompensatedTarget>());
+        std::cout << "\033[H\033[2J" << screen.str() << "\n(refreshing every " << a.period_s << " s; Ctrl-C to stop)"
+                  << std::flush;
+      }
+      if (!sleepUntil(next)) break;
+      if (a.duration_s > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(a.duration_s)) break;
+    }
+    std::cout << "\n";
+  }
+  const int engine_writers = node.matchedWriters<msg::CalibrationState>();
+  const int compensation_writers = node.matchedWriters<msg::CompensatedTarget>();
+  node.shutdown();
+  writeJsonFile(a.common.stats_json, {{"name", "status"}, {"topics", node.stats()}});
+  std::lock_guard<std::mutex> l(mutex);
+  if (!a.watch) render(std::cout, cell, robots, engine_writers, compensation_writers);
+  if (!a.json.empty())
+    writeJsonFile(a.json, {{"domain_id", cell.dds.domain_id},
+                           {"engine_seen", engine_writers > 0},
+                           {"compensation_seen", compensation_writers > 0},
+                           {"robots", toJson(robots)}});
+  return 0;
+}
+
+}  // namespace
+
+Runner addStatusCommand(CLI::App& app) {
+  auto a = std::make_shared<StatusArgs>();
+  CLI::App* cmd = app.add_subcommand(
+      "status",
+      "The cell at a glance, from its topics: per robot the calibration version and health, poses used, the "
+      "a-priori verification estimate (each pose predicted before it was used) and the predicted 1-sigma error, the "
+      "residual, the corrections the compensation publisher sent, rejected samples by reason, drift alarms, stale "
+      "inputs and state-file errors. Joins as a reader only (identity observer under DDS Security).");
+  addCommonOptions(*cmd, a->common);
+  cmd->add_flag("-w,--watch", a->watch, "redraw the view every --period-s until Ctrl-C (a live terminal view)");
+  cmd->add_option("--wait-s", a->wait_s, "without --watch: listen this long, then print once")->capture_default_str();
+  cmd->add_option("--period-s", a->period_s, "--watch: redraw period")->check(CLI::Range(0.1, 60.0))->capture_default_str();
+  cmd->add_option("--duration-s", a->duration_s, "--watch: stop after this long (0: until Ctrl-C)");
+  cmd->add_option("--json", a->json, "also write the last view as JSON to this file");
+  cmd->footer(
+      "EXAMPLES\n"
+      "  cellcal status                       print the cell's state once (after 3 s of listening)\n"
+      "  cellcal status --watch               live view, redrawn every second\n"
+      "  cellcal status --json status.json    for scripts and monitoring\n"
+      "COLUMNS\n"
+      "  verify     mean position error of each pose predicted before it was used (a-priori), from CalibrationState\n"
+      "  predicted  the estimate's own 1-sigma position error, worst of 16 reference poses (CalibrationDiagnostics)\n"
+      "  residual   RMS position residual over the recent poses (a-posteriori)\n"
+      "EXIT STATUS\n"
+      "  0 when it ran (whatever the cell's health), 1 on a DDS or file error, 2 on a usage error.");
+  return [a, cmd]() -> int {
+    if (!*cmd) return 0;
+    installStopHandlers();
+    return runStatus(*a);
+  };
+}
+
+}  // namespace cellcal::cli
