@@ -5,12 +5,26 @@
 
 #include <cstdint>
 #include <cstdlib>
+#include <fstream>
+#include <iterator>
 #include <random>
 #include <string>
 
 #include "cellcal/core/robot_yaml.hpp"
 
 namespace cellcal::test {
+
+// A figure a command rendered with gnuplot: a PNG (its signature) or an SVG gnuplot produced, with some content.
+inline ::testing::AssertionResult isGnuplotFigure(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return ::testing::AssertionFailure() << path << " does not exist";
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const bool png = bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0;
+  const bool svg = bytes.find("<svg") != std::string::npos && bytes.find("Produced by GNUPLOT") != std::string::npos;
+  if (!png && !svg) return ::testing::AssertionFailure() << path << " is neither a PNG nor a gnuplot SVG";
+  if (bytes.size() < 10000) return ::testing::AssertionFailure() << path << " has only " << bytes.size() << " bytes";
+  return ::testing::AssertionSuccess();
+}
 
 inline RobotModel robot(const std::string& name) {
   return loadRobotModel(std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name + ".yaml");

@@ -43,6 +43,13 @@ void push(std::deque<std::int64_t>& d, std::int64_t v) {
 
 int main(int argc, char** argv) {
   CLI::App app{"cellcal calibration engine: continuous kinematic calibration from tracker poses and joint states"};
+  app.footer(manFooter(
+      "cellcal/joint_state, cellcal/tracker_pose",
+      "cellcal/calibration_state, cellcal/calibration_diagnostics (reliable, transient local: a late joiner gets the latest)",
+      "  cellcal_calibration_engine --state-dir /var/lib/cellcal          run for good; state survives restarts\n"
+      "  cellcal_calibration_engine --config cell.yaml --duration-s 60    a one-minute run\n",
+      "  <state-dir>/<robot_id>.state.json: the estimate, replaced atomically after every pose; the engine resumes\n"
+      "    from it after a restart (no accepted update lost or applied twice)\n"));
   ProcessOptions o;
   double duration_s = 0;
   bool quiet = false;

@@ -24,6 +24,12 @@ using namespace cellcal::components;
 
 int main(int argc, char** argv) {
   CLI::App app{"cellcal compensation publisher: corrected targets for the unmodified robot controller"};
+  app.footer(manFooter(
+      "cellcal/target_pose, cellcal/calibration_state, cellcal/calibration_diagnostics",
+      "cellcal/compensated_target (never a correction beyond compensation.max_correction_mm / _deg)",
+      "  cellcal_compensation_publisher                                   answer targets with the latest ok calibration\n"
+      "  cellcal_compensation_publisher --wait-for-calibration-s 30      wait for the engine before answering\n",
+      ""));
   ProcessOptions o;
   double duration_s = 0;
   double wait_for_calibration_s = 3;

@@ -187,6 +187,12 @@ int runUdp(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::js
 
 int main(int argc, char** argv) {
   CLI::App app{"cellcal joint-state adapter: publishes the robot's joint angles on cellcal/joint_state"};
+  app.footer(manFooter(
+      "nothing",
+      "cellcal/joint_state (and cellcal/sim/robot_truth with --source sim)",
+      "  cellcal_joint_state_adapter --source udp --udp-port 5610         a controller bridge sends one line per reading\n"
+      "  cellcal_joint_state_adapter --source sim                         the simulated robot of the cell file\n",
+      "  --csv: a measurement file (docs/measurement-csv.md); --source udp: the line format in docs/udp-sources.md\n"));
   Options o;
   addCommonOptions(app, o.common);
   app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();

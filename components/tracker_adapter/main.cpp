@@ -174,6 +174,12 @@ int runUdp(const CellConfig& cell, DdsNode& node, const Options& o, nlohmann::js
 
 int main(int argc, char** argv) {
   CLI::App app{"cellcal tracker adapter: publishes target poses measured by the laser tracker on cellcal/tracker_pose"};
+  app.footer(manFooter(
+      "cellcal/sim/robot_truth (--source sim only)",
+      "cellcal/tracker_pose",
+      "  cellcal_tracker_adapter --source udp --udp-port 5611             a tracker bridge sends one line per reading\n"
+      "  cellcal_tracker_adapter --source csv --csv m.csv --start-unix-ns $START   replay a measurement file\n",
+      "  --csv: a measurement file (docs/measurement-csv.md); --source udp: the line format in docs/udp-sources.md\n"));
   Options o;
   addCommonOptions(app, o.common);
   app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();

@@ -356,17 +356,22 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
     c.fit = std::move(fit);
     return c;
   };
+  std::vector<Extension> to_try;
+  for (Cause cause : options.causes)
+    for (int j = cause == Cause::kThermalDrift ? -1 : 0; j < model.numJoints(); ++j)
+      if (applicable(model, Extension{cause, j}, data.has_thermal)) to_try.push_back(Extension{cause, j});
+  int fits_done = 0;
+  const int fits_total = 1 + static_cast<int>(to_try.size());
   DiagnosisResult out;
   out.geometric = evaluate(fitExtended(model, start, I, ID, Extension{}, options.solver, options.identifiability));
+  if (options.progress) options.progress(++fits_done, fits_total);
   const std::vector<Eigen::Vector3d> geo_res = positionResiduals(model, out.geometric.fit, V, VD);
 
   std::vector<std::vector<Eigen::Vector3d>> residuals;  // verification residuals, parallel to out.candidates
-  for (Cause cause : options.causes)
-    for (int j = cause == Cause::kThermalDrift ? -1 : 0; j < model.numJoints(); ++j) {
-      const Extension ext{cause, j};
-      if (!applicable(model, ext, data.has_thermal)) continue;
+  for (const Extension& ext : to_try) {
       CandidateResult c = evaluate(fitExtended(model, start, I, ID, ext, options.solver, options.identifiability,
                                                &out.geometric.fit.params));
+      if (options.progress) options.progress(++fits_done, fits_total);
       if (c.fit.numEstimatedExtension() == 0) continue;  // nothing the geometric model could not already do
       residuals.push_back(positionResiduals(model, c.fit, V, VD));
       c.z = pairedZ(geo_res, residuals.back());

@@ -37,7 +37,14 @@ struct Group {
   double t_h = 0;
   std::vector<Observation> ident, verify;
   double noise_floor_m = 0;
+  Eigen::VectorXd truth;  // the simulated robot's parameters at t_h (for the figures only)
 };
+
+Eigen::VectorXd jointOffsets(const RobotModel& model, const Eigen::VectorXd& params) {
+  Eigen::VectorXd out(model.numJoints());
+  for (int j = 0; j < model.numJoints(); ++j) out[j] = params[model.jointParam(j, JointParam::kThetaOffset)];
+  return out;
+}
 
 std::vector<Observation> firstN(const std::vector<Observation>& v, int n) {
   return {v.begin(), v.begin() + std::min<size_t>(n, v.size())};
@@ -81,6 +88,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     G.t_h = g * cfg.hours_between_groups;
     const auto qs = cell.randomConfigurations(cfg.poses_per_group, rng);
     const Eigen::VectorXd truth = cell.trueParams(G.t_h);
+    G.truth = truth;
     for (int i = 0; i < cfg.poses_per_group; ++i) {
       Observation o = cell.measure(qs[i], G.t_h, rng, cfg.kind);
       if (i < cfg.identification_poses) {
@@ -138,6 +146,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       mg.update_time_s = since(t0);
       mg.ident_after_m = mean(positionErrors(model, params(), used));
       mg.verify_after_m = mean(positionErrors(model, params(), groups[g].verify));
+      mg.joint_offsets_rad = jointOffsets(model, params());
+      mg.true_joint_offsets_rad = jointOffsets(model, groups[g].truth);
       run.groups.push_back(mg);
     }
     summarize(run);

@@ -141,7 +141,7 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
     }
     EXPECT_LT(j["extended"]["verify_rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << p.log();
     EXPECT_GT(j["gain_pct"].get<double>(), 0.0);
-    EXPECT_TRUE(std::filesystem::exists(dir + "/report/signature.svg"));
+    EXPECT_TRUE(isGnuplotFigure(dir + "/report/signature.svg"));
   }
   EXPECT_TRUE(std::filesystem::exists(dir + "/report/report.md"));
   ASSERT_TRUE(j["candidates"].is_array());
@@ -166,6 +166,24 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
                                      "backlash"});
   EXPECT_NE(bad.wait(30), 0);
   EXPECT_NE(bad.log().find("needs a joint"), std::string::npos) << bad.log();
+}
+
+}  // namespace
+}  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+using namespace cellcal::test;
+
+// The paper experiment's figures (gnuplot): accuracy before/after each update, residuals, joint drift, pose sweep.
+TEST(CliExperiment, PaperFiguresAreRendered) {
+  const std::string dir = testDir();
+  Process p(dir, "paper", {"cellcal", "experiment", "paper", "--seed", std::to_string(testSeed() % 100000), "--plot",
+                           dir + "/figures", "--quiet"});
+  ASSERT_EQ(p.wait(120), 0) << p.log();
+  for (const char* f : {"maintenance", "residuals", "joint_drift", "pose_sweep"})
+    EXPECT_TRUE(isGnuplotFigure(dir + "/figures/" + f + ".png")) << p.log();
 }
 
 }  // namespace

@@ -50,8 +50,9 @@ TEST(CliRecording, ImportValidateAndExportKeepEveryRow) {
   nlohmann::json runs[2];
   for (int k = 0; k < 2; ++k) {
     Process v(dir, "validate" + std::to_string(k), {"cellcal", "validate", dir + "/m.mcap", "--config", cell, "--json",
-                                                    dir + "/v" + std::to_string(k) + ".json"});
+                                                    dir + "/v" + std::to_string(k) + ".json", "--figures", dir + "/figures"});
     ASSERT_EQ(v.wait(60), 0) << v.log();
+    for (const char* f : {"/figures/tx60_accuracy.png", "/figures/tx60_joint_drift.png"}) EXPECT_TRUE(isGnuplotFigure(dir + f));
     runs[k] = readJson(dir + "/v" + std::to_string(k) + ".json")["robots"]["tx60"];
   }
   EXPECT_EQ(runs[0]["reproduced"].get<int>(), rows) << runs[0]["rejected"];

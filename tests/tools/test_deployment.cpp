@@ -198,3 +198,39 @@ TEST(Deployment, SystemdUnitsStartTheFourComponents) {
 
 }  // namespace
 }  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+// Every command's --help reads like a man page (EXAMPLES, EXIT STATUS; the components also TOPICS, ENVIRONMENT,
+// SIGNALS), and every option its examples use is one the command has: examples cannot rot.
+TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
+  const std::vector<std::string> commands = {
+      "cellcal experiment paper", "cellcal cell", "cellcal bench-cell", "cellcal calibrate", "cellcal import ipa",
+      "cellcal import csv", "cellcal diagnose", "cellcal continuous", "cellcal record", "cellcal replay",
+      "cellcal validate", "cellcal export", "cellcal status", "cellcal_tracker_adapter", "cellcal_joint_state_adapter",
+      "cellcal_calibration_engine", "cellcal_compensation_publisher"};
+  for (const auto& c : commands) {
+    const std::string help = capture(std::string(CELLCAL_BIN_DIR) + "/" + c + " --help 2>&1");
+    const auto examples_at = help.find("\nEXAMPLES\n");
+    ASSERT_NE(examples_at, std::string::npos) << c << ":\n" << help;
+    EXPECT_NE(help.find("\nEXIT STATUS\n"), std::string::npos) << c;
+    if (c.rfind("cellcal_", 0) == 0) {
+      for (const char* section : {"\nTOPICS\n", "\nENVIRONMENT\n", "\nSIGNALS\n"})
+        EXPECT_NE(help.find(section), std::string::npos) << c << " has no " << section;
+    }
+    const std::string options = help.substr(0, examples_at);
+    const std::string examples = help.substr(examples_at, help.find("\n\n", examples_at + 10) - examples_at);
+    int used = 0;
+    for (const auto& w : split(examples))
+      if (w.rfind("--", 0) == 0 && w.size() > 2) {
+        ++used;
+        EXPECT_TRUE(options.find(" " + w) != std::string::npos || options.find("," + w) != std::string::npos)
+            << c << ": an example uses " << w << ", not an option";
+      }
+    EXPECT_GT(used, 0) << c << ": examples without options";
+  }
+}
+
+}  // namespace
+}  // namespace cellcal

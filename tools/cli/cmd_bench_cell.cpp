@@ -384,6 +384,8 @@ Runner addBenchCellCommand(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand("bench-cell",
                                      "Benchmark the engine and compensation processes on localhost: latencies, "
                                      "sustained rate, CPU and RSS (this process plays the robots and trackers)");
+  cmd->footer(cliFooter("  cellcal bench-cell --duration-s 20                     latencies and load, 8 robots at 1 kHz\n  cellcal bench-cell --duration-s 300 --seed 1 --json soak.json --series-csv soak.csv   a soak\n",
+                        ""));
   cmd->add_option("--robots", a->robots, "robots (each with a joint-state and a tracker stream)")->check(CLI::Range(1, 64))->capture_default_str();
   cmd->add_option("--rate-hz", a->rate_hz, "rate of each stream")->check(CLI::Range(10.0, 5000.0))->capture_default_str();
   cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses per second and robot")->capture_default_str();

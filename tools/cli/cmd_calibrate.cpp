@@ -155,6 +155,8 @@ Runner addCalibrateCommand(CLI::App& app) {
       "identifiable kinematic parameter (Gauss-Newton, or --solver lm) on the identification rows, and reports mean/RMS/max "
       "position and orientation errors on identification and verification rows, before and after. Split: "
       "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies");
+  cmd->footer(cliFooter("  cellcal calibrate --robot config/robots/ur10.yaml --data m.csv --json calib.json\n  cellcal calibrate --robot R.yaml --data m.csv --model auto                   the model diagnose chooses\n  cellcal calibrate --robot R.yaml --data m.csv --model joint_compliance:2     a named extension\n",
+                        "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n"));
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
   cmd->add_option("--model", a->model,
@@ -181,6 +183,8 @@ Runner addImportCommand(CLI::App& app) {
   CLI::App* imp = app.add_subcommand("import", "Convert measurements: other formats to CSV v1, CSV v1 to a recording");
   imp->require_subcommand(1);
   CLI::App* ipa = imp->add_subcommand("ipa", "A series of ../shared/datasets/ipa-robot-accuracy (UR10, Leica + T-Mac)");
+  ipa->footer(cliFooter("  cellcal import ipa ../shared/datasets/ipa-robot-accuracy/Series_A/measurements_grid.csv --out a.csv\n",
+                        "  the output: a measurement file, CSV v1 (docs/measurement-csv.md), rows in time order\n"));
   ipa->add_option("series", *in, "Series_A/measurements_grid.csv or Series_B/measurements_joint_configurations.csv")
       ->required()
       ->check(CLI::ExistingFile);
@@ -190,6 +194,8 @@ Runner addImportCommand(CLI::App& app) {
   CLI::App* c = imp->add_subcommand(
       "csv", "A measurement file (CSV v1) as a recording (MCAP) of JointState and TrackerPose streams, for replay "
              "and validate: per row, the robot stands settled --bracket-s before and after the reading");
+  c->footer(cliFooter("  cellcal import csv a.csv --robot config/robots/ur10.yaml --out a.mcap\n",
+                        "  the output: an MCAP recording of the cell topics (docs/recording.md)\n"));
   c->add_option("file", csv->csv, "CSV v1 measurement file")->required()->check(CLI::ExistingFile);
   c->add_option("--robot", csv->robot_file, "robot file (YAML)")->required()->check(CLI::ExistingFile);
   c->add_option("--out", csv->out, "MCAP file to write")->required();

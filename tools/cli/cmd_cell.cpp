@@ -440,6 +440,8 @@ Runner addCellCommand(CLI::App& app) {
       "cell",
       "Run the four-process cell on localhost against the simulated robot(s) of the cell file (degrading over "
       "time-compressed hours); print a line per calibration update and a summary");
+  cmd->footer(cliFooter("  cellcal cell --duration-s 32                             the demo (make demo)\n  cellcal cell --duration-s 32 --record demo.mcap --summary-json s.json\n  CELLCAL_SECURITY_DIR=pki cellcal cell --duration-s 12    the same under DDS Security (docs/SECURITY.md)\n",
+                        "  --config: the cell file (docs/cell-file.md); --work-dir: the log and counts of each process\n"));
   addCommonOptions(*cmd, a->common);
   a->common.participant_profile = "cellcal_loopback";
   cmd->add_option("--duration-s", a->duration_s, "how long the robot program runs (wall clock, from its first sample)")

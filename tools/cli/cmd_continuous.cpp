@@ -127,6 +127,8 @@ Runner addContinuousCommand(CLI::App& app) {
       "Continuous calibration over a measurement file in time order (stamp_s): an initial batch from the first "
       "interval, then every interval a few evenly spaced fresh poses update the RLS estimate; every row is predicted "
       "before any of its interval's poses is used. Compares a static calibration, RLS, and RLS with a model extension");
+  cmd->footer(cliFooter("  cellcal continuous --robot config/robots/ur10.yaml --data a.csv --initial-h 5 --model joint_compliance:2\n",
+                        "  --data: a measurement file with stamp_s, CSV v1 (docs/measurement-csv.md)\n"));
   cmd->add_option("--robot", a->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   cmd->add_option("--data", a->data, "measurement file, CSV v1, with stamp_s")->required()->check(CLI::ExistingFile);
   cmd->add_option("--interval-h", a->options.update_interval_h, "hours between updates")->capture_default_str();

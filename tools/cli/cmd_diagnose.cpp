@@ -1,15 +1,18 @@
 // `cellcal diagnose`: what the geometric model gets wrong in a measurement file, which physical cause explains it,
 // the extended model and its gain on held-out rows.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
+#include <sstream>
 #include <nlohmann/json.hpp>
 
 #include "cellcal/core/diagnosis.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
-#include "svg.hpp"
+#include "progress.hpp"
 
 namespace cellcal::cli {
 namespace {
@@ -17,6 +20,7 @@ namespace {
 struct DiagnoseArgs {
   InputArgs input;
   std::string json, report;
+  bool no_progress = false;
 };
 
 std::string causeLabel(const Extension& e) {
@@ -113,9 +117,25 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
   if (d.chosen >= 0) {
     const CauseSignature sig = causeSignature(in.robot, g.fit, b.fit, in.data.verification,
                                               in.data.verification_drivers, in.data.thermal_source);
-    std::ofstream(a.report + "/signature.svg")
-        << scatterSvg({{"geometric model", sig.x, sig.y_before}, {"with " + causeLabel(b.fit.extension()), sig.x, sig.y_after}},
-                      sig.x_label, sig.y_label);
+    // Rendered by gnuplot (SVG): two panels sharing the axes, the residual before and after the extension.
+    std::ostringstream data, gp;
+    data << "x before after\n";
+    double lo = INFINITY, hi = -INFINITY;
+    for (size_t i = 0; i < sig.x.size(); ++i) {
+      data << sig.x[i] << ' ' << sig.y_before[i] << ' ' << sig.y_after[i] << '\n';
+      lo = std::min({lo, sig.y_before[i], sig.y_after[i]});
+      hi = std::max({hi, sig.y_before[i], sig.y_after[i]});
+    }
+    const double pad = 0.05 * std::max(hi - lo, 1e-12);
+    gp << "set multiplot layout 1,2\nset grid\nset key off\nset xlabel '" << sig.x_label << "'\nset ylabel '"
+       << sig.y_label << "'\nset yrange [" << lo - pad << ":" << hi + pad << "]\n"
+       << "set title 'geometric model'\nplot datafile using 1:2 skip 1 with points pt 7 ps 0.4 lc rgb '#1f77b4'\n"
+       << "set title 'with " << causeLabel(b.fit.extension())
+       << "'\nplot datafile using 1:3 skip 1 with points pt 7 ps 0.4 lc rgb '#d62728'\nunset multiplot\n";
+    std::string plot_error;
+    for (const char* format : {"svg", "png"})  // SVG for the report, PNG for pages that take images only
+      if (!renderGnuplot(a.report, "signature", data.str(), gp.str(), &plot_error, format))
+        std::cerr << "warning: " << plot_error << "\n";
     md << "\n## The cause in the data\n\nVerification rows: the residual as the cause's own quantity against its "
           "driver, before and after the extension.\n\n![signature](signature.svg)\n\nExtension parameters:\n\n";
     for (int k : b.fit.estimated_extension) {
@@ -128,7 +148,13 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
 
 int runDiagnose(const DiagnoseArgs& a) {
   const LoadedInput in = loadInput(a.input);
-  const DiagnosisResult d = diagnose(in.robot, in.start, in.data);
+  DiagnosisOptions options;
+  ProgressBar bar("diagnose", !a.no_progress);
+  options.progress = [&bar](int done, int total) {
+    bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
+  };
+  const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
+  bar.done();
   const CandidateResult& g = d.geometric;
   const CandidateResult& b = d.best();
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s, thermal driver: %s\n",
@@ -202,9 +228,12 @@ Runner addDiagnoseCommand(CLI::App& app) {
       "against each driver (joint angles, gravity torques, temperature or time, motion direction, workspace), tries "
       "each physical cause (joint_compliance, thermal_drift, cyclic_transmission, joint_scale, backlash) on each joint, "
       "and names the one that wins on the verification rows, or none. See docs/diagnosis.md");
+  cmd->footer(cliFooter("  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
+                        "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n"));
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
-  cmd->add_option("--report", a->report, "write report.md and signature.svg into this directory");
+  cmd->add_flag("--no-progress", a->no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
+  cmd->add_option("--report", a->report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
   return [a, cmd]() -> int {
     if (!*cmd) return 0;
     return runDiagnose(*a);

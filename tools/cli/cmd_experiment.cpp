@@ -204,6 +204,51 @@ void writePlots(const PaperExperimentResult& r, const std::string& dir) {
         "with linespoints title 'verification (50 other poses)', "
      << r.noise_floor_m * 1e3 << " with lines dt 2 lc 'black' title 'noise floor'\n";
   if (!renderGnuplot(dir, "pose_sweep", d2.str(), g2.str(), &err)) std::cerr << "warning: " << err << "\n";
+  // Figure 3: residuals, the a-posteriori error on each update's own identification poses (against the verification
+  // error on poses it did not use: the gap is what over-fitting would show).
+  std::ostringstream d3, g3;
+  d3 << "group";
+  for (const auto* m : runs) d3 << " \"" << m->mode << " " << runLabel(*m) << " " << m->updated_poses << "\"";
+  d3 << "\n";
+  for (size_t g = 0; g < groups; ++g) {
+    d3 << g;
+    for (const auto* m : runs) d3 << " " << m->groups[g].ident_after_m * 1e3;
+    d3 << "\n";
+  }
+  g3 << "set title 'Residual after each update on its own identification poses (a-posteriori)'\n"
+     << "set xlabel 'group (2 h apart)'\nset ylabel 'mean position residual (mm)'\nset grid\nset xtics 1\n"
+     << "set key outside right\nset logscale y\n"
+     << "plot for [c=2:" << 1 + runs.size() << "] datafile using 1:c with linespoints title columnhead(c)\n";
+  if (!renderGnuplot(dir, "residuals", d3.str(), g3.str(), &err)) std::cerr << "warning: " << err << "\n";
+  // Figure 4: per-joint drift of the zero offsets: the simulated robot's truth and continuous RLS (15 poses/group).
+  const MaintenanceRun* rls = nullptr;
+  for (const auto& m : r.maintenance)
+    if (m.mode == "continuous" && m.algorithm == "rls" && !m.prior && m.forgetting == 1.0 && m.updated_poses == 15 &&
+        m.pose_selection == "first")
+      rls = &m;
+  if (rls && rls->groups.front().joint_offsets_rad.size() > 0) {
+    const auto joints = rls->groups.front().joint_offsets_rad.size();
+    std::ostringstream d4, g4;
+    d4 << "t_h";
+    for (Eigen::Index j = 0; j < joints; ++j) d4 << " true" << j + 1 << " rls" << j + 1;
+    d4 << "\n";
+    const MaintenanceGroup& first = rls->groups.front();
+    for (const auto& mg : rls->groups) {
+      d4 << mg.t_h;
+      for (Eigen::Index j = 0; j < joints; ++j)
+        d4 << " " << (mg.true_joint_offsets_rad[j] - first.true_joint_offsets_rad[j]) * 180 / kPi * 1e3 << " "
+           << (mg.joint_offsets_rad[j] - first.joint_offsets_rad[j]) * 180 / kPi * 1e3;
+      d4 << "\n";
+    }
+    g4 << "set title 'Joint zero drift since the initial calibration: truth (lines) and continuous RLS, 15 poses per "
+          "update (points)'\nset xlabel 'time (h)'\nset ylabel 'zero offset change (millidegrees)'\nset grid\n"
+       << "set key outside right\n"
+       << "plot for [j=1:" << joints << "] datafile using 1:(column(2*j)) skip 1 with lines lw 2 lc j "
+          "title sprintf('joint %d truth', j), "
+       << "for [j=1:" << joints << "] datafile using 1:(column(2*j+1)) skip 1 with points pt 7 ps 1.2 lc j "
+          "title sprintf('joint %d RLS', j)\n";
+    if (!renderGnuplot(dir, "joint_drift", d4.str(), g4.str(), &err)) std::cerr << "warning: " << err << "\n";
+  }
 }
 
 }  // namespace
@@ -216,6 +261,8 @@ Runner addExperimentCommand(CLI::App& app) {
       "paper",
       "4 groups of 100 poses measured 2 h apart on a simulated Staubli TX60 whose accuracy degrades; prints the "
       "pose-number sweep (paper Table 2) and accuracy maintenance with RLS and LM (paper Table 4)");
+  paper->footer(cliFooter("  cellcal experiment paper --plot figs --json paper.json       one robot, figures and JSON\n  cellcal experiment paper --seeds 300 --seed 1000              how often the targets hold over 300 robots\n",
+                        "  --plot DIR: maintenance.png, residuals.png, joint_drift.png, pose_sweep.png (gnuplot; docs/figures.md)\n"));
   paper->add_option("--robot", args->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   paper->add_option("--seed", args->seed, "seed of the simulated robot, tracker and poses")->capture_default_str();
   paper->add_option("--json", args->json_path, "write the results as JSON to this file");
@@ -261,7 +308,8 @@ Runner addExperimentCommand(CLI::App& app) {
     }
     if (!args->plot_dir.empty()) {
       writePlots(r, args->plot_dir);
-      std::cout << "Figures written to " << args->plot_dir << "/maintenance.png and pose_sweep.png\n";
+      std::cout << "Figures written to " << args->plot_dir
+                << "/maintenance.png, residuals.png, joint_drift.png and pose_sweep.png\n";
     }
     return 0;
   };

@@ -11,6 +11,7 @@
 #include <iostream>
 #include <mutex>
 #include <set>
+#include <sstream>
 #include <thread>
 
 #include "cellcal/components/convert.hpp"
@@ -335,10 +336,49 @@ int runReplay(const ReplayArgs& a) {
 
 struct ValidateArgs {
   ProcessOptions common;
-  std::string file, json;
+  std::string file, json, figures;
   double tolerance_m = 1e-9, tolerance_rad = 1e-9;
   bool require_match = false, no_progress = false;
 };
+
+// Figures of one robot's calibrations over a recording (gnuplot, PNG): <robot>_accuracy.png, the a-priori
+// verification error (each pose predicted by the calibration before it) and the a-posteriori residual against the
+// time of the reading; <robot>_joint_drift.png, each joint's zero offset as identified, minus its nominal value.
+void writeRecordingFigures(const std::string& dir, const std::string& robot, const RobotModel& model,
+                           const std::vector<ReceivedCalibration>& versions) {
+  if (versions.empty()) return;
+  const double t0 = static_cast<double>(versions.front().last_measurement_stamp_ns);
+  std::ostringstream acc, drift, drift_gp;
+  acc << "t_h verification_mm residual_mm\n";
+  drift << "t_h";
+  for (int j = 0; j < model.numJoints(); ++j) drift << " joint" << j + 1;
+  drift << "\n";
+  for (const auto& v : versions) {
+    const double t_h = (static_cast<double>(v.last_measurement_stamp_ns) - t0) / 3.6e12;
+    auto num = [](double x) { return std::isfinite(x) ? std::to_string(x) : std::string("NaN"); };
+    acc << t_h << ' ' << num(v.verification_mean_position_m * 1e3) << ' ' << num(v.residual_rms_position_m * 1e3) << '\n';
+    drift << t_h;
+    for (int j = 0; j < model.numJoints(); ++j) {
+      const int i = model.jointParam(j, JointParam::kThetaOffset);
+      drift << ' ' << (v.params[i] - model.nominal[i]) * 180.0 / kPi * 1e3;
+    }
+    drift << '\n';
+  }
+  std::string error;
+  const std::string acc_gp =
+      "set title '" + robot + ": accuracy over the recording (" + std::to_string(versions.size()) +
+      " calibrations)'\nset xlabel 'time of the reading (h since the first calibration)'\n"
+      "set ylabel 'position error (mm)'\nset logscale y\nset grid\nset key top right\n"
+      "plot datafile using 1:($2 > 1e-3 ? $2 : 1/0) skip 1 with lines lw 2 title 'a-priori: each pose predicted before it was used', "
+      "datafile using 1:($3 > 1e-3 ? $3 : 1/0) skip 1 with lines lw 1 title 'a-posteriori residual (recent poses)'\n";
+  if (!renderGnuplot(dir, robot + "_accuracy", acc.str(), acc_gp, &error)) std::cerr << "warning: " << error << "\n";
+  drift_gp << "set title '" << robot << ": identified joint zero offsets over the recording'\n"
+           << "set xlabel 'time of the reading (h since the first calibration)'\n"
+           << "set ylabel 'zero offset - nominal (millidegrees)'\nset grid\nset key outside right\n"
+           << "plot for [c=2:" << model.numJoints() + 1 << "] datafile using 1:c skip 1 with lines lw 2 title sprintf('joint %d', c-1)\n";
+  if (!renderGnuplot(dir, robot + "_joint_drift", drift.str(), drift_gp.str(), &error))
+    std::cerr << "warning: " << error << "\n";
+}
 
 struct Difference {
   double length_m = 0, angle_rad = 0, other = 0, verification_m = 0;
@@ -407,6 +447,8 @@ int runValidate(const ValidateArgs& a) {
     c.extensions = s.extensions;
     c.extension_params = s.extension_params;
     c.verification_mean_position_m = s.verification_mean_position_m;
+    c.residual_rms_position_m = s.residual_rms_position_m;
+    c.last_measurement_stamp_ns = static_cast<std::uint64_t>(s.last_measurement_stamp_ns);
     run.reproduced.push_back(std::move(c));
   };
   const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
@@ -560,6 +602,10 @@ int runValidate(const ValidateArgs& a) {
                      return p;
                    }()},
                   {"calibrations", series}};
+  }
+  if (!a.figures.empty()) {
+    for (auto& [id, run] : runs) writeRecordingFigures(a.figures, id, run.robot->model, run.reproduced);
+    std::printf("validate: figures in %s (<robot>_accuracy.png, <robot>_joint_drift.png)\n", a.figures.c_str());
   }
   if (unknown_keys || undecodable || state_errors)
     std::printf("validate: %llu messages of unknown robots/targets, %llu undecodable, %llu unusable CalibrationStates "
@@ -717,6 +763,8 @@ Runner addRecordingCommands(CLI::App& app) {
       "the writer's sequence number. Whole chunks reach the disk every --flush-period-s: a recorder killed with "
       "SIGKILL leaves a file readable up to its last complete chunk (replay/validate read it; --recover rewrites it "
       "whole). Stops on SIGINT/SIGTERM or after --duration-s and says how many messages it wrote.");
+  r->footer(cliFooter("  cellcal record --out cell.mcap                               every topic until Ctrl-C\n  cellcal record --out in.mcap --topics inputs --duration-s 600\n  cellcal record --recover cut.mcap --out fixed.mcap           a file cut short (SIGKILL, power loss)\n",
+                        "  MCAP: omgidl schemas (the IDL text), CDR payloads as on the wire (docs/recording.md)\n"));
   addCommonOptions(*r, rec->common);
   r->add_option("--out", rec->out, "MCAP file to write")->required();
   r->add_option("--topics", rec->topics, "all | inputs | comma-separated topic names")->capture_default_str();
@@ -736,6 +784,8 @@ Runner addRecordingCommands(CLI::App& app) {
       "compensation publisher process them; --topics all replays everything. Source stamps are moved so the "
       "recording's first message is now (spacing kept; --keep-stamps leaves them). Prints a summary (messages, "
       "duration, drops, timing error).");
+  p->footer(cliFooter("  cellcal replay cell.mcap --rate 2                             inputs at twice the recorded speed\n  cellcal replay cell.mcap --topics all\n",
+                        ""));
   addCommonOptions(*p, rep->common);
   p->add_option("file", rep->file, "MCAP recording")->required()->check(CLI::ExistingFile);
   p->add_option("--rate", rep->rate, "speed factor of the recorded timing")->capture_default_str();
@@ -757,6 +807,8 @@ Runner addRecordingCommands(CLI::App& app) {
       "TrackerPose messages in log-time order, with the engine settings and robots of --config, and compare each "
       "calibration with the CalibrationState of the same robot and version in the recording (parameters, "
       "verification error). Deterministic: the same file and settings give the same output.");
+  v->footer(cliFooter("  cellcal validate cell.mcap --json v.json --require-match\n  cellcal validate cell.mcap --figures figs                     accuracy and joint drift over the recording\n",
+                        "", "; 3 with --require-match when a calibration differs"));
   addCommonOptions(*v, val->common);
   v->add_option("file", val->file, "MCAP recording")->required()->check(CLI::ExistingFile);
   v->add_option("--json", val->json, "write the comparison and every calibration as JSON");
@@ -764,11 +816,16 @@ Runner addRecordingCommands(CLI::App& app) {
   v->add_option("--tolerance-rad", val->tolerance_rad, "angles equal within this")->capture_default_str();
   v->add_flag("--require-match", val->require_match, "exit 3 when a calibration differs from the recorded one");
   v->add_flag("--no-progress", val->no_progress, "no progress bar");
+  v->add_option("--figures", val->figures,
+                "write <robot>_accuracy.png (a-priori verification and residual over time) and <robot>_joint_drift.png "
+                "(identified joint zero offsets over time) into this directory (gnuplot)");
 
   auto exp = std::make_shared<ExportArgs>();
   CLI::App* e = app.add_subcommand(
       "export", "Write a recording's measurements as CSV v1: each tracker reading paired (as the engine pairs) with "
                 "the robot's settled joint state, one row per reading");
+  e->footer(cliFooter("  cellcal export cell.mcap --out m.csv                          pairs readings as the engine does\n",
+                        ""));
   addCommonOptions(*e, exp->common);
   e->add_option("file", exp->file, "MCAP recording")->required()->check(CLI::ExistingFile);
   e->add_option("--out", exp->out, "CSV v1 file to write")->required();

@@ -39,12 +39,15 @@ Runner addContinuousCommand(CLI::App& app);
 // cmd_status.cpp: the cell at a glance (--watch: live).
 Runner addStatusCommand(CLI::App& app);
 
-// Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.png.
-// Returns false with a message in *error when gnuplot is missing or fails.
+// Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.<format> (png or svg);
+// the script sees the data file as `datafile`. Returns false with a message in *error when gnuplot is missing or fails.
 bool renderGnuplot(const std::string& dir, const std::string& name, const std::string& data,
-                   const std::string& script, std::string* error);
+                   const std::string& script, std::string* error, const std::string& format = "png");
 
 std::string defaultRobotFile(const std::string& name);
+
+// The man-page part of a command's --help: EXAMPLES and FILES as given, then EXIT STATUS and SEE ALSO.
+std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra = "");
 
 // The p-quantile (0..1) of v by rank (element floor(p n)); NaN when empty.
 double percentile(std::vector<double> v, double p);

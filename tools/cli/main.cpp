@@ -10,6 +10,13 @@
 namespace cellcal::cli {
 std::string defaultRobotFile(const std::string& name) { return components::configDir() + "/robots/" + name; }
 
+std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra) {
+  return "\nEXAMPLES\n" + examples + (files.empty() ? "" : "\nFILES\n" + files) +
+         "\nEXIT STATUS\n  0 success; 1 a runtime error; 2 a usage error or a bad input file (the message names the "
+         "file, line and field)" + exit_extra + ".\n\nSEE ALSO\n  README.md; docs/ (file formats, diagnosis, recording, "
+         "reliability, security, deployment, figures)\n";
+}
+
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return std::nan("");
   const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));

@@ -143,6 +143,7 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
   r.last_measurement_stamp_ns = m.last_measurement_stamp_ns();
   r.poses_used = m.poses_used();
   r.verification_mean_position_m = m.verification_mean_position_m();
+  r.residual_rms_position_m = m.residual_rms_position_m();
   return r;
 }
 

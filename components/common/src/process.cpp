@@ -35,6 +35,26 @@ void addCommonOptions(CLI::App& app, ProcessOptions& o) {
   app.add_option("--stats-json", o.stats_json, "write what this process published and received to this file at exit");
 }
 
+std::string manFooter(const std::string& reads, const std::string& writes, const std::string& examples,
+                      const std::string& files) {
+  return "\nTOPICS\n  reads:  " + reads + "\n  writes: " + writes + "\n\nEXAMPLES\n" + examples +
+         "\nFILES\n" + files +
+         "  cell file (--config): DDS domain and profile, robots and their registration, engine and compensation\n"
+         "    settings (docs/cell-file.md); installed default " + configDir() + "/cell.yaml\n"
+         "\nENVIRONMENT\n"
+         "  CELLCAL_DOMAIN_ID      DDS domain (0..232), over the cell file; --domain-id over both\n"
+         "  CELLCAL_DDS_PROFILE    participant profile: cellcal, cellcal_udp (no shared memory), cellcal_loopback\n"
+         "  CELLCAL_SECURITY_DIR   DDS Security files (config/security/make_pki.sh; docs/SECURITY.md)\n"
+         "  FASTRTPS_DEFAULT_PROFILES_FILE  further Fast DDS XML profiles\n"
+         "\nSIGNALS\n"
+         "  SIGINT, SIGTERM: stop cleanly (the DDS participant leaves, --stats-json is written). A SIGKILLed process\n"
+         "  is noticed by its peers within the 3 s participant lease.\n"
+         "\nEXIT STATUS\n"
+         "  0 stopped cleanly; 1 a runtime error (its message names the file, topic or sample); 2 a usage error.\n"
+         "\nSEE ALSO\n"
+         "  cellcal status --watch (the cell at a glance), docs/ARCHITECTURE.md (topics and QoS), docs/deployment.md\n";
+}
+
 CellConfig loadCell(const ProcessOptions& o) {
   CellConfig c = loadCellConfig(o.config_path);
   if (const char* env = std::getenv("CELLCAL_DOMAIN_ID"); env && *env) {

@@ -17,6 +17,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -102,6 +103,9 @@ struct DiagnosisOptions {
   double parsimony_z = 2.0;  // a candidate with more parameters must beat a simpler significant one by this much
   SolverOptions solver;
   IdentifiabilityOptions identifiability;
+  // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
+  // bars on large files; runs on the caller's thread.
+  std::function<void(int done, int total)> progress;
   bool IsValid(std::string* error) const;
 };
 

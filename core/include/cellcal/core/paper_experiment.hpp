@@ -51,6 +51,8 @@ struct MaintenanceGroup {
   double ident_before_m = 0, ident_after_m = 0, verify_before_m = 0, verify_after_m = 0;
   double noise_floor_m = 0;      // of this group's verification poses
   double update_time_s = 0;      // wall time of this group's update
+  // Joint zero offsets after this group's update, and the simulated robot's true ones at t_h (rad, per joint).
+  Eigen::VectorXd joint_offsets_rad, true_joint_offsets_rad;
 };
 
 struct MaintenanceRun {

@@ -35,6 +35,7 @@ struct ReceivedCalibration {
   Eigen::VectorXd extension_params;
   std::uint32_t poses_used = 0;
   double verification_mean_position_m = 0;
+  double residual_rms_position_m = 0;          // a-posteriori, over the recent poses
   std::uint64_t last_measurement_stamp_ns = 0;  // with version: tells a new calibration from a republished one
 };
 std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,

@@ -29,6 +29,11 @@ struct ProcessOptions {
 std::string configDir();
 
 void addCommonOptions(CLI::App& app, ProcessOptions& o);
+
+// The man-page part of a component's --help (app.footer): what it reads and writes, examples, files, and the sections
+// every cellcal process shares (environment, signals, exit status, see also).
+std::string manFooter(const std::string& reads, const std::string& writes, const std::string& examples,
+                      const std::string& files);
 CellConfig loadCell(const ProcessOptions& o);
 
 void installStopHandlers();
