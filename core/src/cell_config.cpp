@@ -269,12 +269,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
 }
 
 CellConfig loadCellConfig(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError(path + ": cannot open cell file");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  if (ss.str().find_first_not_of(" \t\r\n") == std::string::npos) throw ConfigError(path + ": file is empty");
-  return parseCellConfig(ss.str(), path, fs::path(path).parent_path().string());
+  return parseCellConfig(detail::readConfigFile(path, "cell file"), path, fs::path(path).parent_path().string());
 }
 
 }  // namespace cellcal

@@ -112,12 +112,7 @@ RobotModel parseRobotModel(const std::string& yaml_text, const std::string& sour
 }
 
 RobotModel loadRobotModel(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError(path + ": cannot open robot file");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  if (ss.str().find_first_not_of(" \t\r\n") == std::string::npos) throw ConfigError(path + ": file is empty");
-  return parseRobotModel(ss.str(), path);
+  return parseRobotModel(detail::readConfigFile(path, "robot file"), path);
 }
 
 }  // namespace cellcal

@@ -15,7 +15,25 @@
 
 #include "cellcal/core/robot_yaml.hpp"
 
+#include <fstream>
+
 namespace cellcal::detail {
+
+// Reads a configuration file (robot or cell file: a few kB) whole. Refuses what cannot be one: missing or unreadable,
+// empty, or larger than 1 MiB (a wrong file, or a device such as /dev/zero that would never end). `what` names the
+// kind of file in the error ("robot file").
+inline std::string readConfigFile(const std::string& path, const char* what) {
+  constexpr std::size_t kMaxBytes = 1 << 20;
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw ConfigError(path + ": cannot open " + what);
+  std::string text(kMaxBytes + 1, '\0');
+  in.read(&text[0], static_cast<std::streamsize>(text.size()));
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  if (text.size() > kMaxBytes)
+    throw ConfigError(path + ": more than 1 MiB; a " + what + " is a few kB (the wrong file?)");
+  if (text.find_first_not_of(" \t\r\n") == std::string::npos) throw ConfigError(path + ": file is empty");
+  return text;
+}
 
 class YamlReader {
  public:

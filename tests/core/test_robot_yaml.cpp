@@ -1,5 +1,10 @@
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "cellcal/core/cell_config.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "test_support.hpp"
 
@@ -135,6 +140,36 @@ TEST(RobotYaml, MissingOrEmptyFileIsAClearError) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/robot.yaml"), std::string::npos);
   }
   EXPECT_NE(errorOf("").find("<test>"), std::string::npos);
+}
+
+// A file that cannot be a robot or cell file is refused by name without reading it all: larger than 1 MiB (a valid
+// file padded with comments to a random size), or a device that never ends (/dev/zero).
+TEST(RobotYaml, HugeFilesAndEndlessDevicesAreRefused) {
+  std::mt19937_64 rng(test::testSeed());
+  const std::string dir = ::testing::TempDir();
+  const std::string big = dir + "/big_robot.yaml";
+  {
+    std::ofstream out(big);
+    out << kValid;
+    const std::size_t pad = (1u << 20) + std::uniform_int_distribution<std::size_t>(1, 50u << 20)(rng);
+    const std::string line = "# " + std::string(77, 'x') + "\n";
+    for (std::size_t n = 0; n < pad; n += line.size()) out << line;
+  }
+  for (const std::string& path : {big, std::string("/dev/zero")}) {
+    try {
+      loadRobotModel(path);
+      ADD_FAILURE() << path << " was accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(path + ": more than 1 MiB"), std::string::npos) << e.what();
+    }
+    try {
+      loadCellConfig(path);
+      ADD_FAILURE() << path << " was accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(path + ": more than 1 MiB; a cell file"), std::string::npos) << e.what();
+    }
+  }
+  std::filesystem::remove(big);
 }
 
 TEST(RobotYaml, LinksNeedOneEntryPerJoint) {
