@@ -14,11 +14,16 @@
 
 namespace cellcal::test {
 
+// A file's whole content ("" when it cannot be read).
+inline std::string readTextFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
 // A figure a command rendered with gnuplot: a PNG (its signature) or an SVG gnuplot produced, with some content.
 inline ::testing::AssertionResult isGnuplotFigure(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return ::testing::AssertionFailure() << path << " does not exist";
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!std::ifstream(path)) return ::testing::AssertionFailure() << path << " does not exist";
+  const std::string bytes = readTextFile(path);
   const bool png = bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0;
   const bool svg = bytes.find("<svg") != std::string::npos && bytes.find("Produced by GNUPLOT") != std::string::npos;
   if (!png && !svg) return ::testing::AssertionFailure() << path << " is neither a PNG nor a gnuplot SVG";

@@ -44,13 +44,13 @@ int main(int argc, char** argv) {
       const CellRobot* robot;
       std::optional<ReceivedCalibration> calibration;  // the latest received
       std::optional<ReceivedCalibration> last_ok;      // the latest received with health ok (the one applied)
-      Eigen::VectorXd last_q;
-      std::vector<Eigen::VectorXd> path;  // the last compensated targets' joints, oldest first (backlash's play state)
+      // The last compensated targets' joints, oldest first: the seed when a target brings none, and backlash's play.
+      std::vector<Eigen::VectorXd> path;
       std::uint64_t seq = 0;
       std::string engine_warning;                      // from the engine's diagnostics: stale inputs
     };
     std::map<std::string, Robot> robots;
-    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, Eigen::VectorXd(), {}, 0, ""};
+    for (const auto& r : cell.robots) robots[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, {}, 0, ""};
     std::mutex mutex;
     std::uint64_t applied = 0, refused = 0, clamped = 0, bad_states = 0;
 
@@ -142,8 +142,8 @@ int main(int argc, char** argv) {
         if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
         Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
                                                                  static_cast<Eigen::Index>(t.seed_position_rad().size()));
-        if (seed.size() == 0) seed = r.last_q;
-        // With model extensions, backlash's play is that of a move from the previous compensated target.
+        if (seed.size() == 0 && !r.path.empty()) seed = r.path.back();
+        // With model extensions, backlash's play is that of the path through the previous compensated targets.
         const IdentifiedModel identified{use.params, use.extensions, use.extension_params};
         const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
                                                 seed, cell.compensation, r.path);
@@ -155,7 +155,6 @@ int main(int argc, char** argv) {
         if (c.applied) {
           fromPose(c.corrected_in_tracker, out.corrected_position_m(), out.corrected_orientation_xyzw());
           out.joint_position_rad(std::vector<double>(c.q_rad.data(), c.q_rad.data() + c.q_rad.size()));
-          r.last_q = c.q_rad;
           r.path.push_back(c.q_rad);
           if (r.path.size() > static_cast<size_t>(kPlayHistory)) r.path.erase(r.path.begin());
         }

@@ -46,14 +46,14 @@ struct RobotEntry {
 };
 
 // A cell file for a test: loopback profile, its own domain and state folder, a short simulated program.
-// `security_dir`: DDS Security on, with the files config/security/make_pki.sh made there.
+// `dds_extra`: more keys of the dds map, e.g. ", security_dir: <dir>" (DDS Security with the files
+// config/security/make_pki.sh made there) or ", type_information: false".
 inline std::string writeCell(const std::string& dir, int domain, std::uint64_t seed, const std::vector<RobotEntry>& robots,
                              const std::string& simulation_extra = "", const std::string& engine_extra = "",
-                             const std::string& security_dir = "", const std::string& name = "cell") {
+                             const std::string& dds_extra = "", const std::string& name = "cell") {
   std::ostringstream y;
   y << "dds: { domain_id: " << domain << ", profiles_file: " << CELLCAL_CONFIG_DIR
-    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback"
-    << (security_dir.empty() ? "" : ", security_dir: " + security_dir) << " }\n"
+    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback" << dds_extra << " }\n"
     << "time_compression: 720\nrobots:\n";
   for (const auto& r : robots)
     y << "  - { robot_id: " << r.robot_id << ", target_id: " << r.target_id << ", robot_file: " << CELLCAL_CONFIG_DIR
@@ -114,12 +114,7 @@ class Process {
     while (running() && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(20));
     return exit_code_;
   }
-  std::string log() const {
-    std::ifstream in(log_);
-    std::stringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
+  std::string log() const { return readTextFile(log_); }
   pid_t pid() const { return pid_; }
 
  private:
@@ -141,6 +136,37 @@ inline nlohmann::json readJson(const std::string& path) {
   std::ifstream in(path);
   if (!in) return nlohmann::json();
   return nlohmann::json::parse(in, nullptr, false);
+}
+
+// `cellcal cell` over `cfg` for `duration_s` (args: more of its options), run to its end. Returns the summary with every
+// process's exit code checked, or a discarded value (the failure reported with the launcher's log).
+inline nlohmann::json runCell(const std::string& dir, const std::string& cfg, const std::string& duration_s,
+                              const std::vector<std::string>& args = {}, double timeout_s = 60) {
+  std::vector<std::string> argv = {"cellcal", "cell", "--config", cfg, "--duration-s", duration_s, "--work-dir",
+                                   dir + "/run", "--summary-json", dir + "/summary.json", "--quiet"};
+  argv.insert(argv.end(), args.begin(), args.end());
+  Process cell(dir, "cell", argv);
+  const int code = cell.wait(timeout_s);
+  if (code != 0) {
+    ADD_FAILURE() << "cellcal cell exited with " << code << "\n" << cell.log();
+    return nlohmann::json::value_t::discarded;
+  }
+  const auto s = readJson(dir + "/summary.json");
+  if (s.is_discarded() || s.is_null()) {
+    ADD_FAILURE() << "no summary\n" << cell.log();
+    return nlohmann::json::value_t::discarded;
+  }
+  for (const auto& p : s["processes"]) EXPECT_EQ(p["exit_code"], 0) << p["name"];
+  return s;
+}
+
+// Every topic of the cell was published and received (cellcal cell's summary).
+inline void expectEveryTopicFlowed(const nlohmann::json& summary) {
+  for (const char* t : {"cellcal/joint_state", "cellcal/tracker_pose", "cellcal/calibration_state",
+                        "cellcal/target_pose", "cellcal/compensated_target"}) {
+    EXPECT_GT(summary["topics"][t]["published"].get<int>(), 0) << t;
+    EXPECT_GT(summary["topics"][t]["received"].get<int>(), 0) << t;
+  }
 }
 
 }  // namespace cellcal::test

@@ -73,21 +73,13 @@ TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
   const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}}, kShortProgram);
-  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "9", "--work-dir", dir + "/run",
-                             "--summary-json", dir + "/summary.json", "--quiet"});
-  ASSERT_EQ(cell.wait(60), 0) << cell.log();
-  const auto s = readJson(dir + "/summary.json");
-  ASSERT_FALSE(s.is_discarded()) << cell.log();
+  const auto s = runCell(dir, cfg, "9");
+  ASSERT_FALSE(s.is_discarded());
   ASSERT_EQ(s["processes"].size(), 4u);
-  for (const auto& p : s["processes"]) EXPECT_EQ(p["exit_code"], 0) << p["name"];
   // 50 + 15 poses measured; on a loaded machine a reading may be lost (best effort), but not many.
   EXPECT_GE(s["calibration_updates"].get<int>(), 52) << s["engine"].dump();
   EXPECT_LE(s["calibration_updates"].get<int>(), 65);
-  for (const char* t : {"cellcal/joint_state", "cellcal/tracker_pose", "cellcal/calibration_state",
-                        "cellcal/target_pose", "cellcal/compensated_target"}) {
-    EXPECT_GT(s["topics"][t]["published"].get<int>(), 0) << t;
-    EXPECT_GT(s["topics"][t]["received"].get<int>(), 0) << t;
-  }
+  expectEveryTopicFlowed(s);
   const double before = s["verify_before_mm"], after = s["verify_after_mm"], ref = s["in_process_verify_after_mm"];
   // The 9 s run measures the 50 initial poses and one group of 15; the cell clock then runs on for ~0.8 h of
   // simulated warm-up with no new pose, so the end-of-run error includes drift no engine could have seen (it
@@ -120,12 +112,8 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
   const std::string cfg = writeCell(dir, domainForTest(), seed, {robot},
                                     std::string(kShortProgram) + "  hidden_effect: { cause: joint_compliance, joint: " +
                                         std::to_string(joint) + ", size_deg: " + std::to_string(size_deg) + " }\n");
-  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "9", "--work-dir", dir + "/run",
-                             "--summary-json", dir + "/summary.json", "--quiet"});
-  ASSERT_EQ(cell.wait(60), 0) << cell.log();
-  const auto s = readJson(dir + "/summary.json");
-  ASSERT_FALSE(s.is_discarded()) << cell.log();
-  for (const auto& p : s["processes"]) EXPECT_EQ(p["exit_code"], 0) << p["name"];
+  const auto s = runCell(dir, cfg, "9");
+  ASSERT_FALSE(s.is_discarded());
   const double after = s["verify_after_mm"], ref = s["in_process_verify_after_mm"];
   const double at_update = s["verify_after_last_update_mm"];
   const std::string what = "joint " + std::to_string(joint) + ", " + std::to_string(size_deg) + " deg";
@@ -373,10 +361,8 @@ TEST(CellProcesses, TwoRobotsOnOneDomainAreCalibratedIndependentlyByKey) {
                  {"right", "right_target", "ur10.yaml",
                   "{ x_mm: -1800, y_mm: 600, z_mm: -200, roll_deg: 0, pitch_deg: 0, yaw_deg: 20 }"}},
                 "  initial_poses: 60\n  groups: 1\n");
-  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "5", "--work-dir", dir + "/run",
-                             "--summary-json", dir + "/summary.json", "--quiet"});
-  ASSERT_EQ(cell.wait(60), 0) << cell.log();
-  const auto s = readJson(dir + "/summary.json");
+  const auto s = runCell(dir, cfg, "5");
+  ASSERT_FALSE(s.is_discarded());
   ASSERT_EQ(s["robots"].size(), 2u);
   for (const auto& r : s["robots"]) {
     EXPECT_GE(r["final_version"].get<int>(), 55) << r["robot_id"];

@@ -23,18 +23,11 @@ namespace {
 using namespace cellcal::test;
 using namespace cellcal::components;
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // A CA, a certificate per identity (plus `extra`, with no grant) and the signed documents, in `dir`.
 std::string makePki(const std::string& dir, const std::string& extra = "") {
   const std::string cmd = std::string("bash ") + CELLCAL_CONFIG_DIR + "/security/make_pki.sh " + dir + " --days 2" +
                           (extra.empty() ? "" : " --identity " + extra) + " > " + dir + ".log 2>&1";
-  EXPECT_EQ(std::system(cmd.c_str()), 0) << slurp(dir + ".log");
+  EXPECT_EQ(std::system(cmd.c_str()), 0) << readTextFile(dir + ".log");
   return dir;
 }
 
@@ -115,17 +108,11 @@ TEST(DdsSecurity, TheFourProcessCellRunsWithEachComponentUnderItsOwnIdentity) {
   const std::string dir = testDir();
   const std::string pki = makePki(dir + "/pki");
   const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
-                                    "  initial_poses: 40\n  poses_per_group: 15\n  groups: 1\n", "", pki);
-  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "8", "--work-dir", dir + "/run",
-                             "--summary-json", dir + "/summary.json", "--quiet"});
-  ASSERT_EQ(cell.wait(60), 0) << cell.log();
-  const auto s = readJson(dir + "/summary.json");
-  ASSERT_FALSE(s.is_discarded()) << cell.log();
-  for (const auto& p : s["processes"]) EXPECT_EQ(p["exit_code"], 0) << p["name"];
+                                    "  initial_poses: 40\n  poses_per_group: 15\n  groups: 1\n", "", ", security_dir: " + pki);
+  const auto s = runCell(dir, cfg, "8");
+  ASSERT_FALSE(s.is_discarded());
   EXPECT_GE(s["calibration_updates"].get<int>(), 40) << s["engine"].dump();
-  for (const char* t : {"cellcal/joint_state", "cellcal/tracker_pose", "cellcal/calibration_state",
-                        "cellcal/target_pose", "cellcal/compensated_target"})
-    EXPECT_GT(s["topics"][t]["received"].get<int>(), 0) << t;
+  expectEveryTopicFlowed(s);
   EXPECT_LT(s["verify_after_last_update_mm"].get<double>(), 0.05);
   std::printf("  secure cell: %d updates, hold-out %.4f mm; latency tracker->state p50 %.0f us, target->compensated "
               "p50 %.0f us\n",
@@ -139,8 +126,8 @@ TEST(DdsSecurity, AParticipantWithoutAValidCertificateCannotJoin) {
   const std::string pki = makePki(dir + "/pki");
   // A complete PKI of its own: certificates, governance and permissions all consistent, signed by another CA.
   const std::string rogue_pki = makePki(dir + "/rogue_pki");
-  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}}, "", "", pki);
-  const CellConfig rogue_cell = loadCellConfig(writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", rogue_pki, "rogue"));
+  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}}, "", "", ", security_dir: " + pki);
+  const CellConfig rogue_cell = loadCellConfig(writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", ", security_dir: " + rogue_pki, "rogue"));
   const CellConfig plain_cell = loadCellConfig(writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", "", "plain"));
 
   SecureCommandPath path(dir, cfg);
@@ -192,7 +179,7 @@ TEST(DdsSecurity, AValidCertificateWithoutPermissionCannotPublishCompensatedTarg
   const std::string dir = testDir();
   const int domain = domainForTest();
   const std::string pki = makePki(dir + "/pki", "intruder");
-  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}}, "", "", pki);
+  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}}, "", "", ", security_dir: " + pki);
   SecureCommandPath path(dir, cfg);
   ASSERT_TRUE(waitUntil([&] { path.askOnce(); return path.count(kLegit) > 0; }, 30))
       << "the secure command path never answered\n" << path.compensation.log() << path.recorder.log();
@@ -278,7 +265,7 @@ TEST(DdsSecurity, AlteredGovernanceOrPermissionsAreRefused) {
          s[at] = c == 'x' ? 'y' : 'x';
        }},
       {"governance signed by another CA", "governance.p7s", "governance.p7s: its signature does not verify",
-       [&](std::string& s) { s = slurp(rogue_pki + "/governance.p7s"); }},
+       [&](std::string& s) { s = readTextFile(rogue_pki + "/governance.p7s"); }},
       {"permissions granting the observer CompensatedTarget", "permissions.p7s",
        "permissions.p7s: its signature does not verify",
        [](std::string& s) {
@@ -291,7 +278,7 @@ TEST(DdsSecurity, AlteredGovernanceOrPermissionsAreRefused) {
   };
   // Control: the untampered files let the same process start.
   {
-    const std::string cfg = writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", pki, "intact");
+    const std::string cfg = writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", ", security_dir: " + pki, "intact");
     Process p(dir, "intact", {"cellcal_compensation_publisher", "--config", cfg});
     std::this_thread::sleep_for(std::chrono::seconds(2));
     ASSERT_TRUE(p.running()) << p.log();
@@ -301,10 +288,11 @@ TEST(DdsSecurity, AlteredGovernanceOrPermissionsAreRefused) {
     const Case& c = cases[i];
     const std::string altered = dir + "/altered" + std::to_string(i);
     fs::copy(pki, altered);
-    std::string text = slurp(altered + "/" + c.file);
+    std::string text = readTextFile(altered + "/" + c.file);
     c.edit(text);
     std::ofstream(altered + "/" + c.file, std::ios::binary | std::ios::trunc) << text;
-    const std::string cfg = writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", altered, "altered" + std::to_string(i));
+    const std::string cfg = writeCell(dir, domain, 1, {{"tx60", "tx60_target"}}, "", "", ", security_dir: " + altered,
+                                      "altered" + std::to_string(i));
     Process p(dir, "compensation_altered" + std::to_string(i), {"cellcal_compensation_publisher", "--config", cfg});
     EXPECT_EQ(p.wait(20), 1) << c.name << "\n" << p.log();
     EXPECT_NE(p.log().find(c.why), std::string::npos) << c.name << "\n" << p.log();

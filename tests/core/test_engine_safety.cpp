@@ -25,13 +25,6 @@ namespace {
 namespace fs = std::filesystem;
 const std::string kCellFile = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // One stand-still per call: a settled joint state before and after the reading, then process().
 struct Stream {
   const SimulatedCell& sim;
@@ -357,7 +350,7 @@ TEST_F(SafetyFixture, ADiskFullWhilePersistingKeepsTheOldStateAndLosesNothing) {
   for (int k = 0; k < static_cast<int>(qs.size()); ++k) {
     const bool full = k >= full_from && k < full_from + full_for;
     if (k == full_from) {
-      saved = readFile(engine.stateFile());
+      saved = test::readTextFile(engine.stateFile());
       saved_version = engine.snapshot().version;
     }
     // The engine removes its failed temporary file; the disk stays full until k = full_from + full_for.
@@ -368,7 +361,7 @@ TEST_F(SafetyFixture, ADiskFullWhilePersistingKeepsTheOldStateAndLosesNothing) {
     if (full) {
       EXPECT_NE(engine.persistError().find("No space left on device"), std::string::npos) << engine.persistError();
       EXPECT_NE(engine.persistError().find(tmp), std::string::npos) << engine.persistError();
-      EXPECT_TRUE(readFile(engine.stateFile()) == saved) << "the old state must stay whole";
+      EXPECT_TRUE(test::readTextFile(engine.stateFile()) == saved) << "the old state must stay whole";
       EXPECT_GT(engine.snapshot().version, saved_version);
     }
   }

@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "cellcal/core/cell_config.hpp"
+#include "test_support.hpp"
 
 namespace cellcal {
 namespace {
@@ -22,13 +23,6 @@ namespace fs = std::filesystem;
 const fs::path kRepo = fs::path(CELLCAL_CONFIG_DIR).parent_path();
 const std::vector<std::string> kComponents = {"cellcal_tracker_adapter", "cellcal_joint_state_adapter",
                                               "cellcal_calibration_engine", "cellcal_compensation_publisher"};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 std::string capture(const std::string& command) {
   std::string out;
@@ -63,7 +57,7 @@ std::vector<std::string> split(const std::string& s) {
 
 // The cell file of the containers, with the image's install prefix mapped back to this repository's config/.
 void expectContainerCellFileLoads(const fs::path& cell_file) {
-  std::string text = slurp(cell_file);
+  std::string text = test::readTextFile(cell_file);
   ASSERT_FALSE(text.empty()) << cell_file;
   text = std::regex_replace(text, std::regex("/usr/local/share/cellcal/config"), std::string(CELLCAL_CONFIG_DIR));
   const CellConfig c = parseCellConfig(text, cell_file.string(), cell_file.parent_path().string());
@@ -128,8 +122,8 @@ TEST(Deployment, ComposeStartsTheFourComponentsTheWayFastDdsNeeds) {
 }
 
 TEST(Deployment, DockerfileBuildsWithMakesScriptsAndShipsEveryLibrary) {
-  const std::string dockerfile = slurp(kRepo / "docker" / "Dockerfile");
-  const std::string makefile = slurp(kRepo / "Makefile");
+  const std::string dockerfile = test::readTextFile(kRepo / "docker" / "Dockerfile");
+  const std::string makefile = test::readTextFile(kRepo / "Makefile");
   ASSERT_FALSE(dockerfile.empty());
   // One way to build: the scripts `make deps` and `make install` run.
   for (const char* script : {"tools/install_deps.sh", "tools/build_install.sh"}) {
@@ -171,12 +165,12 @@ TEST(Deployment, DockerfileBuildsWithMakesScriptsAndShipsEveryLibrary) {
 
 TEST(Deployment, SystemdUnitsStartTheFourComponents) {
   const fs::path dir = kRepo / "config" / "systemd";
-  const std::string target = slurp(dir / "cellcal.target");
+  const std::string target = test::readTextFile(dir / "cellcal.target");
   std::set<std::string> started;
   for (const auto& c : kComponents) {
     std::string unit_name = "cellcal-" + c.substr(8) + ".service";
     std::replace(unit_name.begin(), unit_name.end(), '_', '-');
-    const std::string unit = slurp(dir / unit_name);
+    const std::string unit = test::readTextFile(dir / unit_name);
     ASSERT_FALSE(unit.empty()) << unit_name;
     EXPECT_NE(target.find(unit_name), std::string::npos) << "cellcal.target does not want " << unit_name;
     EXPECT_NE(unit.find("WantedBy=cellcal.target"), std::string::npos) << unit_name;

@@ -211,18 +211,18 @@ int runBench(const BenchArgs& a) {
     double t_s, engine_rss_mb, compensation_rss_mb, publisher_rss_mb, error_mm;
   };
   std::vector<Sample> series;
+  auto sample = [&](double t_s) {
+    std::vector<Eigen::VectorXd> now_params;
+    {
+      std::lock_guard<std::mutex> l(mutex);
+      now_params = latest;
+    }
+    series.push_back({t_s, rssMb(engine), rssMb(comp), rssMb(::getpid()), meanErrorMm(now_params)});
+  };
   const double uncalibrated_mm = meanErrorMm(latest);
   const auto ticks_per_sample = static_cast<std::int64_t>(std::lround(a.rate_hz));
   for (;; ++tick) {
-    if (tick % ticks_per_sample == 0) {
-      std::vector<Eigen::VectorXd> now_params;
-      {
-        std::lock_guard<std::mutex> l(mutex);
-        now_params = latest;
-      }
-      series.push_back({std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), rssMb(engine),
-                        rssMb(comp), rssMb(::getpid()), meanErrorMm(now_params)});
-    }
+    if (tick % ticks_per_sample == 0) sample(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     const auto due = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * static_cast<double>(tick));
     if (std::chrono::steady_clock::now() > due + period) ++late_ticks;
     std::this_thread::sleep_until(due);
@@ -265,14 +265,7 @@ int runBench(const BenchArgs& a) {
   const double cpu_engine = (cpuSeconds(engine) - cpu0_engine) / wall, cpu_comp = (cpuSeconds(comp) - cpu0_comp) / wall;
   const double cpu_self = (cpuSeconds(::getpid()) - cpu0_self) / wall;
   const double rss_engine = peakRssMb(engine), rss_comp = peakRssMb(comp);
-  {
-    std::vector<Eigen::VectorXd> now_params;
-    {
-      std::lock_guard<std::mutex> l(mutex);
-      now_params = latest;
-    }
-    series.push_back({wall, rssMb(engine), rssMb(comp), rssMb(::getpid()), meanErrorMm(now_params)});
-  }
+  sample(wall);
   const double cpu_recorder = recorder > 0 ? (cpuSeconds(recorder) - cpu0_recorder) / wall : 0;
   const double rss_recorder = recorder > 0 ? peakRssMb(recorder) : 0;
   ::kill(engine, SIGINT);
