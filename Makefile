@@ -11,6 +11,7 @@ all: build
 
 deps:
 	bash tools/install_deps.sh
+	bash tools/tune_host.sh
 
 configure: deps
 	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE)

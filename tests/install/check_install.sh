@@ -17,7 +17,7 @@ for f in bin/cellcal bin/cellcal_tracker_adapter bin/cellcal_joint_state_adapter
          include/cellcal/core/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
          lib/cmake/cellcal/cellcalTargets.cmake share/cellcal/idl/cellcal_msgs.idl share/cellcal/config/cell.yaml \
          share/cellcal/config/dds/cellcal_qos.xml share/cellcal/config/robots/staubli_tx60.yaml \
-         share/cellcal/config/security/permissions.xml; do
+         share/cellcal/config/security/permissions.xml share/cellcal/config/sysctl/60-cellcal.conf; do
   [[ -f $prefix/$f ]] || fail "$f was not installed"
 done
 [[ -x $prefix/share/cellcal/config/security/make_pki.sh ]] || fail "make_pki.sh is not executable"

@@ -25,6 +25,7 @@
 
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/host_limits.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/sim_program.hpp"
@@ -199,6 +200,8 @@ int runBench(const BenchArgs& a) {
   std::uint64_t seq = 0, target_seq = 0, standstills = 0, late_ticks = 0;
   const double cpu0_engine = cpuSeconds(engine), cpu0_comp = cpuSeconds(comp), cpu0_self = cpuSeconds(::getpid());
   const double cpu0_recorder = recorder > 0 ? cpuSeconds(recorder) : 0;
+  // Datagrams the kernel drops for a full socket buffer (this network namespace; the processes here dominate it).
+  const auto kernel_drops0 = udpReceiveBufferErrors();
   const auto t0 = std::chrono::steady_clock::now();
   const auto period = std::chrono::duration<double>(1.0 / a.rate_hz);
   KinematicsData kd(cell.robots[0].model);
@@ -262,6 +265,8 @@ int runBench(const BenchArgs& a) {
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const auto kernel_drops1 = udpReceiveBufferErrors();
+  const auto rmem_max = readKernelLimit("/proc/sys/net/core/rmem_max");
   const double cpu_engine = (cpuSeconds(engine) - cpu0_engine) / wall, cpu_comp = (cpuSeconds(comp) - cpu0_comp) / wall;
   const double cpu_self = (cpuSeconds(::getpid()) - cpu0_self) / wall;
   const double rss_engine = peakRssMb(engine), rss_comp = peakRssMb(comp);
@@ -307,6 +312,10 @@ int runBench(const BenchArgs& a) {
       {"cpu_share_of_one_core", {{"engine", cpu_engine}, {"compensation_publisher", cpu_comp}, {"bench_publisher", cpu_self}}},
       {"peak_rss_mb", {{"engine", rss_engine}, {"compensation_publisher", rss_comp}}},
       {"cores", std::thread::hardware_concurrency()}};
+  out["host"] = {{"net_core_rmem_max_bytes", rmem_max ? nlohmann::json(*rmem_max) : nlohmann::json()},
+                 {"profile_udp_receive_buffer_bytes", node.udpReceiveBufferBytes()},
+                 {"udp_datagrams_dropped_by_kernel",
+                  kernel_drops0 && kernel_drops1 ? nlohmann::json(*kernel_drops1 - *kernel_drops0) : nlohmann::json()}};
   // Soak figures: memory and error at the end of the first third (warm-up done) and at the end.
   const Sample& third = *std::min_element(series.begin(), series.end(), [&](const Sample& x, const Sample& y) {
     return std::abs(x.t_s - wall / 3) < std::abs(y.t_s - wall / 3);
@@ -339,6 +348,11 @@ int runBench(const BenchArgs& a) {
               static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(versions), static_cast<unsigned long long>(standstills));
+  if (kernel_drops0 && kernel_drops1)
+    std::printf("UDP datagrams the kernel dropped for a full socket buffer during the run: %llu (net.core.rmem_max "
+                "%s bytes; the profile asks for %u)\n",
+                static_cast<unsigned long long>(*kernel_drops1 - *kernel_drops0),
+                rmem_max ? std::to_string(*rmem_max).c_str() : "?", node.udpReceiveBufferBytes());
   std::printf("tracker -> state p50 first third %.0f us, last third %.0f us (growing = falling behind)\n",
               percentile(first_third, 0.5), percentile(last_third, 0.5));
   std::printf("CPU (share of one core): engine %.2f, compensation %.2f, this publisher %.2f; peak RSS engine %.1f MB, "

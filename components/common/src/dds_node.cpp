@@ -1,10 +1,14 @@
 #include "cellcal/components/dds_node.hpp"
 
 #include "cellcal/components/dds_security.hpp"
+#include "cellcal/components/host_limits.hpp"
 
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/rtps/transport/UDPTransportDescriptor.h>
 
+#include <algorithm>
 #include <filesystem>
+#include <iostream>
 
 namespace cellcal::components {
 
@@ -33,6 +37,30 @@ void addSecurity(fdds::DomainParticipantQos& qos, const std::string& dir, const 
   props.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
 }
 
+// The kernel caps the UDP socket buffers a profile's transports ask for (host_limits.hpp): say so once, at start.
+// Returns the largest receive buffer asked for.
+std::uint32_t warnOfCappedSocketBuffers(const fdds::DomainParticipantQos& qos, const std::string& node_name,
+                                        const std::string& profile) {
+  const auto rmem_max = readKernelLimit("/proc/sys/net/core/rmem_max");
+  const auto wmem_max = readKernelLimit("/proc/sys/net/core/wmem_max");
+  std::uint32_t largest = 0;
+  if (qos.transport().use_builtin_transports) {
+    largest = qos.transport().listen_socket_buffer_size;
+    const std::string w = socketBufferWarning("participant profile '" + profile + "'", largest,
+                                              qos.transport().send_socket_buffer_size, rmem_max, wmem_max);
+    if (!w.empty()) std::cerr << node_name << ": warning: " << w << "\n";
+  }
+  for (const auto& t : qos.transport().user_transports) {
+    const auto udp = std::dynamic_pointer_cast<eprosima::fastdds::rtps::UDPTransportDescriptor>(t);
+    if (!udp) continue;
+    largest = std::max(largest, udp->receiveBufferSize);
+    const std::string w = socketBufferWarning("participant profile '" + profile + "'", udp->receiveBufferSize,
+                                              udp->sendBufferSize, rmem_max, wmem_max);
+    if (!w.empty()) std::cerr << node_name << ": warning: " << w << "\n";
+  }
+  return largest;
+}
+
 }  // namespace
 
 DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std::string& identity)
@@ -49,6 +77,7 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
     throw std::runtime_error(cell.dds.profiles_file + ": no participant profile '" + cell.dds.participant_profile +
                              "' (cell file dds.participant_profile / CELLCAL_DDS_PROFILE)");
   qos.name(node_name);
+  udp_receive_buffer_bytes_ = warnOfCappedSocketBuffers(qos, node_name, cell.dds.participant_profile);
   if (!cell.dds.security_dir.empty()) addSecurity(qos, cell.dds.security_dir, identity);
   participant_ = factory->create_participant(domain_id_, qos);
   if (!participant_) {

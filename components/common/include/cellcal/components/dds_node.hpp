@@ -139,6 +139,9 @@ class DdsNode {
   }
   fdds::DomainParticipant* participant() const { return participant_; }
   int domainId() const { return domain_id_; }
+  // The largest UDP receive buffer the participant profile's transports ask for, bytes (0: the OS default). The
+  // kernel caps it at net.core.rmem_max (host_limits.hpp); the node warns at start when it does.
+  std::uint32_t udpReceiveBufferBytes() const { return udp_receive_buffer_bytes_; }
 
  private:
   template <class M>
@@ -181,6 +184,7 @@ class DdsNode {
 
   int domain_id_ = 0;
   bool secure_ = false;
+  std::uint32_t udp_receive_buffer_bytes_ = 0;
   bool type_information_ = true;
   fdds::DomainParticipant* participant_ = nullptr;
   fdds::Publisher* publisher_ = nullptr;
