@@ -2,6 +2,10 @@
 // (per pose, or per batch in periodic mode), persists it atomically, publishes cellcal/calibration_state (RELIABLE,
 // TRANSIENT_LOCAL, KEEP_LAST 1 per robot: late joiners get the latest at once; republished every
 // engine.republish_period_s) and cellcal/calibration_diagnostics. The logic is core's CalibrationEngine.
+// Threads: the DDS listeners only convert and queue each sample (WorkQueue); one worker pairs, updates, writes the
+// state file and publishes, so a slow disk delays updates instead of making the kernel drop readings; the main loop
+// fsyncs the state files and republishes.
+#include <malloc.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,10 +13,12 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <variant>
 
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/components/work_queue.hpp"
 
 using namespace cellcal;
 using namespace cellcal::components;
@@ -33,6 +39,16 @@ std::uint64_t p99(const std::deque<std::int64_t>& v) {
   std::nth_element(s.begin(), s.begin() + static_cast<std::ptrdiff_t>(k), s.end());
   return static_cast<std::uint64_t>(std::max<std::int64_t>(0, s[k]));
 }
+
+// A sample as received, waiting for the worker: the robot (joint state) or target (tracker reading) it names, and
+// when it arrived (the engine judges staleness and pairing timeouts by arrival, not by when the worker got to it).
+struct Input {
+  std::string key;
+  std::variant<JointSample, TrackerSample> sample;
+  std::int64_t received_ns = 0;
+};
+// ~6 s of 8 robots with two 1 kHz streams, ~20 MB: the memory a stalled worker may fill before samples are refused.
+constexpr size_t kMaxQueuedInputs = 100000;
 
 void push(std::deque<std::int64_t>& d, std::int64_t v) {
   d.push_back(v);
@@ -58,6 +74,9 @@ int main(int argc, char** argv) {
   app.add_option("--duration-s", duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
   app.add_flag("-q,--quiet", quiet, "no line per update on stderr");
   return runMain("cellcal_calibration_engine", argc, argv, app, [&] {
+    // glibc raises its mmap threshold to the size of any large block freed, so the input queue's backlog after a
+    // stall (MBs) would stay in the heap for good. A fixed threshold returns such blocks to the system when freed.
+    mallopt(M_MMAP_THRESHOLD, 128 * 1024);
     const CellConfig cell = loadCell(o);
     std::map<std::string, Slot> by_robot;
     std::map<std::string, Slot*> by_target;
@@ -85,6 +104,7 @@ int main(int argc, char** argv) {
     auto diag_writer = node.writer<msg::CalibrationDiagnostics>();
     std::mutex mutex;
     std::uint64_t unknown_keys = 0, updates = 0;
+    std::uint64_t inputs_refused = 0;  // samples the full input queue refused (WorkQueue), as of the last main-loop round
 
     auto publishState = [&](Slot& s) {
       auto m = toCalibrationState(*s.robot, s.engine->snapshot(), wallNs(), ++s.state_seq);
@@ -112,6 +132,10 @@ int main(int argc, char** argv) {
         if (!c.rejected[k]) continue;
         d.rejection_reasons().push_back(rejectionName(static_cast<Rejection>(k)));
         d.rejection_counts().push_back(c.rejected[k]);
+      }
+      if (inputs_refused) {  // before any robot could be told: counted for every robot
+        d.rejection_reasons().push_back("engine_input_queue_full");
+        d.rejection_counts().push_back(inputs_refused);
       }
       const auto& snap = s.engine->snapshot();
       d.drift_alarm(snap.drift_alarm);
@@ -161,27 +185,42 @@ int main(int argc, char** argv) {
                   << snap.verification_mean_position_m * 1e3 << " mm\n";
     };
 
-    node.reader<msg::JointState>([&](const msg::JointState& m, const fdds::SampleInfo&) {
+    // The worker: every sample in arrival order, then (with nothing queued for 5 ms) the timeouts of readings whose
+    // joint state never came.
+    auto handleInputs = [&](std::vector<Input>& batch) {
       std::lock_guard<std::mutex> lock(mutex);
-      auto it = by_robot.find(m.robot_id().to_string());
-      if (it == by_robot.end()) {
-        ++unknown_keys;
-        return;
+      for (auto& in : batch) {
+        if (auto* j = std::get_if<JointSample>(&in.sample)) {
+          auto it = by_robot.find(in.key);
+          if (it == by_robot.end()) {
+            ++unknown_keys;
+            continue;
+          }
+          it->second.engine->onJointState(std::move(*j), in.received_ns);
+          step(it->second, in.received_ns);
+        } else {
+          auto it = by_target.find(in.key);
+          if (it == by_target.end()) {
+            ++unknown_keys;
+            continue;
+          }
+          it->second->engine->onTrackerSample(std::get<TrackerSample>(in.sample), in.received_ns);
+          step(*it->second, in.received_ns);
+        }
       }
+    };
+    auto idle = [&] {
+      std::lock_guard<std::mutex> lock(mutex);
       const std::int64_t now = wallNs();
-      it->second.engine->onJointState(toJointSample(m), now);
-      step(it->second, now);
+      for (auto& [id, s] : by_robot) step(s, now);
+    };
+    WorkQueue<Input> inputs(kMaxQueuedInputs, handleInputs, std::chrono::milliseconds(5), idle);
+    std::uint64_t refused_reported = 0;
+    node.reader<msg::JointState>([&](const msg::JointState& m, const fdds::SampleInfo&) {
+      inputs.push({m.robot_id().to_string(), toJointSample(m), wallNs()});
     });
     node.reader<msg::TrackerPose>([&](const msg::TrackerPose& m, const fdds::SampleInfo&) {
-      std::lock_guard<std::mutex> lock(mutex);
-      auto it = by_target.find(m.target_id().to_string());
-      if (it == by_target.end()) {
-        ++unknown_keys;
-        return;
-      }
-      const std::int64_t now = wallNs();
-      it->second->engine->onTrackerSample(toTrackerSample(m), now);
-      step(*it->second, now);
+      inputs.push({m.target_id().to_string(), toTrackerSample(m), wallNs()});
     });
     {
       std::lock_guard<std::mutex> lock(mutex);
@@ -202,12 +241,17 @@ int main(int argc, char** argv) {
       // Durability off the latency path: fsync the state files replaced since the last round, without the lock.
       for (const auto& f : to_sync) syncStateFile(f);
       to_sync.clear();
-      std::lock_guard<std::mutex> lock(mutex);
-      const std::int64_t now = wallNs();
-      for (auto& [id, s] : by_robot) {
-        step(s, now);  // readings whose joint state never came time out here
-        if (s.engine->takeUnsynced()) to_sync.push_back(s.engine->stateFile());
+      const std::uint64_t refused = inputs.refused();
+      if (refused > refused_reported) {
+        std::cerr << "calibration_engine: warning: " << refused - refused_reported << " samples refused: "
+                  << kMaxQueuedInputs << " were waiting for the worker (stalled on the disk?)\n";
+        refused_reported = refused;
       }
+      std::lock_guard<std::mutex> lock(mutex);
+      inputs_refused = refused;
+      const std::int64_t now = wallNs();
+      for (auto& [id, s] : by_robot)
+        if (s.engine->takeUnsynced()) to_sync.push_back(s.engine->stateFile());
       if (std::chrono::steady_clock::now() >= next_republish) {
         next_republish += std::chrono::duration_cast<std::chrono::steady_clock::duration>(
             std::chrono::duration<double>(cell.engine.republish_period_s));
@@ -217,6 +261,7 @@ int main(int argc, char** argv) {
         }
       }
     }
+    inputs.stop();  // the worker handles what is queued (and may still publish), then stops
     node.shutdown();
     for (auto& [id, s] : by_robot) s.engine->syncToDisk();
     nlohmann::json robots = nlohmann::json::object();
@@ -241,7 +286,9 @@ int main(int argc, char** argv) {
     writeJsonFile(o.stats_json, {{"name", "calibration_engine"},
                                  {"pid", ::getpid()},
                                  {"topics", node.stats()},
-                                 {"extra", {{"updates", updates}, {"unknown_keys", unknown_keys}, {"robots", robots}}}});
+                                 {"extra", {{"updates", updates}, {"unknown_keys", unknown_keys}, {"robots", robots},
+                                            {"input_queue", {{"peak", inputs.peak()}, {"refused", inputs.refused()},
+                                                             {"max", kMaxQueuedInputs}}}}}});
     return 0;
   });
 }

@@ -348,6 +348,12 @@ int runBench(const BenchArgs& a) {
               static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(versions), static_cast<unsigned long long>(standstills));
+  if (!es.is_discarded() && es["extra"].contains("input_queue")) {
+    const auto& iq = es["extra"]["input_queue"];
+    std::printf("engine input queue (samples waiting for its worker): peak %llu, refused %llu (bound %llu)\n",
+                iq.value("peak", 0ULL), iq.value("refused", 0ULL), iq.value("max", 0ULL));
+    out["engine_input_queue"] = iq;
+  }
   if (kernel_drops0 && kernel_drops1)
     std::printf("UDP datagrams the kernel dropped for a full socket buffer during the run: %llu (net.core.rmem_max "
                 "%s bytes; the profile asks for %u)\n",
