@@ -172,6 +172,28 @@ TEST(Mcap, ADamagedChunkIsAnErrorNamingItsByte) {
   fs::remove(r.path);
 }
 
+// Found by Fuzz.Parsers: a footer whose summary start lies beyond the footer made the summary CRC read far past the
+// file. Now an error naming the footer's byte and the offset.
+TEST(Mcap, AFooterPointingOutsideTheFileIsAnError) {
+  std::mt19937_64 rng(test::testSeed());
+  const Recording r = writeRandom(tempPath("footer"), rng, 50 + static_cast<int>(rng() % 200), 1024);
+  std::string bytes = slurp(r.path);
+  const std::size_t footer_at = bytes.size() - 8 - (1 + 8 + 8 + 8 + 4);
+  ASSERT_EQ(bytes[footer_at], 0x02);  // the footer's opcode
+  const std::uint64_t bad = rng() % 2 ? footer_at + 1 + rng() % (1ULL << 62) : 1 + rng() % 7;
+  for (int k = 0; k < 8; ++k) bytes[footer_at + 9 + k] = static_cast<char>((bad >> (8 * k)) & 0xff);
+  std::ofstream(r.path, std::ios::binary) << bytes;
+  try {
+    mcap::readFile(r.path);
+    FAIL() << "summary start " << bad << " accepted";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("at byte " + std::to_string(footer_at) + ": footer: summary start " +
+                                         std::to_string(bad) + " is not between"),
+              std::string::npos) << e.what();
+  }
+  fs::remove(r.path);
+}
+
 TEST(Mcap, Crc32IsTheStandardOne) {
   EXPECT_EQ(mcap::crc32("123456789", 9), 0xCBF43926u);  // the CRC-32/ISO-HDLC check value
 }

@@ -162,6 +162,9 @@ class Reader {
           const std::uint64_t summary_start = in.u<std::uint64_t>();
           in.u<std::uint64_t>();  // summary offset start: the reader walks the summary section in order
           const std::uint32_t crc = in.u<std::uint32_t>();
+          if (summary_start != 0 && (summary_start < 8 || summary_start > footer_at))
+            fail(pos, "footer: summary start " + std::to_string(summary_start) + " is not between the magic and the footer (" +
+                          std::to_string(footer_at) + ")");
           if (summary_start != 0 && crc != 0 &&
               crc != crc32(b_.data() + summary_start, footer_at + 1 + 8 + 8 + 8 - summary_start))
             fail(pos, "summary CRC mismatch");
