@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
+#include <sys/prctl.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -67,9 +68,13 @@ Child spawn(const std::string& name, const std::vector<std::string>& args, const
   full.insert(full.end(), args.begin(), args.end());
   full.push_back("--stats-json");
   full.push_back(c.stats_file);
+  const pid_t parent = ::getpid();
   const pid_t pid = ::fork();
   if (pid < 0) throw std::runtime_error("fork failed");
   if (pid == 0) {
+    // The cell goes down with the launcher, even when it is SIGKILLed (SIGTERM: each component's clean stop).
+    ::prctl(PR_SET_PDEATHSIG, SIGTERM);
+    if (::getppid() != parent) ::_exit(1);  // the launcher died before prctl
     const int fd = ::open(c.log_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (fd >= 0) {
       ::dup2(fd, 1);

@@ -172,7 +172,11 @@ class DdsNode {
     auto it = topics_.find(TopicOf<M>::name);
     if (it != topics_.end()) return it->second;
     fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
-    type->auto_fill_type_object(type_information_);
+    // Discovery carries the TypeInformation (hashes; a recorder fetches the TypeObject through the TypeLookup service)
+    // but not the TypeObject itself: on receiving one, Fast DDS 2.9 builds a DynamicType from the TypeObjectFactory in
+    // its discovery thread, while fastddsgen 2.3's message constructors re-register every type of the IDL in that
+    // factory. The race crashed `cellcal status` (SIGSEGV in DynamicType::get_all_members) about once in 80 starts.
+    type->auto_fill_type_object(false);
     type->auto_fill_type_information(type_information_);
     type.register_type(participant_);
     fdds::Topic* t = participant_->create_topic(TopicOf<M>::name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
