@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
+#include <vector>
 
 namespace cellcal::components {
 
@@ -41,21 +42,19 @@ void addSecurity(fdds::DomainParticipantQos& qos, const std::string& dir, const 
 // Returns the largest receive buffer asked for.
 std::uint32_t warnOfCappedSocketBuffers(const fdds::DomainParticipantQos& qos, const std::string& node_name,
                                         const std::string& profile) {
+  // (receive, send) bytes asked for: the builtin transports' (participant level), then each UDP descriptor's.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> asked;
+  if (qos.transport().use_builtin_transports)
+    asked.emplace_back(qos.transport().listen_socket_buffer_size, qos.transport().send_socket_buffer_size);
+  for (const auto& t : qos.transport().user_transports)
+    if (const auto udp = std::dynamic_pointer_cast<eprosima::fastdds::rtps::UDPTransportDescriptor>(t))
+      asked.emplace_back(udp->receiveBufferSize, udp->sendBufferSize);
   const auto rmem_max = readKernelLimit("/proc/sys/net/core/rmem_max");
   const auto wmem_max = readKernelLimit("/proc/sys/net/core/wmem_max");
   std::uint32_t largest = 0;
-  if (qos.transport().use_builtin_transports) {
-    largest = qos.transport().listen_socket_buffer_size;
-    const std::string w = socketBufferWarning("participant profile '" + profile + "'", largest,
-                                              qos.transport().send_socket_buffer_size, rmem_max, wmem_max);
-    if (!w.empty()) std::cerr << node_name << ": warning: " << w << "\n";
-  }
-  for (const auto& t : qos.transport().user_transports) {
-    const auto udp = std::dynamic_pointer_cast<eprosima::fastdds::rtps::UDPTransportDescriptor>(t);
-    if (!udp) continue;
-    largest = std::max(largest, udp->receiveBufferSize);
-    const std::string w = socketBufferWarning("participant profile '" + profile + "'", udp->receiveBufferSize,
-                                              udp->sendBufferSize, rmem_max, wmem_max);
+  for (const auto& [receive, send] : asked) {
+    largest = std::max(largest, receive);
+    const std::string w = socketBufferWarning("participant profile '" + profile + "'", receive, send, rmem_max, wmem_max);
     if (!w.empty()) std::cerr << node_name << ": warning: " << w << "\n";
   }
   return largest;
