@@ -138,8 +138,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
   stackExtended(model, p0, Eigen::VectorXd::Zero(k), obs, B, r, &J);
-  std::vector<int> order = model.canonicalParams();
-  std::sort(order.begin(), order.end());
+  std::vector<int> order = identificationPriority(model);
   for (int c = 0; c < k; ++c) order.push_back(np + c);
   const std::vector<int> cols = independentColumns(J, order, identifiability);
   for (int c : cols) (c < np ? fit.estimated : fit.estimated_extension).push_back(c < np ? c : c - np);

@@ -10,11 +10,22 @@
 namespace cellcal {
 
 bool IdentifiabilityOptions::IsValid(std::string* error) const {
-  if (!(rank_tolerance > 0 && rank_tolerance < 1) || !(weak_separation >= 0 && weak_separation < 1)) {
-    if (error) *error = "rank_tolerance must be in (0, 1) and weak_separation in [0, 1)";
+  if (!(rank_tolerance > 0 && rank_tolerance < 1) || !(conditioning_guard >= 0 && conditioning_guard <= 1)) {
+    if (error) *error = "rank_tolerance must be in (0, 1) and conditioning_guard in [0, 1]";
     return false;
   }
   return true;
+}
+
+std::vector<int> identificationPriority(const RobotModel& model) {
+  std::vector<int> out;
+  for (int k = 0; k < 6; ++k) out.push_back(model.toolParam(static_cast<FrameParam>(k)));
+  for (int i = 0; i < 5 * model.numJoints(); ++i) out.push_back(i);
+  for (int k = 0; k < 6; ++k) out.push_back(model.baseParam(static_cast<FrameParam>(k)));
+  std::vector<int> canonical;
+  for (int i : out)
+    if (model.isCanonical(i)) canonical.push_back(i);
+  return canonical;
 }
 
 std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
@@ -22,41 +33,41 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
   std::string err;
   if (!options.IsValid(&err)) throw std::invalid_argument("IdentifiabilityOptions: " + err);
   const Eigen::Index m = J.rows();
-  Eigen::MatrixXd Q(m, std::min<Eigen::Index>(m, static_cast<Eigen::Index>(order.size())));
-  int k = 0;
-  std::vector<int> kept;
   // A column many orders below the strongest one is round-off, not excitation (e.g. a rotation about an axis the
   // target lies on): normalizing it would turn noise into a direction.
   double max_norm = 0;
   for (int c : order) max_norm = std::max(max_norm, J.col(c).norm());
   const double min_norm = 1e-10 * max_norm;
-  // Two passes over the candidates in priority order. The first keeps only columns well clear of the kept span
-  // (> weak_separation); the second revisits the rest against everything kept by then. A near-gauge that only a
-  // small angle breaks (joint 6's alpha and a tool roll, separated by a tool pitch of a few hundredths of a degree)
-  // is thus closed by the well-separated parameter instead of being estimated as two nearly equal columns.
-  auto residual = [&](int c, Eigen::VectorXd& v) {
-    v = J.col(c) / J.col(c).norm();
-    for (int pass = 0; pass < 2; ++pass) v -= Q.leftCols(k) * (Q.leftCols(k).transpose() * v);
-    return v.norm();
-  };
-  std::vector<int> deferred;
-  Eigen::VectorXd v;
-  for (int c : order) {
-    if (J.col(c).norm() <= min_norm || k >= m) continue;
-    const double res = residual(c, v);
-    if (res > std::max(options.weak_separation, options.rank_tolerance)) {
-      Q.col(k++) = v / res;
-      kept.push_back(c);
-    } else {
-      deferred.push_back(c);
-    }
-  }
-  for (int c : deferred) {
-    const double res = k < m ? residual(c, v) : 0.0;
-    if (res > options.rank_tolerance) {
-      Q.col(k++) = v / res;
-      kept.push_back(c);
-    }
+  // Unit-norm candidates, deflated by every kept direction as it is taken (modified Gram-Schmidt, twice for
+  // stability): R.col(i) is candidate i's part outside the kept span, its norm the sine of its angle to that span.
+  std::vector<int> cand;
+  for (int c : order)
+    if (J.col(c).norm() > min_norm) cand.push_back(c);
+  const auto nc = static_cast<Eigen::Index>(cand.size());
+  Eigen::MatrixXd R(m, nc);
+  for (Eigen::Index i = 0; i < nc; ++i) R.col(i) = J.col(cand[i]) / J.col(cand[i]).norm();
+  std::vector<bool> taken(cand.size(), false);
+  std::vector<int> kept;
+  Eigen::MatrixXd Q(m, std::min(m, nc));
+  Eigen::Index k = 0;
+  while (k < std::min(m, nc)) {
+    double best = 0;
+    for (Eigen::Index i = 0; i < nc; ++i)
+      if (!taken[i]) best = std::max(best, R.col(i).norm());
+    if (best <= options.rank_tolerance) break;
+    // The highest-priority column that is not much closer to the kept span than the best-separated one.
+    Eigen::Index pick = -1;
+    for (Eigen::Index i = 0; i < nc && pick < 0; ++i)
+      if (!taken[i] && R.col(i).norm() >= options.conditioning_guard * best && R.col(i).norm() > options.rank_tolerance)
+        pick = i;
+    taken[pick] = true;
+    kept.push_back(cand[pick]);
+    Eigen::VectorXd q = R.col(pick);
+    for (Eigen::Index j = 0; j < k; ++j) q -= Q.col(j) * Q.col(j).dot(q);  // re-orthogonalize
+    q.normalize();
+    Q.col(k++) = q;
+    for (Eigen::Index i = 0; i < nc; ++i)
+      if (!taken[i]) R.col(i) -= q * q.dot(R.col(i));
   }
   std::sort(kept.begin(), kept.end());
   return kept;
@@ -65,9 +76,14 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
                                              const IdentifiabilityOptions& options) {
   if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
-  std::vector<int> cand = options.candidates.empty() ? model.canonicalParams() : options.candidates;
-  // Priority: joints (base to flange, natural parameter order), then base, then tool: ascending index order.
-  std::sort(cand.begin(), cand.end());
+  std::vector<int> cand = identificationPriority(model);
+  if (!options.candidates.empty())
+    cand.erase(std::remove_if(cand.begin(), cand.end(),
+                              [&](int c) {
+                                return std::find(options.candidates.begin(), options.candidates.end(), c) ==
+                                       options.candidates.end();
+                              }),
+               cand.end());
 
   IdentifiabilityReport rep;
   rep.num_candidates = static_cast<int>(cand.size());

@@ -37,7 +37,6 @@ int runCalibrate(const CalibrateArgs& a) {
   const RobotModel& robot = in.robot;
   const auto& ident = in.data.identification;
   const auto& verify = in.data.verification;
-  const MeasurementKind kind = in.kind;
   const Eigen::VectorXd& start = in.start;
   using Clock = std::chrono::steady_clock;
   const auto t1 = Clock::now();
@@ -81,7 +80,7 @@ int runCalibrate(const CalibrateArgs& a) {
   const ErrorStats vb = errorStats(robot, before, verify, vdr), va = errorStats(robot, after, verify, vdr);
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.input.data.c_str(),
               in.file.rows.size(), a.input.split.c_str(), ident.size(), verify.size(),
-              kind == MeasurementKind::kPose6D ? "6D" : "position only", robot.name.c_str());
+              in.measurementText().c_str(), robot.name.c_str());
   if (!a.input.no_register)
     std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", in.registration_rms_mm, reg_s * 1e3);
   std::printf("calibration, model %s (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
@@ -132,7 +131,7 @@ int runCalibrate(const CalibrateArgs& a) {
     nlohmann::json j = {{"data", a.input.data}, {"robot", robot.name}, {"rows", in.file.rows.size()},
                         {"skipped_rows", in.file.skipped_rows}, {"split", a.input.split},
                         {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
-                        {"measurement", kind == MeasurementKind::kPose6D ? "pose6d" : "position3d"},
+                        {"measurement", in.measurementJson()},
                         {"model", a.model}, {"model_fitted", model_label}, {"solver", a.solver},
                         {"converged", converged}, {"iterations", iterations},
                         {"registration_rms_mm", in.registration_rms_mm}, {"registration_time_s", reg_s},

@@ -75,7 +75,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
   md << "# cellcal diagnose: " << in.robot.name << "\n\n";
   md << "Data: `" << a.input.data << "`, " << in.file.rows.size() << " rows (" << a.input.split << " split: "
      << in.data.identification.size() << " identify, " << in.data.verification.size() << " verify), "
-     << (in.kind == MeasurementKind::kPose6D ? "6D" : "position only") << ". Thermal driver: "
+     << in.measurementText() << ". Thermal driver: "
      << (in.data.has_thermal ? in.data.thermal_source : std::string("none")) << ".\n\n";
   md << "## Finding\n\n";
   if (d.chosen < 0) {
@@ -159,7 +159,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   const CandidateResult& b = d.best();
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s, thermal driver: %s\n",
               a.input.data.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
-              in.data.verification.size(), in.kind == MeasurementKind::kPose6D ? "6D" : "position only",
+              in.data.verification.size(), in.measurementText().c_str(),
               in.robot.name.c_str(), in.data.has_thermal ? in.data.thermal_source.c_str() : "none");
   std::printf("\n%-34s %6s %12s %12s %8s\n", "model (verification rows)", "params", "mean mm", "rms mm", "z");
   std::printf("%-34s %6s %12.4f %12.4f\n", "geometric", "-", g.verification.mean_mm, g.verification.rms_mm);
@@ -198,7 +198,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                        {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
                        {"score_m2", c.score}});
     nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
-                        {"split", a.input.split}, {"measurement", in.kind == MeasurementKind::kPose6D ? "pose6d" : "position3d"},
+                        {"split", a.input.split}, {"measurement", in.measurementJson()},
                         {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
                         {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(b.fit.extension()) : nlohmann::json::array()},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},

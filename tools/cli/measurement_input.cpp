@@ -34,10 +34,12 @@ LoadedInput loadInput(const InputArgs& a) {
   for (size_t i = 0; i < rows.size(); ++i) {
     const Observation o =
         toObservation(rows[i], in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180);
+    (o.kind == MeasurementKind::kPose6D ? in.oriented_rows : in.position_rows)++;
     const bool to_verify = a.split == "alternate" ? (i % 2 == 1) : (i >= rows.size() / 2);
     (to_verify ? in.data.verification : in.data.identification).push_back(o);
     (to_verify ? in.data.verification_drivers : in.data.identification_drivers).push_back(drivers.rows[i]);
   }
+  if (in.oriented_rows == 0) in.kind = MeasurementKind::kPosition3D;
   if (in.data.identification.size() < 8 || in.data.verification.empty())
     throw std::runtime_error(a.data + ": too few rows (" + std::to_string(rows.size()) + ")");
   const auto t0 = std::chrono::steady_clock::now();
@@ -50,6 +52,17 @@ LoadedInput loadInput(const InputArgs& a) {
   }
   in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return in;
+}
+
+std::string LoadedInput::measurementText() const {
+  if (position_rows == 0) return "6D";
+  if (oriented_rows == 0) return "position only";
+  return "mixed: " + std::to_string(oriented_rows) + " 6D, " + std::to_string(position_rows) + " position-only rows";
+}
+
+std::string LoadedInput::measurementJson() const {
+  if (position_rows == 0) return "pose6d";
+  return oriented_rows == 0 ? "position3d" : "mixed";
 }
 
 // "backlash:3,joint_compliance:2" or "thermal_drift" (lengths) -> extensions; joints 1-based.

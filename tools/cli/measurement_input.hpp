@@ -22,7 +22,10 @@ struct InputArgs {
 struct LoadedInput {
   RobotModel robot;
   MeasurementFile file;
-  MeasurementKind kind = MeasurementKind::kPose6D;
+  MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D when no row used has an orientation
+  int oriented_rows = 0, position_rows = 0;          // rows used as 6D poses / as points
+  std::string measurementText() const;               // "6D", "position only", "mixed: 30 6D, 12 position-only rows"
+  std::string measurementJson() const;               // "pose6d", "position3d", "mixed"
   DiagnosisData data;        // identification / verification rows with their drivers (computed in visiting order)
   Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
   double registration_rms_mm = 0;  // NaN with --no-register

@@ -1,15 +1,21 @@
 // Which kinematic parameters a set of observations can identify.
 //
-// The whitened Jacobian's columns are scaled to unit norm first (so metres and radians compare), then taken in a
-// fixed priority order (joint parameters base to flange, then base frame, then tool frame; only canonical
-// parameters are candidates) and kept when they add a direction the kept ones do not span: relative residual after
-// projection > rank_tolerance (greedy QR with column pivoting in a deterministic order, so the kept set is the
-// natural one: d1 stays and base z, which only duplicates it, is fixed). Columns within weak_separation of the kept
-// span are taken in a second pass, after all well-separated ones, so that a near-duplicate (a tool roll next to joint
-// 6's alpha when the tool is tilted by a few hundredths of a degree) does not push out a parameter that is clearly
-// separable (the tool pitch). Every dropped parameter is reported with
-// the kept parameters it is (nearly) a combination of: it is fixed at its current value, and the ones it merges into
-// absorb its error.
+// The whitened Jacobian's columns are scaled to unit norm first (so metres and radians compare), then kept one at a
+// time while some column leaves the span of the kept ones by more than rank_tolerance (the sine of its angle to that
+// span): greedy QR with column pivoting, where the pivot is the highest-priority column whose sine is at least
+// conditioning_guard times the largest one left. Priority (identificationPriority): the tool frame, then the joints
+// from base to flange, then the base frame; only canonical parameters are candidates.
+//   - The tool frame first: with the last joint's parameters the tool frame describes one rigid motion, and the
+//     tool's Cartesian parameters describe it for any target (a point target 1 mm or 100 mm off the flange axis,
+//     any orientation). Keeping joint n's offset and a instead parametrizes a sideways target in polar form, which
+//     degenerates where the fixed part is small: a fit in such a basis stalls above the optimum.
+//   - Joints before the base: d1 stays and base z, which only duplicates it, is fixed.
+//   - The guard: a column nearly inside the kept span (a tool roll next to joint 6's alpha, separated only by a tool
+//     tilt of a few hundredths of a degree) is not taken while a clearly separable one is left; a basis of
+//     nearly parallel columns identifies the same span linearly but is ill-conditioned and nonlinear far from it.
+// The kept set spans every direction of the candidate columns above rank_tolerance; every dropped parameter lies
+// within rank_tolerance of that span and is reported with the kept parameters it is (nearly) a combination of: it
+// is fixed at its current value, and the ones it merges into absorb its error.
 #pragma once
 
 #include <Eigen/Core>
@@ -22,9 +28,9 @@
 namespace cellcal {
 
 struct IdentifiabilityOptions {
-  double rank_tolerance = 1e-5;  // sine of the angle between a scaled column and the span of the kept ones
-  double weak_separation = 1e-2;  // columns closer than this (sine) to the kept span are considered after the others
-  std::vector<int> candidates;   // empty: model.canonicalParams()
+  double rank_tolerance = 1e-5;      // sine of the angle between a scaled column and the span of the kept ones
+  double conditioning_guard = 0.1;  // a pivot's sine is at least this fraction of the largest one left
+  std::vector<int> candidates;      // a subset of model.canonicalParams(); empty: all of them
   bool IsValid(std::string* error) const;
 };
 
@@ -42,6 +48,9 @@ struct IdentifiabilityReport {
   std::vector<DroppedParameter> dropped;
   std::string summary(const RobotModel& model) const;
 };
+
+// The canonical parameters in the priority order above: tool frame, joints base to flange, base frame.
+std::vector<int> identificationPriority(const RobotModel& model);
 
 // The columns of J (indices taken from `order`, highest priority first) that the rule above keeps, ascending.
 // Works on any stacked Jacobian, e.g. kinematic parameters plus the parameters of a model extension.
