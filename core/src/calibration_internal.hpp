@@ -12,6 +12,16 @@ namespace cellcal::internal {
 // Throws std::invalid_argument naming what is wrong with the problem or the options.
 void requireValid(const CalibrationProblem& problem, const SolverOptions& options);
 
+// One fit of every observation (no screening).
+CalibrationResult solveGaussNewtonPlain(const CalibrationProblem& problem, const SolverOptions& options);
+CalibrationResult solveLevenbergMarquardtPlain(const CalibrationProblem& problem, const SolverOptions& options);
+// The fit-screen alternation of calibration.hpp around one of them.
+CalibrationResult solveScreened(const CalibrationProblem& problem, const SolverOptions& options,
+                                CalibrationResult (*solve)(const CalibrationProblem&, const SolverOptions&));
+// Every observation's errors at `params`, screened.
+OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Observation>& obs,
+                        const OutlierOptions& options);
+
 // The linear-algebra view of a CalibrationProblem restricted to the estimated parameters.
 struct ReducedProblem {
   const CalibrationProblem* problem = nullptr;

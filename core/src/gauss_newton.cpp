@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "calibration_internal.hpp"
+#include "cellcal/core/kinematics.hpp"
 #include "cellcal/core/se3.hpp"
 
 namespace cellcal {
@@ -50,6 +51,7 @@ bool CalibrationProblem::IsValid(std::string* error) const {
     if (Eigen::LLT<Eigen::MatrixXd>(prior->covariance).info() != Eigen::Success)
       return fail("prior.covariance is not positive definite");
   }
+  if (!outliers.IsValid(error)) return false;
   return identifiability.IsValid(error);
 }
 
@@ -150,8 +152,53 @@ void ReducedProblem::finish(CalibrationResult& result) const {
 
 }  // namespace internal
 
+namespace internal {
+
+OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Observation>& obs,
+                        const OutlierOptions& options) {
+  KinematicsData data(model);
+  std::vector<Eigen::Vector3d> pos;
+  std::vector<double> ori;
+  for (const auto& o : obs) {
+    const Pose& T = forwardKinematics(model, data, params, o.q_rad);
+    pos.push_back(o.measured_in_tracker.translation() - T.translation());
+    ori.push_back(o.kind == MeasurementKind::kPose6D
+                      ? logSO3(o.measured_in_tracker.linear() * T.linear().transpose()).norm()
+                      : std::nan(""));
+  }
+  return screenOutliers(pos, ori, options);
+}
+
+CalibrationResult solveScreened(const CalibrationProblem& problem, const SolverOptions& options,
+                                CalibrationResult (*solve)(const CalibrationProblem&, const SolverOptions&)) {
+  const auto t0 = std::chrono::steady_clock::now();
+  CalibrationResult res = solve(problem, options);
+  res.outliers = screenFit(*problem.model, res.params, problem.observations, problem.outliers);
+  if (!problem.outliers.enabled) return res;
+  const int n = static_cast<int>(problem.observations.size());
+  std::vector<int> used;  // the flagged set the current fit left out
+  for (int round = 0; round < problem.outliers.max_rounds && res.outliers.rows != used; ++round) {
+    // Refit without the flagged rows (never fewer than half of them kept), from the same start.
+    if (2 * static_cast<int>(res.outliers.rows.size()) > n) break;
+    used = res.outliers.rows;
+    CalibrationProblem sub = problem;
+    sub.observations.clear();
+    for (int i : keptRows(n, used)) sub.observations.push_back(problem.observations[static_cast<size_t>(i)]);
+    res = solve(sub, options);
+    res.outliers = screenFit(*problem.model, res.params, problem.observations, problem.outliers);
+  }
+  res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace internal
+
 CalibrationResult solveGaussNewton(const CalibrationProblem& problem, const SolverOptions& options) {
   internal::requireValid(problem, options);
+  return internal::solveScreened(problem, options, internal::solveGaussNewtonPlain);
+}
+
+CalibrationResult internal::solveGaussNewtonPlain(const CalibrationProblem& problem, const SolverOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   internal::ReducedProblem rp(problem);
   const auto m = static_cast<Eigen::Index>(rp.estimated.size());

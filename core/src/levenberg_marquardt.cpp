@@ -67,6 +67,11 @@ class PriorCost final : public ceres::CostFunction {
 
 CalibrationResult solveLevenbergMarquardt(const CalibrationProblem& problem, const SolverOptions& options) {
   internal::requireValid(problem, options);
+  return internal::solveScreened(problem, options, internal::solveLevenbergMarquardtPlain);
+}
+
+CalibrationResult internal::solveLevenbergMarquardtPlain(const CalibrationProblem& problem,
+                                                          const SolverOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   internal::ReducedProblem rp(problem);
   CalibrationResult res;

@@ -21,9 +21,11 @@ constexpr CauseInfo kCauses[] = {{Cause::kNone, "none"},
                                   {Cause::kThermalDrift, "thermal_drift"},
                                   {Cause::kCyclicTransmission, "cyclic_transmission"},
                                   {Cause::kJointScale, "joint_scale"},
-                                  {Cause::kBacklash, "backlash"}};
+                                  {Cause::kBacklash, "backlash"},
+                                  {Cause::kLinkDeflection, "link_deflection"}};
 
 constexpr double kStillRad = 1e-4;        // a joint that moved less than this keeps its last direction
+constexpr double kMinBeamLengthM = 0.2;   // links shorter than this are not treated as beams
 
 Eigen::Vector3d gravityInTracker(const RobotModel& model, const std::vector<Pose>& F) {
   return F[0].linear() * model.gravity_in_base_mps2;
@@ -58,7 +60,7 @@ std::optional<Cause> causeFromName(const std::string& name) {
 
 const std::vector<Cause>& extensionCauses() {
   static const std::vector<Cause> c = {Cause::kJointCompliance, Cause::kThermalDrift, Cause::kCyclicTransmission,
-                                       Cause::kJointScale, Cause::kBacklash};
+                                       Cause::kJointScale, Cause::kBacklash, Cause::kLinkDeflection};
   return c;
 }
 
@@ -81,10 +83,15 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
     t.has_thermal = true;
     t.thermal_source = "temperature_c";
   } else if (all_stamp) {
-    for (size_t i = 0; i < n; ++i) t.rows[i].thermal = (*stamp_s[i] - *stamp_s[0]) / 3600.0;
+    for (size_t i = 0; i < n; ++i) {
+      t.rows[i].thermal = (*stamp_s[i] - *stamp_s[0]) / 3600.0;
+      t.rows[i].thermal_is_time = true;
+    }
     t.has_thermal = true;
     t.thermal_source = "stamp_s";
   }
+  if (all_stamp)
+    for (size_t i = 0; i < n; ++i) t.rows[i].elapsed_h = (*stamp_s[i] - *stamp_s[0]) / 3600.0;
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Index nj = q_rad[i].size();
     Drivers& d = t.rows[i];
@@ -150,6 +157,43 @@ double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, 
   return unitTorque(F, j, F.back().translation(), gravityInTracker(model, F));
 }
 
+double linkLength(const RobotModel& model, const Eigen::VectorXd& params, int j) {
+  if (j < 0 || j + 1 >= model.numJoints() + 1) throw std::invalid_argument("linkLength: no such link");
+  const std::vector<Pose> F = chainFrames(model, params, Eigen::VectorXd::Zero(model.numJoints()));
+  return (F[j + 1].translation() - F[j].translation()).norm();
+}
+
+namespace {
+// Gravity across link j at q, in g: the part of the unit gravity vector perpendicular to the link; and the link's
+// direction and far end, from the chain frames.
+struct LinkLoad {
+  Eigen::Vector3d across, direction, far_end;
+};
+LinkLoad linkLoad(const RobotModel& model, const std::vector<Pose>& F, int j) {
+  LinkLoad l;
+  l.far_end = F[j + 1].translation();
+  l.direction = (l.far_end - F[j].translation()).normalized();
+  const Eigen::Vector3d g = gravityInTracker(model, F).normalized();
+  l.across = g - g.dot(l.direction) * l.direction;
+  return l;
+}
+
+// A link of beam length that gravity can load across: over configurations spread through the limits, the gravity
+// across it reaches 0.3 g.
+bool beamLoadedByGravity(const RobotModel& model, int j) {
+  if (j < 0 || j >= model.numJoints() - 1 || linkLength(model, model.nominal, j) < kMinBeamLengthM) return false;
+  std::mt19937_64 rng(20261128);
+  for (int s = 0; s < 64; ++s) {
+    Eigen::VectorXd q(model.numJoints());
+    for (int k = 0; k < model.numJoints(); ++k)
+      q[k] = std::uniform_real_distribution<double>(std::max(model.limits[k].lower_rad, -kPi),
+                                                    std::min(model.limits[k].upper_rad, kPi))(rng);
+    if (linkLoad(model, chainFrames(model, model.nominal, q), j).across.norm() > 0.3) return true;
+  }
+  return false;
+}
+}  // namespace
+
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal) {
   if (ext.cause == Cause::kThermalDrift && ext.joint == -1) return has_thermal;  // lengths only
   if (ext.joint < 0 || ext.joint >= model.numJoints()) return false;
@@ -160,6 +204,8 @@ bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal)
       return loadedByGravity(model, ext.joint) && numExtensionParams(model, ext) > 0;
     case Cause::kThermalDrift:
       return has_thermal;
+    case Cause::kLinkDeflection:
+      return beamLoadedByGravity(model, ext.joint);
     default:
       return true;
   }
@@ -178,6 +224,8 @@ int numExtensionParams(const RobotModel& model, const Extension& ext) {
     case Cause::kJointScale:
     case Cause::kBacklash:
       return 1;
+    case Cause::kLinkDeflection:
+      return 2;
   }
   return 0;
 }
@@ -206,6 +254,10 @@ std::vector<std::string> extensionParamNames(const RobotModel& model, const Exte
       return {j + "scale_ratio"};
     case Cause::kBacklash:
       return {j + "backlash_width_rad"};
+    case Cause::kLinkDeflection: {
+      const std::string l = "link" + std::to_string(ext.joint + 1) + ".";
+      return {l + "sag_m", l + "tip_slope_rad"};
+    }
   }
   return {};
 }
@@ -217,12 +269,32 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
   if (k == 0) return B;
   const int j = ext.joint;
   if (ext.cause == Cause::kThermalDrift) {  // column 0: every length grows with itself; column 1: joint j's zero
+    double s = drivers.thermal;
+    const double tau = ext.time_constant_h;
+    if (drivers.thermal_is_time && tau > 0 && std::isfinite(tau)) s = tau * -std::expm1(-drivers.thermal / tau);
     for (int i = 0; i < model.numJoints(); ++i)
       for (JointParam p : {JointParam::kA, JointParam::kD}) {
         const int idx = model.jointParam(i, p);
-        B(idx, 0) = drivers.thermal * params[idx];
+        B(idx, 0) = s * params[idx];
       }
-    if (j >= 0) B(model.jointParam(j, JointParam::kThetaOffset), 1) = drivers.thermal;
+    if (j >= 0) B(model.jointParam(j, JointParam::kThetaOffset), 1) = s;
+    return B;
+  }
+  if (ext.cause == Cause::kLinkDeflection) {
+    // The twist the bending gives the target (translation, rotation; tracker frame), then the minimum-norm parameter
+    // change with that first-order effect: B = J^T (J J^T)^-1 G.
+    const std::vector<Pose> F = chainFrames(model, params, q_rad);
+    const LinkLoad l = linkLoad(model, F, j);
+    const Eigen::Vector3d target = F.back().translation();
+    Eigen::Matrix<double, 6, 2> G;
+    const Eigen::Vector3d w = l.direction.cross(l.across);
+    G.col(0) << l.across, Eigen::Vector3d::Zero();
+    G.col(1) << w.cross(target - l.far_end), w;
+    KinematicsData data(model);
+    forwardKinematics(model, data, params, q_rad);
+    Eigen::MatrixXd J(6, model.numParams());
+    computePoseJacobian(model, data, J);
+    B = J.transpose() * (J * J.transpose()).ldlt().solve(G);
     return B;
   }
   const int th = model.jointParam(j, JointParam::kThetaOffset);
@@ -259,6 +331,8 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
       break;
     case Cause::kBacklash:
       B(th, 0) = 0.5 * playState(drivers, j, backlash_width_rad);
+      break;
+    case Cause::kLinkDeflection:  // above
       break;
   }
   return B;
@@ -302,7 +376,7 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
   const auto cause = causeFromName(name);
   if (!cause || *cause == Cause::kNone)
     throw std::invalid_argument("'" + name + "' is not a cause (joint_compliance, thermal_drift, cyclic_transmission, "
-                                "joint_scale, backlash)");
+                                "joint_scale, backlash, link_deflection)");
   Extension e{*cause, -1};
   if (colon != std::string::npos) {
     const std::string joint = item.substr(colon + 1);
@@ -316,7 +390,8 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
     if (used == 0 || used != joint.size())
       throw std::invalid_argument("'" + item + "': the joint after ':' must be a number (1-based)");
     if (j < 1 || j > model.numJoints())
-      throw std::invalid_argument("'" + item + "': " + model.name + " has joints 1.." + std::to_string(model.numJoints()));
+      throw std::invalid_argument("'" + item + "': " + model.name + " has joints 1.." + std::to_string(model.numJoints()) +
+                                  (*cause == Cause::kLinkDeflection ? " (link j: between the axes of joints j and j+1)" : ""));
     e.joint = j - 1;
   } else if (*cause != Cause::kThermalDrift) {
     throw std::invalid_argument("'" + item + "' needs a joint, e.g. " + name + ":2");
@@ -325,6 +400,9 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
     std::string why = "does not apply to " + model.name;
     if (e.cause == Cause::kThermalDrift && !has_thermal) why += " without a temperature or time driver";
     if (e.cause == Cause::kJointCompliance) why += " (gravity does not load that joint)";
+    if (e.cause == Cause::kLinkDeflection)
+      why += " (link " + std::to_string(e.joint + 1) + ", between the axes of joints " + std::to_string(e.joint + 1) +
+             " and " + std::to_string(e.joint + 2) + ", is shorter than 200 mm or never held across gravity)";
     throw std::invalid_argument("'" + item + "' " + why);
   }
   return e;

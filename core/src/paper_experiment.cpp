@@ -226,7 +226,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
-            CalibrationProblem p{&model, params, used, std::nullopt, {}};
+            CalibrationProblem p{&model, params, used, std::nullopt, {}, {}};
             const auto r = solveLevenbergMarquardt(p);
             if (g == 0 && mode == "periodic") out.lm_time_50_s = r.solve_time_s;
             params = r.params;
@@ -248,7 +248,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
             if (g > 0)
               for (Eigen::Index i = 0; i < prior.covariance.rows(); ++i)
                 prior.covariance(i, i) += drift[prior.indices[i]] * drift[prior.indices[i]];
-            CalibrationProblem p{&model, params, used, prior, {}};
+            CalibrationProblem p{&model, params, used, prior, {}, {}};
             const auto r = solveLevenbergMarquardt(p);
             params = r.params;
             prior.mean = r.params;

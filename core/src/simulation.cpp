@@ -100,6 +100,8 @@ Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad,
     case Cause::kBacklash:
       e = -0.5 * h.backlash_width_rad * (state ? state->backlash_play : 1.0);
       break;
+    case Cause::kLinkDeflection:
+      throw std::invalid_argument("HiddenJointEffect: link_deflection is not a joint error (a Cartesian effect)");
   }
   return dq;
 }
@@ -124,8 +126,13 @@ Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, double t_h, std
 
 Observation SimulatedCell::measure(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h,
                                    std::mt19937_64& rng, MeasurementKind kind) const {
+  return measurePose(truePose(q_rad, t_h, state), q_rad, rng, kind);
+}
+
+Observation SimulatedCell::measurePose(const Pose& true_pose, const Eigen::VectorXd& q_rad, std::mt19937_64& rng,
+                                       MeasurementKind kind) const {
   std::normal_distribution<double> g(0.0, 1.0);
-  Pose T = truePose(q_rad, t_h, state);
+  Pose T = true_pose;
   const double sigma_rep = config_.repeatability_m / 2.0;
   const double sigma_p = config_.tracker.sigmaPosition(T.translation().norm());
   const double sigma_o = config_.tracker.sigmaOrientation();

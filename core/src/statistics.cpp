@@ -39,4 +39,43 @@ double chiSquareQuantileUpper(double p, int dof) {
   return 0.5 * (lo + hi);
 }
 
+namespace {
+// The continued fraction of I_x(a, b) (modified Lentz): 1 / (1 + d1 / (1 + d2 / (1 + ...))), with
+// d(2m+1) = -(a+m)(a+b+m) x / ((a+2m)(a+2m+1)) and d(2m) = m(b-m) x / ((a+2m-1)(a+2m)). Converges fast for
+// x < (a+1)/(a+b+2).
+double betaContinuedFraction(double a, double b, double x) {
+  constexpr double tiny = 1e-300;
+  double c = 1.0, d = 1.0 - (a + b) * x / (a + 1.0);
+  d = 1.0 / (std::abs(d) < tiny ? tiny : d);
+  double f = d;
+  for (int m = 1; m <= 500; ++m) {
+    for (int odd = 0; odd < 2; ++odd) {
+      const double num = odd ? -(a + m) * (a + b + m) * x / ((a + 2.0 * m) * (a + 2.0 * m + 1.0))
+                             : m * (b - m) * x / ((a + 2.0 * m - 1.0) * (a + 2.0 * m));
+      d = 1.0 + num * d;
+      d = 1.0 / (std::abs(d) < tiny ? tiny : d);
+      c = 1.0 + num / c;
+      if (std::abs(c) < tiny) c = tiny;
+      f *= c * d;
+      if (odd && std::abs(c * d - 1.0) < 1e-15) return f;
+    }
+  }
+  return f;
+}
+}  // namespace
+
+double regularizedIncompleteBeta(double a, double b, double x) {
+  if (!(a > 0 && b > 0) || !(x >= 0 && x <= 1)) throw std::invalid_argument("regularizedIncompleteBeta: bad arguments");
+  if (x == 0 || x == 1) return x;
+  const double front = std::exp(std::lgamma(a + b) - std::lgamma(a) - std::lgamma(b) + a * std::log(x) + b * std::log1p(-x));
+  if (x < (a + 1.0) / (a + b + 2.0)) return front * betaContinuedFraction(a, b, x) / a;
+  return 1.0 - front * betaContinuedFraction(b, a, 1.0 - x) / b;
+}
+
+double fSurvival(double f, double d1, double d2) {
+  if (!(d1 > 0 && d2 > 0)) throw std::invalid_argument("fSurvival: degrees of freedom must be > 0");
+  if (!(f > 0)) return 1.0;
+  return regularizedIncompleteBeta(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f));
+}
+
 }  // namespace cellcal

@@ -37,7 +37,7 @@ TEST_P(Identification, RecoversInjectedErrorsToTheNoiseFloor) {
   const double before = mean(positionErrors(cell.model(), cell.nominalParams(), verify));
   ASSERT_GT(before, 10 * floor);  // the hidden errors are far above the noise
 
-  CalibrationProblem p{&cell.model(), cell.nominalParams(), ident, std::nullopt, {}};
+  CalibrationProblem p{&cell.model(), cell.nominalParams(), ident, std::nullopt, {}, {}};
   const CalibrationResult r = solve(solver, p);
   EXPECT_TRUE(r.converged) << r.message;
   EXPECT_LT(r.final_cost_per_observation, r.initial_cost_per_observation / 100);
@@ -83,7 +83,7 @@ INSTANTIATE_TEST_SUITE_P(
 
 TEST(IdentificationProblem, InvalidProblemsAreReportedNotCrashed) {
   const RobotModel m = test::robot("staubli_tx60");
-  CalibrationProblem p{&m, m.nominal, {}, std::nullopt, {}};
+  CalibrationProblem p{&m, m.nominal, {}, std::nullopt, {}, {}};
   std::string e;
   EXPECT_FALSE(p.IsValid(&e));
   EXPECT_NE(e.find("no observations"), std::string::npos);
@@ -103,7 +103,7 @@ TEST(IdentificationSolvers, GaussNewtonAndLevenbergMarquardtAgree) {
   std::mt19937_64 rng(sc.seed);
   std::vector<Observation> obs;
   for (const auto& q : cell.randomConfigurations(50, rng)) obs.push_back(cell.measure(q, 0.0, rng));
-  CalibrationProblem p{&cell.model(), cell.nominalParams(), obs, std::nullopt, {}};
+  CalibrationProblem p{&cell.model(), cell.nominalParams(), obs, std::nullopt, {}, {}};
   const auto gn = solveGaussNewton(p), lm = solveLevenbergMarquardt(p);
   ASSERT_EQ(gn.estimated, lm.estimated);
   for (size_t k = 0; k < gn.estimated.size(); ++k) {

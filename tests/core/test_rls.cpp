@@ -170,7 +170,7 @@ TEST_P(RlsCalibration, ConvergesPoseByPoseAndMatchesBatchWithSamePrior) {
   // Innovations are consistent with their covariance on average (chi-square: mean ~ rows; loose: nonlinear start).
   EXPECT_LT(nis / ident.size(), 3.0 * (GetParam() == MeasurementKind::kPose6D ? 6 : 3));
 
-  CalibrationProblem p{&cell.model(), cell.nominalParams(), ident, prior, {}};
+  CalibrationProblem p{&cell.model(), cell.nominalParams(), ident, prior, {}, {}};
   const auto gn = solveGaussNewton(p);
   ASSERT_EQ(gn.estimated, rls.estimated());
   const double batch = mean(positionErrors(cell.model(), gn.params, verify));

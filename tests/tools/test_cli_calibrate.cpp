@@ -109,56 +109,77 @@ TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {
 }
 
 
-// `cellcal diagnose` and `cellcal calibrate --model` on a file with an effect hidden in it (cause, joint, size and seed
-// drawn at random; sizes from 0.005 to 0.05 deg RMS, mostly above the tracker noise). The tool sees only the file.
+// `cellcal diagnose` and `cellcal calibrate --model` on a file with an effect hidden in it (robot, tracker placement,
+// target offset, points or 6D, cause, joint, size, gross errors and seed drawn at random; sizes from 0.005 to 0.05 deg
+// RMS, mostly above the tracker noise). The tool sees only the file and registers the frames itself.
 TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   const std::string dir = testDir();
-  const std::uint64_t seed = testSeed();
-  const RobotModel nominal = robot("staubli_tx60");
-  const HiddenEffectData h = makeHiddenEffectData(nominal, seed, MeasurementKind::kPose6D, 400, 4.0, 0.005, 0.05);
-  std::printf("hidden: %s, effect %.4f mm RMS, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.effect_rms_mm,
-              h.noise_rms_mm);
+  DrawOptions o;
+  o.min_amp_deg = 0.005;
+  o.max_outlier_fraction = 0.03;
+  const HiddenEffectData h = makeHiddenEffectData(o, testSeed());
+  const TrueEffect& t = h.draw.effects.front();
+  std::printf("hidden: %s, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.noise_rms_mm);
   {
     std::ofstream out(dir + "/m.csv");
-    writeMeasurementCsv(out, h.file, 6, "simulated TX60 with a hidden effect");
+    writeMeasurementCsv(out, h.file, 6, "simulated robot with a hidden effect");
   }
-  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
+  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml";
   const double sigma_mm = h.data.verification.front().sigma_position_m * 1e3;
   Process p(dir, "diagnose", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
                               dir + "/d.json", "--report", dir + "/report", "--sigma-position-mm", std::to_string(sigma_mm)});
-  ASSERT_EQ(p.wait(60), 0) << p.log();
+  ASSERT_EQ(p.wait(120), 0) << p.log();
   const auto j = readJson(dir + "/d.json");
   const std::string cause = j["cause"];
   std::vector<int> joints = j["joints"].get<std::vector<int>>();
-  const bool large = h.draw.cause != Cause::kNone && h.effect_rms_mm > h.noise_rms_mm;
-  if (h.draw.cause == Cause::kNone) {
-    EXPECT_EQ(cause, "none") << p.log();
+  // Judged where the effect is clearly above the noise (the rate near the noise is the HiddenEffects suites' business).
+  const bool large = t.effect_rms_mm > 2 * h.noise_rms_mm;
+  EXPECT_EQ(j["measurement"], h.draw.kind == MeasurementKind::kPose6D ? "pose6d" : "position3d");
+  // The truth is named, or (where these data tell two causes only weakly apart, e.g. a TX60's joint 3 compliance
+  // and its forearm's deflection) named as alike.
+  bool alike = false;
+  if (!j["causes"].empty())
+    for (const auto& a : j["causes"][0]["alike"]) alike = alike || a.get<std::string>() == extensionLabel({t.cause, t.joint});
+  if (large && !alike) {
+    EXPECT_EQ(cause, causeName(t.cause)) << p.log();
+    if (t.joint_effect_rms_mm > 2 * h.noise_rms_mm) {
+      EXPECT_EQ(joints, std::vector<int>{t.joint + 1}) << p.log();
+    }
   }
   if (large) {
-    EXPECT_EQ(cause, causeName(h.draw.cause)) << p.log();
-    if (h.joint_effect_rms_mm > h.noise_rms_mm) {
-      EXPECT_EQ(joints, std::vector<int>{h.draw.joint + 1}) << p.log();
-    }
     EXPECT_LT(j["extended"]["verify_rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << p.log();
     EXPECT_GT(j["gain_pct"].get<double>(), 0.0);
     EXPECT_TRUE(isGnuplotFigure(dir + "/report/signature.svg"));
   }
+  // Every gross error named by its file line.
+  std::vector<int> flagged;
+  for (const char* set : {"identification", "verification"})
+    for (const auto& r : j["outliers"][set]["rows"]) flagged.push_back(r["line"].get<int>());
+  const MeasurementFile written = readMeasurementCsv(dir + "/m.csv", robot(h.draw.robot));
+  auto line = [&](int row) { return written.rows[static_cast<size_t>(row)].line; };
+  for (int i : h.outlier_identification)
+    EXPECT_NE(std::find(flagged.begin(), flagged.end(), line(2 * i)), flagged.end()) << "row " << 2 * i;
+  for (int i : h.outlier_verification)
+    EXPECT_NE(std::find(flagged.begin(), flagged.end(), line(2 * i + 1)), flagged.end()) << "row " << 2 * i + 1;
+  EXPECT_EQ(flagged.size(), h.outlier_identification.size() + h.outlier_verification.size()) << p.log();
   EXPECT_TRUE(std::filesystem::exists(dir + "/report/report.md"));
   ASSERT_TRUE(j["candidates"].is_array());
   ASSERT_FALSE(j["candidates"].empty());
   for (const char* k : {"cause", "joints", "verify_mean_mm", "params"}) EXPECT_TRUE(j["candidates"][0].contains(k)) << k;
+  for (const char* k : {"verdict", "verdict_text", "noise", "outliers", "causes"}) EXPECT_TRUE(j.contains(k)) << k;
   EXPECT_TRUE(j["geometric"].contains("verify_mean_mm"));
   EXPECT_TRUE(j["extended"].contains("verify_rms_mm"));
 
   // calibrate with the model diagnose named (auto) and with the true cause given by hand.
-  if (large) {
+  if (large && cause != "none") {
     std::string spec = cause + (joints.empty() ? "" : ":" + std::to_string(joints[0]));
     for (const std::string& model : {std::string("auto"), spec}) {
       Process c(dir, "calibrate", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
                                    dir + "/c.json", "--model", model});
-      ASSERT_EQ(c.wait(60), 0) << c.log();
+      ASSERT_EQ(c.wait(120), 0) << c.log();
       const auto cj = readJson(dir + "/c.json");
-      EXPECT_LT(cj["verification"]["after"]["rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << model << "\n" << c.log();
+      EXPECT_LT(cj["verification_without_outliers"]["after"]["rms_mm"].get<double>(), 1.2 * h.noise_rms_mm)
+          << model << "\n" << c.log();
       EXPECT_FALSE(cj["extension_params"].empty()) << c.log();
     }
   }

@@ -100,7 +100,7 @@ BENCHMARK(BM_RlsPose);
 void BM_BatchLeastSquares(benchmark::State& state) {
   const auto& f = fx();
   CalibrationProblem p{&f.cell.model(), f.cell.nominalParams(), f.first(static_cast<int>(state.range(0))),
-                       std::nullopt, {}};
+                       std::nullopt, {}, {}};
   for (auto _ : state) benchmark::DoNotOptimize(solveGaussNewton(p).params.data());
 }
 BENCHMARK(BM_BatchLeastSquares)->Arg(50)->Unit(benchmark::kMillisecond);
@@ -108,7 +108,7 @@ BENCHMARK(BM_BatchLeastSquares)->Arg(50)->Unit(benchmark::kMillisecond);
 void BM_LevenbergMarquardt(benchmark::State& state) {
   const auto& f = fx();
   CalibrationProblem p{&f.cell.model(), f.cell.nominalParams(), f.first(static_cast<int>(state.range(0))),
-                       std::nullopt, {}};
+                       std::nullopt, {}, {}};
   for (auto _ : state) benchmark::DoNotOptimize(solveLevenbergMarquardt(p).params.data());
 }
 BENCHMARK(BM_LevenbergMarquardt)->Arg(50)->Unit(benchmark::kMillisecond);
@@ -145,7 +145,7 @@ void BM_CalibrateGeometric(benchmark::State& state) {
   start.tail<12>().setZero();
   for (auto _ : state) {
     const RegistrationResult reg = registerFrames(cell.model(), start, obs);
-    CalibrationProblem p{&cell.model(), reg.params, obs, std::nullopt, {}};
+    CalibrationProblem p{&cell.model(), reg.params, obs, std::nullopt, {}, {}};
     benchmark::DoNotOptimize(solveGaussNewton(p).params.data());
   }
 }

@@ -40,12 +40,14 @@ int runCalibrate(const CalibrateArgs& a) {
   const Eigen::VectorXd& start = in.start;
   using Clock = std::chrono::steady_clock;
   const auto t1 = Clock::now();
-  CalibrationProblem p{&robot, start, ident, std::nullopt, {}};
+  CalibrationProblem p{&robot, start, ident, std::nullopt, {}, {}};
   p.identifiability.rank_tolerance = a.rank_tolerance;
+  p.outliers = outlierOptions(a.input);
   std::string why;
   if (!p.IsValid(&why)) throw std::runtime_error(why);
   const CalibrationResult r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
   ExtendedFit after = asFit(r.params);
+  OutlierScreen ident_outliers = r.outliers;
   std::string model_label = "geometric";
   bool converged = r.converged;
   int iterations = r.iterations;
@@ -55,17 +57,15 @@ int runCalibrate(const CalibrateArgs& a) {
     if (a.model == "auto") {
       DiagnosisOptions o;
       o.identifiability = p.identifiability;
+      o.outliers = p.outliers;
       const DiagnosisResult d = diagnose(robot, start, in.data, o);
       after = d.best().fit;
+      ident_outliers = d.identification_outliers;
     } else {
-      after = fitExtended(robot, start, ident, in.data.identification_drivers, parseModel(a.model, robot), {},
-                          p.identifiability, &r.params);
+      after = fitExtendedRobust(robot, start, ident, in.data.identification_drivers, parseModel(a.model, robot), {},
+                                p.identifiability, &r.params, p.outliers, &ident_outliers);
     }
-    model_label.clear();
-    for (const auto& e : after.extensions)
-      model_label += (model_label.empty() ? "" : " + ") + std::string(causeName(e.cause)) +
-                     (e.joint >= 0 ? " joint " + std::to_string(e.joint + 1) : "");
-    if (model_label.empty()) model_label = "geometric (auto: no cause found)";
+    model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
     converged = after.converged;
     iterations = after.iterations;
     estimated = after.estimated.size() + after.estimated_extension.size();
@@ -78,6 +78,16 @@ int runCalibrate(const CalibrateArgs& a) {
   const auto& vdr = in.data.verification_drivers;
   const ErrorStats ib = errorStats(robot, before, ident, idr), ia = errorStats(robot, after, ident, idr);
   const ErrorStats vb = errorStats(robot, before, verify, vdr), va = errorStats(robot, after, verify, vdr);
+  // Gross errors among the verification rows, judged against the calibrated model, and the figures without them.
+  const OutlierScreen verify_outliers = screenRows(robot, after, verify, vdr, p.outliers);
+  const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), verify_outliers.rows);
+  std::vector<Observation> verify_kept;
+  std::vector<Drivers> vdr_kept;
+  for (int i : vk) {
+    verify_kept.push_back(verify[static_cast<size_t>(i)]);
+    vdr_kept.push_back(vdr[static_cast<size_t>(i)]);
+  }
+  const ErrorStats vbk = errorStats(robot, before, verify_kept, vdr_kept), vak = errorStats(robot, after, verify_kept, vdr_kept);
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.input.data.c_str(),
               in.file.rows.size(), a.input.split.c_str(), ident.size(), verify.size(),
               in.measurementText().c_str(), robot.name.c_str());
@@ -96,7 +106,21 @@ int runCalibrate(const CalibrateArgs& a) {
   row("identification after", ia);
   row("verification before", vb);
   row("verification after", va);
+  if (!verify_outliers.rows.empty()) {
+    row("  without gross errors", vbk);
+    row("  without gross errors", vak);
+  }
   std::printf("\n('before': nominal kinematics with the registered frames; 'after': every identifiable parameter)\n");
+  if (!ident_outliers.rows.empty() || !verify_outliers.rows.empty()) {
+    std::printf("gross errors (more than %.0f robust sigmas of %.4f mm per axis):\n", p.outliers.threshold,
+                ident_outliers.sigma_position_m * 1e3);
+    if (!ident_outliers.rows.empty())
+      std::printf("  identification: %zu rows left out of the fit: %s\n", ident_outliers.rows.size(),
+                  linesText(ident_outliers.rows, in.identification_lines).c_str());
+    if (!verify_outliers.rows.empty())
+      std::printf("  verification:   %zu rows: %s\n", verify_outliers.rows.size(),
+                  linesText(verify_outliers.rows, in.verification_lines).c_str());
+  }
   if (!r.identifiability.dropped.empty()) {
     std::printf("not identifiable from these data (held at their start value):");
     for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramName(d.index).c_str());
@@ -138,6 +162,10 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"solve_time_s", solve_s},
                         {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
                         {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
+                        {"verification_without_outliers", {{"before", errorStatsJson(vbk)}, {"after", errorStatsJson(vak)}}},
+                        {"outliers", {{"identification", outliersJson(ident_outliers, in.identification_lines)},
+                                      {"verification", outliersJson(verify_outliers, in.verification_lines)},
+                                      {"threshold_robust_sigmas", p.outliers.threshold}}},
                         {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }

@@ -23,11 +23,14 @@ struct DiagnoseArgs {
   bool no_progress = false;
 };
 
-std::string causeLabel(const Extension& e) {
-  std::string s = causeName(e.cause);
-  if (e.cause == Cause::kThermalDrift && e.joint < 0) return s + " (lengths)";
-  if (e.joint >= 0) s += " joint " + std::to_string(e.joint + 1);
-  return s;
+const char* verdictName(Verdict v) {
+  switch (v) {
+    case Verdict::kNoise: return "noise";
+    case Verdict::kNamed: return "named";
+    case Verdict::kPartlyExplained: return "partly_explained";
+    case Verdict::kUnexplained: return "unexplained";
+  }
+  return "?";
 }
 
 nlohmann::json jointsJson(const Extension& e) {
@@ -50,18 +53,22 @@ nlohmann::json paramsJson(const ExtendedFit& f, bool stddev = false) {
 
 nlohmann::json structureJson(const std::vector<DriverStructure>& s) {
   nlohmann::json a = nlohmann::json::array();
-  for (const auto& d : s) a.push_back({{"driver", d.driver}, {"r2_adjusted", d.r2_adjusted}});
+  for (const auto& d : s)
+    a.push_back({{"driver", d.driver}, {"share", d.share}, {"p_value", d.p_value}, {"significant", d.significant}});
   return a;
 }
 
+// The drivers with structure beyond noise (share of the residual variance), or "none beyond noise".
 std::string structureLine(const std::vector<DriverStructure>& s, size_t n) {
   std::string o;
   char b[96];
-  for (size_t i = 0; i < std::min(n, s.size()); ++i) {
-    std::snprintf(b, sizeof b, "%s%s %.0f %%", i ? ", " : "", s[i].driver.c_str(), 100 * std::max(0.0, s[i].r2_adjusted));
+  size_t shown = 0;
+  for (const auto& d : s) {
+    if (!d.significant || shown == n) continue;
+    std::snprintf(b, sizeof b, "%s%s %.0f %%", shown++ ? ", " : "", d.driver.c_str(), 100 * d.share);
     o += b;
   }
-  return o;
+  return o.empty() ? "none beyond noise" : o;
 }
 
 void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisResult& d) {
@@ -77,32 +84,44 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
      << in.data.identification.size() << " identify, " << in.data.verification.size() << " verify), "
      << in.measurementText() << ". Thermal driver: "
      << (in.data.has_thermal ? in.data.thermal_source : std::string("none")) << ".\n\n";
-  md << "## Finding\n\n";
-  if (d.chosen < 0) {
-    md << "**none**: no cause in the library explains the verification residual better than the geometric model "
-          "(it is noise, or structure none of the causes has).\n\n";
+  md << "## Finding\n\n**" << d.verdict_text << "**\n\n";
+  if (d.selection.empty()) {
+    md << "No cause in the library explains the verification residual better than the geometric model.\n\n";
   } else {
     std::snprintf(buf, sizeof buf,
                   "**%s**: verification mean position error %.4f -> %.4f mm (gain %.1f %%), RMS %.4f -> %.4f mm; "
                   "%.1f standard errors better than the geometric model on the verification rows.\n\n",
-                  causeLabel(b.fit.extension()).c_str(), g.verification.mean_mm, b.verification.mean_mm, d.gain_pct,
-                  g.verification.rms_mm, b.verification.rms_mm, b.z);
+                  modelLabel(b.fit.extensions).c_str(), g.verification.mean_mm, b.verification.mean_mm, d.gain_pct,
+                  g.verification.rms_mm, b.verification.rms_mm, d.selection.front().z);
     md << buf;
+    if (d.selection.size() > 1) {
+      md << "Causes in the order forward selection added them:\n\n";
+      for (const auto& st : d.selection) {
+        std::snprintf(buf, sizeof buf, "- %s: verification mean %.4f mm (gain %.1f %%, z %.1f)\n",
+                      extensionLabel(st.added).c_str(), st.result.verification.mean_mm, st.gain_pct, st.z);
+        md << buf;
+      }
+      md << "\n";
+    }
   }
   std::snprintf(buf, sizeof buf,
-                "Still unexplained: %.4f mm RMS beyond the expected measurement noise (%.4f mm RMS from "
-                "--sigma-position-mm).\n\n",
-                d.unexplained_rms_mm, d.noise_rms_mm);
+                "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
+                d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());
   md << buf;
-  md << "## Residual structure (verification rows)\n\nShare of the position residual each driver explains "
-        "(adjusted R^2 of a small regression on it; 0 = none).\n\n| driver | geometric | "
-     << (d.chosen >= 0 ? "extended" : "-") << " |\n|---|---|---|\n";
+  if (!d.identification_outliers.rows.empty() || !d.verification_outliers.rows.empty())
+    md << "Gross errors left out: identification " << d.identification_outliers.rows.size() << " rows, verification "
+       << d.verification_outliers.rows.size() << " rows (more than " << OutlierOptions{}.threshold
+       << " robust sigmas; listed by `cellcal diagnose`).\n\n";
+  md << "## Residual structure (verification rows)\n\nShare of the position residual's variance each driver explains "
+        "beyond what the model's own parameters could (partial R^2; * = beyond noise, F-test, family-wise 0.1 %).\n\n"
+        "| driver | geometric | "
+     << (d.selection.empty() ? "-" : "final") << " |\n|---|---|---|\n";
   for (const auto& s : d.structure_before) {
-    double after = 0;
+    const DriverStructure* after = nullptr;
     for (const auto& t : d.structure_after)
-      if (t.driver == s.driver) after = t.r2_adjusted;
-    std::snprintf(buf, sizeof buf, "| %s | %.1f %% | %.1f %% |\n", s.driver.c_str(), 100 * std::max(0.0, s.r2_adjusted),
-                  100 * std::max(0.0, after));
+      if (t.driver == s.driver) after = &t;
+    std::snprintf(buf, sizeof buf, "| %s | %.1f %%%s | %.1f %%%s |\n", s.driver.c_str(), 100 * s.share,
+                  s.significant ? " *" : "", after ? 100 * after->share : 0.0, after && after->significant ? " *" : "");
     md << buf;
   }
   md << "\n## Candidates (best score first)\n\n| cause | parameters | verify mean mm | verify RMS mm | z |\n"
@@ -110,11 +129,11 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
   std::snprintf(buf, sizeof buf, "| geometric | 0 | %.4f | %.4f | |\n", g.verification.mean_mm, g.verification.rms_mm);
   md << buf;
   for (const auto& c : d.candidates) {
-    std::snprintf(buf, sizeof buf, "| %s | %d | %.4f | %.4f | %.1f |\n", causeLabel(c.fit.extension()).c_str(),
+    std::snprintf(buf, sizeof buf, "| %s | %d | %.4f | %.4f | %.1f |\n", extensionLabel(c.fit.extensions.back()).c_str(),
                   c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z);
     md << buf;
   }
-  if (d.chosen >= 0) {
+  if (!d.selection.empty()) {
     const CauseSignature sig = causeSignature(in.robot, g.fit, b.fit, in.data.verification,
                                               in.data.verification_drivers, in.data.thermal_source);
     // Rendered by gnuplot (SVG): two panels sharing the axes, the residual before and after the extension.
@@ -130,7 +149,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
     gp << "set multiplot layout 1,2\nset grid\nset key off\nset xlabel '" << sig.x_label << "'\nset ylabel '"
        << sig.y_label << "'\nset yrange [" << lo - pad << ":" << hi + pad << "]\n"
        << "set title 'geometric model'\nplot datafile using 1:2 skip 1 with points pt 7 ps 0.4 lc rgb '#1f77b4'\n"
-       << "set title 'with " << causeLabel(b.fit.extension())
+       << "set title 'with " << modelLabel(b.fit.extensions)
        << "'\nplot datafile using 1:3 skip 1 with points pt 7 ps 0.4 lc rgb '#d62728'\nunset multiplot\n";
     std::string plot_error;
     for (const char* format : {"svg", "png"})  // SVG for the report, PNG for pages that take images only
@@ -149,6 +168,7 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
 int runDiagnose(const DiagnoseArgs& a) {
   const LoadedInput in = loadInput(a.input);
   DiagnosisOptions options;
+  options.outliers = outlierOptions(a.input);
   ProgressBar bar("diagnose", !a.no_progress);
   options.progress = [&bar](int done, int total) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
@@ -161,31 +181,63 @@ int runDiagnose(const DiagnoseArgs& a) {
               a.input.data.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
               in.data.verification.size(), in.measurementText().c_str(),
               in.robot.name.c_str(), in.data.has_thermal ? in.data.thermal_source.c_str() : "none");
-  std::printf("\n%-34s %6s %12s %12s %8s\n", "model (verification rows)", "params", "mean mm", "rms mm", "z");
-  std::printf("%-34s %6s %12.4f %12.4f\n", "geometric", "-", g.verification.mean_mm, g.verification.rms_mm);
-  for (const auto& c : d.candidates)
-    std::printf("%-34s %6d %12.4f %12.4f %8.1f%s\n", causeLabel(c.fit.extension()).c_str(), c.fit.numEstimatedExtension(),
-                c.verification.mean_mm, c.verification.rms_mm, c.z, &c == &b ? "   <- chosen" : "");
-  std::printf("\nresidual structure before (adjusted R^2): %s\n", structureLine(d.structure_before, 4).c_str());
-  if (d.chosen >= 0) std::printf("residual structure after:                  %s\n", structureLine(d.structure_after, 4).c_str());
-  std::printf("\ncause: %s", d.chosen >= 0 ? causeLabel(b.fit.extension()).c_str() : "none");
-  std::printf("  (verification mean %.4f -> %.4f mm, gain %.1f %%)\n", g.verification.mean_mm, b.verification.mean_mm,
+  const auto& io = d.identification_outliers;
+  const auto& vo = d.verification_outliers;
+  if (!io.rows.empty() || !vo.rows.empty()) {
+    std::printf("gross errors (more than %.0f robust sigmas; left out of fits and scores):\n", options.outliers.threshold);
+    if (!io.rows.empty())
+      std::printf("  identification: %zu rows, %s\n", io.rows.size(), linesText(io.rows, in.identification_lines).c_str());
+    if (!vo.rows.empty())
+      std::printf("  verification:   %zu rows, %s\n", vo.rows.size(), linesText(vo.rows, in.verification_lines).c_str());
+  }
+  std::printf("\n%-44s %6s %12s %12s %8s\n", "single causes (verification rows)", "params", "mean mm", "rms mm", "z");
+  std::printf("%-44s %6s %12.4f %12.4f\n", "geometric", "-", g.verification.mean_mm, g.verification.rms_mm);
+  for (size_t i = 0; i < d.candidates.size(); ++i) {
+    const auto& c = d.candidates[i];
+    std::printf("%-44s %6d %12.4f %12.4f %8.1f%s\n", extensionLabel(c.fit.extensions.back()).c_str(),
+                c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z,
+                static_cast<int>(i) == d.chosen ? "   <- first chosen" : "");
+  }
+  if (d.selection.size() > 1) {
+    std::printf("\nforward selection (each added cause fitted with the ones before it):\n");
+    for (const auto& st : d.selection)
+      std::printf("  + %-40s verification mean %.4f mm, gain %.1f %%, z %.1f\n", extensionLabel(st.added).c_str(),
+                  st.result.verification.mean_mm, st.gain_pct, st.z);
+  }
+  std::printf("\nresidual structure, geometric model: %s\n", structureLine(d.structure_before, 4).c_str());
+  if (!d.selection.empty()) std::printf("residual structure, final model:     %s\n", structureLine(d.structure_after, 4).c_str());
+  std::printf("\ncause: %s\n", d.verdict_text.c_str());
+  for (const auto& st : d.selection)
+    if (!st.alike.empty()) {
+      std::string alike;
+      for (const auto& e : st.alike) alike += (alike.empty() ? "" : ", ") + extensionLabel(e);
+      std::printf("  %s: these data tell it only weakly from %s\n", extensionLabel(st.added).c_str(), alike.c_str());
+    }
+  std::printf("  verification mean %.4f -> %.4f mm (gain %.1f %%)", g.verification.mean_mm, b.verification.mean_mm,
               d.gain_pct);
-  std::printf("unexplained: %.4f mm RMS beyond the expected noise of %.4f mm RMS (diagnosis %.2f s)\n",
-              d.unexplained_rms_mm, d.noise_rms_mm, d.solve_time_s);
+  if (!vo.rows.empty())
+    std::printf("; with the gross errors (%zu rows): %.4f -> %.4f mm", vo.rows.size(), d.geometric_verification_all_rows.mean_mm,
+                d.verification_all_rows.mean_mm);
+  std::printf("\n");
+  std::printf("reading noise: %.4f mm per axis (%.4f mm RMS), estimated from the %s\n", d.noise.sigma_position_mm,
+              d.noise_rms_mm, d.noise.source.c_str());
+  std::printf("unexplained: %.4f mm RMS beyond that noise (diagnosis %.2f s)\n", d.unexplained_rms_mm, d.solve_time_s);
   // What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model).
   std::vector<std::string> cell_extensions;
   bool thermal = false;
-  if (d.chosen >= 0)
-    for (const auto& e : b.fit.extensions) {
-      if (e.cause == Cause::kThermalDrift) thermal = true;
-      else cell_extensions.push_back(extensionSpec(e));
-    }
+  for (const auto& e : d.causes()) {
+    if (e.cause == Cause::kThermalDrift) thermal = true;
+    else cell_extensions.push_back(extensionSpec(e));
+  }
   if (!cell_extensions.empty()) {
     std::string list;
     for (const auto& e : cell_extensions) list += (list.empty() ? "" : ", ") + e;
     std::printf("calibration engine: add `extensions: [%s]` to this robot in the cell file (RLS state with the extension)\n",
                 list.c_str());
+    if (const DriverStructure* left = d.structureLeft())
+      std::printf("  warning: this leaves structure against %s (%.0f %% of the residual) that no cause in the library "
+                  "explains; the extension improves the model but is not the whole story\n",
+                  left->driver.c_str(), 100 * left->share);
   }
   if (thermal)
     std::printf("calibration engine: thermal_drift is left to the engine's drift model (the cell's topics carry no "
@@ -194,18 +246,47 @@ int runDiagnose(const DiagnoseArgs& a) {
     nlohmann::json cands = nlohmann::json::array();
     for (const auto& c : d.candidates)
       cands.push_back({{"cause", causeName(c.fit.extension().cause)}, {"joints", jointsJson(c.fit.extension())},
+                       {"label", extensionLabel(c.fit.extensions.back())},
                        {"verify_mean_mm", c.verification.mean_mm}, {"verify_rms_mm", c.verification.rms_mm},
                        {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
                        {"score_m2", c.score}});
+    nlohmann::json causes = nlohmann::json::array();
+    for (const auto& st : d.selection)
+      causes.push_back({{"cause", causeName(st.added.cause)}, {"joints", jointsJson(st.added)},
+                        {"label", extensionLabel(st.added)}, {"verify_mean_mm", st.result.verification.mean_mm},
+                        {"alike", [&] {
+                           nlohmann::json a = nlohmann::json::array();
+                           for (const auto& e : st.alike) a.push_back(extensionLabel(e));
+                           return a;
+                         }()},
+                        {"gain_pct", st.gain_pct}, {"z", st.z},
+                        {"time_constant_h", st.added.cause == Cause::kThermalDrift && st.added.time_constant_h > 0 &&
+                                                    std::isfinite(st.added.time_constant_h)
+                                                ? nlohmann::json(st.added.time_constant_h)
+                                                : nlohmann::json(nullptr)}});
+    const DriverStructure* left = d.structureLeft();
     nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
                         {"split", a.input.split}, {"measurement", in.measurementJson()},
                         {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
-                        {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(b.fit.extension()) : nlohmann::json::array()},
+                        {"verdict", verdictName(d.verdict)}, {"verdict_text", d.verdict_text},
+                        {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},
+                                                                  {"p_value", left->p_value}})
+                                                : nlohmann::json(nullptr)},
+                        {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(d.selection.front().added) : nlohmann::json::array()},
+                        {"causes", causes},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
-                        {"extension_params", d.chosen >= 0 ? paramsJson(b.fit) : nlohmann::json::object()},
-                        {"extension_stddev", d.chosen >= 0 ? paramsJson(b.fit, true) : nlohmann::json::object()},
+                        {"verification_all_rows", {{"geometric", errorStatsJson(d.geometric_verification_all_rows)},
+                                                   {"extended", errorStatsJson(d.verification_all_rows)}}},
+                        {"outliers", {{"identification", outliersJson(io, in.identification_lines)},
+                                      {"verification", outliersJson(vo, in.verification_lines)},
+                                      {"threshold_robust_sigmas", options.outliers.threshold}}},
+                        {"extension_params", !d.selection.empty() ? paramsJson(b.fit) : nlohmann::json::object()},
+                        {"extension_stddev", !d.selection.empty() ? paramsJson(b.fit, true) : nlohmann::json::object()},
                         {"cell_extensions", cell_extensions}, {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
-                        {"structure_after", structureJson(d.structure_after)}, {"noise_rms_mm", d.noise_rms_mm},
+                        {"structure_after", structureJson(d.structure_after)},
+                        {"noise", {{"sigma_position_mm", d.noise.sigma_position_mm}, {"dof", d.noise.dof},
+                                   {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
+                        {"noise_rms_mm", d.noise_rms_mm},
                         {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s}};
     std::ofstream o(a.json);
     if (!o) throw std::runtime_error(a.json + ": cannot write");
@@ -226,8 +307,10 @@ Runner addDiagnoseCommand(CLI::App& app) {
       "diagnose",
       "What the geometric model gets wrong in a measurement file (CSV v1): fits it, measures the residual structure "
       "against each driver (joint angles, gravity torques, temperature or time, motion direction, workspace), tries "
-      "each physical cause (joint_compliance, thermal_drift, cyclic_transmission, joint_scale, backlash) on each joint, "
-      "and names the one that wins on the verification rows, or none. See docs/diagnosis.md");
+      "each physical cause (joint_compliance, thermal_drift, cyclic_transmission, joint_scale, backlash, "
+      "link_deflection) on each joint or link, adds up to three by forward selection as long as each wins on the "
+      "verification rows, and says what structure is still left. Rows more than 6 robust sigmas off are listed and left "
+      "out. See docs/diagnosis.md");
   cmd->footer(cliFooter("  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
                         "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n"));
   addInputOptions(cmd, a->input);

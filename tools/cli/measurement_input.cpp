@@ -11,6 +11,15 @@
 
 namespace cellcal::cli {
 
+OutlierOptions outlierOptions(const InputArgs& a) {
+  OutlierOptions o;
+  o.enabled = a.outlier_threshold > 0;
+  if (o.enabled) o.threshold = a.outlier_threshold;
+  std::string why;
+  if (!o.IsValid(&why)) throw std::runtime_error("--outlier-threshold: " + why);
+  return o;
+}
+
 LoadedInput loadInput(const InputArgs& a) {
   LoadedInput in;
   in.robot = loadRobotModel(a.robot);
@@ -38,6 +47,7 @@ LoadedInput loadInput(const InputArgs& a) {
     const bool to_verify = a.split == "alternate" ? (i % 2 == 1) : (i >= rows.size() / 2);
     (to_verify ? in.data.verification : in.data.identification).push_back(o);
     (to_verify ? in.data.verification_drivers : in.data.identification_drivers).push_back(drivers.rows[i]);
+    (to_verify ? in.verification_lines : in.identification_lines).push_back(rows[i].line);
   }
   if (in.oriented_rows == 0) in.kind = MeasurementKind::kPosition3D;
   if (in.data.identification.size() < 8 || in.data.verification.empty())
@@ -74,6 +84,23 @@ std::vector<Extension> parseModel(const std::string& spec, const RobotModel& rob
   }
 }
 
+std::string linesText(const std::vector<int>& rows, const std::vector<int>& lines, size_t most) {
+  std::string s = rows.size() == 1 ? "line " : "lines ";
+  for (size_t k = 0; k < rows.size() && k < most; ++k) {
+    if (k > 0) s += k + 1 == rows.size() ? " and " : ", ";
+    s += std::to_string(lines[static_cast<size_t>(rows[k])]);
+  }
+  if (rows.size() > most) s += " and " + std::to_string(rows.size() - most) + " more";
+  return s;
+}
+
+nlohmann::json outliersJson(const OutlierScreen& s, const std::vector<int>& lines) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (int r : s.rows)
+    rows.push_back({{"line", lines[static_cast<size_t>(r)]}, {"robust_sigmas", s.z[static_cast<size_t>(r)]}});
+  return {{"rows", rows}, {"robust_sigma_position_mm", s.sigma_position_m * 1e3}};
+}
+
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix) {
   const std::string& p = prefix;
   nlohmann::json j = {{p + "mean_mm", s.mean_mm}, {p + "rms_mm", s.rms_mm}, {p + "max_mm", s.max_mm}};
@@ -88,6 +115,11 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
   cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
   cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
   cmd->add_flag("--position-only", a.position_only, "use positions only, even where orientations are given");
+  cmd->add_option("--outlier-threshold", a.outlier_threshold,
+                  "a row whose position error exceeds this many robust sigmas (per axis, from the median residual) is a "
+                  "gross error: listed by its line and left out of the fit; 0: no screening")
+      ->check(CLI::Number)
+      ->capture_default_str();
   cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_flag("--no-register", a.no_register, "trust the robot file's base and tool frames as the start");
 }

@@ -16,6 +16,7 @@ namespace cellcal::cli {
 struct InputArgs {
   std::string robot, data, split = "alternate";
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
+  double outlier_threshold = OutlierOptions{}.threshold;  // robust sigmas; 0: no screening
   bool position_only = false, skip_bad_rows = false, no_register = false;
 };
 
@@ -27,10 +28,14 @@ struct LoadedInput {
   std::string measurementText() const;               // "6D", "position only", "mixed: 30 6D, 12 position-only rows"
   std::string measurementJson() const;               // "pose6d", "position3d", "mixed"
   DiagnosisData data;        // identification / verification rows with their drivers (computed in visiting order)
+  std::vector<int> identification_lines, verification_lines;  // the file line of each of those rows
   Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
   double registration_rms_mm = 0;  // NaN with --no-register
   double registration_s = 0;
 };
+
+// --outlier-threshold as options (0: screening off); throws std::runtime_error on a bad value.
+OutlierOptions outlierOptions(const InputArgs& a);
 
 // Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies.
 // Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
@@ -39,6 +44,10 @@ LoadedInput loadInput(const InputArgs& a);
 // "backlash:3,joint_compliance:2" or "thermal_drift" (lengths only) -> extensions; joints 1-based. Throws
 // std::runtime_error naming the item that is not a cause or does not apply to the robot.
 std::vector<Extension> parseModel(const std::string& spec, const RobotModel& robot);
+
+// Flagged rows as file lines: "lines 17, 233 and 301" (at most `most` listed, then "and N more").
+std::string linesText(const std::vector<int>& rows, const std::vector<int>& lines, size_t most = 12);
+nlohmann::json outliersJson(const OutlierScreen& s, const std::vector<int>& lines);
 
 // {"<prefix>mean_mm", "<prefix>rms_mm", "<prefix>max_mm"} and, with 6D rows, the same in _deg.
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix = "");

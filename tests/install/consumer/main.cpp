@@ -18,7 +18,7 @@ int main() {
   std::mt19937_64 rng(7);
   std::vector<cellcal::Observation> obs;
   for (const auto& q : cell.randomConfigurations(40, rng)) obs.push_back(cell.measure(q, 0.0, rng));
-  cellcal::CalibrationProblem problem{&cell.model(), cell.nominalParams(), obs, std::nullopt, {}};
+  cellcal::CalibrationProblem problem{&cell.model(), cell.nominalParams(), obs, std::nullopt, {}, {}};
   std::string why;
   if (!problem.IsValid(&why)) {
     std::fprintf(stderr, "consumer: %s\n", why.c_str());

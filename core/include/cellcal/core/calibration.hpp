@@ -9,6 +9,9 @@
 // a prior, the structurally identifiable set (the prior fills directions the data leave open). All others are held
 // at their initial value and listed in result.identifiability.dropped.
 // Costs are 1/2 sum |whitened residual|^2 over the data (prior excluded), divided by the number of observations.
+// Gross errors: with `outliers.enabled` (the default) both solvers fit, screen every observation against the fit
+// (outliers.hpp) and refit on the rows kept from the same start, until the flagged set repeats; result.outliers names
+// the rows left out and the costs are over the rows kept. On clean data nothing is flagged: the plain fit.
 #pragma once
 
 #include <Eigen/Core>
@@ -18,6 +21,7 @@
 
 #include "cellcal/core/identifiability.hpp"
 #include "cellcal/core/observation.hpp"
+#include "cellcal/core/outliers.hpp"
 #include "cellcal/core/robot_model.hpp"
 
 namespace cellcal {
@@ -39,6 +43,7 @@ struct CalibrationProblem {
   std::vector<Observation> observations;
   std::optional<GaussianPrior> prior;
   IdentifiabilityOptions identifiability;
+  OutlierOptions outliers;
   bool IsValid(std::string* error) const;
 };
 
@@ -67,6 +72,7 @@ struct CalibrationResult {
   std::vector<int> estimated;              // indices into params
   Eigen::MatrixXd covariance;              // over `estimated`, SI (from the whitened Jacobian and the prior)
   IdentifiabilityReport identifiability;
+  OutlierScreen outliers;                  // rows of problem.observations left out, and the robust scales
   std::vector<NamedParameter> parameters(const RobotModel& model, const Eigen::VectorXd& initial) const;
 };
 

@@ -12,7 +12,9 @@
 //                        of the links beyond joint j: per link i, its mass and first moment (m, m c) in frame i times
 //                        the compliance, 4 parameters per link (the data decide which combinations are identifiable).
 //   thermal_drift        every a and d grows by e_0 * s * value and joint j's zero by e_1 * s, with s the thermal driver
-//                        (temperature minus its reference, K; or hours since the first row when no temperature).
+//                        (temperature minus its reference, K). Without a thermometer, time drives it as a first-order
+//                        warm-up: s = tau (1 - exp(-t / tau)) with t the hours since the first row and tau the time
+//                        constant (Extension::time_constant_h, fitted by fitExtended; infinite: s = t, a straight line).
 //                        joint = -1: the lengths only (one parameter), when no joint zero drifts measurably.
 //   cyclic_transmission  dq_j = e_0 sin q_j + e_1 cos q_j + e_2 sin 2q_j + e_3 cos 2q_j.
 //   joint_scale          dq_j = e_0 q_j (transmission-ratio error).
@@ -21,11 +23,21 @@
 //                        the gap only partly, s_j <- clamp(s_j + 2 step / width, -1, 1). s_j depends on the width, so
 //                        the basis is evaluated at a width (fitExtended iterates it with the fit); width 0 is the
 //                        direction the joint last moved (Drivers::motion_direction).
+//   link_deflection      link j (the segment between the axes of joints j and j+1, 1-based; one of 200 mm or more that
+//                        gravity loads across) bends as a beam under the gravity across it, g_perp = the part of
+//                        gravity (in g) perpendicular to the link, the elastostatic model of elasto-geometric
+//                        calibration: its far end moves by e_0 g_perp (e_0: the sag of the link held horizontal, m) and
+//                        turns by e_1 about u x g_perp (u: the link's direction; e_1: the slope at its end when
+//                        horizontal, rad). The load of the links beyond adds a moment that depends on their pose: that
+//                        part acts as joint_compliance of joint j+1. A Cartesian motion, not a joint error: B_i is the
+//                        minimum-norm parameter change that moves the target by that twist (first order; J B_i e = the
+//                        twist).
 #pragma once
 
 #include <Eigen/Core>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -35,7 +47,7 @@
 
 namespace cellcal {
 
-enum class Cause { kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash };
+enum class Cause { kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash, kLinkDeflection };
 
 const char* causeName(Cause c);                               // "joint_compliance", ...
 std::optional<Cause> causeFromName(const std::string& name);  // inverse of causeName
@@ -44,6 +56,8 @@ const std::vector<Cause>& extensionCauses();                  // every cause exc
 // Values of the drivers other than q at one observation.
 struct Drivers {
   double thermal = 0.0;               // K above the reference temperature, or hours since the first row; see below
+  bool thermal_is_time = false;       // `thermal` is the hours since the first row (no temperature): a warm-up applies
+  double elapsed_h = std::numeric_limits<double>::quiet_NaN();  // hours since the first row; NaN without stamps
   Eigen::VectorXd motion_direction;   // per joint: +1 / -1 = sign of (q - q of the row visited before), 0 unknown
   // Joints x kPlayHistory: the last moves of each joint up to this row (q - q of the row before; last column: the
   // move onto this row), zero before the first row. Enough for the play state of any backlash narrower than the
@@ -74,7 +88,10 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad, const
 
 struct Extension {
   Cause cause = Cause::kNone;
-  int joint = -1;  // 0-based; -1 for kNone and for thermal drift of the lengths alone
+  int joint = -1;  // 0-based (link_deflection: the link, 0-based); -1 for kNone and for thermal drift of the lengths
+  // thermal_drift on a time driver: the warm-up's time constant (h). 0: not chosen yet (fitExtended fits it; a
+  // straight line where used unfitted); infinity: a straight line in time. Ignored with a temperature driver.
+  double time_constant_h = 0.0;
 };
 
 // Frames of the chain in the tracker frame: [0] robot base, [i] after A_i (i = 1..n), [n+1] target.
@@ -86,6 +103,9 @@ Eigen::VectorXd gravityTorques(const RobotModel& model, const Eigen::VectorXd& p
 // The driver of joint_compliance on joint j: the gravity torque of the robot file's masses (N m), or without masses
 // that of a unit mass at the target (N m/kg).
 double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad, int j);
+
+// Length (m) of link j: between the axes of joints j and j+1 (the origins of frames j-1 and j of chainFrames).
+double linkLength(const RobotModel& model, const Eigen::VectorXd& params, int j);
 
 // Whether the cause applies to this joint with these data (e.g. no compliance on a joint gravity never loads).
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal);

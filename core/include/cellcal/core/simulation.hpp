@@ -111,6 +111,10 @@ class SimulatedCell {
   Observation measure(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h, std::mt19937_64& rng,
                       MeasurementKind kind = MeasurementKind::kPose6D) const;
   Pose truePose(const Eigen::VectorXd& q_rad, double t_h, const HiddenJointState* state = nullptr) const;
+  // The tracker's reading of a target at `true_pose` (noise and repeatability drawn from rng), with q_rad reported:
+  // what measure() does after truePose, for effects composed outside this class.
+  Observation measurePose(const Pose& true_pose, const Eigen::VectorXd& q_rad, std::mt19937_64& rng,
+                          MeasurementKind kind = MeasurementKind::kPose6D) const;
   // The hidden effect's joint error (rad per joint) at this configuration (the truth, for tests).
   Eigen::VectorXd hiddenJointErrorRad(const Eigen::VectorXd& q_rad, const HiddenJointState* state, double t_h) const;
   // The state after the robot moved from q_from to q_to (the play operator of the backlash joint).

@@ -1,5 +1,6 @@
 // Chi-square tail probabilities and quantiles for integer degrees of freedom (outlier gating on the normalized
-// innovation squared, which is chi-square with `dof` = measurement rows when the noise model holds).
+// innovation squared, which is chi-square with `dof` = measurement rows when the noise model holds), and the F
+// distribution's tail (whether a regression explains more of a residual than noise would).
 #pragma once
 
 namespace cellcal {
@@ -8,5 +9,10 @@ namespace cellcal {
 double chiSquareSurvival(double x, int dof);
 // x such that P(X > x) = p, for 0 < p < 1 (bisection on chiSquareSurvival to 1e-12 relative).
 double chiSquareQuantileUpper(double p, int dof);
+
+// Regularized incomplete beta function I_x(a, b), a, b > 0, 0 <= x <= 1 (continued fraction, relative error ~1e-14).
+double regularizedIncompleteBeta(double a, double b, double x);
+// P(X > f) for X ~ F(d1, d2), d1, d2 > 0. f <= 0 gives 1.
+double fSurvival(double f, double d1, double d2);
 
 }  // namespace cellcal
