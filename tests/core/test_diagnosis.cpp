@@ -306,6 +306,7 @@ TEST(HiddenEffects, SingleCausesAreNamedWithTheirJoint) {
   const int draws = drawsOr(48);
   std::mt19937_64 rng = suiteRng();
   int large = 0, right = 0, exact = 0, alike = 0, small = 0, small_named_other = 0;
+  int large_by_kind[2] = {0, 0}, right_by_kind[2] = {0, 0};  // points, 6D
   double worst_ratio = 0;
   for (int k = 0; k < draws; ++k) {
     test::DrawOptions o;
@@ -314,11 +315,14 @@ TEST(HiddenEffects, SingleCausesAreNamedWithTheirJoint) {
     const DiagnosisResult d = diagnose(h.model, h.start, h.data);
     const test::TrueEffect& t = h.draw.effects.front();
     const std::vector<Extension> got = d.causes();
+    const int kind = h.draw.kind == MeasurementKind::kPose6D;
     if (t.effect_rms_mm > h.noise_rms_mm) {
       ++large;
+      ++large_by_kind[kind];
       const bool ok = !got.empty() && got.front().cause == t.cause && rightJoint(got.front(), t, h.noise_rms_mm);
       if (ok) {
         ++right;
+        ++right_by_kind[kind];
         exact += got.size() == 1;
         const double ratio = d.best().verification.rms_mm / h.noise_rms_mm;
         worst_ratio = std::max(worst_ratio, ratio);
@@ -340,6 +344,8 @@ TEST(HiddenEffects, SingleCausesAreNamedWithTheirJoint) {
   std::printf("  summary: %d files; %d/%d effects above the noise named right first (%d with no other cause, %d more "
               "named as alike), %d/%d below the noise named as another cause; worst final/noise RMS %.3f\n",
               draws, right, large, exact, alike, small_named_other, small, worst_ratio);
+  std::printf("  summary by kind: points %d/%d, 6D %d/%d named right first\n", right_by_kind[0], large_by_kind[0],
+              right_by_kind[1], large_by_kind[1]);
   ASSERT_GE(large, draws / 3) << "too few effects above the noise to judge";
   EXPECT_GE(right, 0.85 * large);
 }
@@ -350,12 +356,16 @@ TEST(HiddenEffects, NoiseOnlyNamesNoCause) {
   const int draws = drawsOr(40);
   std::mt19937_64 rng = suiteRng();
   int named_any = 0, structure = 0;
+  int files_by_kind[2] = {0, 0}, named_by_kind[2] = {0, 0};  // points, 6D
   for (int k = 0; k < draws; ++k) {
     test::DrawOptions o;
     o.category = test::DrawCategory::kNoiseOnly;
     const test::HiddenEffectData h = test::makeHiddenEffectData(o, rng());
     const DiagnosisResult d = diagnose(h.model, h.start, h.data);
+    const int kind = h.draw.kind == MeasurementKind::kPose6D;
+    ++files_by_kind[kind];
     if (!d.selection.empty()) {
+      ++named_by_kind[kind];
       ++named_any;
       std::printf("  false cause: %s | %s\n", namedText(d).c_str(), h.draw.describe().c_str());
     }
@@ -367,6 +377,8 @@ TEST(HiddenEffects, NoiseOnlyNamesNoCause) {
   }
   std::printf("  summary: %d noise-only files; %d named a cause (%.1f %% none), %d reported structure left\n", draws,
               named_any, 100.0 * (draws - named_any) / draws, structure);
+  std::printf("  summary by kind: points %d/%d none, 6D %d/%d none\n", files_by_kind[0] - named_by_kind[0],
+              files_by_kind[0], files_by_kind[1] - named_by_kind[1], files_by_kind[1]);
   EXPECT_LE(named_any, 2);
 }
 
