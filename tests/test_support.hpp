@@ -10,7 +10,7 @@
 #include <random>
 #include <string>
 
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 
 namespace cellcal::test {
 

@@ -2,9 +2,7 @@
 // domain (hash of the test name into 1..200, so parallel ctest runs never see each other's samples).
 #pragma once
 
-#include <fcntl.h>
 #include <signal.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -17,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "cellcal/components/child_process.hpp"
 #include "test_support.hpp"
 
 namespace cellcal::test {
@@ -67,60 +66,21 @@ inline std::string writeCell(const std::string& dir, int domain, std::uint64_t s
   return path;
 }
 
-// A child process whose output goes to <dir>/<name>.log.
+// A child process whose output goes to <dir>/<name>.log (appended: a name used twice keeps both runs' output).
 class Process {
  public:
-  Process(const std::string& dir, const std::string& name, std::vector<std::string> args) : name_(name) {
-    log_ = dir + "/" + name + ".log";
-    std::vector<std::string> full = {std::string(CELLCAL_BIN_DIR) + "/" + args[0]};
-    full.insert(full.end(), args.begin() + 1, args.end());
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      const int fd = ::open(log_.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-      ::dup2(fd, 1);
-      ::dup2(fd, 2);
-      std::vector<char*> argv;
-      for (auto& a : full) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      ::execv(argv[0], argv.data());
-      ::_exit(127);
-    }
-  }
-  ~Process() {
-    if (running()) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-    }
-  }
-  bool running() {
-    if (exit_code_ >= 0) return false;
-    int st = 0;
-    if (::waitpid(pid_, &st, WNOHANG) == pid_) {
-      exit_code_ = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-      return false;
-    }
-    return true;
-  }
+  Process(const std::string& dir, const std::string& name, std::vector<std::string> args)
+      : child_(std::string(CELLCAL_BIN_DIR) + "/" + args[0], std::vector<std::string>(args.begin() + 1, args.end()),
+               dir + "/" + name + ".log", /*append=*/true) {}
+  bool running() { return child_.running(); }
   // SIGINT (clean stop) or SIGKILL; returns the exit code (-1 on timeout).
-  int stop(int sig = SIGINT, double timeout_s = 15) {
-    if (!running()) return exit_code_;
-    ::kill(pid_, sig);
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-    while (running() && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    return exit_code_;
-  }
-  int wait(double timeout_s) {
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-    while (running() && std::chrono::steady_clock::now() < end) std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    return exit_code_;
-  }
-  std::string log() const { return readTextFile(log_); }
-  pid_t pid() const { return pid_; }
+  int stop(int sig = SIGINT, double timeout_s = 15) { return child_.stop(sig, timeout_s); }
+  int wait(double timeout_s) { return child_.wait(timeout_s); }
+  std::string log() const { return readTextFile(child_.logFile()); }
+  pid_t pid() const { return child_.pid(); }
 
  private:
-  std::string name_, log_;
-  pid_t pid_ = -1;
-  int exit_code_ = -1;
+  components::ChildProcess child_;
 };
 
 inline bool waitUntil(const std::function<bool()>& cond, double timeout_s) {

@@ -16,8 +16,8 @@
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/sim_program.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/lab/sim_program.hpp"
 
 namespace cellcal {
 namespace {

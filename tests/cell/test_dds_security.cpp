@@ -15,13 +15,14 @@
 #include "cell_test_support.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/dds_security.hpp"
-#include "cellcal/components/recording.hpp"
+#include "cellcal/recording/recording.hpp"
 
 namespace cellcal {
 namespace {
 
 using namespace cellcal::test;
 using namespace cellcal::components;
+using namespace cellcal::recording;
 
 // A CA, a certificate per identity (plus `extra`, with no grant) and the signed documents, in `dir`.
 std::string makePki(const std::string& dir, const std::string& extra = "") {

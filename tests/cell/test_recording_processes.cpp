@@ -8,13 +8,14 @@
 #include <random>
 
 #include "cell_test_support.hpp"
-#include "cellcal/components/recording.hpp"
+#include "cellcal/recording/recording.hpp"
 
 namespace cellcal {
 namespace {
 
 using namespace cellcal::test;
 using namespace cellcal::components;
+using namespace cellcal::recording;
 
 const char* kProgram = "  initial_poses: 40\n  poses_per_group: 15\n  groups: 2\n  hours_between_groups: 1\n";
 

@@ -1,6 +1,6 @@
 // Cell files (config/cell.yaml): parseCellConfig on arbitrary text. Robot files it names resolve against the shipped
 // config folder, so a mutated cell file reaches the robot parser and the registration checks too.
-#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/files/cell_config.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

@@ -1,7 +1,7 @@
 // Measurement files (CSV v1, docs/measurement-csv.md): parseMeasurementCsv on arbitrary text, strict and with
 // skip_bad_rows.
-#include "cellcal/core/measurement_csv.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

@@ -1,5 +1,5 @@
 // Robot files (config/robots/*.yaml): parseRobotModel on arbitrary text.
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

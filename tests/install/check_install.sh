@@ -13,14 +13,18 @@ cmake --install "$build" --prefix "$prefix" >"$work/install.log"
 
 fail() { echo "check_install: $*" >&2; exit 1; }
 for f in bin/cellcal bin/cellcal_tracker_adapter bin/cellcal_joint_state_adapter bin/cellcal_calibration_engine \
-         bin/cellcal_compensation_publisher lib/libcellcal_core.a include/cellcal/core/calibration.hpp \
-         include/cellcal/core/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
+         bin/cellcal_compensation_publisher lib/libcellcal_core.a include/cellcal/core/identification/calibration.hpp \
+         include/cellcal/core/identification/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
          lib/cmake/cellcal/cellcalTargets.cmake share/cellcal/idl/cellcal_msgs.idl share/cellcal/config/cell.yaml \
          share/cellcal/config/dds/cellcal_qos.xml share/cellcal/config/robots/staubli_tx60.yaml \
          share/cellcal/config/security/permissions.xml share/cellcal/config/sysctl/60-cellcal.conf; do
   [[ -f $prefix/$f ]] || fail "$f was not installed"
 done
 [[ -x $prefix/share/cellcal/config/security/make_pki.sh ]] || fail "make_pki.sh is not executable"
+# The library is the core only: experiments, scenarios and dataset readers (lab/) stay in the build.
+[[ ! -e $prefix/include/cellcal/lab ]] || fail "lab/ headers were installed with cellcal::core"
+! find "$prefix/include" -name 'paper_experiment.hpp' -o -name 'ipa_dataset.hpp' | grep -q . ||
+  fail "experiment or dataset headers were installed"
 # Installed binaries default to the installed configuration, not the source tree they were built from.
 "$prefix/bin/cellcal_calibration_engine" --help >"$work/engine_help.txt"
 grep -q "$prefix/share/cellcal/config/cell.yaml" "$work/engine_help.txt" ||

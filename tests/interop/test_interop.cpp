@@ -11,8 +11,8 @@
 
 #include "cell/cell_test_support.hpp"
 #include "cellcal/components/convert.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/sim_program.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/lab/sim_program.hpp"
 
 namespace cellcal {
 namespace {

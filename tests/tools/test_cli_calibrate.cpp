@@ -3,10 +3,10 @@
 #include <gtest/gtest.h>
 
 #include "cell/cell_test_support.hpp"
-#include "cellcal/core/ipa_dataset.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/simulation.hpp"
-#include "core/hidden_effect.hpp"
+#include "cellcal/lab/ipa_dataset.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/sim/simulation.hpp"
+#include "core/identification/hidden_effect.hpp"
 
 namespace cellcal {
 namespace {

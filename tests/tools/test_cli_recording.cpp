@@ -4,8 +4,8 @@
 #include <gtest/gtest.h>
 
 #include "cell/cell_test_support.hpp"
-#include "cellcal/core/ipa_dataset.hpp"
-#include "cellcal/core/simulation.hpp"
+#include "cellcal/lab/ipa_dataset.hpp"
+#include "cellcal/core/sim/simulation.hpp"
 
 namespace cellcal {
 namespace {

@@ -12,7 +12,7 @@
 #include <set>
 #include <sstream>
 
-#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/files/cell_config.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {

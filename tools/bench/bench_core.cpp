@@ -5,16 +5,17 @@
 #include <filesystem>
 #include <unistd.h>
 
-#include "cellcal/core/calibration.hpp"
-#include "cellcal/core/diagnosis.hpp"
-#include "cellcal/core/calibration_engine.hpp"
-#include "cellcal/core/cell_config.hpp"
-#include "cellcal/core/registration.hpp"
-#include "cellcal/core/inverse_kinematics.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/rls.hpp"
-#include "cellcal/core/robot_yaml.hpp"
-#include "cellcal/core/simulation.hpp"
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/engine/state_file.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/inverse_kinematics.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/identification/rls.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/sim/simulation.hpp"
 
 namespace {
 using namespace cellcal;
@@ -184,8 +185,8 @@ void BM_Diagnose(benchmark::State& state) {
 BENCHMARK(BM_Diagnose)->Arg(400)->Unit(benchmark::kMillisecond);
 
 // One tracker reading through the engine: pairing, linearization, RLS update, statistics, and (Arg 1) the atomic
-// state-file replacement, (Arg 2) plus its fsync. Arg 0 keeps the state in memory only. Side by side: the cost of
-// durability per pose.
+// state-file replacement the engine's host does after every change, (Arg 2) plus its fsync. Arg 0 keeps the state in
+// memory only. Side by side: the cost of durability per pose.
 void BM_EnginePose(benchmark::State& state) {
   const int mode = static_cast<int>(state.range(0));
   CellConfig cell = loadCellConfig(std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml");
@@ -193,7 +194,8 @@ void BM_EnginePose(benchmark::State& state) {
   std::filesystem::remove_all(dir);
   cell.engine.state_dir = dir.string();
   const CellRobot& robot = cell.robots[0];
-  CalibrationEngine engine(robot, cell.engine, 1.0, mode > 0);
+  CalibrationEngine engine(robot, cell.engine, 1.0);
+  const std::string file = stateFilePath(cell.engine.state_dir, robot.robot_id);
   SimulatedCell sim(robot.model, SimulationConfig{});
   std::mt19937_64 rng(3);
   const auto qs = sim.randomConfigurations(64, rng);
@@ -214,7 +216,8 @@ void BM_EnginePose(benchmark::State& state) {
     state.ResumeTiming();
     engine.onTrackerSample(s, t);
     engine.process(t);
-    if (mode == 2) engine.syncToDisk();
+    if (mode > 0) saveEngineState(file, engine.exportState());
+    if (mode == 2) syncStateFile(file);
   }
   std::filesystem::remove_all(dir);
 }

@@ -13,10 +13,10 @@
 #include <random>
 #include <string>
 
-#include "cellcal/core/inverse_kinematics.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/robot_yaml.hpp"
-#include "cellcal/core/simulation.hpp"
+#include "cellcal/core/model/inverse_kinematics.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/sim/simulation.hpp"
 
 namespace {
 using namespace cellcal;

@@ -1,4 +1,4 @@
-// `cellcal calibrate`: batch calibration of one measurement file; `cellcal import ipa`: the ipa UR10 series to CSV v1.
+// `cellcal calibrate`: batch calibration of one measurement file.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -7,13 +7,12 @@
 #include <sstream>
 #include <nlohmann/json.hpp>
 
-#include "cellcal/core/calibration.hpp"
-#include "cellcal/core/diagnosis.hpp"
-#include "cellcal/core/ipa_dataset.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/measurement_csv.hpp"
-#include "cellcal/core/registration.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 
@@ -176,14 +175,13 @@ int runCalibrate(const CalibrateArgs& a) {
 
 Runner addCalibrateCommand(CLI::App& app) {
   auto a = std::make_shared<CalibrateArgs>();
-  CLI::App* cmd = app.add_subcommand(
-      "calibrate",
+  CLI::App* cmd = addSubcommand(app, "calibrate",
       "Batch geometric calibration of a measurement file (CSV v1): registers the base and tool frames, identifies every "
       "identifiable kinematic parameter (Gauss-Newton, or --solver lm) on the identification rows, and reports mean/RMS/max "
       "position and orientation errors on identification and verification rows, before and after. Split: "
-      "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies");
-  cmd->footer(cliFooter("  cellcal calibrate --robot config/robots/ur10.yaml --data m.csv --json calib.json\n  cellcal calibrate --robot R.yaml --data m.csv --model auto                   the model diagnose chooses\n  cellcal calibrate --robot R.yaml --data m.csv --model joint_compliance:2     a named extension\n",
-                        "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n"));
+      "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies",
+      "  cellcal calibrate --robot config/robots/ur10.yaml --data m.csv --json calib.json\n  cellcal calibrate --robot R.yaml --data m.csv --model auto                   the model diagnose chooses\n  cellcal calibrate --robot R.yaml --data m.csv --model joint_compliance:2     a named extension\n",
+      "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n");
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
   cmd->add_option("--model", a->model,
@@ -197,60 +195,7 @@ Runner addCalibrateCommand(CLI::App& app) {
                   "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "
                   "than this sine")
       ->capture_default_str();
-  return [a, cmd]() -> int {
-    if (!*cmd) return 0;
-    return runCalibrate(*a);
-  };
-}
-
-Runner addImportCommand(CLI::App& app) {
-  auto robot = std::make_shared<std::string>(defaultRobotFile("ur10.yaml"));
-  auto in = std::make_shared<std::string>();
-  auto out = std::make_shared<std::string>();
-  CLI::App* imp = app.add_subcommand("import", "Convert measurements: other formats to CSV v1, CSV v1 to a recording");
-  imp->require_subcommand(1);
-  CLI::App* ipa = imp->add_subcommand("ipa", "A series of ../shared/datasets/ipa-robot-accuracy (UR10, Leica + T-Mac)");
-  ipa->footer(cliFooter("  cellcal import ipa ../shared/datasets/ipa-robot-accuracy/Series_A/measurements_grid.csv --out a.csv\n",
-                        "  the output: a measurement file, CSV v1 (docs/measurement-csv.md), rows in time order\n"));
-  ipa->add_option("series", *in, "Series_A/measurements_grid.csv or Series_B/measurements_joint_configurations.csv")
-      ->required()
-      ->check(CLI::ExistingFile);
-  ipa->add_option("--out", *out, "CSV v1 file to write")->required();
-  ipa->add_option("--robot", *robot, "robot file (joint limits are checked)")->capture_default_str();
-  auto csv = std::make_shared<ImportCsvArgs>();
-  CLI::App* c = imp->add_subcommand(
-      "csv", "A measurement file (CSV v1) as a recording (MCAP) of JointState and TrackerPose streams, for replay "
-             "and validate: per row, the robot stands settled --bracket-s before and after the reading");
-  c->footer(cliFooter("  cellcal import csv a.csv --robot config/robots/ur10.yaml --out a.mcap\n",
-                        "  the output: an MCAP recording of the cell topics (docs/recording.md)\n"));
-  c->add_option("file", csv->csv, "CSV v1 measurement file")->required()->check(CLI::ExistingFile);
-  c->add_option("--robot", csv->robot_file, "robot file (YAML)")->required()->check(CLI::ExistingFile);
-  c->add_option("--out", csv->out, "MCAP file to write")->required();
-  c->add_option("--robot-id", csv->robot_id, "JointState robot_id (default: the robot file's name)");
-  c->add_option("--target-id", csv->target_id, "TrackerPose target_id (default: <robot_id>_target)");
-  c->add_option("--start-unix-s", csv->start_unix_s, "Unix time of the first row")->capture_default_str();
-  c->add_option("--period-s", csv->period_s, "seconds between rows without stamp_s")->capture_default_str();
-  c->add_option("--bracket-s", csv->bracket_s, "settled joint states this long before and after each reading")
-      ->capture_default_str();
-  c->add_option("--sigma-position-mm", csv->sigma_position_mm, "1-sigma of a reading's position (its covariance)")
-      ->capture_default_str();
-  c->add_option("--sigma-orientation-deg", csv->sigma_orientation_deg, "1-sigma of a reading's orientation")
-      ->capture_default_str();
-  c->add_flag("--skip-bad-rows", csv->skip_bad_rows, "skip (and count) bad rows instead of stopping");
-  return [=]() -> int {
-    if (*c) return importCsvToRecording(*csv);
-    if (!*ipa) return 0;
-    const RobotModel r = loadRobotModel(*robot);
-    std::string notes;
-    const MeasurementFile f = readIpaSeries(*in, r, &notes);
-    std::ofstream o(*out);
-    if (!o) throw std::runtime_error(*out + ": cannot write");
-    writeMeasurementCsv(o, f, r.numJoints(),
-                        "converted by `cellcal import ipa` from " + *in +
-                            "\nipa-robot-accuracy (Landgraf et al., IEEE CASE 2021), MIT licence\n" + notes);
-    std::printf("%s -> %s\n", notes.c_str(), out->c_str());
-    return 0;
-  };
+  return [a] { return runCalibrate(*a); };
 }
 
 }  // namespace cellcal::cli

@@ -5,8 +5,8 @@
 #include <cstdio>
 #include <fstream>
 
-#include "cellcal/core/continuous_scenario.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/lab/continuous_scenario.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 
@@ -122,13 +122,12 @@ int runContinuous(const ContinuousArgs& a) {
 Runner addContinuousCommand(CLI::App& app) {
   auto a = std::make_shared<ContinuousArgs>();
   a->robot = defaultRobotFile("ur10.yaml");
-  CLI::App* cmd = app.add_subcommand(
-      "continuous",
+  CLI::App* cmd = addSubcommand(app, "continuous",
       "Continuous calibration over a measurement file in time order (stamp_s): an initial batch from the first "
       "interval, then every interval a few evenly spaced fresh poses update the RLS estimate; every row is predicted "
-      "before any of its interval's poses is used. Compares a static calibration, RLS, and RLS with a model extension");
-  cmd->footer(cliFooter("  cellcal continuous --robot config/robots/ur10.yaml --data a.csv --initial-h 5 --model joint_compliance:2\n",
-                        "  --data: a measurement file with stamp_s, CSV v1 (docs/measurement-csv.md)\n"));
+      "before any of its interval's poses is used. Compares a static calibration, RLS, and RLS with a model extension",
+      "  cellcal continuous --robot config/robots/ur10.yaml --data a.csv --initial-h 5 --model joint_compliance:2\n",
+      "  --data: a measurement file with stamp_s, CSV v1 (docs/measurement-csv.md)\n");
   cmd->add_option("--robot", a->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   cmd->add_option("--data", a->data, "measurement file, CSV v1, with stamp_s")->required()->check(CLI::ExistingFile);
   cmd->add_option("--interval-h", a->options.update_interval_h, "hours between updates")->capture_default_str();
@@ -150,10 +149,7 @@ Runner addContinuousCommand(CLI::App& app) {
   cmd->add_flag("--quiet", a->quiet, "no per-interval table");
   cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_option("--json", a->json, "write the results as JSON");
-  return [a, cmd]() -> int {
-    if (!*cmd) return 0;
-    return runContinuous(*a);
-  };
+  return [a] { return runContinuous(*a); };
 }
 
 }  // namespace cellcal::cli

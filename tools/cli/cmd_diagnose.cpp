@@ -9,7 +9,7 @@
 #include <sstream>
 #include <nlohmann/json.hpp>
 
-#include "cellcal/core/diagnosis.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 #include "progress.hpp"
@@ -303,24 +303,20 @@ int runDiagnose(const DiagnoseArgs& a) {
 
 Runner addDiagnoseCommand(CLI::App& app) {
   auto a = std::make_shared<DiagnoseArgs>();
-  CLI::App* cmd = app.add_subcommand(
-      "diagnose",
+  CLI::App* cmd = addSubcommand(app, "diagnose",
       "What the geometric model gets wrong in a measurement file (CSV v1): fits it, measures the residual structure "
       "against each driver (joint angles, gravity torques, temperature or time, motion direction, workspace), tries "
       "each physical cause (joint_compliance, thermal_drift, cyclic_transmission, joint_scale, backlash, "
       "link_deflection) on each joint or link, adds up to three by forward selection as long as each wins on the "
       "verification rows, and says what structure is still left. Rows more than 6 robust sigmas off are listed and left "
-      "out. See docs/diagnosis.md");
-  cmd->footer(cliFooter("  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
-                        "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n"));
+      "out. See docs/diagnosis.md",
+      "  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
+      "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n");
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
   cmd->add_flag("--no-progress", a->no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
   cmd->add_option("--report", a->report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
-  return [a, cmd]() -> int {
-    if (!*cmd) return 0;
-    return runDiagnose(*a);
-  };
+  return [a] { return runDiagnose(*a); };
 }
 
 }  // namespace cellcal::cli

@@ -5,8 +5,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
-#include "cellcal/core/paper_experiment.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/lab/paper_experiment.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 
 namespace cellcal::cli {
@@ -257,12 +257,11 @@ Runner addExperimentCommand(CLI::App& app) {
   auto args = std::make_shared<ExperimentArgs>();
   CLI::App* exp = app.add_subcommand("experiment", "Reproduce published experiments on a simulated robot");
   exp->require_subcommand(1);
-  CLI::App* paper = exp->add_subcommand(
-      "paper",
+  CLI::App* paper = addSubcommand(*exp, "paper",
       "4 groups of 100 poses measured 2 h apart on a simulated Staubli TX60 whose accuracy degrades; prints the "
-      "pose-number sweep (paper Table 2) and accuracy maintenance with RLS and LM (paper Table 4)");
-  paper->footer(cliFooter("  cellcal experiment paper --plot figs --json paper.json       one robot, figures and JSON\n  cellcal experiment paper --seeds 300 --seed 1000              how often the targets hold over 300 robots\n",
-                        "  --plot DIR: maintenance.png, residuals.png, joint_drift.png, pose_sweep.png (gnuplot; docs/figures.md)\n"));
+      "pose-number sweep (paper Table 2) and accuracy maintenance with RLS and LM (paper Table 4)",
+      "  cellcal experiment paper --plot figs --json paper.json       one robot, figures and JSON\n  cellcal experiment paper --seeds 300 --seed 1000              how often the targets hold over 300 robots\n",
+      "  --plot DIR: maintenance.png, residuals.png, joint_drift.png, pose_sweep.png (gnuplot; docs/figures.md)\n");
   paper->add_option("--robot", args->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   paper->add_option("--seed", args->seed, "seed of the simulated robot, tracker and poses")->capture_default_str();
   paper->add_option("--json", args->json_path, "write the results as JSON to this file");

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "cellcal/components/dds_node.hpp"
+#include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/components/process.hpp"
 #include "commands.hpp"
 
@@ -27,15 +28,8 @@ struct StatusArgs {
   std::string json;
 };
 
-const char* healthName(msg::CalibrationHealth h) {
-  switch (h) {
-    case msg::HEALTH_UNCALIBRATED: return "uncalibrated";
-    case msg::HEALTH_OK: return "ok";
-    case msg::HEALTH_DEGRADED: return "degraded";
-    case msg::HEALTH_HOLD_LAST_GOOD: return "hold_last_good";
-  }
-  return "?";
-}
+// The wire's health as the engine names it (the IDL enum follows core's Health).
+const char* healthName(msg::CalibrationHealth h) { return cellcal::healthName(static_cast<Health>(static_cast<int>(h))); }
 
 struct RobotView {
   bool has_state = false, has_diagnostics = false;
@@ -175,6 +169,7 @@ int runStatus(const StatusArgs& a) {
     }
   });
   const auto start = std::chrono::steady_clock::now();
+  const RunLimit limit(a.duration_s);
   if (!a.watch) {
     sleepUntil(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(a.wait_s)));
   } else {
@@ -190,7 +185,7 @@ int runStatus(const StatusArgs& a) {
                   << std::flush;
       }
       if (!sleepUntil(next)) break;
-      if (a.duration_s > 0 && std::chrono::steady_clock::now() - start >= std::chrono::duration<double>(a.duration_s)) break;
+      if (limit.timeUp()) break;
     }
     std::cout << "\n";
   }
@@ -235,8 +230,7 @@ Runner addStatusCommand(CLI::App& app) {
       "  residual   RMS position residual over the recent poses (a-posteriori)\n"
       "EXIT STATUS\n"
       "  0 when it ran (whatever the cell's health), 1 on a DDS or file error, 2 on a usage error.");
-  return [a, cmd]() -> int {
-    if (!*cmd) return 0;
+  return [a] {
     installStopHandlers();
     return runStatus(*a);
   };

@@ -16,24 +16,17 @@ Runner addExperimentCommand(CLI::App& app);
 Runner addCellCommand(CLI::App& app);
 // Adds `bench-cell` (latency and load through real processes).
 Runner addBenchCellCommand(CLI::App& app);
-// Adds `calibrate` (batch calibration of a measurement file) and `import ipa`.
+// Adds `calibrate` (batch calibration of a measurement file).
 Runner addCalibrateCommand(CLI::App& app);
+// Adds `import ipa` (the ipa UR10 series to CSV v1) and `import csv` (CSV v1 to a recording).
 Runner addImportCommand(CLI::App& app);
 // Adds `diagnose` (model diagnosis of a measurement file).
 Runner addDiagnoseCommand(CLI::App& app);
-// Adds `record`, `replay`, `validate` and `export` (recordings of a cell, MCAP).
-Runner addRecordingCommands(CLI::App& app);
-// `import csv`: a measurement file (CSV v1) as a recording: per row, the robot settled bracket_s before and after
-// the reading (two JointStates) and the TrackerPose at the row's time.
-struct ImportCsvArgs {
-  std::string csv, robot_file, out, robot_id, target_id;
-  double start_unix_s = 1.7e9;  // stamp_s = 0 (or the first row) at this Unix time
-  double period_s = 30;         // rows without stamp_s: this far apart
-  double bracket_s = 0.01;
-  double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
-  bool skip_bad_rows = false;
-};
-int importCsvToRecording(const ImportCsvArgs& args);
+// Recordings of a cell (MCAP): `record`, `replay`, `validate` against a recording, `export` to CSV.
+Runner addRecordCommand(CLI::App& app);
+Runner addReplayCommand(CLI::App& app);
+Runner addValidateCommand(CLI::App& app);
+Runner addExportCommand(CLI::App& app);
 // cmd_continuous.cpp
 Runner addContinuousCommand(CLI::App& app);
 // cmd_status.cpp: the cell at a glance (--watch: live).
@@ -46,10 +39,11 @@ bool renderGnuplot(const std::string& dir, const std::string& name, const std::s
 
 std::string defaultRobotFile(const std::string& name);
 
+// A subcommand of parent whose --help ends with cliFooter(examples, files, exit_extra).
+CLI::App* addSubcommand(CLI::App& parent, const std::string& name, const std::string& description,
+                        const std::string& examples, const std::string& files, const std::string& exit_extra = "");
+
 // The man-page part of a command's --help: EXAMPLES and FILES as given, then EXIT STATUS and SEE ALSO.
 std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra = "");
-
-// The p-quantile (0..1) of v by rank (element floor(p n)); NaN when empty.
-double percentile(std::vector<double> v, double p);
 
 }  // namespace cellcal::cli

@@ -1,10 +1,11 @@
 // cellcal: command-line entry point. Subcommands live in cmd_*.cpp.
-#include <algorithm>
-#include <cmath>
 #include <iostream>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "cellcal/components/process.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 
 namespace cellcal::cli {
@@ -17,12 +18,13 @@ std::string cliFooter(const std::string& examples, const std::string& files, con
          "reliability, security, deployment, figures)\n";
 }
 
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return std::nan("");
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
-  return v[k];
+CLI::App* addSubcommand(CLI::App& parent, const std::string& name, const std::string& description,
+                        const std::string& examples, const std::string& files, const std::string& exit_extra) {
+  CLI::App* c = parent.add_subcommand(name, description);
+  c->footer(cliFooter(examples, files, exit_extra));
+  return c;
 }
+
 }  // namespace cellcal::cli
 
 int main(int argc, char** argv) {
@@ -31,31 +33,24 @@ int main(int argc, char** argv) {
       "Identifies the kinematic parameter errors of a robot from laser-tracker poses with recursive least squares\n"
       "and compensates targets with the identified model. See README.md."};
   app.require_subcommand(1);
-  auto experiment = cellcal::cli::addExperimentCommand(app);
-  auto cell = cellcal::cli::addCellCommand(app);
-  auto bench_cell = cellcal::cli::addBenchCellCommand(app);
-  auto calibrate = cellcal::cli::addCalibrateCommand(app);
-  auto import_ = cellcal::cli::addImportCommand(app);
-  auto diagnose = cellcal::cli::addDiagnoseCommand(app);
-  auto continuous = cellcal::cli::addContinuousCommand(app);
-  auto recording = cellcal::cli::addRecordingCommands(app);
-  auto status = cellcal::cli::addStatusCommand(app);
+  using namespace cellcal::cli;
+  // In the order of `cellcal --help`.
+  const std::vector<std::pair<std::string, Runner>> commands = {
+      {"experiment", addExperimentCommand(app)}, {"cell", addCellCommand(app)},
+      {"bench-cell", addBenchCellCommand(app)},  {"calibrate", addCalibrateCommand(app)},
+      {"import", addImportCommand(app)},         {"diagnose", addDiagnoseCommand(app)},
+      {"continuous", addContinuousCommand(app)}, {"record", addRecordCommand(app)},
+      {"replay", addReplayCommand(app)},         {"validate", addValidateCommand(app)},
+      {"export", addExportCommand(app)},         {"status", addStatusCommand(app)}};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
   try {
-    if (app.got_subcommand("cell")) return cell();
-    if (app.got_subcommand("bench-cell")) return bench_cell();
-    if (app.got_subcommand("calibrate")) return calibrate();
-    if (app.got_subcommand("import")) return import_();
-    if (app.got_subcommand("diagnose")) return diagnose();
-    if (app.got_subcommand("continuous")) return continuous();
-    if (app.got_subcommand("status")) return status();
-    for (const char* c : {"record", "replay", "validate", "export"})
-      if (app.got_subcommand(c)) return recording();
-    return experiment();
+    for (const auto& [name, run] : commands)
+      if (app.got_subcommand(name)) return run();
+    return 2;  // unreachable: require_subcommand(1)
   } catch (const cellcal::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";
     return 2;

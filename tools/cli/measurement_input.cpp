@@ -6,8 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "cellcal/core/registration.hpp"
-#include "cellcal/core/robot_yaml.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
 
 namespace cellcal::cli {
 

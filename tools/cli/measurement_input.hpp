@@ -7,9 +7,9 @@
 #include <string>
 #include <vector>
 
-#include "cellcal/core/diagnosis.hpp"
-#include "cellcal/core/measurement_csv.hpp"
-#include "cellcal/core/robot_model.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/model/robot_model.hpp"
 
 namespace cellcal::cli {
 

@@ -46,14 +46,31 @@ msg::TrackerPose toTrackerPose(const std::string& target_id, std::int64_t stamp_
   m.sequence_number(sequence);
   fromPose(o.measured_in_tracker, m.position_m(), m.orientation_xyzw());
   m.has_orientation(o.kind == MeasurementKind::kPose6D);
-  std::array<double, 36> cov{};
-  for (int i = 0; i < 3; ++i) {
-    cov[i * 7] = o.sigma_position_m * o.sigma_position_m;
-    cov[(i + 3) * 7] = o.sigma_orientation_rad * o.sigma_orientation_rad;
-  }
-  m.covariance(cov);
+  m.covariance(readingCovariance(o.sigma_position_m, o.sigma_orientation_rad));
   m.valid(true);
   return m;
+}
+
+msg::TrackerPose toTrackerPose(const TrackerLine& line, std::int64_t stamp_ns, std::uint64_t sequence) {
+  msg::TrackerPose m;
+  m.target_id(line.robot->target_id);
+  m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  m.sequence_number(sequence);
+  m.position_m({line.position_m.x(), line.position_m.y(), line.position_m.z()});
+  m.has_orientation(line.orientation_xyzw.has_value());
+  m.orientation_xyzw(line.orientation_xyzw.value_or(std::array<double, 4>{0, 0, 0, 1}));
+  m.covariance(readingCovariance(line.sigma_position_m, line.sigma_orientation_rad));
+  m.valid(line.valid);
+  return m;
+}
+
+std::array<double, 36> readingCovariance(double sigma_position_m, double sigma_orientation_rad) {
+  std::array<double, 36> cov{};
+  for (int i = 0; i < 3; ++i) {
+    cov[i * 7] = sigma_position_m * sigma_position_m;
+    cov[(i + 3) * 7] = sigma_orientation_rad * sigma_orientation_rad;
+  }
+  return cov;
 }
 
 msg::CalibrationState toCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
@@ -94,6 +111,43 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
   m.last_measurement_stamp_ns(static_cast<std::uint64_t>(s.last_measurement_stamp_ns));
   m.robot_model(model.name);
   return m;
+}
+
+msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r, const std::string& stale_inputs,
+                                                     std::uint64_t inputs_refused, std::int64_t stamp_ns,
+                                                     std::uint64_t sequence) {
+  const auto& c = r.engine->counters();
+  const auto& snap = r.engine->snapshot();
+  msg::CalibrationDiagnostics d;
+  d.robot_id(r.robot->robot_id);
+  d.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  d.sequence_number(sequence);
+  for (size_t k = 0; k < c.rejected.size(); ++k) {
+    if (!c.rejected[k]) continue;
+    d.rejection_reasons().push_back(rejectionName(static_cast<Rejection>(k)));
+    d.rejection_counts().push_back(c.rejected[k]);
+  }
+  if (inputs_refused) {  // before any robot could be told: counted for every robot
+    d.rejection_reasons().push_back("engine_input_queue_full");
+    d.rejection_counts().push_back(inputs_refused);
+  }
+  d.drift_alarm(snap.drift_alarm);
+  d.stale_input(!stale_inputs.empty());
+  d.stale_inputs(stale_inputs.substr(0, 255));
+  d.health(static_cast<msg::CalibrationHealth>(static_cast<int>(snap.health)));
+  d.health_reason(snap.health_reason.substr(0, 255));
+  d.prediction_sigma_position_m(snap.prediction_sigma_position_m);
+  d.persist_failures(r.persist_failures);
+  d.persist_error(r.persist_error.substr(0, 255));
+  d.identifiable_parameters(static_cast<std::uint32_t>(snap.estimated.size()));
+  d.condition_number(snap.condition_number);
+  d.pairing_latency_p99_ns(p99(r.pairing_ns));
+  d.update_latency_p99_ns(p99(r.update_ns));
+  d.joint_states_received(c.joint_states);
+  d.tracker_readings_received(c.tracker_readings);
+  d.poses_paired(c.paired);
+  d.last_rejection(c.last_rejection.substr(0, 255));
+  return d;
 }
 
 std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,

@@ -4,11 +4,11 @@
 #include <cstdio>
 #include <random>
 
-#include "cellcal/core/calibration.hpp"
-#include "cellcal/core/kinematics.hpp"
-#include "cellcal/core/rls.hpp"
-#include "cellcal/core/robot_yaml.hpp"
-#include "cellcal/core/simulation.hpp"
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/identification/rls.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/sim/simulation.hpp"
 
 int main() {
   const cellcal::RobotModel robot = cellcal::loadRobotModel(std::string(CELLCAL_INSTALLED_CONFIG_DIR) + "/robots/staubli_tx60.yaml");

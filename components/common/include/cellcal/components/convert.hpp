@@ -5,10 +5,12 @@
 #include <optional>
 #include <string>
 
-#include "cellcal/core/calibration_engine.hpp"
-#include "cellcal/core/observation.hpp"
-#include "cellcal/core/pairing.hpp"
-#include "cellcal/core/se3.hpp"
+#include "cellcal/components/engine_host.hpp"
+#include "cellcal/components/udp_lines.hpp"
+#include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/engine/pairing.hpp"
+#include "cellcal/core/model/se3.hpp"
 #include "cellcal_msgs.h"
 
 namespace cellcal::components {
@@ -21,9 +23,20 @@ TrackerSample toTrackerSample(const msg::TrackerPose& m);
 // The reading of an observation (position, orientation unless position-only, covariance from its sigmas).
 msg::TrackerPose toTrackerPose(const std::string& target_id, std::int64_t stamp_ns, std::uint64_t sequence,
                                const Observation& o);
+// A reading from a tracker bridge's line (udp_lines.hpp).
+msg::TrackerPose toTrackerPose(const TrackerLine& line, std::int64_t stamp_ns, std::uint64_t sequence);
+// The 6x6 covariance (row-major; position then orientation) of independent axes with these sigmas.
+std::array<double, 36> readingCovariance(double sigma_position_m, double sigma_orientation_rad);
 
 msg::CalibrationState toCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
                                          std::uint64_t sequence);
+
+// A robot's diagnostics as the engine publishes them: rejections by reason (and `inputs_refused` samples the engine's
+// full input queue refused before any robot could be told), health, the stale inputs (`stale_inputs`, empty when
+// fresh), persistence, identifiability and latencies.
+msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& robot, const std::string& stale_inputs,
+                                                     std::uint64_t inputs_refused, std::int64_t stamp_ns,
+                                                     std::uint64_t sequence);
 
 // What a consumer needs of a CalibrationState: the full parameter vector of the robot's model (nominal values for
 // parameters the message does not name). nullopt + error when the message does not fit the model.

@@ -11,8 +11,8 @@
 #include <string>
 #include <vector>
 
-#include "cellcal/core/cell_config.hpp"
-#include "cellcal/core/measurement_csv.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
 
 namespace cellcal::components {
 

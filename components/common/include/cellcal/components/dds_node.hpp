@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/files/cell_config.hpp"
 #include "cellcal_msgsPubSubTypes.h"
 
 namespace cellcal::components {

@@ -12,7 +12,7 @@
 #include <optional>
 #include <string>
 
-#include "cellcal/core/cell_config.hpp"
+#include "cellcal/core/files/cell_config.hpp"
 
 namespace cellcal::components {
 
@@ -41,6 +41,21 @@ bool stopRequested();
 void requestStop();
 // Sleeps until `until` (steady clock) or a stop request; false when stopped.
 bool sleepUntil(std::chrono::steady_clock::time_point until);
+
+// A process's --duration-s from the moment it is made (0: no limit). over(): the time is up or a stop was requested.
+class RunLimit {
+ public:
+  explicit RunLimit(double duration_s) : duration_s_(duration_s), start_(std::chrono::steady_clock::now()) {}
+  bool timeUp() const {
+    return duration_s_ > 0 &&
+           std::chrono::steady_clock::now() - start_ >= std::chrono::duration<double>(duration_s_);
+  }
+  bool over() const { return stopRequested() || timeUp(); }
+
+ private:
+  double duration_s_;
+  std::chrono::steady_clock::time_point start_;
+};
 
 inline std::int64_t wallNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())

@@ -1,0 +1,190 @@
+#include "engine_process.hpp"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <iostream>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/core/engine/state_file.hpp"
+
+namespace cellcal::components {
+
+namespace {
+
+// Says how each robot starts (resumed or not, extensions, what the restore changed).
+void reportStart(const EngineHost& host) {
+  for (const auto& [id, r] : host.robots()) {
+    const auto& snap = r.engine->snapshot();
+    std::cerr << "calibration_engine: " << id << " (" << r.robot->model.name << ") "
+              << (r.restored ? "resumed version " + std::to_string(snap.version) + " (" + std::to_string(snap.poses_used) +
+                                   " poses) from "
+                             : "starts uncalibrated; state in ")
+              << r.state_file << "\n";
+    if (!r.robot->extensions.empty()) {
+      std::cerr << "calibration_engine: " << id << " model extensions:";
+      for (const auto& e : r.robot->extensions) std::cerr << " " << extensionSpec(e);
+      std::cerr << " (" << snap.extension_params.size() << " extra parameters in the RLS state)\n";
+    }
+    if (!r.engine->restoreNote().empty()) std::cerr << "calibration_engine: " << id << ": " << r.engine->restoreNote() << "\n";
+  }
+}
+
+}  // namespace
+
+EngineProcess::EngineProcess(const Options& options)
+    : options_(options),
+      cell_(loadCell(options.process)),
+      host_(cell_, {}, [this](EngineHost::Robot& r) { onUpdate(r); }),
+      node_(cell_, "cellcal_calibration_engine", identity::kCalibrationEngine),
+      state_writer_(node_.writer<msg::CalibrationState>()),
+      diag_writer_(node_.writer<msg::CalibrationDiagnostics>()) {
+  reportStart(host_);
+  inputs_ = std::make_unique<WorkQueue<Input>>(
+      kMaxQueuedInputs, [this](std::vector<Input>& batch) { handle(batch); }, EngineHost::kTickPeriod, [this] {
+        std::lock_guard<std::mutex> lock(mutex_);
+        host_.tick(wallNs());
+      });
+  node_.reader<msg::JointState>([this](const msg::JointState& m, const fdds::SampleInfo&) {
+    inputs_->push({m.robot_id().to_string(), toJointSample(m), wallNs()});
+  });
+  node_.reader<msg::TrackerPose>([this](const msg::TrackerPose& m, const fdds::SampleInfo&) {
+    inputs_->push({m.target_id().to_string(), toTrackerSample(m), wallNs()});
+  });
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto& [id, r] : host_.robots()) {
+    publishState(r);  // restored or uncalibrated: late joiners learn where the engine stands
+    publishDiagnostics(r, wallNs());
+  }
+}
+
+void EngineProcess::publishState(EngineHost::Robot& r) {
+  auto m = toCalibrationState(*r.robot, r.engine->snapshot(), wallNs(), ++published_[r.robot->robot_id].state_seq);
+  state_writer_.write(m);
+}
+
+// Per stream: nothing received for engine.stale_input_s, or no writer left (a killed adapter is unmatched when its
+// participant lease expires).
+std::string EngineProcess::staleInputs(EngineHost::Robot& r, std::int64_t now) {
+  std::string out = r.engine->staleInputs(now);
+  auto noWriter = [&](const char* topic, int writers) {
+    if (writers == 0) out += std::string(out.empty() ? "" : "; ") + topic + ": no writer";
+  };
+  noWriter("joint_state", node_.matchedWriters<msg::JointState>());
+  noWriter("tracker_pose", node_.matchedWriters<msg::TrackerPose>());
+  return out;
+}
+
+void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
+  Published& p = published_[r.robot->robot_id];
+  const std::string stale = staleInputs(r, now);
+  auto d = toCalibrationDiagnostics(r, stale, inputs_refused_, now, ++p.diag_seq);
+  diag_writer_.write(d);
+  // Say it once on stderr when it changes (the diagnostics topic carries it every republish period).
+  const auto& snap = r.engine->snapshot();
+  const std::string line = stale + "|" + r.persist_error + "|" + snap.health_reason;
+  if (p.reported == line) return;
+  p.reported = line;
+  const std::string& id = r.robot->robot_id;
+  if (!stale.empty()) std::cerr << "calibration_engine: " << id << ": stale input: " << stale << "\n";
+  if (!r.persist_error.empty()) std::cerr << "calibration_engine: " << id << ": " << r.persist_error << "\n";
+  if (snap.health != Health::kOk && snap.health != Health::kUncalibrated)
+    std::cerr << "calibration_engine: " << id << ": health " << healthName(snap.health) << ": " << snap.health_reason << "\n";
+}
+
+// A new version: published at once (the latency path; the state file was replaced before).
+void EngineProcess::onUpdate(EngineHost::Robot& r) {
+  publishState(r);
+  const auto& snap = r.engine->snapshot();
+  if (!options_.quiet)
+    std::cerr << "calibration_engine: " << r.robot->robot_id << " v" << snap.version << " poses " << snap.poses_used
+              << " health " << healthName(snap.health) << " predicted-pose error (mean of recent) "
+              << snap.verification_mean_position_m * 1e3 << " mm\n";
+}
+
+// The worker: every sample in arrival order.
+void EngineProcess::handle(std::vector<Input>& batch) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto& in : batch) {
+    if (auto* j = std::get_if<JointSample>(&in.sample))
+      host_.onJointState(in.key, *j, in.received_ns);
+    else
+      host_.onTrackerSample(in.key, std::get<TrackerSample>(in.sample), in.received_ns);
+  }
+}
+
+EngineProcess::~EngineProcess() {
+  if (inputs_) inputs_->stop();
+  node_.shutdown();
+}
+
+int EngineProcess::run() {
+  std::cerr << "calibration_engine: " << cell_.robots.size() << " robot(s), mode "
+            << (cell_.engine.mode == EngineMode::kContinuous ? "continuous" : "periodic") << ", domain "
+            << node_.domainId() << "\n";
+  const RunLimit limit(options_.duration_s);
+  const auto period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double>(cell_.engine.republish_period_s));
+  auto next_republish = std::chrono::steady_clock::now() + period;
+  std::vector<std::string> to_sync;
+  std::uint64_t refused_reported = 0;
+  while (sleepUntil(std::chrono::steady_clock::now() + EngineHost::kTickPeriod)) {
+    if (limit.timeUp()) break;
+    // Durability off the latency path: fsync the state files replaced since the last round, without the lock.
+    for (const auto& f : to_sync) syncStateFile(f);
+    to_sync.clear();
+    const std::uint64_t refused = inputs_->refused();
+    if (refused > refused_reported) {
+      std::cerr << "calibration_engine: warning: " << refused - refused_reported << " samples refused: "
+                << kMaxQueuedInputs << " were waiting for the worker (stalled on the disk?)\n";
+      refused_reported = refused;
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    inputs_refused_ = refused;
+    const std::int64_t now = wallNs();
+    to_sync = host_.takeUnsynced();
+    if (std::chrono::steady_clock::now() >= next_republish) {
+      next_republish += period;
+      for (auto& [id, r] : host_.robots()) {
+        publishState(r);
+        publishDiagnostics(r, now);
+      }
+    }
+  }
+  stopAndReport();
+  return 0;
+}
+
+void EngineProcess::stopAndReport() {
+  inputs_->stop();  // the worker handles what is queued (and may still publish), then stops
+  node_.shutdown();
+  host_.syncAll();
+  nlohmann::json robots = nlohmann::json::object();
+  for (auto& [id, r] : host_.robots()) {
+    const auto& snap = r.engine->snapshot();
+    nlohmann::json rej = nlohmann::json::object();
+    for (size_t k = 0; k < r.engine->counters().rejected.size(); ++k)
+      if (r.engine->counters().rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = r.engine->counters().rejected[k];
+    robots[id] = {{"version", snap.version},
+                  {"poses_used", snap.poses_used},
+                  {"health", healthName(snap.health)},
+                  {"recent_nis_per_row", snap.recent_nis_per_row},
+                  {"drift_alarm", snap.drift_alarm},
+                  {"condition_number", snap.condition_number},
+                  {"health_reason", snap.health_reason},
+                  {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
+                  {"persist_failures", r.persist_failures},
+                  {"rejected", rej},
+                  {"pairing_latency_p99_ns", p99(r.pairing_ns)},
+                  {"update_latency_p99_ns", p99(r.update_ns)}};
+  }
+  writeJsonFile(options_.process.stats_json,
+                {{"name", "calibration_engine"},
+                 {"pid", ::getpid()},
+                 {"topics", node_.stats()},
+                 {"extra", {{"updates", host_.updates()}, {"unknown_keys", host_.unknownKeys()}, {"robots", robots},
+                            {"input_queue", {{"peak", inputs_->peak()}, {"refused", inputs_->refused()},
+                                             {"max", kMaxQueuedInputs}}}}}});
+}
+
+}  // namespace cellcal::components

@@ -1,0 +1,29 @@
+#include "cellcal/components/adapter_source.hpp"
+
+#include <unistd.h>
+
+namespace cellcal::components {
+
+void addSourceOptions(CLI::App& app, SourceOptions& o) {
+  addCommonOptions(app, o.process);
+  app.add_option("--source", o.source, "sim | csv | udp")->check(CLI::IsMember({"sim", "csv", "udp"}))->capture_default_str();
+  app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+  addCsvReplayOptions(app, o.csv);
+  app.add_option("--udp-address", o.udp_address, "udp: address to bind")->capture_default_str();
+  app.add_option("--udp-port", o.udp_port, "udp: port to bind (0: any)")->capture_default_str();
+}
+
+SourceAdapter::SourceAdapter(const SourceOptions& input, const char* identity)
+    : input_(input), name_(identity), cell_(loadCell(input.process)), node_(cell_, "cellcal_" + name_, identity) {}
+
+int SourceAdapter::run() {
+  if (input_.source == "sim") runSim();
+  else if (input_.source == "csv") runCsv();
+  else runUdp();
+  node_.shutdown();  // no callback after this point
+  writeJsonFile(input_.process.stats_json, {{"name", name_}, {"pid", ::getpid()}, {"topics", node_.stats()},
+                                            {"source", input_.source}, {"extra", extra_}});
+  return 0;
+}
+
+}  // namespace cellcal::components

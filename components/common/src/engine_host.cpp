@@ -1,0 +1,129 @@
+#include "cellcal/components/engine_host.hpp"
+
+#include <algorithm>
+#include <stdexcept>
+
+#include "cellcal/core/engine/state_file.hpp"
+#include "cellcal/core/identification/statistics.hpp"
+
+namespace cellcal::components {
+
+namespace {
+
+std::int64_t wallClockNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+void push(std::deque<std::int64_t>& d, std::int64_t v) {
+  d.push_back(v);
+  if (d.size() > 4096) d.pop_front();
+}
+
+}  // namespace
+
+std::uint64_t p99(const std::deque<std::int64_t>& v) {
+  if (v.empty()) return 0;
+  const double x = percentile(std::vector<double>(v.begin(), v.end()), 0.99);
+  return static_cast<std::uint64_t>(std::max(0.0, x));
+}
+
+EngineHost::EngineHost(const CellConfig& cell, Options options, OnUpdate on_update)
+    : options_(std::move(options)), on_update_(std::move(on_update)) {
+  if (!options_.clock) options_.clock = wallClockNs;
+  for (const auto& r : cell.robots) {
+    Robot& slot = robots_[r.robot_id];
+    slot.robot = &r;
+    slot.engine = std::make_unique<CalibrationEngine>(r, cell.engine, cell.time_compression);
+    if (options_.persist) {
+      slot.state_file = stateFilePath(cell.engine.state_dir, r.robot_id);
+      if (const auto state = loadEngineState(slot.state_file)) {
+        try {
+          slot.engine->importState(*state);
+        } catch (const std::runtime_error& e) {
+          throw std::runtime_error(unusableStateMessage(slot.state_file, e.what()));
+        }
+        slot.restored = true;
+        slot.saved_revision = slot.engine->stateRevision();
+      }
+    }
+    by_target_[r.target_id] = &slot;
+  }
+}
+
+bool EngineHost::onJointState(const std::string& robot_id, const JointSample& s, std::int64_t receive_ns) {
+  auto it = robots_.find(robot_id);
+  if (it == robots_.end()) {
+    ++unknown_keys_;
+    return false;
+  }
+  it->second.engine->onJointState(s, receive_ns);
+  step(it->second, receive_ns);
+  return true;
+}
+
+bool EngineHost::onTrackerSample(const std::string& target_id, const TrackerSample& s, std::int64_t receive_ns) {
+  auto it = by_target_.find(target_id);
+  if (it == by_target_.end()) {
+    ++unknown_keys_;
+    return false;
+  }
+  it->second->engine->onTrackerSample(s, receive_ns);
+  step(*it->second, receive_ns);
+  return true;
+}
+
+void EngineHost::tick(std::int64_t now_ns) {
+  for (auto& [id, r] : robots_) step(r, now_ns);
+}
+
+void EngineHost::tickIfDue(std::int64_t now_ns) {
+  if (now_ns < next_tick_ns_) return;
+  next_tick_ns_ = now_ns + std::chrono::nanoseconds(kTickPeriod).count();
+  tick(now_ns);
+}
+
+// Pairs and updates; the state file holds every change before a new version is handed on (the latency path).
+void EngineHost::step(Robot& r, std::int64_t now_ns) {
+  const std::uint64_t before = r.engine->counters().paired;
+  const bool changed = r.engine->process(now_ns);
+  if (r.engine->counters().paired != before) {
+    push(r.pairing_ns, options_.clock() - r.engine->snapshot().last_measurement_stamp_ns);
+    push(r.update_ns, r.engine->lastUpdateDurationNs());
+  }
+  if (options_.persist && r.engine->stateRevision() != r.saved_revision) persist(r);
+  if (!changed) return;
+  ++updates_;
+  if (on_update_) on_update_(r);
+}
+
+// A failed write (disk full, read-only, permissions) leaves the previous file whole: the update stays in memory, the
+// error is reported, and the next change writes the whole state again.
+void EngineHost::persist(Robot& r) {
+  r.saved_revision = r.engine->stateRevision();
+  try {
+    saveEngineState(r.state_file, r.engine->exportState());
+    r.persist_error.clear();
+    r.unsynced = true;
+  } catch (const std::exception& e) {
+    ++r.persist_failures;
+    r.persist_error =
+        std::string("state not saved (the previous file is intact; retried with the next update): ") + e.what();
+  }
+}
+
+std::vector<std::string> EngineHost::takeUnsynced() {
+  std::vector<std::string> out;
+  for (auto& [id, r] : robots_)
+    if (r.unsynced) {
+      r.unsynced = false;
+      out.push_back(r.state_file);
+    }
+  return out;
+}
+
+void EngineHost::syncAll() {
+  for (const auto& f : takeUnsynced()) syncStateFile(f);
+}
+
+}  // namespace cellcal::components

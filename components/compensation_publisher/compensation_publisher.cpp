@@ -1,0 +1,157 @@
+#include "compensation_publisher.hpp"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <iostream>
+#include <thread>
+
+#include "cellcal/core/engine/compensation.hpp"
+
+namespace cellcal::components {
+
+CompensationPublisher::CompensationPublisher(const Options& options)
+    : options_(options),
+      cell_(loadCell(options.process)),
+      node_(cell_, "cellcal_compensation_publisher", identity::kCompensationPublisher),
+      writer_(node_.writer<msg::CompensatedTarget>()) {
+  for (const auto& r : cell_.robots) robots_[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, {}, 0, ""};
+  node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) { onCalibrationState(m); });
+  node_.reader<msg::CalibrationDiagnostics>(
+      [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
+  waitForCalibrations();
+  node_.reader<msg::TargetPose>([this](const msg::TargetPose& t, const fdds::SampleInfo&) { onTarget(t); });
+  std::cerr << "compensation_publisher: " << robots_.size() << " robot(s), bound "
+            << cell_.compensation.max_correction_m * 1e3 << " mm / " << cell_.compensation.max_correction_rad * 180 / kPi
+            << " deg, domain " << node_.domainId() << "\n";
+}
+
+void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = robots_.find(m.robot_id().to_string());
+  if (it == robots_.end()) return;
+  std::string error;
+  auto c = fromCalibrationState(it->second.robot->model, m, &error);
+  if (!c) {
+    ++bad_states_;
+    std::cerr << "compensation_publisher: ignored: " << error << "\n";
+    return;
+  }
+  Robot& r = it->second;
+  // A new calibration, or the same version number made again by an engine that restarted from an older state.
+  const bool changed = !r.calibration || r.calibration->version != c->version ||
+                       r.calibration->last_measurement_stamp_ns != c->last_measurement_stamp_ns ||
+                       r.calibration->health != c->health;
+  if (!changed) return;
+  if (!r.calibration)
+    std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " received ("
+              << c->poses_used << " poses)\n";
+  if (c->health != msg::HEALTH_OK && (!r.calibration || r.calibration->health == msg::HEALTH_OK) && r.last_ok)
+    std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " has health "
+              << static_cast<int>(c->health) << ": keeping v" << r.last_ok->version << "\n";
+  if (c->health == msg::HEALTH_OK) r.last_ok = *c;
+  r.calibration = std::move(c);
+}
+
+void CompensationPublisher::onDiagnostics(const msg::CalibrationDiagnostics& d) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = robots_.find(d.robot_id().to_string());
+  if (it == robots_.end()) return;
+  it->second.engine_warning = d.stale_inputs().size() == 0 ? "" : "engine input stale: " + d.stale_inputs().to_string();
+}
+
+// Targets are taken only once every robot's calibration is here (TRANSIENT_LOCAL delivers the latest at once on
+// discovery) or after --wait-for-calibration-s: a restarted publisher never answers from an empty state while the
+// engine's calibration is on its way.
+void CompensationPublisher::waitForCalibrations() {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(options_.wait_for_calibration_s);
+  while (std::chrono::steady_clock::now() < deadline && !stopRequested()) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      bool all = true;
+      for (const auto& [id, r] : robots_) all = all && r.calibration.has_value();
+      if (all) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
+void CompensationPublisher::onTarget(const msg::TargetPose& t) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = robots_.find(t.robot_id().to_string());
+  if (it == robots_.end()) return;
+  Robot& r = it->second;
+  msg::CompensatedTarget out;
+  out.robot_id(t.robot_id());
+  out.sequence_number(++r.seq);
+  out.target_sequence(t.sequence_number());
+  out.desired_position_m(t.position_m());
+  out.desired_orientation_xyzw(t.orientation_xyzw());
+  out.corrected_position_m(t.position_m());
+  out.corrected_orientation_xyzw(t.orientation_xyzw());
+  out.applied(false);
+  out.clamped(false);
+  bool finite = true;
+  for (double v : t.position_m()) finite = finite && std::isfinite(v);
+  for (double v : t.orientation_xyzw()) finite = finite && std::isfinite(v);
+  const auto& q = t.orientation_xyzw();
+  const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  if (!finite || std::abs(qn - 1.0) > 1e-6) {
+    out.reason("target rejected: non-finite position or non-unit quaternion");
+  } else if (!r.calibration) {
+    out.reason("no calibration received yet");
+  } else if (!r.last_ok) {
+    out.calibration_version(r.calibration->version);
+    out.reason("calibration v" + std::to_string(r.calibration->version) + " is not healthy (health " +
+               std::to_string(static_cast<int>(r.calibration->health)) + ") and none was before");
+  } else {
+    const ReceivedCalibration& use = *r.last_ok;
+    out.calibration_version(use.version);
+    // Said in `reason` even when applied: what the operator should know about the calibration used.
+    std::string note;
+    if (r.calibration->health != msg::HEALTH_OK)
+      note = "holding v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
+             " has health " + std::to_string(static_cast<int>(r.calibration->health));
+    if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
+    Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
+                                                             static_cast<Eigen::Index>(t.seed_position_rad().size()));
+    if (seed.size() == 0 && !r.path.empty()) seed = r.path.back();
+    // With model extensions, backlash's play is that of the path through the previous compensated targets.
+    const IdentifiedModel identified{use.params, use.extensions, use.extension_params};
+    const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
+                                            seed, cell_.compensation, r.path);
+    out.applied(c.applied);
+    out.clamped(c.clamped);
+    out.reason((c.reason.empty() ? note : note.empty() ? c.reason : c.reason + "; " + note).substr(0, 255));
+    out.correction_position_m(c.correction_position_m);
+    out.correction_orientation_rad(c.correction_orientation_rad);
+    if (c.applied) {
+      fromPose(c.corrected_in_tracker, out.corrected_position_m(), out.corrected_orientation_xyzw());
+      out.joint_position_rad(std::vector<double>(c.q_rad.data(), c.q_rad.data() + c.q_rad.size()));
+      r.path.push_back(c.q_rad);
+      if (r.path.size() > static_cast<size_t>(kPlayHistory)) r.path.erase(r.path.begin());
+    }
+  }
+  out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
+  writer_.write(out);
+  if (out.applied()) ++applied_; else ++refused_;
+  if (out.clamped()) ++clamped_;
+}
+
+int CompensationPublisher::run() {
+  const RunLimit limit(options_.duration_s);
+  while (!limit.timeUp() && sleepUntil(std::chrono::steady_clock::now() + std::chrono::milliseconds(20))) {
+  }
+  node_.shutdown();
+  nlohmann::json versions = nlohmann::json::object();
+  for (const auto& [id, r] : robots_) versions[id] = r.calibration ? r.calibration->version : 0;
+  writeJsonFile(options_.process.stats_json,
+                {{"name", "compensation_publisher"},
+                 {"pid", ::getpid()},
+                 {"topics", node_.stats()},
+                 {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
+                            {"bad_calibration_states", bad_states_}, {"calibration_versions", versions}}}});
+  return 0;
+}
+
+}  // namespace cellcal::components

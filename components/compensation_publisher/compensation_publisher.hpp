@@ -1,0 +1,64 @@
+// The compensation publisher process: for every cellcal/target_pose, solves the identified model for the joints that
+// reach the target and publishes on cellcal/compensated_target the pose to command the unmodified controller (the
+// nominal model's pose of those joints), the joints, the correction and the calibration version used.
+// Uses the latest calibration whose health is ok. When the engine's latest is not ok (degraded: drift alarm;
+// hold_last_good; uncalibrated after a reset) it keeps applying the last ok one it had and says so in `reason`; it
+// also says when the engine reports stale inputs (the tracker or the controller stopped). Refuses (applied = false,
+// with the reason) when it never had an ok calibration, the identified model cannot reach the target, or the
+// correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
+// A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).
+//
+// Lifetime: the constructor joins the domain, creates the writer and the calibration readers, waits for every
+// robot's calibration (at most --wait-for-calibration-s), then takes targets; run() returns on SIGINT/SIGTERM or after
+// the duration, having left the domain and written --stats-json.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/components/process.hpp"
+
+namespace cellcal::components {
+
+class CompensationPublisher {
+ public:
+  struct Options {
+    ProcessOptions process;
+    double duration_s = 0;              // 0: until SIGINT/SIGTERM
+    double wait_for_calibration_s = 3;  // at start, for every robot's calibration
+  };
+  explicit CompensationPublisher(const Options& options);
+  int run();
+
+ private:
+  struct Robot {
+    const CellRobot* robot = nullptr;
+    std::optional<ReceivedCalibration> calibration;  // the latest received
+    std::optional<ReceivedCalibration> last_ok;      // the latest received with health ok (the one applied)
+    // The last compensated targets' joints, oldest first: the seed when a target brings none, and backlash's play.
+    std::vector<Eigen::VectorXd> path;
+    std::uint64_t seq = 0;
+    std::string engine_warning;                      // from the engine's diagnostics: stale inputs
+  };
+  void onCalibrationState(const msg::CalibrationState& m);
+  void onDiagnostics(const msg::CalibrationDiagnostics& d);
+  void onTarget(const msg::TargetPose& t);
+  void waitForCalibrations();
+
+  Options options_;
+  CellConfig cell_;
+  std::mutex mutex_;  // robots_ and the counters, between the readers
+  std::map<std::string, Robot> robots_;
+  std::uint64_t applied_ = 0, refused_ = 0, clamped_ = 0, bad_states_ = 0;
+  DdsNode node_;
+  Writer<msg::CompensatedTarget> writer_;
+};
+
+}  // namespace cellcal::components

@@ -1,0 +1,176 @@
+// The calibration engine of one robot, without DDS: samples in, calibrations out. The engine process wraps one per
+// robot of the cell file; `cellcal validate` runs the same code over a recording.
+//
+// Flow: joint states and tracker readings -> PairingBuffer -> Observation -> (process noise for the cell time since
+// the previous update) -> RLS update, per pose (continuous mode) or per batch of N poses (periodic mode) -> a new
+// version. A pose is one stand-still of the robot: the first reading paired in it is used, later readings of the
+// same stand-still are counted (same_pose) and not applied (their robot error is the same; a tracker streaming at
+// 1 kHz must not weigh a pose a thousand times). Before a pose updates the estimate, the current calibration predicts it: those a-priori errors are the
+// engine's honest running verification (the pose was not used to make the prediction).
+// State: exportState() gives everything a restart needs (estimate, covariance, counters, the unapplied poses of a
+// periodic batch; engine_state.hpp), importState() resumes from it; stateRevision() changes whenever a restart would
+// need a new copy (every accepted pose). The engine touches no file: its host (components' EngineHost) writes the
+// state file (engine/state_file.hpp) after every change, before it publishes, so nothing published is lost on a
+// SIGKILL; a resumed engine rejects readings at or before the last applied one, so no update is lost or applied twice.
+//
+// Safety (docs/RELIABILITY.md):
+//  - gate: a pose whose normalized innovation is beyond the chi-square gate (EngineSettings::outlier_gate_probability)
+//    is rejected as an outlier; outlier_hold_after stand-stills gated in a row mean the robot or the tracker changed
+//    (a bumped station): drift alarm and health hold_last_good until a pose passes the gate again;
+//  - an update that would make the estimate non-finite is rolled back (unsafe_update);
+//  - the published calibration is the estimate while it is healthy. When the model's predicted position error
+//    (1 sigma, worst of 16 reference configurations) exceeds hold_prediction_sigma_m (covariance blow-up, or
+//    directions the recent poses no longer excite), the engine keeps learning but publishes the last good
+//    calibration with health hold_last_good; a drift alarm (recent NIS per row too high: a slowly biased tracker,
+//    a missing model effect) publishes the estimate with health degraded, and compensation keeps its last ok one.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/engine/engine_state.hpp"
+#include "cellcal/core/engine/pairing.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/identification/rls.hpp"
+
+namespace cellcal {
+
+enum class Health { kUncalibrated = 0, kOk = 1, kDegraded = 2, kHoldLastGood = 3 };
+const char* healthName(Health h);
+
+struct CalibrationSnapshot {
+  std::uint64_t version = 0;          // 0 = nothing identified yet; +1 per accepted update
+  EngineMode mode = EngineMode::kContinuous;
+  Health health = Health::kUncalibrated;
+  std::uint32_t poses_used = 0;
+  Eigen::VectorXd params;             // full SI vector (RobotModel layout)
+  std::vector<int> estimated;         // indices of params the RLS estimates
+  // Model extensions of the cell file (CellRobot::extensions) and their parameters (extensionParamNames order).
+  std::vector<Extension> extensions;
+  Eigen::VectorXd extension_params;
+  std::vector<int> estimated_extension;  // indices of extension_params the RLS estimates
+  Eigen::MatrixXd covariance;         // over `estimated`, then `estimated_extension`
+  double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
+  double residual_rms_orientation_rad = 0;
+  double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
+  std::int64_t last_measurement_stamp_ns = 0;
+  std::uint64_t last_tracker_sequence = 0;
+  std::int64_t last_update_stamp_ns = 0;    // stamp of the reading that made this version
+  // Consistency: mean normalized innovation squared per measurement row over the recent poses (about 1 when the
+  // noise and drift models hold). Above EngineSettings::drift_alarm_nis_per_row (with >= 10 recent poses): the
+  // robot moves faster than the drift model allows, or the model misses an effect -> drift_alarm.
+  double recent_nis_per_row = 0;
+  bool drift_alarm = false;
+  // Condition number of the estimate's correlation matrix (scale-free): large = parameters hard to separate.
+  double condition_number = 0;
+  // Predicted 1-sigma position error of the estimate (worst of the reference configurations), m.
+  double prediction_sigma_position_m = 0;
+  // Why health is not ok (empty when it is), e.g. "holding v52: 5 poses in a row beyond the outlier gate".
+  std::string health_reason;
+  // When health is hold_last_good: the version whose parameters are published (params, covariance, ... are its).
+  std::uint64_t held_version = 0;
+};
+
+struct EngineCounters {
+  std::array<std::uint64_t, static_cast<size_t>(Rejection::kCount)> rejected{};
+  std::uint64_t joint_states = 0, tracker_readings = 0, paired = 0;
+  std::uint64_t same_pose = 0;               // paired readings of a pose already used (not applied again)
+  std::string last_rejection;                // detail of the most recent rejection
+};
+
+class CalibrationEngine {
+ public:
+  // `robot` and `settings` must outlive the engine. It starts uncalibrated, from the prior.
+  CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression);
+
+  // Resumes from a saved state. Throws std::runtime_error saying why when the state does not fit this robot (another
+  // robot or model, a changed nominal model, inconsistent sizes); the engine is unchanged then.
+  void importState(const EngineState& state);
+  EngineState exportState() const;
+  // Changes whenever exportState() would give a state a restart needs and the last copy lacks (every accepted pose).
+  std::uint64_t stateRevision() const { return state_revision_; }
+  // What importState did beyond resuming (e.g. the cell file added an extension: kinematic estimate kept, the
+  // extension started from its prior); empty otherwise.
+  const std::string& restoreNote() const { return restore_note_; }
+
+  // Returns false (and counts the rejection) for a sample that will never be used.
+  bool onJointState(const JointSample& s, std::int64_t receive_ns);
+  bool onTrackerSample(const TrackerSample& s, std::int64_t receive_ns);
+  // Pairs what can be paired and updates. Returns true when a new version was made.
+  bool process(std::int64_t now_ns);
+
+  const CalibrationSnapshot& snapshot() const { return snap_; }
+  const EngineCounters& counters() const { return counters_; }
+  const CellRobot& robot() const { return *robot_; }
+  // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
+  // A stream counts as stale after EngineSettings::stale_input_s without a sample (or before its first one).
+  std::string staleInputs(std::int64_t now_ns) const;
+  // Wall time of the last update (linearization + RLS), ns.
+  std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
+
+ private:
+  struct Pending {
+    PairedReading reading;
+    Drivers drivers;  // play state when it was paired (the joint history moves on while a batch fills)
+  };
+  bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
+  bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
+  double predictionSigma() const;
+  void decideHealth();
+  void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
+  void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
+  void refreshStatistics();
+  // The RLS estimate (parameters, covariance, extensions) into the snapshot.
+  void publishEstimate();
+  void reject(Rejection r, const std::string& detail);
+  // True without r; else counts the rejection r of id's sample (detail: why) and returns false.
+  bool admitted(std::optional<Rejection> r, const std::string& id, const std::string& detail);
+
+  const CellRobot* robot_;
+  const EngineSettings* settings_;
+  double time_compression_;
+  std::uint64_t state_revision_ = 0;
+  std::string restore_note_;
+  PairingBuffer pairing_;
+  std::unique_ptr<RlsCalibrator> rls_;
+  Eigen::VectorXd drift_sigma_;       // accumulated over settings.drift_per_h
+  CalibrationSnapshot snap_;
+  EngineCounters counters_;
+  std::vector<Pending> batch_;        // periodic mode: poses waiting for the batch to fill
+  // Joint paths, for extensions whose driver is the play state (backlash): fed and persisted only when the cell file
+  // names one (the joint-state path runs at the controller's rate).
+  bool tracks_play_ = false;
+  PlayTracker play_;
+  struct Recent {
+    double prior_error_m, post_error_m, post_error_rad, nis_per_row;
+  };
+  std::deque<Recent> recent_;
+  std::int64_t last_joint_ns_ = 0, last_tracker_ns_ = 0;  // receive time of the last sample per stream
+  struct Good {  // the last version published with health ok
+    std::uint64_t version = 0;
+    Eigen::VectorXd params, extension_params;
+    std::vector<int> estimated;
+    Eigen::MatrixXd covariance;
+  };
+  std::optional<Good> last_good_;
+  int consecutive_outliers_ = 0;
+  std::deque<double> gate_window_;  // NIS per row of the recent new stand-stills, gated or not
+  Eigen::VectorXd gated_q_;
+  std::int64_t gated_joint_stamp_ns_ = 0;
+  std::vector<Eigen::VectorXd> reference_q_;
+  std::int64_t last_update_duration_ns_ = 0;
+  Eigen::VectorXd last_joint_q_, used_q_;
+  std::int64_t used_joint_stamp_ns_ = 0;
+  std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
+};
+
+// The pairing the engine does for `robot` (cellcal export pairs a recording the same way).
+PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& settings);
+
+}  // namespace cellcal

@@ -1,0 +1,54 @@
+// Compensation: what to send an unmodified controller (which believes the nominal model) so that the real robot,
+// described by the identified parameters, lands on the desired pose.
+//
+//   q*        = IK(identified model, desired)           joints that put the real robot on the target
+//   corrected = FK(nominal model, q*)                   the pose the controller must be commanded to reach q*
+//   correction = corrected (-) desired                  translation norm (m) and rotation angle (rad)
+//
+// Poses are in the tracker (cell) frame, like TargetPose; a controller wanting its base frame applies the nominal
+// base_in_tracker inverse. A correction beyond the bound is refused (the desired pose is returned unchanged,
+// applied = false) or, with ExceedAction::kClamp, scaled down to the bound along the same direction.
+//
+// With model extensions (model_extension.hpp) the identified model's parameters depend on the joints:
+// params(q) = params + B(q) e. q* is then the fixed point q = IK(params(q), desired), found by iterating from the seed
+// (B e changes little with q: a joint error of 1e-4 rad changes by far less when q moves by it, so two or three
+// passes settle to the solver tolerance). Backlash's play state is that of the path the robot took: `path_rad`, the
+// joints it visited before, oldest first (e.g. the previous compensated targets; the last kPlayHistory matter), then a
+// straight move to q*. Without a path: a straight move from the seed.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/inverse_kinematics.hpp"
+#include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/model/se3.hpp"
+
+namespace cellcal {
+
+struct CompensationResult {
+  bool applied = false;
+  bool clamped = false;
+  std::string reason;                      // why not applied / clamped; empty when applied in full
+  Pose corrected_in_tracker = Pose::Identity();
+  Eigen::VectorXd q_rad;                   // joint solution the robot will move to (empty when refused)
+  double correction_position_m = 0;        // of the correction as computed (before any clamping)
+  double correction_orientation_rad = 0;
+};
+
+struct IdentifiedModel {
+  Eigen::VectorXd params;                  // full kinematic vector (RobotModel layout)
+  std::vector<Extension> extensions;       // empty: the geometric model
+  Eigen::VectorXd extension_params;
+};
+
+CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,
+                              const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
+                              const CompensationSettings& settings, const std::vector<Eigen::VectorXd>& path_rad = {});
+// The geometric model.
+CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified_params,
+                              const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
+                              const CompensationSettings& settings);
+
+}  // namespace cellcal

@@ -1,0 +1,72 @@
+// What a calibration engine must keep to resume where it stopped: the estimator's state and the engine's memory of
+// recent poses. CalibrationEngine::exportState() gives it, importState() takes it back; files/state_file.hpp writes
+// and reads it. A value: no files, no clocks.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/engine/pairing.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/model_extension.hpp"
+
+namespace cellcal {
+
+struct EngineState {
+  // Whose state: checked against the cell file's robot on import.
+  std::string robot_id, robot_name;
+  int num_params = 0;
+  Eigen::VectorXd nominal;
+  EngineMode mode = EngineMode::kContinuous;
+
+  std::uint64_t version = 0;
+  std::uint32_t poses_used = 0;
+  std::int64_t last_measurement_stamp_ns = 0;
+  std::uint64_t last_tracker_sequence = 0;
+  std::int64_t last_update_stamp_ns = 0;
+
+  // The estimator (not what is published while a good version is held): full kinematic vector, the estimated
+  // indices, the covariance over the estimated kinematic then extension parameters.
+  Eigen::VectorXd params;
+  std::vector<int> estimated;
+  Eigen::MatrixXd covariance;
+  std::vector<std::string> extensions;  // extensionSpec of each, in order
+  Eigen::VectorXd extension_params;
+  std::vector<int> estimated_extension;
+
+  // The outlier gate's memory.
+  int consecutive_outliers = 0;
+  std::vector<double> gate_window;
+
+  // The last version published with health ok, while another health is published.
+  struct Good {
+    std::uint64_t version = 0;
+    Eigen::VectorXd params, extension_params;
+    std::vector<int> estimated;
+    Eigen::MatrixXd covariance;
+  };
+  std::optional<Good> last_good;
+
+  // Joint paths (backlash play), when an extension needs them.
+  struct Play {
+    std::vector<PlayTracker::Joint> joints;
+    std::int64_t last_stamp_ns = 0;
+  };
+  std::optional<Play> play;
+
+  // The recent poses' errors (the running statistics) and, in periodic mode, the poses of the unfinished batch.
+  struct Recent {
+    double prior_error_m = 0, post_error_m = 0, post_error_rad = 0, nis_per_row = 0;
+  };
+  std::vector<Recent> recent;
+  struct PendingPose {
+    PairedReading reading;
+    std::optional<Drivers> drivers;  // with extensions: the drivers when it was paired
+  };
+  std::vector<PendingPose> pending_batch;
+};
+
+}  // namespace cellcal

@@ -1,0 +1,126 @@
+// The cell file (config/cell.yaml): one file every process of a cell reads (DDS settings, robots, engine,
+// compensation, simulation). Strict like the robot file: unknown or duplicated keys, wrong types and values out of
+// range are ConfigError "<file>:<line>:<column>: <field>: <message>". Human units in the file (mm, deg, ms, s),
+// SI in the structs. See docs/cell-file.md.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/robot_model.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+
+namespace cellcal {
+
+enum class EngineMode { kContinuous, kPeriodic };
+
+struct DdsSettings {
+  int domain_id = 0;                           // 0..232; CELLCAL_DOMAIN_ID or --domain-id override it
+  std::string profiles_file;                   // absolute path (resolved against the cell file's folder)
+  std::string participant_profile = "cellcal"; // "cellcal_loopback": UDP on 127.0.0.1 only
+  // DDS Security (authentication, access control, encryption): the folder config/security/make_pki.sh filled, absolute;
+  // empty: off. Each process uses its own identity from it (docs/SECURITY.md). CELLCAL_SECURITY_DIR overrides it.
+  std::string security_dir;
+  // Send the types' TypeObject and TypeInformation in discovery (what lets tools learn the types). Cyclone DDS 0.10
+  // refuses Fast DDS 2.9's TypeInformation and drops the endpoint: false for a cell with Cyclone DDS peers
+  // (docs/interop.md).
+  bool type_information = true;
+};
+
+struct CellRobot {
+  std::string robot_id;                        // DDS key of JointState / CalibrationState / TargetPose
+  std::string target_id;                       // DDS key of the TrackerPose stream of the target on its flange
+  std::string robot_file;                      // absolute path
+  MeasurementKind measurement = MeasurementKind::kPose6D;
+  // Registration of this cell (override the robot file when given), SI: x, y, z (m), roll, pitch, yaw (rad).
+  std::optional<Eigen::Matrix<double, 6, 1>> base_in_tracker, tool_in_flange;
+  // Model extensions the engine estimates with the kinematic parameters (what `cellcal diagnose` named), e.g.
+  // [joint_compliance:2]. Not thermal_drift: the cell's topics carry no temperature (the drift model follows warm-up).
+  std::vector<Extension> extensions;
+  // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig.
+  RobotModel model;
+};
+
+struct EngineSettings {
+  EngineMode mode = EngineMode::kContinuous;
+  int batch_poses = 15;                        // periodic mode: poses per update
+  std::string state_dir = "state";             // absolute path after loading; one JSON file per robot
+  double max_pairing_skew_s = 0.05;            // joint state used for a tracker reading: at most this far in time
+  double settle_tolerance_rad = 1e-5;          // joints of the bracketing states may differ by at most this
+  double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem; 0 = off
+  double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
+  double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
+  // Outlier gate on a pose's normalized innovation squared (NIS; chi-square with the measurement rows as dof when the
+  // noise model holds, mean 1 per row): gated above this many per row, times the recent median NIS per row when that
+  // is above 1 (a noise model too optimistic for the cell does not gate good poses). 50 per row is a chi-square
+  // tail of 3e-32 for 3 rows, 8e-62 for 6; good poses of the simulated cell reach 17 per row after a 2 h pause (drift
+  // faster than its model), a target bumped by 0.5 mm under 0.05 mm noise 100. 0 = off.
+  double outlier_gate_nis_per_row = 50;
+  int outlier_hold_after = 5;                  // this many stand-stills gated in a row: hold last good + drift alarm
+  // The model's predicted 1-sigma position error (worst of 16 reference configurations over the joint limits) above
+  // this: the engine publishes its last good calibration (health hold_last_good) until the estimate is back under it.
+  double hold_prediction_sigma_m = 1e-3;
+  double drift_alarm_nis_per_row = 3.0;        // recent mean NIS per row above this: drift alarm
+  double prior_length_m = 1e-3;                // 1 sigma of the uncalibrated robot (manufacturing + registration)
+  double prior_angle_rad = 0.1 * 3.14159265358979323846 / 180.0;
+  // Random walk of the parameters (1 sigma accumulated over drift_per_h hours of cell time).
+  double drift_joint_offset_rad = 0.02 * 3.14159265358979323846 / 180.0;
+  double drift_joint_length_m = 0.05e-3;
+  double drift_axis_angle_rad = 0.002 * 3.14159265358979323846 / 180.0;
+  double drift_frame_length_m = 0.01e-3;
+  double drift_frame_angle_rad = 0.001 * 3.14159265358979323846 / 180.0;
+  double drift_per_h = 2.0;
+};
+
+enum class ExceedAction { kRefuse, kClamp };
+
+struct CompensationSettings {
+  double max_correction_m = 5e-3;              // never send a correction larger than this
+  double max_correction_rad = 0.5 * 3.14159265358979323846 / 180.0;
+  ExceedAction on_exceed = ExceedAction::kRefuse;
+  double max_ik_error_m = 1e-6;                // the identified model must reach the target this closely
+};
+
+// The simulated cell behind the `sim` sources (and the launcher's hold-out check).
+struct SimulationSettings {
+  std::uint64_t seed = 1;
+  int initial_poses = 50;                      // campaign at t = 0
+  int poses_per_group = 15;                    // every later campaign
+  int groups = 4;                              // campaigns including the initial one
+  double hours_between_groups = 2.0;           // cell time between campaigns (the robot works meanwhile)
+  double pose_time_s = 20.0;                   // cell time per pose: move then settle
+  double settle_fraction = 0.5;                // last part of pose_time_s the robot stands still
+  double joint_rate_hz = 500.0;                // JointState rate (wall clock)
+  int tracker_readings_per_pose = 1;
+  double tracker_delay_fraction = 0.3;         // tracker reads this far into the settled part
+  // An effect the geometric model lacks, hidden in every simulated robot (to demonstrate extensions):
+  // joint_compliance, cyclic_transmission or joint_scale on `effect_joint`, making an RMS joint error of
+  // `effect_size_rad` over the workspace (negative: the opposite sign). kNone: none.
+  Cause effect = Cause::kNone;
+  int effect_joint = -1;                       // 0-based
+  double effect_size_rad = 0.0;
+};
+
+struct CellConfig {
+  std::string source;                          // the file it came from
+  DdsSettings dds;
+  double time_compression = 1.0;               // cell seconds per wall second (simulated cells run faster)
+  std::vector<CellRobot> robots;
+  EngineSettings engine;
+  CompensationSettings compensation;
+  SimulationSettings simulation;
+
+  const CellRobot* robotById(const std::string& robot_id) const;
+  const CellRobot* robotByTarget(const std::string& target_id) const;
+};
+
+// Reads and checks the cell file and every robot file it names (relative paths are relative to the cell file).
+CellConfig loadCellConfig(const std::string& path);
+CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir);
+
+}  // namespace cellcal

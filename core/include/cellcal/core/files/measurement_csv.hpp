@@ -1,0 +1,62 @@
+// Measurement file, CSV v1 (docs/measurement-csv.md): one row per measured pose.
+//   - Lines starting with '#' before the header are comments; then one header row of column names.
+//   - Comma separated, '.' decimals.
+//   - Required: q1_deg..qN_deg (or q1_rad..qN_rad), x_mm, y_mm, z_mm (target position in the tracker frame),
+//     N = joints of the robot file.
+//   - Optional: qw, qx, qy, qz (target orientation in the tracker frame; all four empty = position-only row),
+//     stamp_s, group (integer), temperature_c, payload_kg. Unknown columns are reported once and ignored.
+//   - Row order is the order the robot visited the poses.
+// Bad rows (missing required cell, non-number, non-unit quaternion, joint outside limits) throw ConfigError
+// "<file>:<line>:<column>: <column name>: <message>"; with skip_bad_rows they become counted warnings and the row
+// is left out (the rows already read are kept).
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <optional>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/robot_model.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+
+namespace cellcal {
+
+struct MeasurementRow {
+  int line = 0;                                   // 1-based line in the file
+  Eigen::VectorXd q_rad;
+  Eigen::Vector3d position_m = Eigen::Vector3d::Zero();
+  std::optional<Eigen::Quaterniond> orientation;  // unit; absent for a position-only row
+  std::optional<double> stamp_s, temperature_c, payload_kg;
+  std::optional<long long> group;
+};
+
+struct MeasurementFile {
+  std::string source;
+  std::vector<MeasurementRow> rows;
+  std::vector<std::string> ignored_columns;       // unknown columns (reported once)
+  std::vector<std::string> warnings;              // one per skipped row, with file:line:column
+  int skipped_rows = 0;
+};
+
+struct MeasurementCsvOptions {
+  bool skip_bad_rows = false;
+  double quaternion_tolerance = 1e-6;             // | |q| - 1 | above this: not a unit quaternion
+};
+
+MeasurementFile readMeasurementCsv(const std::string& path, const RobotModel& robot,
+                                   const MeasurementCsvOptions& options = {});
+MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
+                                    const MeasurementCsvOptions& options = {});
+
+// Writes CSV v1 (q*_rad, x_mm.., qw.. when oriented, stamp_s, group, temperature_c, payload_kg when present), the
+// comment's lines first as '#' lines.
+void writeMeasurementCsv(std::ostream& out, const MeasurementFile& file, int joints, const std::string& comment);
+
+// The observation of a row (6D if it has an orientation and kind allows, else 3D).
+Observation toObservation(const MeasurementRow& row, MeasurementKind kind, double sigma_position_m,
+                          double sigma_orientation_rad);
+
+}  // namespace cellcal

@@ -1,0 +1,240 @@
+// Model diagnosis: fit the geometric model, look at what it leaves, test each physical cause of
+// model_extension.hpp as an extension, and choose by held-out error; say what is still left.
+//
+//   ExtendedFit f = fitExtended(model, start, ident, ident_drivers, {Cause::kBacklash, 2});   // one extension
+//   DiagnosisResult d = diagnose(model, start, {ident, ident_drivers, verify, verify_drivers, has_thermal});
+//
+// Gross errors: the selection runs on every row, then the model it chose screens for them (outliers.hpp: a robust fit
+// of that model on the identification rows, the verification rows against it); where that flags rows the selection
+// runs again without them, until the flags repeat (three selections at the most). Flagged rows take no part in fits
+// or scores.
+// Choice, by forward selection of up to max_causes causes: every applicable (cause, joint) is fitted on the
+// identification rows together with the geometric parameters and any causes already chosen (warm-started from the
+// model so far) and scored on the verification rows by the mean squared position error times
+// (1 + penalty_per_param * k / identification residual rows), k = extension parameters estimated. The best-scoring
+// candidate is added only if it beats the model so far on the verification rows by more than min_gain (relative mean
+// squared error) and by more than min_z standard errors of the paired per-row difference of squared errors. Among the
+// candidates that pass, a simpler one (fewer parameters) is preferred unless the better-scoring one beats it by
+// parsimony_z standard errors (two causes that explain the data equally well: the one with fewer parameters is
+// named). Noise alone thus yields `none`. Thermal drift is also tried on the lengths alone (joint -1): a joint is named
+// only when its zero drift is needed.
+// Verdict: the residual the final model leaves on the verification rows is tested for structure against each driver
+// the file has (residualStructure): a cause is reported as the explanation only when nothing is left; otherwise
+// "partly explained by ...; structure left against <driver> (N %)".
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/identification/outliers.hpp"
+
+namespace cellcal {
+
+struct ExtendedFit {
+  std::vector<Extension> extensions;      // in the order of their parameters; empty: the geometric model
+  Extension extension() const { return extensions.empty() ? Extension{} : extensions.front(); }  // the (first) one
+  bool converged = false;
+  int iterations = 0;
+  std::string message;
+  Eigen::VectorXd params;                 // kinematic parameters, full vector, SI
+  Eigen::VectorXd extension_params;       // numExtensionParams(model, extension)
+  std::vector<int> estimated;             // kinematic parameters estimated
+  std::vector<int> estimated_extension;   // extension parameters estimated (others held at 0: not identifiable)
+  std::vector<std::string> extension_names;
+  // Rows the fit left out: with a backlash, those where its joint had not moved yet (play state unknown).
+  int rows_left_out = 0;
+  // Covariance (SI) of the estimated parameters at the solution, (A^T A)^-1 of the whitened Jacobian: rows/cols are
+  // `estimated` then `estimated_extension`, in those orders. It assumes the readings' sigmas: scale it by the
+  // residual's ratio to them when the model leaves more than noise.
+  Eigen::MatrixXd covariance;
+  int numEstimatedExtension() const { return static_cast<int>(estimated_extension.size()); }
+  // 1-sigma of kinematic parameter i / extension parameter k (NaN when not estimated).
+  double paramStddev(int i) const;
+  double extensionStddev(int k) const;
+};
+
+// "joint_compliance joint 2", "thermal_drift (lengths)", "thermal_drift joint 3, warm-up 1.6 h",
+// "link_deflection link 3"; a model: the labels joined by " + ", "geometric" when empty.
+std::string extensionLabel(const Extension& ext);
+std::string modelLabel(const std::vector<Extension>& exts);
+
+// Gauss-Newton on the geometric parameters identifiable from `obs` plus the extension's parameters (those the data
+// separate from the geometric ones; extension columns have the lowest priority). `start`: full kinematic vector.
+// A thermal drift on a time driver whose time constant is 0 gets one: the warm-up time constant (or a straight line)
+// that leaves the least residual, searched on the model linearized at the warm start (log-spaced grid from 1/32 to 4
+// times the time span, then golden section); fit.extensions carries it.
+// `drivers`: one per observation. With a backlash, rows where its joint has not moved yet are left out of the fit
+// (`rows_left_out`); they are still predicted (play state 0, the middle of the gap) by errorStats and the like.
+// `warm_start` (optional): kinematic parameters to start from instead (e.g. a geometric fit); `start` still decides
+// which parameters are candidates and what the held ones are.
+ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                        const std::vector<Drivers>& drivers, const Extension& extension,
+                        const SolverOptions& solver = {}, const IdentifiabilityOptions& identifiability = {},
+                        const Eigen::VectorXd* warm_start = nullptr);
+
+// Several extensions at once (e.g. backlash on joint 2 and compliance on joint 3): their parameters are concatenated.
+ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                        const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
+                        const SolverOptions& solver = {}, const IdentifiabilityOptions& identifiability = {},
+                        const Eigen::VectorXd* warm_start = nullptr);
+
+// fitExtended, then screening for gross errors (outliers.hpp): refit on the rows kept until the flagged set repeats.
+// `screen` (optional) receives the last screening, indices into `obs`.
+ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                              const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
+                              const SolverOptions& solver, const IdentifiabilityOptions& identifiability,
+                              const Eigen::VectorXd* warm_start, const OutlierOptions& outliers, OutlierScreen* screen);
+
+// Screening of rows a fit predicts (e.g. verification rows): their errors against the robust scale of their own.
+OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                         const std::vector<Drivers>& drivers, const OutlierOptions& options);
+
+// measured - model position (m) of each observation under a fit.
+std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
+                                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers);
+
+struct ErrorStats {
+  int rows = 0, oriented = 0;
+  double mean_mm = 0, rms_mm = 0, max_mm = 0;     // position
+  double mean_deg = 0, rms_deg = 0, max_deg = 0;  // orientation (6D rows only)
+};
+ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                      const std::vector<Drivers>& drivers);
+// The same figures accumulated one observation and predicted pose at a time.
+class ErrorStatsAccumulator {
+ public:
+  void add(const Observation& obs, const Pose& predicted);
+  ErrorStats stats() const;
+
+ private:
+  ErrorStats sums_;
+};
+
+struct DiagnosisData {
+  std::vector<Observation> identification, verification;
+  std::vector<Drivers> identification_drivers, verification_drivers;
+  bool has_thermal = false;
+  std::string thermal_source;  // for reports: "temperature_c" or "stamp_s"
+};
+
+struct DiagnosisOptions {
+  std::vector<Cause> causes = extensionCauses();
+  double penalty_per_param = 2.0;
+  double min_gain = 0.03;    // relative reduction of the verification mean squared error
+  double min_z = 4.0;        // standard errors of the paired difference
+  double parsimony_z = 2.0;  // a candidate with more parameters must beat a simpler significant one by this much
+  int max_causes = 3;        // causes chosen together at the most (forward selection)
+  double structure_alpha = 0.001;  // family-wise false alarm rate of the structure test (nominal, iid noise)
+  OutlierOptions outliers;
+  SolverOptions solver;
+  IdentifiabilityOptions identifiability;
+  // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
+  // bars on large files; runs on the caller's thread.
+  std::function<void(int done, int total)> progress;
+  bool IsValid(std::string* error) const;
+};
+
+struct CandidateResult {
+  ExtendedFit fit;
+  ErrorStats identification, verification;  // over the rows kept (gross errors left out)
+  double verify_mse_m2 = 0;  // mean squared position error on the verification rows
+  double score = 0;          // verify_mse_m2 * (1 + penalty * k / rows)
+  double z = 0;              // paired improvement over the geometric model, in standard errors
+};
+
+// How much structure against one driver the held-out position residual of a fit still has. The residual components
+// are regressed on the driver's regressors (angles: sin, cos, sin 2x, cos 2x; torques and thermal: x, x^2; time since
+// the first row: x, x^2; direction: x; workspace: the 9 quadratic terms of the target position in the robot base
+// frame), beyond what the fit's own parameters could absorb (their Jacobian columns on these rows, since their
+// estimation error is structured too): partial F-test. `share` is the part of the residual's variance the driver
+// explains beyond the model (partial R^2); significant when p_value < alpha / the number of drivers (Bonferroni).
+struct DriverStructure {
+  std::string driver;  // "q2", "gravity_torque_2", "thermal", "time", "direction_3", "workspace"
+  double share = 0;
+  double p_value = 1;
+  bool significant = false;
+};
+std::vector<DriverStructure> residualStructure(const RobotModel& model, const ExtendedFit& fit,
+                                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                               bool has_thermal, double alpha = 0.001);
+
+// The reading noise (1 sigma per axis), estimated from the data where they allow it: from rows measured at the same
+// configuration (within 2e-3 rad per joint; the difference of their residuals under the fit, in which the model's
+// error cancels) when they give 30 degrees of freedom or more; otherwise from the residual of `fit` on the rows it
+// was fitted to, with its degrees of freedom (an upper bound: it holds whatever the model leaves).
+struct NoiseEstimate {
+  double sigma_position_mm = 0;
+  int dof = 0;
+  bool from_repeats = false;
+  std::string source;  // "repeated poses (12 groups, 30 rows)" or "residual of <model> on 195 identification rows"
+};
+NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& fitted,
+                            const std::vector<Drivers>& fitted_drivers, const std::vector<Observation>& predicted,
+                            const std::vector<Drivers>& predicted_drivers);
+
+// One step of the forward selection: the cause added, the model with it and what it gained over the model before.
+struct SelectionStep {
+  Extension added;
+  CandidateResult result;   // every cause chosen so far, fitted together
+  double z = 0;             // paired improvement over the model before, in standard errors
+  double gain_pct = 0;      // verification mean position error, model before -> this one
+  // Other causes that passed the same test in this round and that the one added does not beat by parsimony_z
+  // standard errors: on these data they explain the residual about as well (e.g. a joint's compliance and the
+  // deflection of the link it carries). Best first, at most 3.
+  std::vector<Extension> alike;
+};
+
+enum class Verdict {
+  kNoise,            // no cause, and the geometric model leaves no structure
+  kNamed,            // causes named; no structure left
+  kPartlyExplained,  // causes named, structure left
+  kUnexplained,      // no cause, structure left: something the library does not have
+};
+
+struct DiagnosisResult {
+  CandidateResult geometric;
+  std::vector<CandidateResult> candidates;  // each single cause against the geometric model, best score first
+  std::vector<SelectionStep> selection;     // the causes chosen, in order (empty: none)
+  int chosen = -1;                          // index into candidates of the first cause chosen; -1: none
+  Cause cause = Cause::kNone;               // the first cause chosen
+  std::vector<int> joints;                  // 0-based joints (links) of the first cause
+  std::vector<Extension> causes() const;    // every cause chosen
+  double gain_pct = 0;                      // verification mean position error, geometric -> final
+  std::vector<DriverStructure> structure_before, structure_after;  // geometric / final model, strongest first
+  Verdict verdict = Verdict::kNoise;
+  std::string verdict_text;                 // e.g. "partly explained by ...; structure left against workspace (31 %)"
+  const DriverStructure* structureLeft() const;  // the strongest significant structure after; null: none
+  NoiseEstimate noise;
+  double noise_rms_mm = 0;                  // sqrt(3) noise.sigma_position_mm: the RMS error noise alone would leave
+  double unexplained_rms_mm = 0;            // sqrt(max(0, final verify RMS^2 - noise RMS^2)), outliers excluded
+  // Gross errors (indices into the identification / verification rows). Every CandidateResult's figures are over the
+  // rows kept; these are the geometric and the final model on every verification row, outliers included.
+  OutlierScreen identification_outliers, verification_outliers;
+  ErrorStats geometric_verification_all_rows, verification_all_rows;
+  double solve_time_s = 0;
+  const CandidateResult& best() const { return selection.empty() ? geometric : selection.back().result; }
+};
+
+// The signature of a cause in the data, for figures: per observation, the driver of the cause (x) and the residual
+// expressed as the cause's own quantity (y), under the geometric fit (before) and the extended fit (after).
+// Joint causes: y = apparent error of joint j (deg), the least-squares joint-angle change that explains the position
+// residual; x = gravity torque on joint j (N m; without link masses, of a unit mass at the target, N m/kg), the
+// thermal driver, q_j (deg), or the direction joint j last moved (+-1, spread by +-0.15 so the two groups show).
+// Thermal drift of the lengths alone: y = apparent relative growth of all lengths (um/m), x = the thermal driver.
+struct CauseSignature {
+  std::string x_label, y_label;
+  std::vector<double> x, y_before, y_after;
+};
+CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geometric, const ExtendedFit& extended,
+                              const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                              const std::string& thermal_source);
+
+DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
+                         const DiagnosisOptions& options = {});
+
+}  // namespace cellcal

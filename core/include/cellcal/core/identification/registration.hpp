@@ -1,0 +1,30 @@
+// Registration: first estimates of base_in_tracker and tool_in_flange from measurements, when the cell does not
+// know where the robot stands in the tracker frame (e.g. the ipa UR10 data). Rigid point-set fit (Kabsch) of the
+// nominal flange positions to the measured target positions, alternated with a linear solve of the target offset on
+// the flange; then the tool orientation from 6D readings (chordal mean). The kinematic parameters are not touched:
+// the result is the starting point of a calibration, and "before" figures of a calibration use it.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/robot_model.hpp"
+
+namespace cellcal {
+
+struct RegistrationResult {
+  Eigen::VectorXd params;            // `initial` with the base and tool frames replaced
+  double rms_position_m = 0;         // residual of the registered nominal model over the observations
+  int iterations = 0;
+};
+
+// Needs >= 4 observations with non-coplanar flange positions; throws std::invalid_argument otherwise.
+RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd& initial,
+                                  const std::vector<Observation>& observations, int iterations = 10);
+
+// Frame parameters (x, y, z, roll, pitch, yaw) of a pose, inverse of poseFromXyzRpy (T = Trans Rz Ry Rx).
+Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T);
+
+}  // namespace cellcal

@@ -1,0 +1,138 @@
+// Recursive least squares for kinematic calibration, as in the paper:
+//   x_{k+1} = x_k + P_{k+1} a (b - a^T x_k),  P updated by Sherman-Morrison (block form: one pose = 3 or 6 rows).
+//
+// RlsEstimator is the linear algebra: rows A (r x m, whitened) and targets b (r). Gain K = P A^T (lambda I + A P A^T)^-1,
+// x += K (b - A x), P = (P - K A P) / lambda. lambda = 1 is the paper's (all data weighted equally); lambda < 1
+// forgets old data geometrically, and then each diagonal entry of P is bounded by `max_covariance_diag`
+// (the inflation 1/lambda is cut so no entry exceeds its bound) so unexcited directions cannot wind up.
+// addProcessNoise() adds Q to P between measurement groups: a random-walk prior toward the previous estimate.
+//
+// RlsCalibrator applies it to the nonlinear kinematic model: each pose is linearized at the current estimate
+// (innovation = measured - model(x_k), A = whitened pose Jacobian), which equals the linear form above for a
+// linear model.
+//
+// With a model extension (model_extension.hpp, e.g. the joint compliance `cellcal diagnose` names) the state also holds
+// the extension's parameters, after the kinematic ones: x = [params[estimated]; extension[estimated_extension]], and a
+// pose's rows are [J_i(:, estimated), (J_i B_i)(:, estimated_extension)] at params + B_i e, with B_i from the pose's
+// joint angles and Drivers (thermal driver, play state). Drift process noise acts on the kinematic part only.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/identification/observation.hpp"
+
+namespace cellcal {
+
+struct RlsOptions {
+  double forgetting = 1.0;            // lambda in (0, 1]
+  Eigen::VectorXd max_covariance_diag;  // empty: no bound; else one entry per state (used when lambda < 1)
+  bool IsValid(int state_size, std::string* error) const;
+};
+
+class RlsEstimator {
+ public:
+  RlsEstimator(Eigen::VectorXd x0, Eigen::MatrixXd P0, RlsOptions options = {});
+  // Batch start as in the paper: P0 = (A0^T A0)^-1, x0 = least-squares solution of A0 x = b0.
+  static RlsEstimator fromInitialBatch(const Eigen::MatrixXd& A0, const Eigen::VectorXd& b0, RlsOptions options = {});
+
+  // One measurement block: b = A x + noise (noise whitened to unit variance).
+  void update(const Eigen::Ref<const Eigen::MatrixXd>& A, const Eigen::Ref<const Eigen::VectorXd>& b);
+  // Same with the innovation (b - A x) computed by the caller (nonlinear models).
+  void updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>& A,
+                            const Eigen::Ref<const Eigen::VectorXd>& innovation);
+  void addProcessNoise(const Eigen::VectorXd& q_diag);
+
+  const Eigen::VectorXd& x() const { return x_; }
+  Eigen::VectorXd& mutableX() { return x_; }
+  const Eigen::MatrixXd& P() const { return P_; }
+  // Normalized innovation squared of the last update: nu^T S^-1 nu (chi-square with r dof for a consistent filter).
+  double lastNormalizedInnovation() const { return last_nis_; }
+
+ private:
+  Eigen::VectorXd x_;
+  Eigen::MatrixXd P_;
+  RlsOptions options_;
+  double last_nis_ = 0;
+  Eigen::MatrixXd PA_, S_;  // workspaces
+};
+
+// How much each kind of parameter may change between two calibration updates (1 sigma, random walk).
+// Warm-up and wear move joint zeros and link lengths; axis angles and the base/tool frames barely move.
+struct DriftModel {
+  double joint_offset_rad = 0.02 * 3.14159265358979323846 / 180.0;  // theta offsets
+  double joint_length_m = 0.05e-3;                                  // d, a
+  double axis_angle_rad = 0.002 * 3.14159265358979323846 / 180.0;   // alpha, beta
+  double frame_length_m = 0.01e-3;                                  // base/tool x, y, z
+  double frame_angle_rad = 0.001 * 3.14159265358979323846 / 180.0;  // base/tool roll, pitch, yaw
+  // sigma for every parameter of the full vector.
+  Eigen::VectorXd sigmas(const RobotModel& model) const;
+};
+
+struct RlsCalibratorOptions {
+  RlsOptions rls;
+  IdentifiabilityOptions identifiability;
+};
+
+class RlsCalibrator {
+ public:
+  // Starts from `params` with a Gaussian prior (P0 = prior covariance) over the structurally identifiable set.
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
+                MeasurementKind kind, RlsCalibratorOptions options = {});
+  // Starts from the parameters and covariance of a batch result (the paper's P0 = (A0^T A0)^-1 when it had no prior).
+  RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options = {});
+  // Resumes a saved estimate: full parameter vector, estimated indices, covariance over the state (the estimated
+  // kinematic parameters, then the estimated extension parameters).
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                const Eigen::MatrixXd& covariance, RlsCalibratorOptions options = {});
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                const std::vector<int>& estimated_extension, const Eigen::MatrixXd& covariance,
+                RlsCalibratorOptions options = {});
+
+  // Starts from an extended fit (fitExtended): its parameters, estimated sets and covariance.
+  RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options = {});
+
+  // Linearize at the current estimate and update. Returns the normalized innovation squared. `drivers` (the pose's
+  // thermal driver and play state) is required when the state has extension parameters.
+  double addObservation(const Observation& obs, const Drivers* drivers = nullptr);
+  // Normalized innovation squared of `obs` against the current estimate, without updating (for outlier gating).
+  double normalizedInnovation(const Observation& obs, const Drivers* drivers = nullptr);
+  // The model's pose for joint angles q (with the extension evaluated at `drivers` when there is one).
+  Pose predict(const Eigen::VectorXd& q_rad, const Drivers* drivers = nullptr);
+  // Random-walk process noise: sigma (full parameter vector) of the change since the last update.
+  void addProcessNoise(const Eigen::VectorXd& sigma_full);
+
+  const Eigen::VectorXd& params() const { return params_; }
+  const std::vector<int>& estimated() const { return estimated_; }
+  const Eigen::MatrixXd& covariance() const { return rls_.P(); }  // over the whole state (kinematic, then extension)
+  const RlsEstimator& estimator() const { return rls_; }
+  const std::vector<Extension>& extensions() const { return extensions_; }
+  const Eigen::VectorXd& extensionParams() const { return extension_params_; }
+  const std::vector<int>& estimatedExtension() const { return estimated_extension_; }
+  GaussianPrior asPrior() const;  // kinematic part of the estimate and covariance, e.g. for a batch solve
+
+ private:
+  // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows.
+  int linearize(const Observation& obs, const Drivers* drivers);
+  Eigen::VectorXd rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers);
+  void writeBack();
+
+  const RobotModel* model_;
+  Eigen::VectorXd params_;
+  std::vector<int> estimated_;
+  std::vector<Extension> extensions_;
+  Eigen::VectorXd extension_params_;
+  std::vector<int> estimated_extension_;
+  RlsEstimator rls_;
+  Eigen::MatrixXd B_;
+  KinematicsData data_;
+  Eigen::MatrixXd J_, A_;
+  Eigen::Matrix<double, 6, 1> r_;
+};
+
+}  // namespace cellcal

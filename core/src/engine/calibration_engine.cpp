@@ -1,0 +1,507 @@
+#include "cellcal/core/engine/calibration_engine.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <chrono>
+#include <iomanip>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/identification/statistics.hpp"
+
+namespace cellcal {
+
+PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& s) {
+  PairingOptions o;
+  o.max_skew_s = s.max_pairing_skew_s;
+  o.settle_tolerance_rad = s.settle_tolerance_rad;
+  o.max_sample_age_s = s.max_sample_age_s;
+  o.kind = robot.measurement;
+  return o;
+}
+
+namespace {
+
+constexpr size_t kRecentWindow = 30;
+
+std::int64_t steadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+const char* healthName(Health h) {
+  switch (h) {
+    case Health::kUncalibrated: return "uncalibrated";
+    case Health::kOk: return "ok";
+    case Health::kDegraded: return "degraded";
+    case Health::kHoldLastGood: return "hold_last_good";
+  }
+  return "?";
+}
+
+CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression)
+    : robot_(&robot),
+      settings_(&settings),
+      time_compression_(time_compression),
+      pairing_(robot.model, pairingOptions(robot, settings)),
+      play_(robot.model.numJoints(), settings.settle_tolerance_rad) {
+  for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || e.cause == Cause::kBacklash;
+  const RobotModel& m = robot.model;
+  DriftModel drift;
+  drift.joint_offset_rad = settings.drift_joint_offset_rad;
+  drift.joint_length_m = settings.drift_joint_length_m;
+  drift.axis_angle_rad = settings.drift_axis_angle_rad;
+  drift.frame_length_m = settings.drift_frame_length_m;
+  drift.frame_angle_rad = settings.drift_frame_angle_rad;
+  drift_sigma_ = drift.sigmas(m);
+  snap_.mode = settings.mode;
+  snap_.verification_mean_position_m = std::nan("");
+  // Reference configurations for the predicted error: fixed (the same in every process and after a restart), spread
+  // over 80 % of each joint's range (at most +-180 deg).
+  std::mt19937_64 ref_rng(0x63656c6c63616cULL);
+  for (int k = 0; k < 16; ++k) {
+    Eigen::VectorXd q(m.numJoints());
+    for (int j = 0; j < m.numJoints(); ++j)
+      q[j] = std::uniform_real_distribution<double>(0.8 * std::max(m.limits[j].lower_rad, -kPi),
+                                                    0.8 * std::min(m.limits[j].upper_rad, kPi))(ref_rng);
+    reference_q_.push_back(q);
+  }
+  const GaussianPrior prior =
+      diagonalPrior(m, m.nominal, m.canonicalParams(), settings.prior_length_m, settings.prior_angle_rad);
+  rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot.measurement);
+  if (!robot.extensions.empty()) startExtensions(rls_->params(), rls_->estimated(), rls_->covariance());
+  publishEstimate();
+}
+
+void CalibrationEngine::publishEstimate() {
+  snap_.params = rls_->params();
+  snap_.estimated = rls_->estimated();
+  snap_.covariance = rls_->covariance();
+  snap_.extensions = rls_->extensions();
+  snap_.extension_params = rls_->extensionParams();
+  snap_.estimated_extension = rls_->estimatedExtension();
+}
+
+// The extension parameters start at zero (no effect) with a prior whose 1 sigma makes a joint error of
+// prior_angle_rad, uncorrelated with the kinematic estimate.
+void CalibrationEngine::startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                                        const Eigen::MatrixXd& P) {
+  const RobotModel& m = robot_->model;
+  const auto& exts = robot_->extensions;
+  const Eigen::VectorXd sigma = extensionPriorSigma(m, params, exts, settings_->prior_angle_rad);
+  std::vector<int> acting;  // parameters whose basis column acts (extensionPriorSigma > 0)
+  for (Eigen::Index k = 0; k < sigma.size(); ++k)
+    if (sigma[k] > 0) acting.push_back(static_cast<int>(k));
+  const auto ne = static_cast<Eigen::Index>(estimated.size()), nx = static_cast<Eigen::Index>(acting.size());
+  Eigen::MatrixXd full = Eigen::MatrixXd::Zero(ne + nx, ne + nx);
+  full.topLeftCorner(ne, ne) = P.topLeftCorner(ne, ne);
+  for (Eigen::Index k = 0; k < nx; ++k) full(ne + k, ne + k) = sigma[acting[static_cast<size_t>(k)]] * sigma[acting[static_cast<size_t>(k)]];
+  rls_ = std::make_unique<RlsCalibrator>(m, params, estimated, exts, Eigen::VectorXd::Zero(sigma.size()), acting, full);
+}
+
+void CalibrationEngine::reject(Rejection r, const std::string& detail) {
+  ++counters_.rejected[static_cast<size_t>(r)];
+  counters_.last_rejection = std::string(rejectionName(r)) + ": " + detail;
+}
+
+bool CalibrationEngine::admitted(std::optional<Rejection> r, const std::string& id, const std::string& detail) {
+  if (!r) return true;
+  reject(*r, id + " " + detail);
+  return false;
+}
+
+bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_ns) {
+  ++counters_.joint_states;
+  last_joint_ns_ = receive_ns;
+  std::string detail;
+  if (!admitted(pairing_.addJointState(s, receive_ns, &detail), robot_->robot_id, detail)) return false;
+  if (tracks_play_) play_.add(s.stamp_ns, s.q_rad);
+  // Remember when the robot moved (a new stand-still starts a new pose).
+  const bool moved = !s.settled || (last_joint_q_.size() == s.q_rad.size() &&
+                                    (s.q_rad - last_joint_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad);
+  if (moved) {
+    motion_stamps_ns_.push_back(s.stamp_ns);
+    while (motion_stamps_ns_.size() > 256) motion_stamps_ns_.pop_front();
+  }
+  last_joint_q_ = s.q_rad;
+  return true;
+}
+
+// Same stand-still as the one whose joints were q at stamp_ns: same joints, and no motion seen in between.
+bool CalibrationEngine::samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const {
+  if (q.size() != p.observation.q_rad.size()) return false;
+  if ((p.observation.q_rad - q).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad) return false;
+  for (std::int64_t t : motion_stamps_ns_)
+    if (t > stamp_ns && t <= p.joint_stamp_ns) return false;
+  return true;
+}
+
+std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const {
+  const auto limit = static_cast<std::int64_t>(settings_->stale_input_s * 1e9);
+  std::string out;
+  auto check = [&](const char* topic, std::int64_t last) {
+    if (last != 0 && now_ns - last <= limit) return;
+    std::ostringstream m;
+    m << (out.empty() ? "" : "; ") << topic << ": ";
+    if (last == 0) m << "nothing received yet";
+    else m << "nothing for " << std::fixed << std::setprecision(1) << (now_ns - last) * 1e-9 << " s";
+    out += m.str();
+  };
+  check("joint_state", last_joint_ns_);
+  check("tracker_pose", last_tracker_ns_);
+  return out;
+}
+
+bool CalibrationEngine::onTrackerSample(const TrackerSample& s, std::int64_t receive_ns) {
+  ++counters_.tracker_readings;
+  last_tracker_ns_ = receive_ns;
+  std::string detail;
+  return admitted(pairing_.addTrackerSample(s, receive_ns, &detail), robot_->target_id, detail);
+}
+
+bool CalibrationEngine::process(std::int64_t now_ns) {
+  PairingOutcome out = pairing_.poll(now_ns);
+  for (const auto& [r, d] : out.rejected) reject(r, robot_->target_id + " " + d);
+  bool changed = false;
+  const bool extended = !rls_->extensions().empty();
+  for (const auto& p : out.paired) {
+    const auto t0 = steadyNs();
+    Pending pending{p, extended ? play_.driversAt(p.joint_stamp_ns, p.observation.q_rad) : Drivers{}};
+    const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
+    if (settings_->outlier_gate_nis_per_row > 0) {
+      const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
+      const int rows = p.observation.rows();
+      // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate
+      // scales with the recent median NIS per row when that is above 1. A gross error (a bumped target, a beam
+      // break caught mid-reading) is hundreds of sigmas and stays far outside.
+      // The median is over every new stand-still, gated or not: when most poses look like outliers the model (or the
+      // station) changed, the gate opens within half a window, and the drift alarm says so, instead of the engine
+      // freezing on an estimate that no longer fits.
+      double scale = 1;
+      if (gate_window_.size() >= 5) {
+        std::vector<double> v(gate_window_.begin(), gate_window_.end());
+        std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+        scale = std::max(1.0, v[v.size() / 2]);
+      }
+      const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
+      const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+      if (new_stand_still && std::isfinite(nis)) {
+        gate_window_.push_back(nis / rows);
+        while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
+      }
+      if (!(nis <= gate)) {
+        std::ostringstream m;
+        m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
+          << " above the gate " << gate << " (" << rows << " rows)";
+        reject(Rejection::kOutlier, m.str());
+        if (new_stand_still) {
+          ++consecutive_outliers_;
+          gated_q_ = p.observation.q_rad;
+          gated_joint_stamp_ns_ = p.joint_stamp_ns;
+          const Health before = snap_.health;
+          decideHealth();
+          if (snap_.health != before) changed = true;  // publish the hold at once
+        }
+        continue;
+      }
+    }
+    consecutive_outliers_ = 0;
+    gated_q_.resize(0);
+    ++counters_.paired;
+    // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
+    // using them as independent observations would overweight the pose. The first reading is used at once.
+    if (same_as_used) {
+      ++counters_.same_pose;
+      continue;
+    }
+    used_q_ = p.observation.q_rad;
+    used_joint_stamp_ns_ = p.joint_stamp_ns;
+    if (settings_->mode == EngineMode::kContinuous) {
+      if (applyPose(pending)) {
+        finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+        changed = true;
+      }
+    } else {
+      batch_.push_back(std::move(pending));
+      if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
+        bool any = false;
+        for (const auto& b : batch_) any = applyPose(b) || any;
+        batch_.clear();
+        if (any) {
+          finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+          changed = true;
+        }
+      } else {
+        snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
+        snap_.last_tracker_sequence = p.tracker_sequence;
+        pairing_.setAppliedUntil(p.tracker_stamp_ns);
+        ++state_revision_;
+      }
+    }
+    last_update_duration_ns_ = steadyNs() - t0;
+  }
+  return changed;
+}
+
+bool CalibrationEngine::applyPose(const Pending& pending) {
+  const PairedReading& p = pending.reading;
+  const Drivers* drivers = rls_->extensions().empty() ? nullptr : &pending.drivers;
+  const RlsCalibrator before_update = *rls_;  // for a roll-back (a 30x30 covariance: cheap beside the update)
+  // Random walk of the parameters over the cell time since the previous update.
+  if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
+    const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
+    rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h));
+  }
+  const Observation& o = p.observation;
+  const Pose before = rls_->predict(o.q_rad, drivers);
+  const double nis = rls_->addObservation(o, drivers);
+  const Pose after = rls_->predict(o.q_rad, drivers);
+  if (!std::isfinite(nis) || !rls_->params().allFinite() || !rls_->extensionParams().allFinite() ||
+      !rls_->covariance().allFinite() || !after.matrix().allFinite()) {
+    *rls_ = before_update;
+    std::ostringstream m;
+    m << robot_->target_id << " tracker reading #" << p.tracker_sequence
+      << ": the update made the estimate non-finite; rolled back to version " << snap_.version;
+    reject(Rejection::kUnsafeUpdate, m.str());
+    return false;
+  }
+  snap_.last_update_stamp_ns = p.tracker_stamp_ns;
+  Recent r;
+  r.prior_error_m = (o.measured_in_tracker.translation() - before.translation()).norm();
+  r.post_error_m = (o.measured_in_tracker.translation() - after.translation()).norm();
+  r.nis_per_row = nis / o.rows();
+  r.post_error_rad = o.kind == MeasurementKind::kPose6D
+                         ? logSO3(o.measured_in_tracker.linear() * after.linear().transpose()).norm()
+                         : 0.0;
+  recent_.push_back(r);
+  while (recent_.size() > kRecentWindow) recent_.pop_front();
+  ++snap_.poses_used;
+  return true;
+}
+
+// decideHealth() sets the published parameters: the estimate, or the last good version while holding.
+void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence) {
+  ++snap_.version;
+  snap_.last_measurement_stamp_ns = stamp_ns;
+  snap_.last_tracker_sequence = sequence;
+  pairing_.setAppliedUntil(stamp_ns);
+  refreshStatistics();
+  decideHealth();
+  ++state_revision_;
+}
+
+// Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state.
+double CalibrationEngine::predictionSigma() const {
+  const RobotModel& m = robot_->model;
+  KinematicsData data(m);
+  Eigen::MatrixXd J(6, m.numParams());
+  const auto& est = rls_->estimated();
+  const auto n = static_cast<Eigen::Index>(est.size());
+  const Eigen::MatrixXd P = rls_->covariance().topLeftCorner(n, n);
+  Eigen::MatrixXd Js(3, n);
+  double worst = 0;
+  for (const auto& q : reference_q_) {
+    forwardKinematics(m, data, rls_->params(), q);
+    computePoseJacobian(m, data, J);
+    for (Eigen::Index k = 0; k < n; ++k) Js.col(k) = J.col(est[static_cast<size_t>(k)]).head<3>();
+    const double var = (Js * P * Js.transpose()).trace();
+    worst = std::max(worst, std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity());
+  }
+  return worst;
+}
+
+// Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3); then ok,
+// degraded (drift alarm) or hold_last_good (outliers in a row, predicted error above the bound).
+void CalibrationEngine::decideHealth() {
+  const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
+  const size_t state = rls_->estimated().size() + rls_->estimatedExtension().size();
+  const size_t needed = 2 * ((state + rows - 1) / rows);
+  snap_.prediction_sigma_position_m = predictionSigma();
+  snap_.health_reason.clear();
+  snap_.held_version = 0;
+  std::ostringstream why;
+  if (consecutive_outliers_ >= settings_->outlier_hold_after) {
+    why << consecutive_outliers_ << " poses in a row beyond the outlier gate: the robot, the target or the tracker "
+        << "moved (check the station and the target, then re-register if it was bumped)";
+    snap_.drift_alarm = true;
+  } else if (snap_.prediction_sigma_position_m > settings_->hold_prediction_sigma_m) {
+    why << "predicted position error " << snap_.prediction_sigma_position_m * 1e3 << " mm (1 sigma) above the bound "
+        << settings_->hold_prediction_sigma_m * 1e3 << " mm: the recent poses do not pin the model down";
+  }
+  if (snap_.poses_used < needed) {
+    publishEstimate();
+    snap_.health = Health::kUncalibrated;
+    snap_.health_reason = std::to_string(snap_.poses_used) + " of the " + std::to_string(needed) + " poses needed";
+    return;
+  }
+  if (!why.str().empty()) {
+    if (last_good_) {
+      snap_.health = Health::kHoldLastGood;
+      snap_.held_version = last_good_->version;
+      snap_.params = last_good_->params;
+      snap_.estimated = last_good_->estimated;
+      snap_.covariance = last_good_->covariance;
+      snap_.extension_params = last_good_->extension_params;
+      snap_.health_reason = "holding v" + std::to_string(last_good_->version) + ": " + why.str();
+    } else {
+      publishEstimate();
+      snap_.health = Health::kUncalibrated;
+      snap_.health_reason = "nothing good to hold yet: " + why.str();
+    }
+    return;
+  }
+  publishEstimate();
+  if (snap_.drift_alarm) {
+    snap_.health = Health::kDegraded;
+    std::ostringstream d;
+    d << "drift alarm: recent normalized innovation " << snap_.recent_nis_per_row << " per row (alarm above "
+      << settings_->drift_alarm_nis_per_row << "): the estimate follows something the noise and drift models do not "
+      << "allow (a biased tracker, a missing model effect)";
+    snap_.health_reason = d.str();
+    return;
+  }
+  snap_.health = Health::kOk;
+  last_good_ = Good{snap_.version, snap_.params, snap_.extension_params, snap_.estimated, snap_.covariance};
+}
+
+void CalibrationEngine::refreshStatistics() {
+  double sp = 0, so = 0, pe = 0, nis = 0;
+  for (const auto& r : recent_) {
+    sp += r.post_error_m * r.post_error_m;
+    so += r.post_error_rad * r.post_error_rad;
+    pe += r.prior_error_m;
+    nis += r.nis_per_row;
+  }
+  const double n = static_cast<double>(recent_.size());
+  snap_.residual_rms_position_m = recent_.empty() ? 0.0 : std::sqrt(sp / n);
+  snap_.residual_rms_orientation_rad = recent_.empty() ? 0.0 : std::sqrt(so / n);
+  snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
+  snap_.recent_nis_per_row = recent_.empty() ? 0.0 : nis / n;
+  snap_.drift_alarm = recent_.size() >= 10 && snap_.recent_nis_per_row > settings_->drift_alarm_nis_per_row;
+  const Eigen::MatrixXd& P = rls_->covariance();
+  if (P.rows() > 0) {
+    const Eigen::VectorXd d = P.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+    const Eigen::MatrixXd corr = d.asDiagonal() * P * d.asDiagonal();
+    const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(corr, Eigen::EigenvaluesOnly).eigenvalues();
+    snap_.condition_number = ev.minCoeff() > 0 ? ev.maxCoeff() / ev.minCoeff() : std::numeric_limits<double>::infinity();
+  }
+}
+
+EngineState CalibrationEngine::exportState() const {
+  const RobotModel& m = robot_->model;
+  EngineState s;
+  s.robot_id = robot_->robot_id;
+  s.robot_name = m.name;
+  s.num_params = m.numParams();
+  s.nominal = m.nominal;
+  s.mode = settings_->mode;
+  s.version = snap_.version;
+  s.poses_used = snap_.poses_used;
+  s.last_measurement_stamp_ns = snap_.last_measurement_stamp_ns;
+  s.last_tracker_sequence = snap_.last_tracker_sequence;
+  s.last_update_stamp_ns = snap_.last_update_stamp_ns;
+  // The estimator's state (what a restart resumes), which is not what is published while holding a good version.
+  s.params = rls_->params();
+  s.estimated = rls_->estimated();
+  s.covariance = rls_->covariance();
+  for (const auto& e : rls_->extensions()) s.extensions.push_back(extensionSpec(e));
+  s.extension_params = rls_->extensionParams();
+  s.estimated_extension = rls_->estimatedExtension();
+  s.consecutive_outliers = consecutive_outliers_;
+  s.gate_window.assign(gate_window_.begin(), gate_window_.end());
+  if (last_good_ && snap_.health != Health::kOk)
+    s.last_good = EngineState::Good{last_good_->version, last_good_->params, last_good_->extension_params,
+                                    last_good_->estimated, last_good_->covariance};
+  if (tracks_play_) s.play = EngineState::Play{play_.joints(), play_.lastStampNs()};
+  for (const auto& r : recent_) s.recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
+  const bool extended = !rls_->extensions().empty();
+  for (const auto& b : batch_)
+    s.pending_batch.push_back({b.reading, extended ? std::optional<Drivers>(b.drivers) : std::nullopt});
+  return s;
+}
+
+void CalibrationEngine::importState(const EngineState& s) {
+  const RobotModel& m = robot_->model;
+  auto fail = [](const std::string& why) { throw std::runtime_error(why); };
+  if (s.robot_id != robot_->robot_id) fail("state of robot '" + s.robot_id + "'");
+  if (s.num_params != m.numParams() || s.robot_name != m.name)
+    fail("made for model '" + s.robot_name + "', the cell now says '" + m.name + "'");
+  if (s.nominal.size() != m.numParams()) fail("the nominal model changed since: the state no longer applies");
+  for (int i = 0; i < m.numParams(); ++i)
+    if (s.nominal[i] != m.nominal[i])
+      fail("the nominal model changed since (" + m.paramName(i) + "): the state no longer applies");
+  // The covariance is over the state: the estimated kinematic parameters, then any estimated extension ones.
+  const auto ne = static_cast<Eigen::Index>(s.estimated.size());
+  const Eigen::Index nt = s.covariance.rows();
+  if (s.params.size() != m.numParams() || s.covariance.cols() != nt || nt < ne) fail("parameter or covariance size mismatch");
+  for (int e : s.estimated)
+    if (e < 0 || e >= m.numParams()) fail("estimated index out of range");
+  if (!s.params.allFinite() || !s.covariance.allFinite()) fail("non-finite values");
+  std::optional<Good> good;
+  if (s.last_good) {
+    const EngineState::Good& g = *s.last_good;
+    if (g.params.size() != m.numParams() || g.covariance.rows() != g.covariance.cols())
+      fail("last_good: parameter or covariance size mismatch");
+    if (!g.params.allFinite() || !g.covariance.allFinite()) fail("last_good: non-finite values");
+    good = Good{g.version, g.params, g.extension_params, g.estimated, g.covariance};
+  }
+  // Extensions: resumed when the cell file still names the same ones; else the kinematic estimate is kept and the
+  // cell file's extensions start from their prior (an extension added after `cellcal diagnose` does not throw away
+  // hours of calibration).
+  std::vector<std::string> wanted;
+  for (const auto& e : robot_->extensions) wanted.push_back(extensionSpec(e));
+  std::string note;
+  if (s.extensions == wanted && !wanted.empty()) {
+    if (s.extension_params.size() != numExtensionParams(m, robot_->extensions) ||
+        nt != ne + static_cast<Eigen::Index>(s.estimated_extension.size()))
+      fail("extension parameter or covariance size mismatch");
+    for (int e : s.estimated_extension)
+      if (e < 0 || e >= s.extension_params.size()) fail("estimated extension index out of range");
+    rls_ = std::make_unique<RlsCalibrator>(m, s.params, s.estimated, robot_->extensions, s.extension_params,
+                                           s.estimated_extension, s.covariance);
+  } else {
+    const Eigen::MatrixXd Pk = s.covariance.topLeftCorner(ne, ne);
+    if (robot_->extensions.empty())
+      rls_ = std::make_unique<RlsCalibrator>(m, s.params, s.estimated, Pk);
+    else
+      startExtensions(s.params, s.estimated, Pk);
+    if (s.extensions != wanted) {
+      auto list = [](const std::vector<std::string>& v) {
+        std::string out;
+        for (const auto& x : v) out += (out.empty() ? "" : ", ") + x;
+        return out.empty() ? std::string("none") : out;
+      };
+      note = "extensions changed since the state was saved (" + list(s.extensions) + " -> " + list(wanted) +
+             "): kinematic estimate kept, extensions start from their prior";
+    }
+  }
+  restore_note_ = note;
+  if (tracks_play_ && s.play && static_cast<int>(s.play->joints.size()) == m.numJoints())
+    play_.restore(s.play->joints, s.play->last_stamp_ns);
+  snap_.version = s.version;
+  snap_.poses_used = s.poses_used;
+  snap_.last_measurement_stamp_ns = s.last_measurement_stamp_ns;
+  snap_.last_tracker_sequence = s.last_tracker_sequence;
+  snap_.last_update_stamp_ns = s.last_update_stamp_ns;
+  recent_.clear();
+  for (const auto& r : s.recent) recent_.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
+  batch_.clear();
+  for (const auto& b : s.pending_batch) batch_.push_back({b.reading, b.drivers ? *b.drivers : Drivers{}});
+  consecutive_outliers_ = s.consecutive_outliers;
+  gate_window_.assign(s.gate_window.begin(), s.gate_window.end());
+  last_good_ = std::move(good);
+  publishEstimate();
+  pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);
+  if (snap_.version > 0) {
+    refreshStatistics();
+    decideHealth();
+  }
+}
+
+}  // namespace cellcal

@@ -1,0 +1,110 @@
+#include "cellcal/core/engine/compensation.hpp"
+
+#include <sstream>
+
+#include "cellcal/core/model/kinematics.hpp"
+
+namespace cellcal {
+
+namespace {
+// Drivers of the solution: the visited path (oldest first), then a straight move to q; the last row of that sequence.
+Drivers moveDrivers(const std::vector<Eigen::VectorXd>& path, const Eigen::VectorXd& q) {
+  std::vector<Eigen::VectorXd> seq;
+  const size_t first = path.size() > static_cast<size_t>(kPlayHistory) ? path.size() - kPlayHistory : 0;
+  for (size_t i = first; i < path.size(); ++i)
+    if (path[i].size() == q.size() && path[i].allFinite()) seq.push_back(path[i]);
+  if (seq.empty()) return Drivers{};
+  seq.push_back(q);
+  return driversFromSequence(seq, {}, {}).rows.back();
+}
+}  // namespace
+
+CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
+                              const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
+  return compensate(nominal, IdentifiedModel{identified, {}, {}}, desired, q_seed, s);
+}
+
+CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
+                              const Eigen::VectorXd& q_seed, const CompensationSettings& s,
+                              const std::vector<Eigen::VectorXd>& path) {
+  CompensationResult out;
+  out.corrected_in_tracker = desired;
+  const Eigen::VectorXd& identified = model.params;
+  if (identified.size() != nominal.numParams() || !identified.allFinite() ||
+      model.extension_params.size() != numExtensionParams(nominal, model.extensions) ||
+      !model.extension_params.allFinite()) {
+    out.reason = "identified parameters unusable (size or NaN)";
+    return out;
+  }
+  Eigen::VectorXd seed = q_seed;
+  if (seed.size() != nominal.numJoints() || !seed.allFinite() || !nominal.withinLimits(seed)) {
+    seed = Eigen::VectorXd::Zero(nominal.numJoints());
+    for (int j = 0; j < nominal.numJoints(); ++j)
+      seed[j] = 0.5 * (nominal.limits[j].lower_rad + nominal.limits[j].upper_rad);
+  }
+  // The controller's own joints for the target are within a fraction of a degree of the answer: start there, and
+  // give up quickly when that fails (a target the true arm cannot reach should not cost milliseconds).
+  IkOptions ik_options;
+  ik_options.max_iterations = 100;
+  ik_options.restarts = 2;
+  IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
+  if (!model.extensions.empty() && ik.ok()) {
+    // Fixed point q = IK(params(q)).
+    constexpr int kPasses = 10;
+    double moved = 0.0;
+    for (int pass = 0; pass < kPasses; ++pass) {
+      const Eigen::VectorXd p = extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
+                                               moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, ik.q_rad));
+      IkResult next = solveInverseKinematics(nominal, p, desired, ik.q_rad, ik_options);
+      moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
+      ik = std::move(next);
+      if (!ik.ok() || moved < 1e-10) break;
+    }
+    if (ik.ok() && moved > 1e-8) {
+      out.reason = "the extended model's joint solution did not settle";
+      return out;
+    }
+  }
+  if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
+    out.reason = "the identified model cannot reach the target: " + ik.message;
+    return out;
+  }
+  KinematicsData data(nominal);
+  const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
+  const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
+  out.correction_position_m = c.head<3>().norm();
+  out.correction_orientation_rad = c.tail<3>().norm();
+  const double over = std::max(out.correction_position_m / s.max_correction_m,
+                               out.correction_orientation_rad / s.max_correction_rad);
+  if (over <= 1.0) {
+    out.applied = true;
+    out.corrected_in_tracker = corrected;
+    out.q_rad = ik.q_rad;
+    return out;
+  }
+  std::ostringstream m;
+  m << "correction " << out.correction_position_m * 1e3 << " mm / " << out.correction_orientation_rad * 180 / kPi
+    << " deg exceeds the bound " << s.max_correction_m * 1e3 << " mm / " << s.max_correction_rad * 180 / kPi << " deg";
+  if (s.on_exceed == ExceedAction::kRefuse) {
+    out.reason = m.str() + ": refused";
+    return out;
+  }
+  // Clamp: the same correction direction, scaled to the bound.
+  const double k = 1.0 / over;
+  Pose clamped = Pose::Identity();
+  clamped.translation() = desired.translation() + k * c.head<3>();
+  clamped.linear() = expSO3(k * c.tail<3>()) * desired.linear();
+  const IkResult back = solveInverseKinematics(nominal, nominal.nominal, clamped, ik.q_rad, ik_options);
+  if (!back.ok()) {
+    out.reason = m.str() + "; clamped pose unreachable: " + back.message;
+    return out;
+  }
+  out.applied = true;
+  out.clamped = true;
+  out.reason = m.str() + ": clamped to the bound";
+  out.corrected_in_tracker = clamped;
+  out.q_rad = back.q_rad;
+  return out;
+}
+
+}  // namespace cellcal

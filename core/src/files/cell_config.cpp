@@ -1,0 +1,275 @@
+#include "cellcal/core/files/cell_config.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "cellcal/core/model/se3.hpp"
+#include "yaml_reader.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+using detail::YamlReader;
+
+std::string resolve(const std::string& base_dir, const std::string& p) {
+  if (p.empty() || fs::path(p).is_absolute()) return p;
+  return (fs::path(base_dir) / p).lexically_normal().string();
+}
+
+// Optional number in a map: absent/null keeps `value`; `scale` converts the file's unit to SI.
+struct Section {
+  const YamlReader& r;
+  YAML::Node node;
+  std::string field;
+  bool has(const char* key) const { return node[key].IsDefined() && !node[key].IsNull(); }
+  std::string f(const char* key) const { return field + "." + key; }
+  void num(const char* key, double& value, double scale = 1.0, double min = -1e300, bool min_exclusive = false) const {
+    if (!has(key)) return;
+    const double v = r.number(node[key], f(key)) * scale;
+    if (min_exclusive ? !(v > min) : !(v >= min))
+      r.fail(node[key], f(key), std::string("must be ") + (min_exclusive ? "> " : ">= ") + std::to_string(min / scale));
+    value = v;
+  }
+  void integer(const char* key, int& value, long long min, long long max) const {
+    if (!has(key)) return;
+    const long long v = r.integer(node[key], f(key));
+    if (v < min || v > max)
+      r.fail(node[key], f(key), "must be in [" + std::to_string(min) + ", " + std::to_string(max) + "]");
+    value = static_cast<int>(v);
+  }
+};
+
+Section section(const YamlReader& r, const YAML::Node& root, const char* key, const std::set<std::string>& keys) {
+  const YAML::Node n = root[key];
+  if (!n.IsDefined() || n.IsNull()) return {r, YAML::Node(YAML::NodeType::Map), key};
+  r.requireMap(n, key);
+  r.checkKeys(n, key, keys);
+  return {r, n, key};
+}
+
+}  // namespace
+
+const CellRobot* CellConfig::robotById(const std::string& id) const {
+  for (const auto& r : robots)
+    if (r.robot_id == id) return &r;
+  return nullptr;
+}
+
+const CellRobot* CellConfig::robotByTarget(const std::string& id) const {
+  for (const auto& r : robots)
+    if (r.target_id == id) return &r;
+  return nullptr;
+}
+
+CellConfig parseCellConfig(const std::string& yaml_text, const std::string& source, const std::string& base_dir) try {
+  YamlReader r(source);
+  const YAML::Node root = r.load(yaml_text);
+  if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with dds, robots, engine, ...");
+  r.checkKeys(root, "", {"dds", "time_compression", "robots", "engine", "compensation", "simulation"});
+  CellConfig c;
+  c.source = source;
+  constexpr double kDeg = 3.14159265358979323846 / 180.0;
+
+  const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile", "security_dir",
+                                                      "type_information"});
+  dds.integer("domain_id", c.dds.domain_id, 0, 232);
+  c.dds.profiles_file = resolve(base_dir, "dds/cellcal_qos.xml");
+  if (dds.has("profiles_file")) c.dds.profiles_file = resolve(base_dir, r.string(dds.node["profiles_file"], dds.f("profiles_file")));
+  if (dds.has("participant_profile"))
+    c.dds.participant_profile = r.string(dds.node["participant_profile"], dds.f("participant_profile"));
+  if (dds.has("type_information")) c.dds.type_information = r.boolean(dds.node["type_information"], dds.f("type_information"));
+  if (dds.has("security_dir")) c.dds.security_dir = resolve(base_dir, r.string(dds.node["security_dir"], dds.f("security_dir")));
+
+  if (root["time_compression"].IsDefined()) {
+    c.time_compression = r.number(root["time_compression"], "time_compression");
+    if (!(c.time_compression >= 1.0)) r.fail(root["time_compression"], "time_compression", "must be >= 1");
+  }
+
+  const YAML::Node robots = r.required(root, "robots", "robots");
+  if (!robots.IsSequence() || robots.size() == 0) r.fail(robots, "robots", "expected a non-empty list of robots");
+  std::set<std::string> ids, targets;
+  for (size_t i = 0; i < robots.size(); ++i) {
+    const std::string f = "robots[" + std::to_string(i) + "]";
+    const YAML::Node n = robots[i];
+    r.requireMap(n, f);
+    r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange",
+                         "extensions"});
+    CellRobot rb;
+    rb.robot_id = r.string(r.required(n, "robot_id", f + ".robot_id"), f + ".robot_id");
+    rb.target_id = r.string(r.required(n, "target_id", f + ".target_id"), f + ".target_id");
+    if (rb.robot_id.size() > 64) r.fail(n["robot_id"], f + ".robot_id", "at most 64 characters (the DDS key bound)");
+    if (rb.target_id.size() > 64) r.fail(n["target_id"], f + ".target_id", "at most 64 characters (the DDS key bound)");
+    if (!ids.insert(rb.robot_id).second) r.fail(n["robot_id"], f + ".robot_id", "robot_id '" + rb.robot_id + "' used twice");
+    if (!targets.insert(rb.target_id).second)
+      r.fail(n["target_id"], f + ".target_id", "target_id '" + rb.target_id + "' used twice");
+    rb.robot_file = resolve(base_dir, r.string(r.required(n, "robot_file", f + ".robot_file"), f + ".robot_file"));
+    if (n["measurement"].IsDefined()) {
+      const std::string m = r.string(n["measurement"], f + ".measurement");
+      if (m == "pose6d") rb.measurement = MeasurementKind::kPose6D;
+      else if (m == "position3d") rb.measurement = MeasurementKind::kPosition3D;
+      else r.fail(n["measurement"], f + ".measurement", "expected pose6d or position3d, got '" + m + "'");
+    }
+    double v[6];
+    // Metres written in the _mm fields. The robot base's origin lies inside its casing: a tracker can't stand
+    // within 100 mm of it, unless the tracker frame was aligned to the base (then within 1 mm and 1 deg of identity).
+    // A target's centre lies at least an SMR's radius off the flange: 0-5 mm, other than exactly 0 (not known yet).
+    auto checkUnits = [&](const char* key, double hi_m, bool identity_ok) {
+      const double d = Eigen::Vector3d(v[0], v[1], v[2]).norm();
+      const double angle = std::max({std::abs(v[3]), std::abs(v[4]), std::abs(v[5])});
+      const bool identity = d <= 1e-3 && angle <= 3.14159265358979323846 / 180.0;
+      if (d > 0.0 && d < hi_m && !(identity_ok && identity))
+        r.fail(n[key], f + "." + key,
+               "x_mm, y_mm, z_mm put it " + std::to_string(d * 1e3) +
+                   " mm from the origin, which no real cell has: metres written where millimetres are expected?");
+    };
+    if (n["base_in_tracker"].IsDefined()) {
+      r.frame(n["base_in_tracker"], f + ".base_in_tracker", v);
+      checkUnits("base_in_tracker", 0.1, true);
+      rb.base_in_tracker = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
+    }
+    if (n["tool_in_flange"].IsDefined()) {
+      r.frame(n["tool_in_flange"], f + ".tool_in_flange", v);
+      checkUnits("tool_in_flange", 5e-3, false);
+      rb.tool_in_flange = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
+    }
+    try {
+      rb.model = loadRobotModel(rb.robot_file);
+    } catch (const ConfigError& e) {
+      r.fail(n["robot_file"], f + ".robot_file", e.what());
+    }
+    if (rb.base_in_tracker) rb.model.nominal.segment<6>(rb.model.baseParam(FrameParam::kX)) = *rb.base_in_tracker;
+    if (rb.tool_in_flange) rb.model.nominal.segment<6>(rb.model.toolParam(FrameParam::kX)) = *rb.tool_in_flange;
+    if (n["extensions"].IsDefined() && !n["extensions"].IsNull()) {
+      const YAML::Node x = n["extensions"];
+      const std::string fx = f + ".extensions";
+      if (!x.IsSequence()) r.fail(x, fx, "expected a list, e.g. [joint_compliance:2]");
+      for (size_t k = 0; k < x.size(); ++k) {
+        const std::string fk = fx + "[" + std::to_string(k) + "]";
+        const std::string item = r.string(x[k], fk);
+        if (item.rfind("thermal_drift", 0) == 0)
+          r.fail(x[k], fk, "thermal_drift needs a temperature, which the cell's topics do not carry (the engine's "
+                           "drift model follows warm-up; engine.drift sets how fast)");
+        try {
+          const Extension ext = parseExtension(item, rb.model, false);
+          for (const auto& o : rb.extensions)
+            if (o.cause == ext.cause && o.joint == ext.joint) r.fail(x[k], fk, "'" + item + "' is listed twice");
+          rb.extensions.push_back(ext);
+        } catch (const std::invalid_argument& err) {
+          r.fail(x[k], fk, err.what());
+        }
+      }
+    }
+    c.robots.push_back(std::move(rb));
+  }
+
+  const Section e = section(r, root, "engine",
+                            {"mode", "batch_poses", "state_dir", "max_pairing_skew_ms", "settle_tolerance_deg",
+                             "max_sample_age_s", "stale_input_s", "republish_period_s", "outlier_gate_nis_per_row", "outlier_hold_after",
+                             "hold_prediction_sigma_mm", "drift_alarm_nis_per_row",
+                             "prior_length_mm", "prior_angle_deg", "drift"});
+  if (e.has("mode")) {
+    const std::string m = r.string(e.node["mode"], e.f("mode"));
+    if (m == "continuous") c.engine.mode = EngineMode::kContinuous;
+    else if (m == "periodic") c.engine.mode = EngineMode::kPeriodic;
+    else r.fail(e.node["mode"], e.f("mode"), "expected continuous or periodic, got '" + m + "'");
+  }
+  e.integer("batch_poses", c.engine.batch_poses, 1, 100000);
+  c.engine.state_dir = resolve(base_dir, c.engine.state_dir);
+  if (e.has("state_dir")) c.engine.state_dir = resolve(base_dir, r.string(e.node["state_dir"], e.f("state_dir")));
+  e.num("max_pairing_skew_ms", c.engine.max_pairing_skew_s, 1e-3, 0, true);
+  e.num("settle_tolerance_deg", c.engine.settle_tolerance_rad, kDeg, 0);
+  e.num("max_sample_age_s", c.engine.max_sample_age_s, 1, 0, false);
+  e.num("stale_input_s", c.engine.stale_input_s, 1, 0, true);
+  e.num("republish_period_s", c.engine.republish_period_s, 1, 0, true);
+  e.num("outlier_gate_nis_per_row", c.engine.outlier_gate_nis_per_row, 1, 0);
+  e.integer("outlier_hold_after", c.engine.outlier_hold_after, 1, 1000000);
+  e.num("hold_prediction_sigma_mm", c.engine.hold_prediction_sigma_m, 1e-3, 0, true);
+  e.num("drift_alarm_nis_per_row", c.engine.drift_alarm_nis_per_row, 1, 0, true);
+  e.num("prior_length_mm", c.engine.prior_length_m, 1e-3, 0, true);
+  e.num("prior_angle_deg", c.engine.prior_angle_rad, kDeg, 0, true);
+  if (e.has("drift")) {
+    const YAML::Node d = e.node["drift"];
+    r.requireMap(d, "engine.drift");
+    r.checkKeys(d, "engine.drift",
+                {"joint_offset_deg", "joint_length_mm", "axis_angle_deg", "frame_length_mm", "frame_angle_deg", "per_h"});
+    const Section ds{r, d, "engine.drift"};
+    ds.num("joint_offset_deg", c.engine.drift_joint_offset_rad, kDeg, 0);
+    ds.num("joint_length_mm", c.engine.drift_joint_length_m, 1e-3, 0);
+    ds.num("axis_angle_deg", c.engine.drift_axis_angle_rad, kDeg, 0);
+    ds.num("frame_length_mm", c.engine.drift_frame_length_m, 1e-3, 0);
+    ds.num("frame_angle_deg", c.engine.drift_frame_angle_rad, kDeg, 0);
+    ds.num("per_h", c.engine.drift_per_h, 1, 0, true);
+  }
+
+  const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm"});
+  cp.num("max_correction_mm", c.compensation.max_correction_m, 1e-3, 0, true);
+  cp.num("max_correction_deg", c.compensation.max_correction_rad, kDeg, 0, true);
+  cp.num("max_ik_error_mm", c.compensation.max_ik_error_m, 1e-3, 0, true);
+  if (cp.has("on_exceed")) {
+    const std::string a = r.string(cp.node["on_exceed"], cp.f("on_exceed"));
+    if (a == "refuse") c.compensation.on_exceed = ExceedAction::kRefuse;
+    else if (a == "clamp") c.compensation.on_exceed = ExceedAction::kClamp;
+    else r.fail(cp.node["on_exceed"], cp.f("on_exceed"), "expected refuse or clamp, got '" + a + "'");
+  }
+
+  const Section s = section(r, root, "simulation",
+                            {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
+                             "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
+                             "hidden_effect"});
+  if (s.has("seed")) {
+    c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
+  }
+  s.integer("initial_poses", c.simulation.initial_poses, 1, 100000);
+  s.integer("poses_per_group", c.simulation.poses_per_group, 1, 100000);
+  s.integer("groups", c.simulation.groups, 1, 100000);
+  s.num("hours_between_groups", c.simulation.hours_between_groups, 1, 0);
+  s.num("pose_time_s", c.simulation.pose_time_s, 1, 0, true);
+  s.num("settle_fraction", c.simulation.settle_fraction, 1, 0, true);
+  if (c.simulation.settle_fraction > 1) r.fail(s.node["settle_fraction"], s.f("settle_fraction"), "must be <= 1");
+  s.num("joint_rate_hz", c.simulation.joint_rate_hz, 1, 0, true);
+  s.integer("tracker_readings_per_pose", c.simulation.tracker_readings_per_pose, 1, 1000);
+  s.num("tracker_delay_fraction", c.simulation.tracker_delay_fraction, 1, 0);
+  if (c.simulation.tracker_delay_fraction >= 1)
+    r.fail(s.node["tracker_delay_fraction"], s.f("tracker_delay_fraction"), "must be < 1");
+  if (s.has("hidden_effect")) {
+    const YAML::Node h = s.node["hidden_effect"];
+    const std::string fh = "simulation.hidden_effect";
+    r.requireMap(h, fh);
+    r.checkKeys(h, fh, {"cause", "joint", "size_deg"});
+    const std::string cause = r.string(r.required(h, "cause", fh + ".cause"), fh + ".cause");
+    const auto ca = causeFromName(cause);
+    if (!ca || !(*ca == Cause::kNone || *ca == Cause::kJointCompliance || *ca == Cause::kCyclicTransmission ||
+                 *ca == Cause::kJointScale))
+      r.fail(h["cause"], fh + ".cause",
+             "expected none, joint_compliance, cyclic_transmission or joint_scale (effects that depend on the "
+             "configuration alone), got '" + cause + "'");
+    c.simulation.effect = *ca;
+    if (*ca != Cause::kNone) {
+      const long long j = r.integer(r.required(h, "joint", fh + ".joint"), fh + ".joint");
+      const Section hs{r, h, fh};
+      hs.num("size_deg", c.simulation.effect_size_rad, kDeg);
+      if (!hs.has("size_deg")) r.fail(h, fh, "size_deg (RMS joint error over the workspace) is required");
+      for (const auto& rb : c.robots)
+        if (j < 1 || j > rb.model.numJoints() || !applicable(rb.model, Extension{*ca, static_cast<int>(j - 1)}, false))
+          r.fail(h["joint"], fh + ".joint",
+                 "joint " + std::to_string(j) + ": " + cause + " does not apply to " + rb.model.name);
+      c.simulation.effect_joint = static_cast<int>(j - 1);
+    }
+  }
+  return c;
+} catch (const YAML::Exception& e) {
+  // The checks above name file, line and field; a yaml-cpp error that slips past them still names the file.
+  throw ConfigError(source + ": " + e.what());
+}
+
+CellConfig loadCellConfig(const std::string& path) {
+  return parseCellConfig(detail::readConfigFile(path, "cell file"), path, fs::path(path).parent_path().string());
+}
+
+}  // namespace cellcal

@@ -1,0 +1,274 @@
+#include "cellcal/core/files/measurement_csv.hpp"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <iomanip>
+#include <sstream>
+
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/model/se3.hpp"
+
+namespace cellcal {
+namespace {
+
+std::vector<std::string> splitCsv(const std::string& line) {
+  std::vector<std::string> out;
+  std::string cell;
+  std::istringstream in(line);
+  while (std::getline(in, cell, ',')) out.push_back(cell);
+  if (!line.empty() && line.back() == ',') out.emplace_back();
+  return out;
+}
+
+std::string trim(const std::string& s) {
+  const auto a = s.find_first_not_of(" \t\r");
+  if (a == std::string::npos) return "";
+  const auto b = s.find_last_not_of(" \t\r");
+  return s.substr(a, b - a + 1);
+}
+
+struct RowError {
+  int column;  // 1-based
+  std::string name, message;
+};
+
+}  // namespace
+
+namespace {
+
+// RMS distance of points about their centre (the same in any frame).
+double rmsSpread(const std::vector<Eigen::Vector3d>& p) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& x : p) c += x;
+  c /= static_cast<double>(p.size());
+  double s = 0;
+  for (const auto& x : p) s += (x - c).squaredNorm();
+  return std::sqrt(s / static_cast<double>(p.size()));
+}
+
+// Metres in the _mm columns: the readings spread a thousandth of what the rows' joint angles move the target under
+// the nominal model (registration and tool offsets change that by far less than the factor 20 allowed here).
+void checkPositionUnits(const MeasurementFile& f, const RobotModel& robot, const std::string& where) {
+  if (f.rows.size() < 3) return;
+  KinematicsData d(robot);
+  std::vector<Eigen::Vector3d> measured, nominal;
+  for (const auto& r : f.rows) {
+    measured.push_back(r.position_m);
+    nominal.push_back(forwardKinematics(robot, d, robot.nominal, r.q_rad).translation());
+  }
+  const double moved_mm = rmsSpread(nominal) * 1e3, read_mm = rmsSpread(measured) * 1e3;
+  if (moved_mm < 20.0 || read_mm * 20.0 >= moved_mm) return;
+  char buf[400];
+  std::snprintf(buf, sizeof buf,
+                ": x_mm, y_mm, z_mm: the readings spread %.3g mm about their centre (RMS over %zu rows) while the "
+                "rows' joint angles move the target %.0f mm under the nominal model: metres written where millimetres "
+                "are expected? (multiply by 1000)",
+                read_mm, f.rows.size(), moved_mm);
+  throw ConfigError(where + buf);
+}
+
+}  // namespace
+
+MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
+                                    const MeasurementCsvOptions& options) {
+  MeasurementFile f;
+  f.source = source;
+  std::istringstream in(text);
+  std::string line;
+  int lineno = 0;
+  std::vector<std::string> header;
+  while (std::getline(in, line)) {
+    ++lineno;
+    const std::string t = trim(line);
+    if (t.empty() || t[0] == '#') continue;
+    for (const auto& h : splitCsv(line)) header.push_back(trim(h));
+    break;
+  }
+  if (header.empty()) throw ConfigError(source + ": no header row (expected q1_deg.., x_mm, y_mm, z_mm, ...)");
+  const int header_line = lineno;
+  const int n = robot.numJoints();
+  std::map<std::string, int> col;
+  for (size_t i = 0; i < header.size(); ++i) {
+    if (col.count(header[i]))
+      throw ConfigError(source + ":" + std::to_string(lineno) + ":" + std::to_string(i + 1) + ": " + header[i] +
+                        ": duplicated column");
+    col[header[i]] = static_cast<int>(i);
+  }
+  // Joint unit: all deg or all rad.
+  bool deg = col.count("q1_deg") > 0, rad = col.count("q1_rad") > 0;
+  if (deg == rad)
+    throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: expected q1_deg..q" + std::to_string(n) +
+                      "_deg or q1_rad..q" + std::to_string(n) + "_rad" + (deg ? " (not both)" : ""));
+  const std::string unit = deg ? "_deg" : "_rad";
+  std::vector<int> qcol;
+  for (int j = 1; j <= n; ++j) {
+    const std::string name = "q" + std::to_string(j) + unit;
+    if (!col.count(name))
+      throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: missing column " + name + " (the robot " +
+                        robot.name + " has " + std::to_string(n) + " joints)");
+    qcol.push_back(col[name]);
+  }
+  for (const char* req : {"x_mm", "y_mm", "z_mm"})
+    if (!col.count(req))
+      throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: missing column " + req);
+  const bool has_q = col.count("qw") || col.count("qx") || col.count("qy") || col.count("qz");
+  if (has_q && !(col.count("qw") && col.count("qx") && col.count("qy") && col.count("qz")))
+    throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: orientation needs all of qw, qx, qy, qz");
+  std::map<std::string, bool> known = {{"x_mm", 1}, {"y_mm", 1}, {"z_mm", 1}, {"qw", 1}, {"qx", 1}, {"qy", 1},
+                                       {"qz", 1}, {"stamp_s", 1}, {"group", 1}, {"temperature_c", 1}, {"payload_kg", 1}};
+  for (int j = 1; j <= n; ++j) known["q" + std::to_string(j) + unit] = true;
+  for (const auto& h : header)
+    if (!known.count(h)) f.ignored_columns.push_back(h);
+
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (trim(line).empty()) continue;
+    const auto cells = splitCsv(line);
+    MeasurementRow row;
+    row.line = lineno;
+    std::optional<RowError> err;
+    auto cell = [&](int c) { return c < static_cast<int>(cells.size()) ? trim(cells[c]) : std::string(); };
+    auto number = [&](int c, bool required, double* out) -> bool {
+      if (err) return false;
+      const std::string s = cell(c);
+      if (s.empty()) {
+        if (required) err = RowError{c + 1, header[c], "missing value"};
+        return false;
+      }
+      char* end = nullptr;
+      errno = 0;
+      const double v = std::strtod(s.c_str(), &end);
+      if (*end != '\0' || errno == ERANGE || !std::isfinite(v)) {
+        err = RowError{c + 1, header[c], "'" + s + "' is not a finite number"};
+        return false;
+      }
+      *out = v;
+      return true;
+    };
+    if (static_cast<int>(cells.size()) > static_cast<int>(header.size()))
+      err = RowError{static_cast<int>(header.size()) + 1, "row", "more cells (" + std::to_string(cells.size()) +
+                                                                      ") than columns (" + std::to_string(header.size()) + ")"};
+    row.q_rad.resize(n);
+    for (int j = 0; j < n; ++j) {
+      double v = 0;
+      if (number(qcol[j], true, &v)) {
+        row.q_rad[j] = deg ? degToRad(v) : v;
+        if (row.q_rad[j] < robot.limits[j].lower_rad || row.q_rad[j] > robot.limits[j].upper_rad)
+          err = RowError{qcol[j] + 1, header[qcol[j]], "joint outside its limits [" +
+                                                           std::to_string(radToDeg(robot.limits[j].lower_rad)) + ", " +
+                                                           std::to_string(radToDeg(robot.limits[j].upper_rad)) + "] deg"};
+      }
+    }
+    for (int k = 0; k < 3; ++k) {
+      double v = 0;
+      if (number(col[std::string(1, "xyz"[k]) + "_mm"], true, &v)) row.position_m[k] = v * 1e-3;
+    }
+    if (has_q && !err) {
+      const int cw = col["qw"], cx = col["qx"], cy = col["qy"], cz = col["qz"];
+      const int empty = cell(cw).empty() + cell(cx).empty() + cell(cy).empty() + cell(cz).empty();
+      if (empty == 4) {
+        // position-only row
+      } else if (empty > 0) {
+        const int c = cell(cw).empty() ? cw : cell(cx).empty() ? cx : cell(cy).empty() ? cy : cz;
+        err = RowError{c + 1, header[c], "missing value (leave all of qw, qx, qy, qz empty for a position-only row)"};
+      } else {
+        double w = 0, x = 0, y = 0, z = 0;
+        if (number(cw, true, &w) && number(cx, true, &x) && number(cy, true, &y) && number(cz, true, &z)) {
+          const double norm = std::sqrt(w * w + x * x + y * y + z * z);
+          if (std::abs(norm - 1.0) > options.quaternion_tolerance)
+            err = RowError{cw + 1, "qw", "quaternion norm " + std::to_string(norm) + " is not 1"};
+          else
+            row.orientation = Eigen::Quaterniond(w, x, y, z).normalized();
+        }
+      }
+    }
+    double v = 0;
+    if (col.count("stamp_s") && number(col["stamp_s"], false, &v)) row.stamp_s = v;
+    if (col.count("temperature_c") && number(col["temperature_c"], false, &v)) row.temperature_c = v;
+    if (col.count("payload_kg") && number(col["payload_kg"], false, &v)) row.payload_kg = v;
+    if (col.count("group") && number(col["group"], false, &v)) {
+      if (v != std::floor(v)) err = RowError{col["group"] + 1, "group", "expected an integer"};
+      else row.group = static_cast<long long>(v);
+    }
+    if (err) {
+      const std::string msg = source + ":" + std::to_string(lineno) + ":" + std::to_string(err->column) + ": " +
+                              err->name + ": " + err->message;
+      if (!options.skip_bad_rows) throw ConfigError(msg);
+      f.warnings.push_back(msg);
+      ++f.skipped_rows;
+      continue;
+    }
+    f.rows.push_back(std::move(row));
+  }
+  checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["x_mm"] + 1));
+  return f;
+}
+
+MeasurementFile readMeasurementCsv(const std::string& path, const RobotModel& robot,
+                                   const MeasurementCsvOptions& options) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path + ": cannot open measurement file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parseMeasurementCsv(ss.str(), path, robot, options);
+}
+
+Observation toObservation(const MeasurementRow& row, MeasurementKind kind, double sigma_position_m,
+                          double sigma_orientation_rad) {
+  Observation o;
+  o.q_rad = row.q_rad;
+  o.measured_in_tracker = Pose::Identity();
+  o.measured_in_tracker.translation() = row.position_m;
+  if (row.orientation) o.measured_in_tracker.linear() = row.orientation->toRotationMatrix();
+  o.kind = (kind == MeasurementKind::kPose6D && row.orientation) ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+  o.sigma_position_m = sigma_position_m;
+  o.sigma_orientation_rad = sigma_orientation_rad;
+  return o;
+}
+
+void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints, const std::string& comment) {
+  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false;
+  for (const auto& r : f.rows) {
+    oriented |= r.orientation.has_value();
+    stamped |= r.stamp_s.has_value();
+    grouped |= r.group.has_value();
+    temp |= r.temperature_c.has_value();
+    payload |= r.payload_kg.has_value();
+  }
+  std::istringstream c(comment);
+  std::string line;
+  while (std::getline(c, line)) out << "# " << line << "\n";
+  for (int j = 1; j <= joints; ++j) out << "q" << j << "_rad,";
+  out << "x_mm,y_mm,z_mm";
+  if (oriented) out << ",qw,qx,qy,qz";
+  if (stamped) out << ",stamp_s";
+  if (grouped) out << ",group";
+  if (temp) out << ",temperature_c";
+  if (payload) out << ",payload_kg";
+  out << "\n" << std::setprecision(12);
+  for (const auto& r : f.rows) {
+    for (int j = 0; j < joints; ++j) out << r.q_rad[j] << ",";
+    out << r.position_m.x() * 1e3 << "," << r.position_m.y() * 1e3 << "," << r.position_m.z() * 1e3;
+    if (oriented) {
+      if (r.orientation)
+        out << "," << r.orientation->w() << "," << r.orientation->x() << "," << r.orientation->y() << "," << r.orientation->z();
+      else
+        out << ",,,,";
+    }
+    auto opt = [&](bool has, const auto& v) {
+      if (!has) return;
+      out << ",";
+      if (v) out << *v;
+    };
+    opt(stamped, r.stamp_s);
+    opt(grouped, r.group);
+    opt(temp, r.temperature_c);
+    opt(payload, r.payload_kg);
+    out << "\n";
+  }
+}
+
+}  // namespace cellcal

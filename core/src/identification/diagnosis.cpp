@@ -1,0 +1,1008 @@
+#include "cellcal/core/identification/diagnosis.hpp"
+
+#include <Eigen/QR>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include "calibration_internal.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/identification/statistics.hpp"
+
+namespace cellcal {
+
+namespace {
+
+// B_i of every observation; a backlash's play state evaluated at the width in `evaluated_at` (empty: width 0).
+std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const Eigen::VectorXd& params,
+                                   const std::vector<Extension>& exts, const std::vector<Observation>& obs,
+                                   const std::vector<Drivers>& drivers, const Eigen::VectorXd& evaluated_at) {
+  if (drivers.size() != obs.size()) throw std::invalid_argument("diagnosis: one Drivers entry per observation needed");
+  std::vector<Eigen::MatrixXd> B;
+  B.reserve(obs.size());
+  for (size_t i = 0; i < obs.size(); ++i)
+    B.push_back(extensionBasis(model, params, exts, obs[i].q_rad, drivers[i], evaluated_at));
+  return B;
+}
+
+std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                                   const std::vector<Drivers>& drivers) {
+  return bases(model, fit.params, fit.extensions, obs, drivers, fit.extension_params);
+}
+
+bool hasBacklash(const std::vector<Extension>& exts) {
+  for (const auto& e : exts)
+    if (e.cause == Cause::kBacklash) return true;
+  return false;
+}
+
+// Stacked whitened residual and Jacobian [d/dparams (all), d/de (all)] of the extended model.
+void stackExtended(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& e,
+                   const std::vector<Observation>& obs, const std::vector<Eigen::MatrixXd>& B, Eigen::VectorXd& r,
+                   Eigen::MatrixXd* J) {
+  KinematicsData data(model);
+  const int m = totalRows(obs);
+  const auto np = model.numParams();
+  const auto k = e.size();
+  r.resize(m);
+  if (J) J->resize(m, np + k);
+  Eigen::MatrixXd Ji;
+  Eigen::Matrix<double, 6, 1> ri;
+  int row = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const Eigen::VectorXd pi = k ? Eigen::VectorXd(params + B[i] * e) : params;
+    const int rows = whitenedResidual(model, data, pi, obs[i], ri, J ? &Ji : nullptr);
+    r.segment(row, rows) = ri.head(rows);
+    if (J) {
+      J->block(row, 0, rows, np) = Ji.topRows(rows);
+      if (k) J->block(row, np, rows, k) = Ji.topRows(rows) * B[i];
+    }
+    row += rows;
+  }
+}
+
+// Paired improvement of squared position errors from residual set a to residual set b, in standard errors.
+double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b) {
+  const auto n = static_cast<double>(a.size());
+  double mean = 0, sq = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double d = a[i].squaredNorm() - b[i].squaredNorm();
+    mean += d;
+    sq += d * d;
+  }
+  mean /= n;
+  const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
+  return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
+}
+
+Eigen::VectorXd rowParams(const ExtendedFit& fit, const Eigen::MatrixXd& B) {
+  return fit.extension_params.size() ? Eigen::VectorXd(fit.params + B * fit.extension_params) : fit.params;
+}
+
+bool needsTimeConstant(const Extension& e, const std::vector<Drivers>& drivers) {
+  return e.cause == Cause::kThermalDrift && e.time_constant_h == 0.0 && !drivers.empty() && drivers.front().thermal_is_time;
+}
+
+// The warm-up time constant of extension `t` (a thermal drift on a time driver) that leaves the least residual, on
+// the model linearized at (p0, e = 0) over the columns `cols` (kinematic indices, then np + extension index).
+// Variable projection: the thermal columns are s_i(tau) times their value at s = 1, so per observation the products
+// with the other columns are formed once and each tau costs a small solve. Returns infinity for a straight line.
+double searchTimeConstant(const RobotModel& model, const Eigen::VectorXd& start, const Eigen::VectorXd& p0,
+                          const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                          std::vector<Extension> exts, int t, const std::vector<int>& cols) {
+  const int np = model.numParams();
+  int offset = 0;
+  for (int k = 0; k < t; ++k) offset += numExtensionParams(model, exts[k]);
+  const int kt = numExtensionParams(model, exts[t]);
+  // Basis with s = 1 for the thermal extension: its driver set to 1 h and read as a temperature (no warm-up).
+  std::vector<Drivers> unit = drivers;
+  for (auto& d : unit) {
+    d.thermal = 1.0;
+    d.thermal_is_time = false;
+  }
+  const std::vector<Eigen::MatrixXd> B =
+      bases(model, start, exts, obs, unit, Eigen::VectorXd::Zero(numExtensionParams(model, exts)));
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackExtended(model, p0, Eigen::VectorXd::Zero(numExtensionParams(model, exts)), obs, B, r, &J);
+  std::vector<int> other, thermal;
+  for (int c : cols) (c >= np + offset && c < np + offset + kt ? thermal : other).push_back(c);
+  if (thermal.empty()) return INFINITY;  // not identifiable: nothing to choose
+  const auto p = static_cast<Eigen::Index>(other.size()), q = static_cast<Eigen::Index>(thermal.size());
+  Eigen::MatrixXd G(J.rows(), p), C(J.rows(), q);
+  for (Eigen::Index k = 0; k < p; ++k) G.col(k) = J.col(other[k]);
+  for (Eigen::Index k = 0; k < q; ++k) C.col(k) = J.col(thermal[k]);
+  // Column scales (for a well-conditioned solve) and the per-observation products.
+  Eigen::VectorXd scale(p + q);
+  for (Eigen::Index k = 0; k < p; ++k) scale[k] = 1.0 / std::max(G.col(k).norm(), 1e-300);
+  const Eigen::MatrixXd GtG = G.transpose() * G;
+  const Eigen::VectorXd Gtr = G.transpose() * r;
+  const size_t n = obs.size();
+  std::vector<Eigen::MatrixXd> GtC(n), CtC(n);
+  std::vector<Eigen::VectorXd> Ctr(n);
+  Eigen::VectorXd hours(static_cast<Eigen::Index>(n));
+  double span = 0;
+  for (size_t i = 0, row = 0; i < n; ++i) {
+    const auto rows = static_cast<Eigen::Index>(obs[i].rows());
+    const auto Gi = G.middleRows(static_cast<Eigen::Index>(row), rows);
+    const auto Ci = C.middleRows(static_cast<Eigen::Index>(row), rows);
+    GtC[i] = Gi.transpose() * Ci;
+    CtC[i] = Ci.transpose() * Ci;
+    Ctr[i] = Ci.transpose() * r.segment(static_cast<Eigen::Index>(row), rows);
+    hours[static_cast<Eigen::Index>(i)] = drivers[i].thermal;
+    span = std::max(span, drivers[i].thermal);
+    row += static_cast<size_t>(rows);
+  }
+  if (!(span > 0)) return INFINITY;
+  auto residual = [&](double tau) {
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(p + q, p + q);
+    Eigen::VectorXd b(p + q);
+    H.topLeftCorner(p, p) = GtG;
+    b.head(p) = Gtr;
+    b.tail(q).setZero();
+    double cnorm = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const double h = hours[static_cast<Eigen::Index>(i)];
+      const double si = std::isfinite(tau) ? tau * -std::expm1(-h / tau) : h;
+      H.topRightCorner(p, q) += si * GtC[i];
+      H.bottomRightCorner(q, q) += si * si * CtC[i];
+      b.tail(q) += si * Ctr[i];
+      cnorm += si * si * CtC[i].trace();
+    }
+    H.bottomLeftCorner(q, p) = H.topRightCorner(p, q).transpose();
+    for (Eigen::Index k = 0; k < q; ++k) scale[p + k] = 1.0 / std::sqrt(std::max(cnorm / q, 1e-300));
+    const Eigen::MatrixXd Hs = scale.asDiagonal() * H * scale.asDiagonal();
+    const Eigen::VectorXd y = Hs.ldlt().solve(scale.asDiagonal() * b);
+    return r.squaredNorm() - y.dot(scale.asDiagonal() * b);
+  };
+  // Grid: span * 2^k, k = -5..2, and the straight line; then golden section on log tau around the best grid point.
+  std::vector<double> grid;
+  for (int k = -5; k <= 2; ++k) grid.push_back(span * std::ldexp(1.0, k));
+  double best_tau = INFINITY, best = residual(INFINITY);
+  size_t best_k = grid.size();
+  for (size_t k = 0; k < grid.size(); ++k) {
+    const double v = residual(grid[k]);
+    if (v < best) best = v, best_tau = grid[k], best_k = k;
+  }
+  if (best_k == grid.size()) return INFINITY;
+  double lo = std::log(grid[best_k > 0 ? best_k - 1 : 0]), hi = std::log(grid[std::min(best_k + 1, grid.size() - 1)]);
+  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
+  double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
+  double f1 = residual(std::exp(x1)), f2 = residual(std::exp(x2));
+  for (int it = 0; it < 16; ++it) {
+    if (f1 < f2) {
+      hi = x2, x2 = x1, f2 = f1;
+      x1 = hi - phi * (hi - lo);
+      f1 = residual(std::exp(x1));
+    } else {
+      lo = x1, x1 = x2, f1 = f2;
+      x2 = lo + phi * (hi - lo);
+      f2 = residual(std::exp(x2));
+    }
+  }
+  const double x = f1 < f2 ? x1 : x2;
+  if (std::min(f1, f2) < best) best_tau = std::exp(x);
+  return best_tau;
+}
+
+// Position and orientation errors of `obs` under a fit, screened.
+// Rows a model cannot predict: a backlash joint that has not moved since the data began (its play state is unknown).
+bool unpredictable(const std::vector<Extension>& exts, const Drivers& d) {
+  for (const auto& e : exts)
+    if (e.cause == Cause::kBacklash && (d.motion_direction.size() <= e.joint || d.motion_direction[e.joint] == 0.0))
+      return true;
+  return false;
+}
+
+// How far a row the fit cannot fully predict may be off without a gross error: before a backlash joint first moves
+// its play state is unknown and the model predicts the middle of the gap, up to half the width off (m, at the target).
+double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, const Observation& obs, const Drivers& d) {
+  double allowance = 0;
+  KinematicsData data(model);
+  Eigen::MatrixXd J(6, model.numParams());
+  for (size_t e = 0, c = 0; e < fit.extensions.size(); c += static_cast<size_t>(numExtensionParams(model, fit.extensions[e])), ++e) {
+    const Extension& x = fit.extensions[e];
+    if (x.cause != Cause::kBacklash || unpredictable({x}, d) == false) continue;
+    forwardKinematics(model, data, fit.params, obs.q_rad);
+    computePoseJacobian(model, data, J);
+    allowance += 0.5 * std::abs(fit.extension_params[static_cast<Eigen::Index>(c)]) *
+                 J.block<3, 1>(0, model.jointParam(x.joint, JointParam::kThetaOffset)).norm();
+  }
+  return allowance;
+}
+
+// Position and orientation errors of `obs` under a fit, screened. Rows the fit cannot fully predict (unknown backlash
+// play) do not enter the robust scale, and are judged on what their error exceeds the unknown play by.
+OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                            const std::vector<Drivers>& drivers, const OutlierOptions& options) {
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  KinematicsData data(model);
+  std::vector<Eigen::Vector3d> pos, all;
+  std::vector<double> ori;
+  std::vector<int> judged, unknown;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const Pose& T = forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad);
+    all.push_back(obs[i].measured_in_tracker.translation() - T.translation());
+    if (unpredictable(fit.extensions, drivers[i])) {
+      unknown.push_back(static_cast<int>(i));
+      continue;
+    }
+    pos.push_back(all.back());
+    ori.push_back(obs[i].kind == MeasurementKind::kPose6D
+                      ? logSO3(obs[i].measured_in_tracker.linear() * T.linear().transpose()).norm()
+                      : std::nan(""));
+    judged.push_back(static_cast<int>(i));
+  }
+  const OutlierScreen s = screenOutliers(pos, ori, options);
+  OutlierScreen out = s;
+  out.z.assign(obs.size(), 0.0);
+  for (size_t k = 0; k < judged.size(); ++k) out.z[static_cast<size_t>(judged[k])] = s.z[k];
+  for (int i : unknown) {
+    const double excess = all[static_cast<size_t>(i)].norm() -
+                          unknownPlayAllowance(model, fit, obs[static_cast<size_t>(i)], drivers[static_cast<size_t>(i)]);
+    out.z[static_cast<size_t>(i)] = s.sigma_position_m > 0 ? std::max(0.0, excess) / s.sigma_position_m : 0.0;
+  }
+  out.rows.clear();
+  for (size_t i = 0; i < obs.size(); ++i)
+    if (options.enabled && out.z[i] > options.threshold) out.rows.push_back(static_cast<int>(i));
+  return out;
+}
+
+template <typename T>
+std::vector<T> subset(const std::vector<T>& v, const std::vector<int>& rows) {
+  std::vector<T> out;
+  out.reserve(rows.size());
+  for (int i : rows) out.push_back(v[static_cast<size_t>(i)]);
+  return out;
+}
+
+}  // namespace
+
+std::string extensionLabel(const Extension& e) {
+  std::string s = causeName(e.cause);
+  if (e.cause == Cause::kLinkDeflection) return s + " link " + std::to_string(e.joint + 1);
+  if (e.cause == Cause::kThermalDrift) {
+    s += e.joint < 0 ? " (lengths)" : " joint " + std::to_string(e.joint + 1);
+    if (e.time_constant_h > 0) {
+      char b[64];
+      if (std::isfinite(e.time_constant_h))
+        std::snprintf(b, sizeof b, ", warm-up %.2g h", e.time_constant_h);
+      else
+        std::snprintf(b, sizeof b, ", linear in time");
+      s += b;
+    }
+    return s;
+  }
+  if (e.joint >= 0) s += " joint " + std::to_string(e.joint + 1);
+  return s;
+}
+
+std::string modelLabel(const std::vector<Extension>& exts) {
+  std::string s;
+  for (const auto& e : exts) s += (s.empty() ? "" : " + ") + extensionLabel(e);
+  return s.empty() ? "geometric" : s;
+}
+
+ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                        const std::vector<Drivers>& drivers, const Extension& extension, const SolverOptions& solver,
+                        const IdentifiabilityOptions& identifiability, const Eigen::VectorXd* warm_start) {
+  std::vector<Extension> list;
+  if (extension.cause != Cause::kNone) list.push_back(extension);
+  return fitExtended(model, start, obs, drivers, list, solver, identifiability, warm_start);
+}
+
+ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                        const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
+                        const SolverOptions& solver, const IdentifiabilityOptions& identifiability,
+                        const Eigen::VectorXd* warm_start) {
+  for (const auto& e : extensions)
+    if (e.cause == Cause::kNone || !applicable(model, e, true))
+      throw std::invalid_argument(std::string("fitExtended: ") + causeName(e.cause) + " does not apply to joint " +
+                                  std::to_string(e.joint + 1));
+  std::string err;
+  if (!solver.IsValid(&err)) throw std::invalid_argument("SolverOptions: " + err);
+  if (start.size() != model.numParams()) throw std::invalid_argument("fitExtended: start has the wrong size");
+  if (obs.empty()) throw std::invalid_argument("fitExtended: no observations");
+  if (drivers.size() != obs.size()) throw std::invalid_argument("fitExtended: one Drivers entry per observation needed");
+  // Rows where a backlash joint has not moved yet since the data began: which side of the gap it rests on is unknown
+  // to anyone (a half-width error the model cannot predict), so they do not take part in the fit.
+  std::vector<Observation> kept_obs;
+  std::vector<Drivers> kept_drivers;
+  int left_out = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    bool unknown = false;
+    for (const auto& e : extensions)
+      if (e.cause == Cause::kBacklash)
+        unknown = unknown || drivers[i].motion_direction.size() <= e.joint || drivers[i].motion_direction[e.joint] == 0.0;
+    if (unknown) {
+      ++left_out;
+    } else {
+      kept_obs.push_back(obs[i]);
+      kept_drivers.push_back(drivers[i]);
+    }
+  }
+  if (left_out > 0) {
+    if (kept_obs.empty()) throw std::invalid_argument("fitExtended: no row has a known backlash play state");
+    ExtendedFit fit = fitExtended(model, start, kept_obs, kept_drivers, extensions, solver, identifiability, warm_start);
+    fit.rows_left_out = left_out;
+    return fit;
+  }
+  ExtendedFit fit;
+  fit.extensions = extensions;
+  fit.extension_names = extensionParamNames(model, extensions);
+  const int k = numExtensionParams(model, extensions);
+  const int np = model.numParams();
+  Eigen::VectorXd evaluated_at = Eigen::VectorXd::Zero(k);  // the widths the backlash bases are evaluated at
+  std::vector<Eigen::MatrixXd> B = bases(model, start, extensions, obs, drivers, evaluated_at);
+  const Eigen::VectorXd p0 = warm_start ? *warm_start : start;
+
+  // Which columns to estimate: canonical kinematic parameters first, extension parameters last.
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackExtended(model, p0, Eigen::VectorXd::Zero(k), obs, B, r, &J);
+  std::vector<int> order = identificationPriority(model);
+  for (int c = 0; c < k; ++c) order.push_back(np + c);
+  std::vector<int> cols = independentColumns(J, order, identifiability);
+  // Warm-up time constants (thermal drift on a time driver): chosen on the linearized model, then the columns again.
+  bool chose = false;
+  for (size_t t = 0; t < fit.extensions.size(); ++t)
+    if (needsTimeConstant(fit.extensions[t], drivers)) {
+      fit.extensions[t].time_constant_h =
+          searchTimeConstant(model, start, p0, obs, drivers, fit.extensions, static_cast<int>(t), cols);
+      chose = true;
+    }
+  if (chose) {
+    B = bases(model, start, fit.extensions, obs, drivers, evaluated_at);
+    stackExtended(model, p0, Eigen::VectorXd::Zero(k), obs, B, r, &J);
+    cols = independentColumns(J, order, identifiability);
+  }
+  for (int c : cols) (c < np ? fit.estimated : fit.estimated_extension).push_back(c < np ? c : c - np);
+
+  const auto m = static_cast<Eigen::Index>(cols.size());
+  auto unpack = [&](const Eigen::VectorXd& x, Eigen::VectorXd& params, Eigen::VectorXd& e) {
+    params = p0;
+    e = Eigen::VectorXd::Zero(k);
+    for (Eigen::Index c = 0; c < m; ++c) (cols[c] < np ? params[cols[c]] : e[cols[c] - np]) = x[c];
+  };
+  auto eval = [&](const Eigen::VectorXd& x, Eigen::VectorXd& b, Eigen::MatrixXd* A) {
+    Eigen::VectorXd params, e;
+    unpack(x, params, e);
+    Eigen::MatrixXd Jfull;
+    stackExtended(model, params, e, obs, B, b, A ? &Jfull : nullptr);
+    if (A) {
+      A->resize(Jfull.rows(), m);
+      for (Eigen::Index c = 0; c < m; ++c) A->col(c) = Jfull.col(cols[c]);
+    }
+  };
+  Eigen::VectorXd x0(m);
+  for (Eigen::Index c = 0; c < m; ++c) x0[c] = cols[c] < np ? p0[cols[c]] : 0.0;
+  internal::GaussNewtonOutcome gn = internal::gaussNewton(eval, x0, solver);
+  unpack(gn.x, fit.params, fit.extension_params);
+  int iterations = gn.iterations;
+  // A backlash basis depends on its own width (the play state): re-evaluate it at the fitted width and refit until
+  // the width settles (a fixed point; it moves only through rows whose moves were smaller than the width).
+  for (int pass = 0; pass < 8 && hasBacklash(fit.extensions); ++pass) {
+    const Eigen::VectorXd moved = fit.extension_params.cwiseAbs() - evaluated_at.cwiseAbs();
+    if ((moved.array().abs() <= 1e-3 * fit.extension_params.array().abs() + 1e-12).all()) break;
+    evaluated_at = fit.extension_params;
+    B = bases(model, start, fit.extensions, obs, drivers, evaluated_at);
+    gn = internal::gaussNewton(eval, gn.x, solver);
+    unpack(gn.x, fit.params, fit.extension_params);
+    iterations += gn.iterations;
+  }
+  fit.converged = gn.converged;
+  fit.iterations = iterations;
+  fit.message = gn.message;
+  Eigen::VectorXd b;
+  Eigen::MatrixXd A;
+  eval(gn.x, b, &A);
+  const Eigen::MatrixXd info = A.transpose() * A;
+  fit.covariance = info.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
+  return fit;
+}
+
+double ExtendedFit::paramStddev(int i) const {
+  const auto it = std::find(estimated.begin(), estimated.end(), i);
+  if (it == estimated.end() || covariance.rows() == 0) return std::nan("");
+  const auto c = it - estimated.begin();
+  return std::sqrt(covariance(c, c));
+}
+
+double ExtendedFit::extensionStddev(int k) const {
+  const auto it = std::find(estimated_extension.begin(), estimated_extension.end(), k);
+  if (it == estimated_extension.end() || covariance.rows() == 0) return std::nan("");
+  const auto c = static_cast<Eigen::Index>(estimated.size()) + (it - estimated_extension.begin());
+  return std::sqrt(covariance(c, c));
+}
+
+std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
+                                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers) {
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  KinematicsData data(model);
+  std::vector<Eigen::Vector3d> out;
+  out.reserve(obs.size());
+  for (size_t i = 0; i < obs.size(); ++i)
+    out.push_back(obs[i].measured_in_tracker.translation() -
+                  forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad).translation());
+  return out;
+}
+
+ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                      const std::vector<Drivers>& drivers) {
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  KinematicsData data(model);
+  ErrorStatsAccumulator acc;
+  for (size_t i = 0; i < obs.size(); ++i) acc.add(obs[i], forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad));
+  return acc.stats();
+}
+
+void ErrorStatsAccumulator::add(const Observation& obs, const Pose& predicted) {
+  ErrorStats& s = sums_;
+  const double e = (obs.measured_in_tracker.translation() - predicted.translation()).norm() * 1e3;
+  ++s.rows;
+  s.mean_mm += e;
+  s.rms_mm += e * e;
+  s.max_mm = std::max(s.max_mm, e);
+  if (obs.kind == MeasurementKind::kPose6D) {
+    const double a = logSO3(obs.measured_in_tracker.linear() * predicted.linear().transpose()).norm() * 180 / kPi;
+    ++s.oriented;
+    s.mean_deg += a;
+    s.rms_deg += a * a;
+    s.max_deg = std::max(s.max_deg, a);
+  }
+}
+
+ErrorStats ErrorStatsAccumulator::stats() const {
+  ErrorStats s = sums_;
+  const double n = std::max(1, s.rows);
+  s.mean_mm /= n;
+  s.rms_mm = std::sqrt(s.rms_mm / n);
+  if (s.oriented) {
+    s.mean_deg /= s.oriented;
+    s.rms_deg = std::sqrt(s.rms_deg / s.oriented);
+  }
+  return s;
+}
+
+bool DiagnosisOptions::IsValid(std::string* error) const {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = m;
+    return false;
+  };
+  if (!(penalty_per_param >= 0)) return fail("penalty_per_param must be >= 0");
+  if (!(min_gain >= 0 && min_gain < 1)) return fail("min_gain must be in [0, 1)");
+  if (!(min_z >= 0)) return fail("min_z must be >= 0");
+  if (!(parsimony_z >= 0)) return fail("parsimony_z must be >= 0");
+  if (max_causes < 1) return fail("max_causes must be >= 1");
+  if (!(structure_alpha > 0 && structure_alpha < 1)) return fail("structure_alpha must be in (0, 1)");
+  if (std::string e; !outliers.IsValid(&e)) return fail(e);
+  for (Cause c : causes)
+    if (c == Cause::kNone) return fail("causes: 'none' is not an extension (it is the default outcome)");
+  std::string e;
+  if (!solver.IsValid(&e)) return fail("solver: " + e);
+  if (!identifiability.IsValid(&e)) return fail("identifiability: " + e);
+  return true;
+}
+
+ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
+                              const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
+                              const SolverOptions& solver, const IdentifiabilityOptions& identifiability,
+                              const Eigen::VectorXd* warm_start, const OutlierOptions& outliers, OutlierScreen* screen) {
+  std::string err;
+  if (!outliers.IsValid(&err)) throw std::invalid_argument(err);
+  ExtendedFit fit = fitExtended(model, start, obs, drivers, extensions, solver, identifiability, warm_start);
+  OutlierScreen sc = screenFitRows(model, fit, obs, drivers, outliers);
+  const int n = static_cast<int>(obs.size());
+  std::vector<int> used;
+  for (int round = 0; outliers.enabled && round < outliers.max_rounds && sc.rows != used; ++round) {
+    if (2 * static_cast<int>(sc.rows.size()) > n) break;  // never fewer than half the rows
+    used = sc.rows;
+    const std::vector<int> kept = keptRows(n, used);
+    // The model as given, fitted to the rows kept (warm-up time constants not given are searched again there).
+    fit = fitExtended(model, start, subset(obs, kept), subset(drivers, kept), extensions, solver, identifiability,
+                      warm_start);
+    sc = screenFitRows(model, fit, obs, drivers, outliers);
+  }
+  if (screen) *screen = std::move(sc);
+  return fit;
+}
+
+OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                         const std::vector<Drivers>& drivers, const OutlierOptions& options) {
+  return screenFitRows(model, fit, obs, drivers, options);
+}
+
+std::vector<DriverStructure> residualStructure(const RobotModel& model, const ExtendedFit& fit,
+                                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                               bool has_thermal, double alpha) {
+  const auto n = static_cast<Eigen::Index>(obs.size());
+  std::vector<DriverStructure> out;
+  if (n < 10) return out;
+  const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, obs, drivers);
+  const Eigen::Index m = 3 * n;
+  Eigen::VectorXd Y(m);
+  for (Eigen::Index i = 0; i < n; ++i) Y.segment<3>(3 * i) = res[static_cast<size_t>(i)];
+  // What the fit's own parameters could absorb: their (unwhitened) position Jacobian columns on these rows, and a
+  // constant per axis.
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackExtended(model, fit.params, fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(), obs, B, r, &J);
+  const int np = model.numParams();
+  std::vector<int> cols = fit.estimated;
+  for (int k : fit.estimated_extension) cols.push_back(np + k);
+  Eigen::MatrixXd X0 = Eigen::MatrixXd::Zero(m, static_cast<Eigen::Index>(cols.size()) + 3);
+  for (Eigen::Index i = 0, row = 0; i < n; ++i) {
+    const Observation& o = obs[static_cast<size_t>(i)];
+    for (size_t c = 0; c < cols.size(); ++c)
+      X0.block(3 * i, static_cast<Eigen::Index>(c), 3, 1) = J.block(row, cols[c], 3, 1) * o.sigma_position_m;
+    X0.block<3, 3>(3 * i, static_cast<Eigen::Index>(cols.size())).setIdentity();
+    row += o.rows();
+  }
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr0(X0);
+  qr0.setThreshold(1e-10);
+  const Eigen::Index r0 = qr0.rank();
+  const Eigen::MatrixXd Q0 = (qr0.householderQ() * Eigen::MatrixXd::Identity(m, r0));
+  auto project_out = [&](const Eigen::MatrixXd& X) -> Eigen::MatrixXd { return X - Q0 * (Q0.transpose() * X); };
+  const Eigen::VectorXd R0 = project_out(Y);
+  const double sse0 = R0.squaredNorm();
+  if (!(sse0 > 0)) return out;
+  struct Candidate {
+    std::string name;
+    Eigen::MatrixXd X;  // n x p regressors
+  };
+  std::vector<Candidate> drivers_x;
+  const int nj = model.numJoints();
+  for (int j = 0; j < nj; ++j) {
+    Eigen::MatrixXd X(n, 4);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double q = obs[static_cast<size_t>(i)].q_rad[j];
+      X.row(i) << std::sin(q), std::cos(q), std::sin(2 * q), std::cos(2 * q);
+    }
+    drivers_x.push_back({"q" + std::to_string(j + 1), X});
+  }
+  for (int j = 0; j < nj; ++j) {
+    if (!applicable(model, Extension{Cause::kJointCompliance, j}, false)) continue;
+    Eigen::MatrixXd X(n, 2);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double t = complianceDriver(model, fit.params, obs[static_cast<size_t>(i)].q_rad, j);
+      X.row(i) << t, t * t;
+    }
+    drivers_x.push_back({"gravity_torque_" + std::to_string(j + 1), X});
+  }
+  if (has_thermal) {
+    Eigen::MatrixXd X(n, 2);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double t = drivers[static_cast<size_t>(i)].thermal;
+      X.row(i) << t, t * t;
+    }
+    drivers_x.push_back({drivers.front().thermal_is_time ? "time" : "thermal", X});
+  }
+  bool stamped = !drivers.front().thermal_is_time;
+  for (const auto& d : drivers) stamped = stamped && std::isfinite(d.elapsed_h);
+  if (stamped) {  // time besides the temperature: a drift the thermometer does not see
+    Eigen::MatrixXd X(n, 2);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double t = drivers[static_cast<size_t>(i)].elapsed_h;
+      X.row(i) << t, t * t;
+    }
+    drivers_x.push_back({"time", X});
+  }
+  for (int j = 0; j < nj; ++j) {
+    Eigen::MatrixXd X(n, 1);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const auto& d = drivers[static_cast<size_t>(i)].motion_direction;
+      X(i, 0) = d.size() > j ? d[j] : 0;
+    }
+    if (X.cwiseAbs().maxCoeff() > 0 && (X.array() != X(0, 0)).any()) drivers_x.push_back({"direction_" + std::to_string(j + 1), X});
+  }
+  {
+    Eigen::MatrixXd X(n, 9);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const std::vector<Pose> F = chainFrames(model, fit.params, obs[static_cast<size_t>(i)].q_rad);
+      const Eigen::Vector3d p = F[0].inverse() * F.back().translation();
+      X.row(i) << p.x(), p.y(), p.z(), p.x() * p.x(), p.y() * p.y(), p.z() * p.z(), p.x() * p.y(), p.x() * p.z(),
+          p.y() * p.z();
+    }
+    drivers_x.push_back({"workspace", X});
+  }
+  const double tests = static_cast<double>(drivers_x.size());
+  for (const Candidate& c : drivers_x) {
+    // Each regressor acts on each axis separately.
+    const Eigen::Index pd = c.X.cols();
+    Eigen::MatrixXd X1 = Eigen::MatrixXd::Zero(m, 3 * pd);
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (Eigen::Index k = 0; k < pd; ++k)
+        for (int a = 0; a < 3; ++a) X1(3 * i + a, 3 * k + a) = c.X(i, k);
+    const Eigen::MatrixXd X1p = project_out(X1);
+    Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr1(X1p);
+    qr1.setThreshold(1e-8);
+    const Eigen::Index r1 = qr1.rank();
+    const double dof2 = static_cast<double>(m - r0 - r1);
+    if (r1 == 0 || dof2 < 1) continue;
+    const Eigen::MatrixXd Q1 = qr1.householderQ() * Eigen::MatrixXd::Identity(m, r1);
+    const double sse1 = (R0 - Q1 * (Q1.transpose() * R0)).squaredNorm();
+    DriverStructure d;
+    d.driver = c.name;
+    d.share = std::clamp((sse0 - sse1) / sse0, 0.0, 1.0);
+    const double F = sse1 > 0 ? ((sse0 - sse1) / static_cast<double>(r1)) / (sse1 / dof2) : INFINITY;
+    d.p_value = std::isfinite(F) ? fSurvival(F, static_cast<double>(r1), dof2) : 0.0;
+    d.significant = d.p_value < alpha / tests;
+    out.push_back(d);
+  }
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.share > b.share; });
+  return out;
+}
+
+NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& fitted,
+                            const std::vector<Drivers>& fitted_drivers, const std::vector<Observation>& predicted,
+                            const std::vector<Drivers>& predicted_drivers) {
+  NoiseEstimate e;
+  // Every row's residual; rows at the same configuration grouped (sorted by joint 1, then compared joint by joint).
+  std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, fitted, fitted_drivers);
+  const std::vector<Eigen::Vector3d> pres = positionResiduals(model, fit, predicted, predicted_drivers);
+  res.insert(res.end(), pres.begin(), pres.end());
+  std::vector<const Eigen::VectorXd*> q;
+  for (const auto& o : fitted) q.push_back(&o.q_rad);
+  for (const auto& o : predicted) q.push_back(&o.q_rad);
+  constexpr double kSameRad = 2e-3;
+  std::vector<size_t> order(q.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return (*q[a])[0] < (*q[b])[0]; });
+  std::vector<int> group(q.size(), -1);
+  int groups = 0;
+  for (size_t a = 0; a < order.size(); ++a) {
+    const size_t i = order[a];
+    if (group[i] >= 0) continue;
+    group[i] = groups;
+    for (size_t b = a + 1; b < order.size() && (*q[order[b]])[0] - (*q[i])[0] < kSameRad; ++b) {
+      const size_t k = order[b];
+      if (group[k] < 0 && ((*q[k]) - (*q[i])).cwiseAbs().maxCoeff() < kSameRad) group[k] = groups;
+    }
+    ++groups;
+  }
+  std::vector<Eigen::Vector3d> sum(static_cast<size_t>(groups), Eigen::Vector3d::Zero());
+  std::vector<int> count(static_cast<size_t>(groups), 0);
+  for (size_t i = 0; i < res.size(); ++i) {
+    sum[static_cast<size_t>(group[i])] += res[i];
+    ++count[static_cast<size_t>(group[i])];
+  }
+  double ss = 0;
+  int dof = 0, repeated_groups = 0, repeated_rows = 0;
+  for (size_t i = 0; i < res.size(); ++i) {
+    const auto g = static_cast<size_t>(group[i]);
+    if (count[g] < 2) continue;
+    ss += (res[i] - sum[g] / count[g]).squaredNorm();
+  }
+  for (int c : count)
+    if (c >= 2) dof += 3 * (c - 1), ++repeated_groups, repeated_rows += c;
+  if (dof >= 30) {
+    e.sigma_position_mm = std::sqrt(ss / dof) * 1e3;
+    e.dof = dof;
+    e.from_repeats = true;
+    e.source = "repeated poses (" + std::to_string(repeated_groups) + " groups, " + std::to_string(repeated_rows) + " rows)";
+    return e;
+  }
+  // The fit's own residual, with its degrees of freedom.
+  const std::vector<Eigen::Vector3d> fr = positionResiduals(model, fit, fitted, fitted_drivers);
+  double s2 = 0;
+  for (const auto& v : fr) s2 += v.squaredNorm();
+  const int rows = totalRows(fitted);
+  const int params = static_cast<int>(fit.estimated.size() + fit.estimated_extension.size());
+  e.dof = std::max(1, rows - params);
+  e.sigma_position_mm = std::sqrt(s2 / (3.0 * static_cast<double>(fr.size())) * rows / e.dof) * 1e3;
+  e.source = "residual of the " + modelLabel(fit.extensions) + " fit on " + std::to_string(fitted.size()) +
+             " identification rows (" + std::to_string(e.dof) + " dof; holds whatever the model leaves)";
+  return e;
+}
+
+std::vector<Extension> DiagnosisResult::causes() const {
+  std::vector<Extension> out;
+  for (const auto& s : selection) out.push_back(s.added);
+  return out;
+}
+
+const DriverStructure* DiagnosisResult::structureLeft() const {
+  for (const auto& d : structure_after)
+    if (d.significant) return &d;
+  return nullptr;
+}
+
+namespace {
+
+// Significance and parsimony of one forward-selection round: `cands` in score order against `base` (their
+// verification residuals parallel). Returns the index chosen, or -1.
+int chooseCandidate(const CandidateResult& base, const std::vector<CandidateResult>& cands,
+                    const std::vector<std::vector<Eigen::Vector3d>>& residuals, const DiagnosisOptions& options) {
+  auto significant = [&](size_t i) {
+    const CandidateResult& c = cands[i];
+    return c.score < base.score && 1.0 - c.verify_mse_m2 / base.verify_mse_m2 > options.min_gain && c.z > options.min_z;
+  };
+  if (cands.empty() || !significant(0)) return -1;
+  size_t pick = 0;
+  for (bool changed = true; changed;) {
+    changed = false;
+    for (size_t i = 0; i < cands.size(); ++i) {
+      if (i == pick || !significant(i)) continue;
+      if (cands[i].fit.numEstimatedExtension() >= cands[pick].fit.numEstimatedExtension()) continue;
+      if (pairedZ(residuals[i], residuals[pick]) > options.parsimony_z) continue;
+      pick = i;
+      changed = true;
+      break;  // candidates are in score order: the best-scoring simpler one
+    }
+  }
+  return static_cast<int>(pick);
+}
+
+bool conflicts(const Extension& e, const std::vector<Extension>& chosen) {
+  for (const auto& c : chosen) {
+    if (c.cause == e.cause && c.joint == e.joint) return true;
+    if (c.cause == Cause::kThermalDrift && e.cause == Cause::kThermalDrift) return true;  // they share the lengths
+  }
+  return false;
+}
+
+struct Selection {
+  CandidateResult geometric;
+  std::vector<CandidateResult> candidates;
+  int chosen = -1;
+  std::vector<SelectionStep> steps;
+};
+
+}  // namespace
+
+DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
+                         const DiagnosisOptions& options) {
+  std::string err;
+  if (!options.IsValid(&err)) throw std::invalid_argument("DiagnosisOptions: " + err);
+  if (data.identification.size() < 8 || data.verification.empty())
+    throw std::invalid_argument("diagnose: needs at least 8 identification and 1 verification observation");
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<Extension> to_try;
+  for (Cause cause : options.causes)
+    for (int j = cause == Cause::kThermalDrift ? -1 : 0; j < model.numJoints(); ++j)
+      if (applicable(model, Extension{cause, j}, data.has_thermal)) to_try.push_back(Extension{cause, j});
+  int fits_done = 0;
+  const int fits_total = 2 + static_cast<int>(to_try.size()) * options.max_causes;
+  auto progress = [&] {
+    if (options.progress) options.progress(std::min(++fits_done, fits_total - 1), fits_total);
+  };
+
+  // The forward selection on the rows kept (I, V: identification and verification rows without gross errors).
+  auto select = [&](const std::vector<Observation>& I, const std::vector<Drivers>& ID, const std::vector<Observation>& V,
+                    const std::vector<Drivers>& VD) {
+    auto evaluate = [&](ExtendedFit fit) {
+      CandidateResult c;
+      c.identification = errorStats(model, fit, I, ID);
+      c.verification = errorStats(model, fit, V, VD);
+      c.verify_mse_m2 = std::pow(c.verification.rms_mm * 1e-3, 2);
+      c.score = c.verify_mse_m2 * (1.0 + options.penalty_per_param * fit.numEstimatedExtension() /
+                                             static_cast<double>(totalRows(I)));
+      c.fit = std::move(fit);
+      return c;
+    };
+    Selection sel;
+    sel.geometric = evaluate(fitExtended(model, start, I, ID, Extension{}, options.solver, options.identifiability));
+    progress();
+    CandidateResult base = sel.geometric;
+    std::vector<Eigen::Vector3d> base_res = positionResiduals(model, base.fit, V, VD);
+    for (int round = 0; round < options.max_causes; ++round) {
+      const std::vector<Extension> chosen = base.fit.extensions;
+      std::vector<CandidateResult> cands;
+      std::vector<std::vector<Eigen::Vector3d>> residuals;
+      std::vector<Extension> added;
+      for (const Extension& ext : to_try) {
+        if (conflicts(ext, chosen)) continue;
+        std::vector<Extension> exts = chosen;
+        exts.push_back(ext);
+        CandidateResult c = evaluate(
+            fitExtended(model, start, I, ID, exts, options.solver, options.identifiability, &base.fit.params));
+        progress();
+        // Nothing the model so far could not already do.
+        if (c.fit.numEstimatedExtension() <= base.fit.numEstimatedExtension()) continue;
+        residuals.push_back(positionResiduals(model, c.fit, V, VD));
+        c.z = pairedZ(base_res, residuals.back());
+        cands.push_back(std::move(c));
+        added.push_back(ext);
+      }
+      std::vector<size_t> order(cands.size());
+      for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+      std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return cands[a].score < cands[b].score; });
+      std::vector<CandidateResult> sorted;
+      std::vector<std::vector<Eigen::Vector3d>> sorted_res;
+      std::vector<Extension> sorted_added;
+      for (size_t i : order) {
+        sorted.push_back(std::move(cands[i]));
+        sorted_res.push_back(std::move(residuals[i]));
+        sorted_added.push_back(added[i]);
+      }
+      const int pick = chooseCandidate(base, sorted, sorted_res, options);
+      if (round == 0) {
+        sel.candidates = sorted;
+        sel.chosen = pick;
+      }
+      if (pick < 0) break;
+      SelectionStep step;
+      for (size_t i = 0; i < sorted.size() && step.alike.size() < 3; ++i) {
+        const CandidateResult& c = sorted[i];
+        if (static_cast<int>(i) == pick || !(c.score < base.score) || c.z <= options.min_z ||
+            1.0 - c.verify_mse_m2 / base.verify_mse_m2 <= options.min_gain)
+          continue;
+        if (pairedZ(sorted_res[i], sorted_res[static_cast<size_t>(pick)]) <= options.parsimony_z)
+          step.alike.push_back(sorted_added[i]);
+      }
+      step.result = sorted[static_cast<size_t>(pick)];
+      step.added = step.result.fit.extensions.back();  // with its fitted time constant
+      step.z = step.result.z;
+      step.gain_pct = 100.0 * (1.0 - step.result.verification.mean_mm / base.verification.mean_mm);
+      sel.steps.push_back(step);
+      base = step.result;
+      base_res = sorted_res[static_cast<size_t>(pick)];
+    }
+    return sel;
+  };
+
+  const auto& I = data.identification;
+  const auto& V = data.verification;
+  const auto& ID = data.identification_drivers;
+  const auto& VD = data.verification_drivers;
+  DiagnosisResult out;
+  // The selection on every row first; then the model it chose screens for gross errors (a robust fit on the
+  // identification rows, the verification rows against it), and where it flags rows the selection runs again without
+  // them (at most three selections). Screening only under the geometric model would take a strong effect's largest
+  // rows (a warm-up's first hour) for gross errors and hide the very rows that show the cause.
+  OutlierScreen id_screen, ver_screen;
+  Selection sel;
+  for (int pass = 0; pass < 3; ++pass) {
+    const std::vector<int> ik = keptRows(static_cast<int>(I.size()), id_screen.rows);
+    const std::vector<int> vk = keptRows(static_cast<int>(V.size()), ver_screen.rows);
+    sel = select(subset(I, ik), subset(ID, ik), subset(V, vk), subset(VD, vk));
+    const CandidateResult& best = sel.steps.empty() ? sel.geometric : sel.steps.back().result;
+    OutlierScreen id2;
+    const ExtendedFit final_fit = fitExtendedRobust(model, start, I, ID, best.fit.extensions, options.solver,
+                                                    options.identifiability, &best.fit.params, options.outliers, &id2);
+    OutlierScreen ver2 = screenFitRows(model, final_fit, V, VD, options.outliers);
+    const bool same = id2.rows == id_screen.rows && ver2.rows == ver_screen.rows;
+    id_screen = std::move(id2);
+    ver_screen = std::move(ver2);
+    if (same) break;
+  }
+  const std::vector<int> ik = keptRows(static_cast<int>(I.size()), id_screen.rows);
+  const std::vector<int> vk = keptRows(static_cast<int>(V.size()), ver_screen.rows);
+  const std::vector<Observation> Vk = subset(V, vk);
+  const std::vector<Drivers> VDk = subset(VD, vk);
+  out.geometric = sel.geometric;
+  out.candidates = std::move(sel.candidates);
+  out.selection = std::move(sel.steps);
+  out.chosen = sel.chosen;
+  if (!out.selection.empty()) {
+    out.cause = out.selection.front().added.cause;
+    if (out.selection.front().added.joint >= 0) out.joints = {out.selection.front().added.joint};
+  }
+  out.identification_outliers = id_screen;
+  out.verification_outliers = ver_screen;
+  const CandidateResult& best = out.best();
+  out.geometric_verification_all_rows = errorStats(model, out.geometric.fit, V, VD);
+  out.verification_all_rows = errorStats(model, best.fit, V, VD);
+  out.gain_pct = 100.0 * (1.0 - best.verification.mean_mm / out.geometric.verification.mean_mm);
+  out.structure_before = residualStructure(model, out.geometric.fit, Vk, VDk, data.has_thermal, options.structure_alpha);
+  out.structure_after = out.selection.empty()
+                            ? out.structure_before
+                            : residualStructure(model, best.fit, Vk, VDk, data.has_thermal, options.structure_alpha);
+  const DriverStructure* left = out.structureLeft();
+  char share[160] = "";
+  if (left) std::snprintf(share, sizeof share, "structure left against %s (%.0f %%)", left->driver.c_str(), 100 * left->share);
+  if (out.selection.empty()) {
+    out.verdict = left ? Verdict::kUnexplained : Verdict::kNoise;
+    out.verdict_text = left ? std::string("none of the library's causes; ") + share
+                            : "none: the geometric model leaves no structure against any driver";
+  } else {
+    out.verdict = left ? Verdict::kPartlyExplained : Verdict::kNamed;
+    out.verdict_text = left ? "partly explained by " + modelLabel(out.causes()) + "; " + share : modelLabel(out.causes());
+  }
+  out.noise = estimateNoise(model, best.fit, subset(I, ik), subset(ID, ik), Vk, VDk);
+  out.noise_rms_mm = std::sqrt(3.0) * out.noise.sigma_position_mm;
+  out.unexplained_rms_mm =
+      std::sqrt(std::max(0.0, best.verification.rms_mm * best.verification.rms_mm - out.noise_rms_mm * out.noise_rms_mm));
+  if (options.progress) options.progress(fits_total, fits_total);
+  out.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
+CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geometric, const ExtendedFit& extended,
+                              const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                              const std::string& thermal_source) {
+  const Extension ext = extended.extension();
+  if (ext.cause == Cause::kNone) throw std::invalid_argument("causeSignature: the extended fit has no cause");
+  CauseSignature sig;
+  const int j = ext.joint;
+  const std::string jn = std::to_string(j + 1);
+  const std::string thermal = thermal_source == "temperature_c" ? "temperature - mean (K)" : "time since first row (h)";
+  switch (ext.cause) {
+    case Cause::kJointCompliance:
+      sig.x_label = model.links.empty() ? "gravity torque of 1 kg at the target on joint " + jn + " (N m/kg)"
+                                        : "gravity torque on joint " + jn + " (N m)";
+      break;
+    case Cause::kThermalDrift:
+      sig.x_label = thermal;
+      break;
+    case Cause::kCyclicTransmission:
+    case Cause::kJointScale:
+      sig.x_label = "q" + jn + " (deg)";
+      break;
+    case Cause::kBacklash:
+      sig.x_label = "direction joint " + jn + " last moved (-1 / +1)";
+      break;
+    case Cause::kLinkDeflection:
+      sig.x_label = "gravity across link " + jn + " (g)";
+      break;
+    case Cause::kNone:
+      break;
+  }
+  sig.y_label = j >= 0 ? "apparent joint " + jn + " error (deg)" : "apparent growth of the lengths (um/m)";
+  if (ext.cause == Cause::kLinkDeflection) sig.y_label = "position error along the gravity across link " + jn + " (mm)";
+  const std::vector<Eigen::Vector3d> before = positionResiduals(model, geometric, obs, drivers);
+  const std::vector<Eigen::Vector3d> after = positionResiduals(model, extended, obs, drivers);
+  KinematicsData data(model);
+  Eigen::MatrixXd J(6, model.numParams());
+  for (size_t i = 0; i < obs.size(); ++i) {
+    forwardKinematics(model, data, geometric.params, obs[i].q_rad);
+    computePoseJacobian(model, data, J);
+    Eigen::Vector3d d;
+    double scale;
+    if (j >= 0) {
+      d = ext.cause == Cause::kLinkDeflection ? Eigen::Vector3d::UnitX()
+                                              : Eigen::Vector3d(J.block<3, 1>(0, model.jointParam(j, JointParam::kThetaOffset)));
+      scale = 180.0 / kPi;
+    } else {
+      d.setZero();
+      for (int k = 0; k < model.numJoints(); ++k)
+        for (JointParam p : {JointParam::kA, JointParam::kD}) {
+          const int idx = model.jointParam(k, p);
+          d += J.block<3, 1>(0, idx) * geometric.params[idx];
+        }
+      scale = 1e6;
+    }
+    double x = 0;
+    if (ext.cause == Cause::kLinkDeflection) {
+      const std::vector<Pose> F = chainFrames(model, geometric.params, obs[i].q_rad);
+      const Eigen::Vector3d u = (F[j + 1].translation() - F[j].translation()).normalized();
+      const Eigen::Vector3d g = (F[0].linear() * model.gravity_in_base_mps2).normalized();
+      const Eigen::Vector3d across = g - g.dot(u) * u;
+      x = across.norm();
+      const Eigen::Vector3d dir = across / std::max(x, 1e-12);
+      sig.x.push_back(x);
+      sig.y_before.push_back(dir.dot(before[i]) * 1e3);
+      sig.y_after.push_back(dir.dot(after[i]) * 1e3);
+      continue;
+    }
+    const double dd = std::max(d.squaredNorm(), 1e-30);
+    sig.y_before.push_back(d.dot(before[i]) / dd * scale);
+    sig.y_after.push_back(d.dot(after[i]) / dd * scale);
+    switch (ext.cause) {
+      case Cause::kJointCompliance:
+        x = complianceDriver(model, geometric.params, obs[i].q_rad, j);
+        break;
+      case Cause::kThermalDrift:
+        x = drivers[i].thermal;
+        break;
+      case Cause::kCyclicTransmission:
+      case Cause::kJointScale:
+        x = obs[i].q_rad[j] * 180.0 / kPi;
+        break;
+      case Cause::kBacklash: {
+        const double spread = std::fmod(0.6180339887 * static_cast<double>(i), 1.0) - 0.5;
+        x = (drivers[i].motion_direction.size() > j ? drivers[i].motion_direction[j] : 0.0) + 0.3 * spread;
+        break;
+      }
+      case Cause::kLinkDeflection:  // above
+      case Cause::kNone:
+        break;
+    }
+    sig.x.push_back(x);
+  }
+  return sig;
+}
+
+}  // namespace cellcal

@@ -1,0 +1,171 @@
+#include "cellcal/core/identification/identifiability.hpp"
+
+#include <Eigen/QR>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <sstream>
+
+namespace cellcal {
+
+bool IdentifiabilityOptions::IsValid(std::string* error) const {
+  if (!(rank_tolerance > 0 && rank_tolerance < 1) || !(conditioning_guard >= 0 && conditioning_guard <= 1)) {
+    if (error) *error = "rank_tolerance must be in (0, 1) and conditioning_guard in [0, 1]";
+    return false;
+  }
+  return true;
+}
+
+std::vector<int> identificationPriority(const RobotModel& model) {
+  std::vector<int> out;
+  for (int k = 0; k < 6; ++k) out.push_back(model.toolParam(static_cast<FrameParam>(k)));
+  for (int i = 0; i < 5 * model.numJoints(); ++i) out.push_back(i);
+  for (int k = 0; k < 6; ++k) out.push_back(model.baseParam(static_cast<FrameParam>(k)));
+  std::vector<int> canonical;
+  for (int i : out)
+    if (model.isCanonical(i)) canonical.push_back(i);
+  return canonical;
+}
+
+std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
+                                    const IdentifiabilityOptions& options) {
+  std::string err;
+  if (!options.IsValid(&err)) throw std::invalid_argument("IdentifiabilityOptions: " + err);
+  const Eigen::Index m = J.rows();
+  // A column many orders below the strongest one is round-off, not excitation (e.g. a rotation about an axis the
+  // target lies on): normalizing it would turn noise into a direction.
+  double max_norm = 0;
+  for (int c : order) max_norm = std::max(max_norm, J.col(c).norm());
+  const double min_norm = 1e-10 * max_norm;
+  // Unit-norm candidates, deflated by every kept direction as it is taken (modified Gram-Schmidt, twice for
+  // stability): R.col(i) is candidate i's part outside the kept span, its norm the sine of its angle to that span.
+  std::vector<int> cand;
+  for (int c : order)
+    if (J.col(c).norm() > min_norm) cand.push_back(c);
+  const auto nc = static_cast<Eigen::Index>(cand.size());
+  Eigen::MatrixXd R(m, nc);
+  for (Eigen::Index i = 0; i < nc; ++i) R.col(i) = J.col(cand[i]) / J.col(cand[i]).norm();
+  std::vector<bool> taken(cand.size(), false);
+  std::vector<int> kept;
+  Eigen::MatrixXd Q(m, std::min(m, nc));
+  Eigen::Index k = 0;
+  while (k < std::min(m, nc)) {
+    double best = 0;
+    for (Eigen::Index i = 0; i < nc; ++i)
+      if (!taken[i]) best = std::max(best, R.col(i).norm());
+    if (best <= options.rank_tolerance) break;
+    // The highest-priority column that is not much closer to the kept span than the best-separated one.
+    Eigen::Index pick = -1;
+    for (Eigen::Index i = 0; i < nc && pick < 0; ++i)
+      if (!taken[i] && R.col(i).norm() >= options.conditioning_guard * best && R.col(i).norm() > options.rank_tolerance)
+        pick = i;
+    taken[pick] = true;
+    kept.push_back(cand[pick]);
+    Eigen::VectorXd q = R.col(pick);
+    for (Eigen::Index j = 0; j < k; ++j) q -= Q.col(j) * Q.col(j).dot(q);  // re-orthogonalize
+    q.normalize();
+    Q.col(k++) = q;
+    for (Eigen::Index i = 0; i < nc; ++i)
+      if (!taken[i]) R.col(i) -= q * q.dot(R.col(i));
+  }
+  std::sort(kept.begin(), kept.end());
+  return kept;
+}
+
+IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
+                                             const IdentifiabilityOptions& options) {
+  if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
+  std::vector<int> cand = identificationPriority(model);
+  if (!options.candidates.empty())
+    cand.erase(std::remove_if(cand.begin(), cand.end(),
+                              [&](int c) {
+                                return std::find(options.candidates.begin(), options.candidates.end(), c) ==
+                                       options.candidates.end();
+                              }),
+               cand.end());
+
+  IdentifiabilityReport rep;
+  rep.num_candidates = static_cast<int>(cand.size());
+  const Eigen::Index m = J.rows();
+  rep.identifiable = independentColumns(J, cand, options);
+  const int k = static_cast<int>(rep.identifiable.size());
+  std::vector<int> dropped;
+  for (int c : cand)
+    if (!std::binary_search(rep.identifiable.begin(), rep.identifiable.end(), c)) dropped.push_back(c);
+  double max_norm = 0;
+  for (int c : cand) max_norm = std::max(max_norm, J.col(c).norm());
+  const double min_norm = 1e-10 * max_norm;
+  rep.rank = k;
+
+  // Scaled Jacobian of the kept columns: condition number, and what each dropped column merges into.
+  Eigen::MatrixXd Js(m, k);
+  for (int i = 0; i < k; ++i) Js.col(i) = J.col(rep.identifiable[i]) / J.col(rep.identifiable[i]).norm();
+  if (k > 0) {
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(Js);
+    const auto& s = svd.singularValues();
+    rep.condition_number = s(s.size() - 1) > 0 ? s(0) / s(s.size() - 1) : INFINITY;
+  }
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(Js);
+  for (int c : dropped) {
+    DroppedParameter d;
+    d.index = c;
+    d.name = model.paramName(c);
+    const double norm = J.col(c).norm();
+    if (norm > min_norm && k > 0) {
+      const Eigen::VectorXd coef = qr.solve(J.col(c) / norm);
+      for (int i = 0; i < k; ++i)
+        if (std::abs(coef[i]) >= 0.05) d.merged_into.emplace_back(rep.identifiable[i], coef[i]);
+      std::sort(d.merged_into.begin(), d.merged_into.end(),
+                [](const auto& a, const auto& b) { return std::abs(a.second) > std::abs(b.second); });
+    }
+    rep.dropped.push_back(std::move(d));
+  }
+  return rep;
+}
+
+IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::VectorXd& params,
+                                             const std::vector<Observation>& obs,
+                                             const IdentifiabilityOptions& options) {
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackResiduals(model, params, obs, r, &J);
+  return analyzeIdentifiability(model, J, options);
+}
+
+IdentifiabilityReport structuralIdentifiability(const RobotModel& model, const Eigen::VectorXd& params,
+                                                MeasurementKind kind, const IdentifiabilityOptions& options) {
+  std::mt19937_64 rng(20240607);
+  std::vector<Observation> obs(200);
+  KinematicsData data(model);
+  for (auto& o : obs) {
+    o.q_rad.resize(model.numJoints());
+    for (int j = 0; j < model.numJoints(); ++j) {
+      const double lo = std::max(model.limits[j].lower_rad, -kPi), hi = std::min(model.limits[j].upper_rad, kPi);
+      o.q_rad[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
+    }
+    o.kind = kind;
+    o.measured_in_tracker = forwardKinematics(model, data, params, o.q_rad);
+  }
+  return analyzeIdentifiability(model, params, obs, options);
+}
+
+std::string IdentifiabilityReport::summary(const RobotModel& model) const {
+  std::ostringstream s;
+  s << rank << " of " << num_candidates << " parameters identifiable, condition number " << condition_number << "\n";
+  for (const auto& d : dropped) {
+    s << "  fixed " << model.paramName(d.index);
+    if (d.merged_into.empty()) {
+      s << " (not excited by these poses)";
+    } else {
+      s << " (merged into";
+      for (size_t i = 0; i < std::min<size_t>(3, d.merged_into.size()); ++i)
+        s << " " << model.paramName(d.merged_into[i].first);
+      s << ")";
+    }
+    s << "\n";
+  }
+  return s.str();
+}
+
+}  // namespace cellcal

@@ -1,0 +1,112 @@
+#include "cellcal/core/identification/registration.hpp"
+
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+#include <cmath>
+#include <stdexcept>
+
+#include "cellcal/core/model/kinematics.hpp"
+
+namespace cellcal {
+
+Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T) {
+  const Eigen::Matrix3d R = T.linear();
+  Eigen::Matrix<double, 6, 1> v;
+  v.head<3>() = T.translation();
+  v[4] = std::asin(std::clamp(-R(2, 0), -1.0, 1.0));  // pitch
+  v[3] = std::atan2(R(2, 1), R(2, 2));                 // roll
+  v[5] = std::atan2(R(1, 0), R(0, 0));                 // yaw
+  return v;
+}
+
+namespace {
+
+// Rotation R and translation t minimizing sum |R a_i + t - b_i|^2.
+void kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
+            Eigen::Vector3d& t) {
+  Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < a.size(); ++i) {
+    ca += a[i];
+    cb += b[i];
+  }
+  ca /= static_cast<double>(a.size());
+  cb /= static_cast<double>(b.size());
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < a.size(); ++i) H += (a[i] - ca) * (b[i] - cb).transpose();
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  if (svd.singularValues()[1] < 1e-9 * std::max(1.0, svd.singularValues()[0]))
+    throw std::invalid_argument("registration: flange positions are (nearly) collinear");
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
+  R = svd.matrixV() * D * svd.matrixU().transpose();
+  t = cb - R * ca;
+}
+
+Eigen::Matrix3d projectToRotation(const Eigen::Matrix3d& M) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
+  return svd.matrixU() * D * svd.matrixV().transpose();
+}
+
+}  // namespace
+
+RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd& initial,
+                                  const std::vector<Observation>& obs, int iterations) {
+  if (obs.size() < 4) throw std::invalid_argument("registration: needs at least 4 observations");
+  const int b0 = model.baseParam(FrameParam::kX), t0 = model.toolParam(FrameParam::kX);
+  Eigen::VectorXd p = initial;
+  p.segment<6>(b0).setZero();
+  p.segment<6>(t0).setZero();
+  KinematicsData data(model);
+  // Flange poses in the base frame (base and tool identity).
+  std::vector<Pose> flange;
+  for (const auto& o : obs) flange.push_back(forwardKinematics(model, data, p, o.q_rad));
+  std::vector<Eigen::Vector3d> measured;
+  for (const auto& o : obs) measured.push_back(o.measured_in_tracker.translation());
+  Eigen::Vector3d tool = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d Rb = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d tb = Eigen::Vector3d::Zero();
+  RegistrationResult out;
+  for (int it = 0; it < iterations; ++it) {
+    std::vector<Eigen::Vector3d> a;
+    for (const auto& F : flange) a.push_back(F * tool);
+    kabsch(a, measured, Rb, tb);
+    // Linear least squares in (tb, tool) with Rb fixed: m_i = tb + Rb (p_i + R_i tool).
+    Eigen::MatrixXd A(3 * obs.size(), 6);
+    Eigen::VectorXd y(3 * obs.size());
+    for (size_t i = 0; i < obs.size(); ++i) {
+      A.block<3, 3>(3 * i, 0).setIdentity();
+      A.block<3, 3>(3 * i, 3) = Rb * flange[i].linear();
+      y.segment<3>(3 * i) = measured[i] - Rb * flange[i].translation();
+    }
+    const Eigen::VectorXd x = A.colPivHouseholderQr().solve(y);
+    tb = x.head<3>();
+    tool = x.tail<3>();
+    out.iterations = it + 1;
+  }
+  // Tool orientation from oriented readings: R_meas = Rb R_flange R_tool.
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  int oriented = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    if (obs[i].kind != MeasurementKind::kPose6D) continue;
+    sum += (Rb * flange[i].linear()).transpose() * obs[i].measured_in_tracker.linear();
+    ++oriented;
+  }
+  Pose base = Pose::Identity();
+  base.linear() = Rb;
+  base.translation() = tb;
+  Pose T = Pose::Identity();
+  T.translation() = tool;
+  if (oriented > 0) T.linear() = projectToRotation(sum);
+  p.segment<6>(b0) = xyzRpyFromPose(base);
+  p.segment<6>(t0) = xyzRpyFromPose(T);
+  double ss = 0;
+  for (const auto& o : obs)
+    ss += (forwardKinematics(model, data, p, o.q_rad).translation() - o.measured_in_tracker.translation()).squaredNorm();
+  out.rms_position_m = std::sqrt(ss / static_cast<double>(obs.size()));
+  out.params = p;
+  return out;
+}
+
+}  // namespace cellcal

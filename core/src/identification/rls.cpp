@@ -1,0 +1,234 @@
+#include "cellcal/core/identification/rls.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/QR>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace cellcal {
+
+bool RlsOptions::IsValid(int state_size, std::string* error) const {
+  auto fail = [&](const char* m) {
+    if (error) *error = m;
+    return false;
+  };
+  if (!(forgetting > 0 && forgetting <= 1)) return fail("forgetting must be in (0, 1]");
+  if (max_covariance_diag.size() != 0 &&
+      (max_covariance_diag.size() != state_size || !(max_covariance_diag.array() > 0).all()))
+    return fail("max_covariance_diag must be empty or one positive entry per state");
+  return true;
+}
+
+RlsEstimator::RlsEstimator(Eigen::VectorXd x0, Eigen::MatrixXd P0, RlsOptions options)
+    : x_(std::move(x0)), P_(std::move(P0)), options_(std::move(options)) {
+  std::string err;
+  if (P_.rows() != x_.size() || P_.cols() != x_.size()) throw std::invalid_argument("RlsEstimator: P0 size mismatch");
+  if (!options_.IsValid(static_cast<int>(x_.size()), &err)) throw std::invalid_argument("RlsOptions: " + err);
+}
+
+RlsEstimator RlsEstimator::fromInitialBatch(const Eigen::MatrixXd& A0, const Eigen::VectorXd& b0, RlsOptions options) {
+  if (A0.rows() < A0.cols()) throw std::invalid_argument("RlsEstimator::fromInitialBatch: fewer rows than states");
+  const Eigen::MatrixXd H = A0.transpose() * A0;
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
+  if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-15)
+    throw std::invalid_argument("RlsEstimator::fromInitialBatch: A0 is rank deficient");
+  Eigen::VectorXd x0 = A0.colPivHouseholderQr().solve(b0);
+  Eigen::MatrixXd P0 = ldlt.solve(Eigen::MatrixXd::Identity(H.rows(), H.cols()));
+  return RlsEstimator(std::move(x0), std::move(P0), std::move(options));
+}
+
+void RlsEstimator::update(const Eigen::Ref<const Eigen::MatrixXd>& A, const Eigen::Ref<const Eigen::VectorXd>& b) {
+  updateWithInnovation(A, b - A * x_);
+}
+
+void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>& A,
+                                        const Eigen::Ref<const Eigen::VectorXd>& innovation) {
+  const double lambda = options_.forgetting;
+  PA_.noalias() = P_.selfadjointView<Eigen::Lower>() * A.transpose();  // m x r
+  S_.noalias() = A * PA_;                                               // r x r
+  S_.diagonal().array() += lambda;
+  Eigen::LLT<Eigen::MatrixXd> llt(S_);
+  // x += P A^T S^-1 nu
+  const Eigen::VectorXd s_inv_nu = llt.solve(innovation);
+  last_nis_ = innovation.dot(s_inv_nu);
+  x_.noalias() += PA_ * s_inv_nu;
+  // P -= (P A^T L^-T)(P A^T L^-T)^T  (symmetric rank-r downdate, lower triangle only)
+  llt.matrixU().solveInPlace<Eigen::OnTheRight>(PA_);
+  P_.selfadjointView<Eigen::Lower>().rankUpdate(PA_, -1.0);
+  if (lambda < 1.0) {
+    double inflate = 1.0 / lambda;
+    if (options_.max_covariance_diag.size())
+      for (Eigen::Index i = 0; i < P_.rows(); ++i)
+        inflate = std::min(inflate, options_.max_covariance_diag[i] / P_(i, i));
+    if (inflate > 1.0) P_.triangularView<Eigen::Lower>() *= inflate;
+  }
+  P_.triangularView<Eigen::StrictlyUpper>() = P_.transpose();
+}
+
+void RlsEstimator::addProcessNoise(const Eigen::VectorXd& q_diag) { P_.diagonal() += q_diag; }
+
+namespace {
+std::vector<int> checkedStructural(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
+                                   const IdentifiabilityOptions& options) {
+  return structuralIdentifiability(model, params, kind, options).identifiable;
+}
+
+Eigen::MatrixXd priorOver(const GaussianPrior& prior, const std::vector<int>& estimated) {
+  const auto n = static_cast<Eigen::Index>(estimated.size());
+  Eigen::MatrixXd P = Eigen::MatrixXd::Zero(n, n);
+  std::vector<int> pos(estimated.size(), -1);
+  for (size_t a = 0; a < estimated.size(); ++a)
+    for (size_t b = 0; b < prior.indices.size(); ++b)
+      if (prior.indices[b] == estimated[a]) pos[a] = static_cast<int>(b);
+  for (Eigen::Index a = 0; a < n; ++a) {
+    if (pos[a] < 0)
+      throw std::invalid_argument("RlsCalibrator: the prior has no variance for an estimated parameter");
+    for (Eigen::Index b = 0; b < n; ++b)
+      if (pos[b] >= 0) P(a, b) = prior.covariance(pos[a], pos[b]);
+  }
+  return P;
+}
+
+Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx) {
+  Eigen::VectorXd out(idx.size());
+  for (size_t k = 0; k < idx.size(); ++k) out[k] = full[idx[k]];
+  return out;
+}
+}  // namespace
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
+                             MeasurementKind kind, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(params),
+      estimated_(checkedStructural(model, params, kind, options.identifiability)),
+      rls_(select(params, estimated_), priorOver(prior, estimated_), options.rls),
+      data_(model) {}
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(initial.params),
+      estimated_(initial.estimated),
+      rls_(select(initial.params, initial.estimated), initial.covariance, options.rls),
+      data_(model) {}
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                             const Eigen::MatrixXd& covariance, RlsCalibratorOptions options)
+    : model_(&model), params_(params), estimated_(estimated), rls_(select(params, estimated), covariance, options.rls),
+      data_(model) {}
+
+namespace {
+Eigen::VectorXd stackState(const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                           const Eigen::VectorXd& extension_params, const std::vector<int>& estimated_extension) {
+  Eigen::VectorXd x(estimated.size() + estimated_extension.size());
+  Eigen::Index c = 0;
+  for (int i : estimated) x[c++] = params[i];
+  for (int k : estimated_extension) x[c++] = extension_params[k];
+  return x;
+}
+}  // namespace
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<int>& estimated,
+                             const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                             const std::vector<int>& estimated_extension, const Eigen::MatrixXd& covariance,
+                             RlsCalibratorOptions options)
+    : model_(&model),
+      params_(params),
+      estimated_(estimated),
+      extensions_(extensions),
+      extension_params_(extension_params),
+      estimated_extension_(estimated_extension),
+      rls_(stackState(params, estimated, extension_params, estimated_extension), covariance, options.rls),
+      data_(model) {
+  if (extension_params_.size() != numExtensionParams(model, extensions_))
+    throw std::invalid_argument("RlsCalibrator: extension parameters do not match the extensions");
+}
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options)
+    : model_(&model),
+      params_(initial.params),
+      estimated_(initial.estimated),
+      extensions_(initial.extensions),
+      extension_params_(initial.extension_params),
+      estimated_extension_(initial.estimated_extension),
+      rls_(stackState(initial.params, initial.estimated, initial.extension_params, initial.estimated_extension),
+           initial.covariance, options.rls),
+      data_(model) {}
+
+Eigen::VectorXd RlsCalibrator::rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers) {
+  if (extensions_.empty()) {
+    B_.resize(0, 0);
+    return params_;
+  }
+  if (!drivers) throw std::invalid_argument("RlsCalibrator: an extended model needs the pose's Drivers");
+  B_ = extensionBasis(*model_, params_, extensions_, q_rad, *drivers, extension_params_);
+  return params_ + B_ * extension_params_;
+}
+
+int RlsCalibrator::linearize(const Observation& obs, const Drivers* drivers) {
+  const Eigen::VectorXd p = rowParams(obs.q_rad, drivers);
+  const int rows = whitenedResidual(*model_, data_, p, obs, r_, &J_);
+  const auto ne = static_cast<Eigen::Index>(estimated_.size());
+  A_.resize(rows, ne + static_cast<Eigen::Index>(estimated_extension_.size()));
+  for (Eigen::Index k = 0; k < ne; ++k) A_.col(k) = J_.col(estimated_[k]).head(rows);
+  if (!estimated_extension_.empty()) {
+    const Eigen::MatrixXd JB = J_.topRows(rows) * B_;
+    for (size_t k = 0; k < estimated_extension_.size(); ++k) A_.col(ne + k) = JB.col(estimated_extension_[k]);
+  }
+  return rows;
+}
+
+void RlsCalibrator::writeBack() {
+  const auto ne = estimated_.size();
+  for (size_t k = 0; k < ne; ++k) params_[estimated_[k]] = rls_.x()[k];
+  for (size_t k = 0; k < estimated_extension_.size(); ++k) extension_params_[estimated_extension_[k]] = rls_.x()[ne + k];
+}
+
+double RlsCalibrator::normalizedInnovation(const Observation& obs, const Drivers* drivers) {
+  const int rows = linearize(obs, drivers);
+  const Eigen::MatrixXd S = A_ * rls_.P() * A_.transpose() + Eigen::MatrixXd::Identity(rows, rows);
+  return r_.head(rows).dot(S.ldlt().solve(r_.head(rows)));
+}
+
+double RlsCalibrator::addObservation(const Observation& obs, const Drivers* drivers) {
+  const int rows = linearize(obs, drivers);
+  rls_.updateWithInnovation(A_, r_.head(rows));
+  writeBack();
+  return rls_.lastNormalizedInnovation();
+}
+
+Pose RlsCalibrator::predict(const Eigen::VectorXd& q_rad, const Drivers* drivers) {
+  return forwardKinematics(*model_, data_, rowParams(q_rad, drivers), q_rad);
+}
+
+void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full) {
+  Eigen::VectorXd q = Eigen::VectorXd::Zero(rls_.x().size());
+  for (size_t k = 0; k < estimated_.size(); ++k) q[k] = sigma_full[estimated_[k]] * sigma_full[estimated_[k]];
+  rls_.addProcessNoise(q);
+}
+
+Eigen::VectorXd DriftModel::sigmas(const RobotModel& model) const {
+  Eigen::VectorXd s(model.numParams());
+  const int n = model.numJoints();
+  for (int i = 0; i < model.numParams(); ++i) {
+    if (i >= 5 * n) {
+      s[i] = model.isLength(i) ? frame_length_m : frame_angle_rad;
+    } else if (i % 5 == static_cast<int>(JointParam::kThetaOffset)) {
+      s[i] = joint_offset_rad;
+    } else {
+      s[i] = model.isLength(i) ? joint_length_m : axis_angle_rad;
+    }
+  }
+  return s;
+}
+
+GaussianPrior RlsCalibrator::asPrior() const {
+  GaussianPrior p;
+  p.mean = params_;
+  p.indices = estimated_;
+  const auto ne = static_cast<Eigen::Index>(estimated_.size());
+  p.covariance = rls_.P().topLeftCorner(ne, ne);
+  return p;
+}
+
+}  // namespace cellcal

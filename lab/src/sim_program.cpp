@@ -1,0 +1,89 @@
+#include "cellcal/lab/sim_program.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+namespace cellcal {
+namespace {
+double smoothstep(double x) { return x * x * (3 - 2 * x); }
+constexpr int kWorkPoints = 32;
+}  // namespace
+
+SimulatedCell makeSimulatedCell(const CellRobot& robot, const SimulationSettings& settings, int index) {
+  SimulationConfig c;
+  c.seed = settings.seed + 7919ULL * static_cast<std::uint64_t>(index);
+  c.base_in_tracker = robot.model.nominal.segment<6>(robot.model.baseParam(FrameParam::kX));
+  c.tool_in_flange = robot.model.nominal.segment<6>(robot.model.toolParam(FrameParam::kX));
+  if (settings.effect == Cause::kNone) return SimulatedCell(robot.model, c);
+  // The hidden effect, scaled to its RMS joint error over the workspace (configurations drawn from the seed).
+  const SimulatedCell plain(robot.model, c);
+  std::mt19937_64 rng(c.seed * 1000003ULL + 424243ULL);
+  const std::vector<Eigen::VectorXd> qs = plain.randomConfigurations(200, rng);
+  const Eigen::VectorXd true0 = plain.trueParams(0.0);
+  std::vector<LinkInertia> links = robot.model.links;
+  if (settings.effect == Cause::kJointCompliance && links.empty()) links = plausibleLinks(plain.model(), true0, rng);
+  c.hidden = scaledHiddenEffect(plain.model(), true0, settings.effect, settings.effect_joint, settings.effect_size_rad,
+                                links, qs, rng);
+  return SimulatedCell(robot.model, c);
+}
+
+SimRobotProgram::SimRobotProgram(const SimulatedCell& cell, const SimulationSettings& s) : s_(s) {
+  for (int g = 0; g < s.groups; ++g) {
+    const int n = g == 0 ? s.initial_poses : s.poses_per_group;
+    if (g > 0 && s.hours_between_groups * 3600.0 < campaignEnd_s(g - 1) - campaignStart_s(g - 1))
+      throw std::invalid_argument("simulation: campaigns overlap (hours_between_groups shorter than a campaign)");
+    std::mt19937_64 rng(cell.config().seed * 1000003ULL + static_cast<std::uint64_t>(g) + 17);
+    campaigns_.push_back(cell.randomConfigurations(n, rng));
+  }
+  std::mt19937_64 rng(cell.config().seed * 1000003ULL + 999983ULL);
+  work_ = cell.randomConfigurations(kWorkPoints, rng);
+}
+
+double SimRobotProgram::campaignStart_s(int g) const { return g * s_.hours_between_groups * 3600.0; }
+double SimRobotProgram::campaignEnd_s(int g) const {
+  const int n = g == 0 ? s_.initial_poses : s_.poses_per_group;
+  return campaignStart_s(g) + n * s_.pose_time_s;
+}
+
+Eigen::VectorXd SimRobotProgram::workAt(double t) const {
+  const double u = t / s_.pose_time_s;
+  const double seg = std::floor(u);
+  const auto i = static_cast<long long>(seg) % kWorkPoints;
+  const auto j = (i + 1) % kWorkPoints;
+  const double f = smoothstep(u - seg);
+  return (1 - f) * work_[static_cast<size_t>(i)] + f * work_[static_cast<size_t>(j)];
+}
+
+SimRobotState SimRobotProgram::at(double t) const {
+  SimRobotState st;
+  st.cell_time_s = t;
+  st.settle_duration_s = s_.settle_fraction * s_.pose_time_s;
+  long long before = 0;
+  for (int g = 0; g < campaigns(); ++g) {
+    const double t0 = campaignStart_s(g);
+    if (t >= t0 && t < campaignEnd_s(g)) {
+      const int k = std::min(posesIn(g) - 1, static_cast<int>(std::floor((t - t0) / s_.pose_time_s)));
+      const double tau = (t - t0 - k * s_.pose_time_s) / s_.pose_time_s;
+      const Eigen::VectorXd& cur = campaigns_[g][k];
+      const Eigen::VectorXd prev = k == 0 ? workAt(t0) : campaigns_[g][k - 1];
+      const double move = 1.0 - s_.settle_fraction;
+      st.campaign = g;
+      st.pose = k;
+      st.pose_id = before + k;
+      if (tau < move) {
+        st.q_rad = prev + smoothstep(tau / move) * (cur - prev);
+      } else {
+        st.q_rad = cur;
+        st.settled = true;
+        st.settled_for_s = (tau - move) * s_.pose_time_s;
+      }
+      return st;
+    }
+    before += posesIn(g);
+  }
+  // Working: continue the work path from where the last campaign left it.
+  st.q_rad = workAt(t);
+  return st;
+}
+
+}  // namespace cellcal

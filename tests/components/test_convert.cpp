@@ -1,0 +1,56 @@
+// Conversions between the wire types and core (components/common/convert): what the engine publishes is what the
+// compensation publisher rebuilds. Its own TU: the generated TypeObject header (test_msgs.cpp) opens Fast DDS's types
+// namespace, whose operator templates make Eigen's enum comparisons ambiguous.
+#include <gtest/gtest.h>
+
+#include "cdr_round_trip.hpp"
+#include "cellcal/components/convert.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal_msgsPubSubTypes.h"
+
+namespace {
+
+using cellcal::test::roundTrip;
+
+TEST(Convert, CalibrationStateCarriesModelExtensions) {
+  // The engine's snapshot with extensions -> wire -> what the compensation publisher rebuilds: the same model.
+  cellcal::CellConfig cell = cellcal::loadCellConfig(std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml");
+  cellcal::CellRobot& robot = cell.robots[0];
+  const cellcal::RobotModel& m = robot.model;
+  cellcal::CalibrationSnapshot s;
+  s.version = 3;
+  s.params = m.nominal + 1e-4 * Eigen::VectorXd::Random(m.numParams());
+  for (int i = 0; i < 10; ++i) s.estimated.push_back(i);
+  s.extensions = {{cellcal::Cause::kCyclicTransmission, 2}, {cellcal::Cause::kJointCompliance, 1}};
+  const int nx = cellcal::numExtensionParams(m, s.extensions);
+  s.extension_params = 1e-5 * Eigen::VectorXd::Random(nx);
+  s.estimated_extension = {0, 1, 2, 3, 5};
+  s.covariance = Eigen::VectorXd::LinSpaced(15, 1e-8, 15e-8).asDiagonal();
+  const auto wire = roundTrip<cellcal::msg::CalibrationStatePubSubType>(cellcal::components::toCalibrationState(robot, s, 1, 1));
+  ASSERT_EQ(wire.model_extensions().size(), 2u);
+  EXPECT_EQ(wire.model_extensions()[0].to_string(), "cyclic_transmission:3");
+  EXPECT_EQ(wire.parameter_names().size(), static_cast<size_t>(m.numParams() + nx));
+  EXPECT_EQ(wire.parameter_names()[m.numParams()].to_string(), "joint3.sin1_rad");
+  EXPECT_NEAR(wire.parameter_stddevs()[m.numParams() + 5], std::sqrt(15e-8), 1e-15);  // estimated_extension[4] = 5
+  EXPECT_EQ(wire.parameter_stddevs()[m.numParams() + 4], 0.0);                          // not estimated
+  std::string error;
+  const auto back = cellcal::components::fromCalibrationState(m, wire, &error);
+  ASSERT_TRUE(back) << error;
+  EXPECT_EQ(back->params, s.params);
+  EXPECT_EQ(back->extension_params, s.extension_params);
+  ASSERT_EQ(back->extensions.size(), 2u);
+  EXPECT_EQ(back->extensions[1].cause, cellcal::Cause::kJointCompliance);
+  EXPECT_EQ(back->extensions[1].joint, 1);
+  // A parameter of a named extension left out is an error, not "no effect".
+  auto cut = wire;
+  cut.parameter_names().pop_back();
+  cut.parameter_values().pop_back();
+  EXPECT_FALSE(cellcal::components::fromCalibrationState(m, cut, &error));
+  EXPECT_NE(error.find("extension parameter 'joint2.compliance_link6_moment_z_rad_per_Nm_kg_m' missing"), std::string::npos) << error;
+  auto bad = wire;
+  bad.model_extensions()[0] = "thermal_drift";
+  EXPECT_FALSE(cellcal::components::fromCalibrationState(m, bad, &error));
+  EXPECT_NE(error.find("model_extensions: 'thermal_drift' does not apply"), std::string::npos) << error;
+}
+
+}  // namespace

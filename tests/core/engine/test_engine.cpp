@@ -1,0 +1,239 @@
+// The calibration engine of one robot (per pose and per batch, named model extensions), fed the simulated cell's
+// streams. Hidden robot errors are drawn from a fresh seed; the engine only sees samples. Its state files:
+// tests/components/test_engine_host.cpp.
+#include <gtest/gtest.h>
+
+#include <iomanip>
+#include <random>
+#include <sstream>
+
+#include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/lab/sim_program.hpp"
+#include "core/engine/engine_feed.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kCell = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+using test::Feed;
+using test::tempDir;
+
+double verifyError(const SimulatedCell& cell, const Eigen::VectorXd& params, double t_h, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const auto qs = cell.randomConfigurations(100, rng);
+  KinematicsData d(cell.model());
+  double sum = 0;
+  for (const auto& q : qs)
+    sum += (forwardKinematics(cell.model(), d, params, q).translation() - cell.truePose(q, t_h).translation()).norm();
+  return sum / static_cast<double>(qs.size());
+}
+
+struct EngineFixture : ::testing::Test {
+  CellConfig config = loadCellConfig(kCell);
+  std::uint64_t seed = test::testSeed();
+  void SetUp() override {
+    config.simulation.seed = seed;
+    config.simulation.groups = 3;
+    config.engine.state_dir = tempDir(::testing::UnitTest::GetInstance()->current_test_info()->name());
+  }
+  void TearDown() override { fs::remove_all(config.engine.state_dir); }
+};
+
+TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  CalibrationEngine engine(robot, config.engine, config.time_compression);
+  Feed feed{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const int readings = feed.run(engine, 0, 3, dt, config.simulation.pose_time_s, config.simulation.settle_fraction);
+  const auto& c = engine.counters();
+  EXPECT_EQ(engine.snapshot().poses_used, static_cast<unsigned>(readings)) << c.last_rejection;
+  EXPECT_EQ(engine.snapshot().version, static_cast<unsigned>(readings));
+  EXPECT_EQ(engine.snapshot().health, Health::kOk);
+  const double t_h = program.campaignEnd_s(2) / 3600;
+  const double nominal = verifyError(cell, cell.nominalParams(), t_h, seed + 5);
+  const double floor = verifyError(cell, cell.trueParams(t_h), t_h, seed + 5);  // 0: exact truth
+  const double after = verifyError(cell, engine.snapshot().params, t_h, seed + 5);
+  EXPECT_EQ(floor, 0.0);
+  // The tracker (~20 um) and repeatability (~10 um) bound what 80 poses can identify: well under 0.1 mm.
+  EXPECT_LT(after, 0.1e-3) << "nominal " << nominal * 1e3 << " mm";
+  EXPECT_LT(after, nominal / 10);
+  EXPECT_TRUE(std::isfinite(engine.snapshot().verification_mean_position_m));
+  // The noise and drift models hold for the simulated robot: consistent innovations, no drift alarm.
+  EXPECT_LT(engine.snapshot().recent_nis_per_row, 2.0);
+  EXPECT_FALSE(engine.snapshot().drift_alarm);
+  EXPECT_GT(engine.snapshot().condition_number, 1.0);
+  EXPECT_TRUE(std::isfinite(engine.snapshot().condition_number));
+  EXPECT_LT(engine.snapshot().residual_rms_position_m, 0.1e-3);
+}
+
+TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
+  const CellRobot& robot = config.robots[0];
+  CalibrationEngine engine(robot, config.engine, 1.0);
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  const auto qs = sim.randomConfigurations(3, rng);
+  std::int64_t t = 1'700'000'000'000'000'000;
+  std::uint64_t seq = 0;
+  int readings = 0;
+  for (const auto& q : qs) {
+    for (int k = 0; k < 20; ++k) {  // moving toward q
+      t += 1'000'000;
+      engine.onJointState({t, ++seq, q * (0.5 + k / 40.0), false}, t);
+    }
+    for (int k = 0; k < 100; ++k) {  // standing still: the tracker streams at 1 kHz
+      t += 1'000'000;
+      engine.onJointState({t, ++seq, q, true}, t);
+      const Observation o = sim.measure(q, 0.0, rng);
+      TrackerSample s;
+      s.stamp_ns = t;
+      s.sequence = ++seq;
+      s.position_m = o.measured_in_tracker.translation();
+      const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+      s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+      engine.onTrackerSample(s, t);
+      engine.process(t);
+      ++readings;
+    }
+  }
+  EXPECT_EQ(engine.snapshot().version, 3u);
+  EXPECT_EQ(engine.counters().paired, static_cast<std::uint64_t>(readings));
+  EXPECT_EQ(engine.counters().same_pose, static_cast<std::uint64_t>(readings - 3));
+}
+
+TEST_F(EngineFixture, PeriodicModeUpdatesOncePerBatch) {
+  config.engine.mode = EngineMode::kPeriodic;
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const SimRobotProgram program(cell, config.simulation);
+  CalibrationEngine engine(robot, config.engine, config.time_compression);
+  Feed feed{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
+  const int readings = feed.run(engine, 0, 2, config.time_compression / config.simulation.joint_rate_hz,
+                                config.simulation.pose_time_s, config.simulation.settle_fraction);
+  EXPECT_EQ(engine.snapshot().version, static_cast<unsigned>(readings / config.engine.batch_poses));
+  EXPECT_EQ(engine.snapshot().poses_used, engine.snapshot().version * config.engine.batch_poses);
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// The cell file names a model extension (what `cellcal diagnose` found): the engine estimates its parameters in the
+// RLS state along with the kinematics. Each draw hides one effect (cause, joint, size, sign at random) in the
+// simulated robot; the engine is told the cause and joint, never the size. Three engines see the same samples: a
+// geometric one on a robot without the effect (the floor), a geometric one and an extended one on the robot with it.
+struct ExtensionDraw {
+  Cause cause;
+  int joint;
+  double size_rad;
+};
+
+// The size is drawn as the effect's reach at the target (0.1..0.5 mm, log-uniform), then divided by the joint's mean
+// lever arm over random configurations of `cell`: a joint-angle size drawn alike for every joint made wrist effects
+// (lever ~0.1 m) too small to matter beside the 0.02 mm repeatability, against 0.6 m at the shoulder.
+ExtensionDraw drawExtension(std::mt19937_64& rng, const SimulatedCell& cell) {
+  const Cause causes[] = {Cause::kJointCompliance, Cause::kCyclicTransmission, Cause::kJointScale, Cause::kBacklash};
+  ExtensionDraw d;
+  d.cause = causes[std::uniform_int_distribution<int>(0, 3)(rng)];
+  // Compliance: the joints gravity loads most (shoulder, elbow, wrist pitch carry the arm).
+  const std::vector<int> joints = d.cause == Cause::kJointCompliance ? std::vector<int>{1, 2, 4} : std::vector<int>{0, 1, 2, 3, 4, 5};
+  d.joint = joints[std::uniform_int_distribution<size_t>(0, joints.size() - 1)(rng)];
+  const double reach_m = std::exp(std::uniform_real_distribution<double>(std::log(0.1e-3), std::log(0.5e-3))(rng));
+  const RobotModel& m = cell.model();
+  KinematicsData data(m);
+  Eigen::MatrixXd Jq(6, m.numJoints());
+  std::mt19937_64 config_rng(rng());
+  double lever_m = 0;
+  const auto qs = cell.randomConfigurations(50, config_rng);
+  for (const auto& q : qs) {
+    forwardKinematics(m, data, m.nominal, q);
+    computeJointJacobian(m, data, Jq);
+    lever_m += Jq.col(d.joint).head<3>().norm() / static_cast<double>(qs.size());
+  }
+  d.size_rad = (std::uniform_int_distribution<int>(0, 1)(rng) ? 1 : -1) * reach_m / lever_m;
+  return d;
+}
+
+// Mean hold-out position error (m) of an engine's calibration over a tour of random configurations visited in order
+// (the play state of backlash follows the tour).
+double tourError(const SimulatedCell& cell, const CalibrationSnapshot& snap, double t_h, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const auto qs = cell.randomConfigurations(100, rng);
+  const DriverTable drivers = driversFromSequence(qs, {}, {});
+  const RobotModel& m = cell.model();
+  KinematicsData d(m);
+  HiddenJointState state;
+  double sum = 0;
+  for (size_t i = 0; i < qs.size(); ++i) {
+    if (i > 0) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
+    if (i < 4) continue;  // let the play settle from its unknown start
+    const Eigen::VectorXd p = extendedParams(m, snap.params, snap.extensions, snap.extension_params, qs[i], drivers.rows[i]);
+    sum += (forwardKinematics(m, d, p, qs[i]).translation() - cell.truePose(qs[i], t_h, &state).translation()).norm();
+  }
+  return sum / static_cast<double>(qs.size() - 4);
+}
+
+TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor) {
+  const CellRobot& plain_robot = config.robots[0];
+  const double dt = config.time_compression / config.simulation.joint_rate_hz;
+  const double pt = config.simulation.pose_time_s, sf = config.simulation.settle_fraction;
+  std::mt19937_64 rng(seed);
+  constexpr int kDraws = 8;
+  int gained = 0;
+  for (int k = 0; k < kDraws; ++k) {
+    SimulationSettings ss = config.simulation;
+    ss.seed = rng();
+    const SimulatedCell plain = makeSimulatedCell(plain_robot, ss, 0);
+    const ExtensionDraw draw = drawExtension(rng, plain);
+    SimulationConfig sc = plain.config();
+    if (draw.cause == Cause::kBacklash) {
+      sc.hidden.cause = Cause::kBacklash;
+      sc.hidden.joint = draw.joint;
+      sc.hidden.backlash_width_rad = 2 * std::abs(draw.size_rad);
+    } else {
+      ss.effect = draw.cause;
+      ss.effect_joint = draw.joint;
+      ss.effect_size_rad = draw.size_rad;
+      sc = makeSimulatedCell(plain_robot, ss, 0).config();
+    }
+    const SimulatedCell hidden(plain_robot.model, sc);
+    CellRobot extended_robot = plain_robot;
+    extended_robot.extensions = {Extension{draw.cause, draw.joint}};
+    const std::string what = std::string(causeName(draw.cause)) + " joint " + std::to_string(draw.joint + 1) + ", " +
+                             std::to_string(draw.size_rad * 180 / kPi) + " deg RMS, seed " + std::to_string(ss.seed);
+
+    const SimRobotProgram program(plain, ss);
+    auto run = [&](const SimulatedCell& cell, const CellRobot& robot) {
+      CalibrationEngine engine(robot, config.engine, config.time_compression);
+      Feed feed{cell, program, std::mt19937_64(ss.seed + 1), 1'700'000'000'000'000'000, config.time_compression};
+      feed.run(engine, 0, 3, dt, pt, sf);
+      // A geometric engine on a robot with the effect may be right to raise the drift alarm (degraded).
+      const Health h = engine.snapshot().health;
+      EXPECT_TRUE(h == Health::kOk || (h == Health::kDegraded && &cell == &hidden && robot.extensions.empty()))
+          << what << ": " << healthName(h) << " " << engine.snapshot().health_reason;
+      return engine.snapshot();
+    };
+    const double t_h = program.campaignEnd_s(2) / 3600;
+    const double floor = tourError(plain, run(plain, plain_robot), t_h, ss.seed + 5);
+    const double geometric = tourError(hidden, run(hidden, plain_robot), t_h, ss.seed + 5);
+    const CalibrationSnapshot ext = run(hidden, extended_robot);
+    const double extended = tourError(hidden, ext, t_h, ss.seed + 5);
+    ASSERT_EQ(ext.extensions.size(), 1u);
+    ASSERT_EQ(ext.extension_params.size(), numExtensionParams(plain_robot.model, ext.extensions));
+    EXPECT_EQ(static_cast<Eigen::Index>(ext.estimated.size() + ext.estimated_extension.size()), ext.covariance.rows());
+    std::printf("  %-50s floor %.4f  geometric %.4f  extended %.4f mm (engine verify %.4f)\n", what.c_str(), floor * 1e3, geometric * 1e3,
+                extended * 1e3, ext.verification_mean_position_m * 1e3);
+    // The extended engine comes close to the geometric one on a robot without the effect. It estimates more
+    // parameters from the same 80 poses (a compliance without link masses: 4 per link beyond the joint), so a little
+    // more noise gets into the model: over 248 draws the ratio was at most 1.30 (median 1.02).
+    EXPECT_LT(extended, 1.5 * floor) << what;
+    if (geometric > 1.5 * floor) ++gained;
+  }
+  // The effects are large enough to matter: most draws leave the geometric engine well above the floor.
+  EXPECT_GE(gained, kDraws / 2);
+}
+
+}  // namespace
+}  // namespace cellcal

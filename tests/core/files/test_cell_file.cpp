@@ -1,0 +1,133 @@
+// The cell file (docs/cell-file.md): the shipped cells load, errors name line and field, units and extensions are
+// checked.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "cellcal/core/files/cell_config.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kCell = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+
+TEST(CellFile, ShippedCellLoadsWithItsRobotAndRegistration) {
+  const CellConfig c = loadCellConfig(kCell);
+  ASSERT_EQ(c.robots.size(), 1u);
+  const CellRobot& r = c.robots[0];
+  EXPECT_EQ(r.robot_id, "tx60");
+  EXPECT_EQ(r.model.name, "staubli_tx60");
+  EXPECT_NEAR(r.model.nominal[r.model.baseParam(FrameParam::kX)], 2.2, 1e-12);  // from the cell, not the robot file
+  EXPECT_NEAR(r.model.nominal[r.model.toolParam(FrameParam::kZ)], 0.06, 1e-12);
+  EXPECT_TRUE(fs::path(c.dds.profiles_file).is_absolute());
+  EXPECT_TRUE(fs::exists(c.dds.profiles_file)) << c.dds.profiles_file;
+  EXPECT_NEAR(c.engine.max_pairing_skew_s, 0.05, 1e-12);
+  EXPECT_NEAR(c.compensation.max_correction_m, 5e-3, 1e-12);
+}
+
+TEST(CellFile, ExampleCellsLoad) {
+  int n = 0;
+  for (const auto& f : fs::directory_iterator(std::string(CELLCAL_CONFIG_DIR) + "/examples")) {
+    const CellConfig c = loadCellConfig(f.path().string());
+    EXPECT_FALSE(c.robots.empty()) << f.path();
+    ++n;
+  }
+  EXPECT_GE(n, 2);
+}
+
+std::string errorOf(const std::string& yaml) {
+  try {
+    parseCellConfig(yaml, "cell.yaml", CELLCAL_CONFIG_DIR);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(CellFile, ErrorsNameLineAndField) {
+  const std::string robot = "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml }\n";
+  EXPECT_EQ(errorOf(robot + "engine:\n  mode: sometimes\n"),
+            "cell.yaml:4:9: engine.mode: expected continuous or periodic, got 'sometimes'");
+  EXPECT_NE(errorOf(robot + "engine:\n  max_skew_ms: 3\n").find("cell.yaml:4:3: engine.max_skew_ms: unknown key"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "dds: { domain_id: 300 }\n").find("dds.domain_id: must be in [0, 232]"), std::string::npos);
+  EXPECT_NE(errorOf("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/nope.yaml }\n")
+                .find("robots[0].robot_file: "),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "  - { robot_id: a, target_id: u, robot_file: robots/ur10.yaml }\n").find("used twice"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "compensation: { max_correction_mm: -1 }\n").find("compensation.max_correction_mm: must be > "),
+            std::string::npos);
+  EXPECT_NE(errorOf("dds: {}\n").find("missing required key 'robots'"), std::string::npos);
+}
+
+// A registration drawn at random (tracker 0.5-5 m from the base, target 10-300 mm off the flange, any rotation) loads;
+// the same numbers in metres in the _mm fields are refused naming the field and line. A base aligned with the tracker
+// frame (within 1 mm, no rotation) and a tool not known yet (0) load.
+TEST(CellFile, MetresInTheRegistrationAreCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Eigen::Vector3d rpy_deg;
+  auto frame = [&](const Eigen::Vector3d& p_mm) {
+    std::ostringstream o;
+    o << std::setprecision(10) << "{ x_mm: " << p_mm.x() << ", y_mm: " << p_mm.y() << ", z_mm: " << p_mm.z()
+      << ", roll_deg: " << rpy_deg.x() << ", pitch_deg: " << rpy_deg.y() << ", yaw_deg: " << rpy_deg.z() << " }";
+    return o.str();
+  };
+  auto cell = [&](const Eigen::Vector3d& base_mm, const Eigen::Vector3d& tool_mm) {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml,\n      base_in_tracker: " +
+           frame(base_mm) + ",\n      tool_in_flange: " + frame(tool_mm) + " }\n";
+  };
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::Vector3d dir_b = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+    const Eigen::Vector3d dir_t = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+    const Eigen::Vector3d base_mm = dir_b * (500 + 4500 * (0.5 + 0.5 * u(rng)));
+    const Eigen::Vector3d tool_mm = dir_t * (10 + 290 * (0.5 + 0.5 * u(rng)));
+    rpy_deg = Eigen::Vector3d(180 * u(rng), 90 * u(rng), 180 * u(rng));
+    EXPECT_EQ(errorOf(cell(base_mm, tool_mm)), "") << base_mm.transpose() << " / " << tool_mm.transpose();
+    const std::string base_err = errorOf(cell(base_mm / 1000, tool_mm));
+    EXPECT_NE(base_err.find("cell.yaml:3:24: robots[0].base_in_tracker: "), std::string::npos) << base_err;
+    EXPECT_NE(base_err.find("metres written where millimetres are expected"), std::string::npos) << base_err;
+    const std::string tool_err = errorOf(cell(base_mm, tool_mm / 1000));
+    EXPECT_NE(tool_err.find("cell.yaml:4:23: robots[0].tool_in_flange: "), std::string::npos) << tool_err;
+    EXPECT_EQ(errorOf(cell(base_mm, Eigen::Vector3d::Zero())), "");  // tool not known yet
+    rpy_deg = Eigen::Vector3d(0.5 * u(rng), 0.5 * u(rng), 0.5 * u(rng));
+    EXPECT_EQ(errorOf(cell(dir_b * 0.5 * (0.5 + 0.5 * u(rng)), tool_mm)), "");  // tracker frame aligned to the base
+  }
+}
+
+TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
+  auto cell = [](const std::string& ext, const std::string& sim = "") {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml, extensions: " + ext + " }\n" + sim;
+  };
+  const CellConfig ok = parseCellConfig(cell("[joint_compliance:2, backlash:3]"), "cell.yaml", CELLCAL_CONFIG_DIR);
+  ASSERT_EQ(ok.robots[0].extensions.size(), 2u);
+  EXPECT_EQ(ok.robots[0].extensions[0].cause, Cause::kJointCompliance);
+  EXPECT_EQ(ok.robots[0].extensions[0].joint, 1);
+  EXPECT_EQ(extensionSpec(ok.robots[0].extensions[1]), "backlash:3");
+  EXPECT_NE(errorOf(cell("[joint_compliance:9]")).find("cell.yaml:2:77: robots[0].extensions[0]: 'joint_compliance:9': ur10 has joints 1..6"),
+            std::string::npos) << errorOf(cell("[joint_compliance:9]"));
+  EXPECT_NE(errorOf(cell("[gear_wear:2]")).find("'gear_wear' is not a cause"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[joint_scale]")).find("needs a joint"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[joint_scale:x]")).find("must be a number"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[thermal_drift]")).find("thermal_drift needs a temperature"), std::string::npos);
+  EXPECT_NE(errorOf(cell("[backlash:2, backlash:2]")).find("listed twice"), std::string::npos);
+  EXPECT_NE(errorOf(cell("joint_scale:2")).find("expected a list"), std::string::npos);
+  const CellConfig hid = parseCellConfig(
+      cell("[]", "simulation:\n  hidden_effect: { cause: joint_compliance, joint: 3, size_deg: -0.02 }\n"), "cell.yaml",
+      CELLCAL_CONFIG_DIR);
+  EXPECT_EQ(hid.simulation.effect, Cause::kJointCompliance);
+  EXPECT_EQ(hid.simulation.effect_joint, 2);
+  EXPECT_NEAR(hid.simulation.effect_size_rad, -0.02 * kPi / 180, 1e-15);
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  hidden_effect: { cause: backlash, joint: 3, size_deg: 0.02 }\n"))
+                .find("simulation.hidden_effect.cause: expected none, joint_compliance"),
+            std::string::npos);
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  hidden_effect: { cause: joint_scale, joint: 3 }\n")).find("size_deg"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace cellcal

@@ -1,0 +1,108 @@
+// CSV v1 measurement files: columns, units, optional orientation, and errors naming file:line:column.
+#include <gtest/gtest.h>
+
+#include <random>
+#include <sstream>
+
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/sim/simulation.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+const std::string kHeader = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,qw,qx,qy,qz,stamp_s,group,operator\n";
+
+std::string errorOf(const std::string& text, bool skip = false) {
+  try {
+    MeasurementCsvOptions o;
+    o.skip_bad_rows = skip;
+    parseMeasurementCsv(text, "m.csv", test::robot("staubli_tx60"), o);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(MeasurementCsv, ReadsRowsUnitsAndOptionalOrientation) {
+  const RobotModel m = test::robot("staubli_tx60");
+  const auto f = parseMeasurementCsv("# campaign 1\n# tracker AT960\n" + kHeader +
+                                         "10,20,30,40,50,60,1000.5,-20,300,1,0,0,0,0.5,2,anna\n"
+                                         "0,0,0,0,0,0,1,2,3,,,,,1.5,2,bob\n",
+                                     "m.csv", m);
+  ASSERT_EQ(f.rows.size(), 2u);
+  EXPECT_EQ(f.rows[0].line, 4);
+  EXPECT_NEAR(f.rows[0].q_rad[1], 20 * kPi / 180, 1e-15);
+  EXPECT_NEAR(f.rows[0].position_m.x(), 1.0005, 1e-15);
+  ASSERT_TRUE(f.rows[0].orientation.has_value());
+  EXPECT_FALSE(f.rows[1].orientation.has_value());
+  EXPECT_EQ(*f.rows[1].group, 2);
+  EXPECT_EQ(*f.rows[1].stamp_s, 1.5);
+  ASSERT_EQ(f.ignored_columns.size(), 1u);
+  EXPECT_EQ(f.ignored_columns[0], "operator");
+  EXPECT_EQ(toObservation(f.rows[1], MeasurementKind::kPose6D, 1e-5, 1e-4).kind, MeasurementKind::kPosition3D);
+}
+
+TEST(MeasurementCsv, BadRowsNameFileLineAndColumn) {
+  EXPECT_EQ(errorOf(kHeader + "10,20,abc,40,50,60,1,2,3,,,,,0,1,x\n"), "m.csv:2:3: q3_deg: 'abc' is not a finite number");
+  EXPECT_EQ(errorOf(kHeader + "10,20,30,40,50,60,1,,3,,,,,0,1,x\n"), "m.csv:2:8: y_mm: missing value");
+  EXPECT_NE(errorOf(kHeader + "10,20,30,40,200,60,1,2,3,,,,,0,1,x\n").find("m.csv:2:5: q5_deg: joint outside its limits"),
+            std::string::npos);
+  EXPECT_NE(errorOf(kHeader + "10,20,30,40,50,60,1,2,3,1,1,0,0,0,1,x\n").find("m.csv:2:10: qw: quaternion norm"),
+            std::string::npos);
+  EXPECT_NE(errorOf(kHeader + "10,20,30,40,50,60,1,2,3,1,,0,0,0,1,x\n").find("m.csv:2:11: qx: missing value"),
+            std::string::npos);
+  EXPECT_NE(errorOf(kHeader + "10,20,30,40,50,60,1,2,nan,,,,,0,1,x\n").find("z_mm: 'nan' is not a finite number"),
+            std::string::npos);
+  EXPECT_NE(errorOf("q1_deg,x_mm,y_mm,z_mm\n1,2,3,4\n").find("missing column q2_deg"), std::string::npos);
+  EXPECT_NE(errorOf("# only comments\n").find("no header row"), std::string::npos);
+}
+
+// A measured file (random robot, poses and count) is read as written; the same file with its positions written in
+// metres is refused, naming the file, the header line and x_mm's column.
+TEST(MeasurementCsv, MetresInMillimetreColumnsAreCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  for (int trial = 0; trial < 20; ++trial) {
+    const RobotModel m = test::robot(rng() % 2 ? "staubli_tx60" : "ur10");
+    SimulationConfig sc;
+    sc.seed = rng();
+    const SimulatedCell cell(m, sc);
+    MeasurementFile f;
+    for (const auto& q : cell.randomConfigurations(3 + static_cast<int>(rng() % 40), rng)) {
+      MeasurementRow r;
+      r.q_rad = q;
+      r.position_m = cell.measure(q, 0.0, rng).measured_in_tracker.translation();
+      f.rows.push_back(r);
+    }
+    std::ostringstream good, metres;
+    writeMeasurementCsv(good, f, m.numJoints(), "");
+    EXPECT_EQ(parseMeasurementCsv(good.str(), "m.csv", cell.model()).rows.size(), f.rows.size());
+    for (auto& r : f.rows) r.position_m /= 1000.0;  // what a file with metres in x_mm reads as
+    writeMeasurementCsv(metres, f, m.numJoints(), "");
+    try {
+      parseMeasurementCsv(metres.str(), "m.csv", cell.model());
+      ADD_FAILURE() << "metres accepted, " << f.rows.size() << " rows";
+    } catch (const ConfigError& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.rfind("m.csv:", 0), 0u) << what;
+      EXPECT_NE(what.find(": x_mm, y_mm, z_mm: "), std::string::npos) << what;
+      EXPECT_NE(what.find("metres written where millimetres are expected"), std::string::npos) << what;
+    }
+  }
+}
+
+TEST(MeasurementCsv, SkipBadRowsKeepsTheGoodOnesAndCountsTheRest) {
+  MeasurementCsvOptions o;
+  o.skip_bad_rows = true;
+  const auto f = parseMeasurementCsv(kHeader + "10,20,30,40,50,60,1,2,3,,,,,0,1,x\n"
+                                               "10,20,zz,40,50,60,1,2,3,,,,,0,1,x\n"
+                                               "11,20,30,40,50,60,1,2,3,,,,,1,1,x\n",
+                                     "m.csv", test::robot("staubli_tx60"), o);
+  EXPECT_EQ(f.rows.size(), 2u);
+  EXPECT_EQ(f.skipped_rows, 1);
+  ASSERT_EQ(f.warnings.size(), 1u);
+  EXPECT_NE(f.warnings[0].find("m.csv:3:3: q3_deg"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace cellcal

@@ -1,0 +1,184 @@
+// `cellcal record`: the cell's topics to an MCAP file (recording/recording.hpp), and --recover of a file cut short.
+#include <fastdds/rtps/common/Guid.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/recording/recording.hpp"
+#include "commands.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace cellcal::components;
+using namespace cellcal::recording;
+
+std::string fileSizeText(const std::string& path) {
+  std::error_code ec;
+  const auto n = fs::file_size(path, ec);
+  if (ec) return "?";
+  char b[32];
+  std::snprintf(b, sizeof b, "%.2f MB", static_cast<double>(n) / 1e6);
+  return b;
+}
+
+
+std::map<std::string, std::string> qosMetadata(const fdds::DataReaderQos& q) {
+  std::map<std::string, std::string> md;
+  md["reliability"] = q.reliability().kind == fdds::RELIABLE_RELIABILITY_QOS ? "reliable" : "best_effort";
+  switch (q.durability().kind) {
+    case fdds::VOLATILE_DURABILITY_QOS: md["durability"] = "volatile"; break;
+    case fdds::TRANSIENT_LOCAL_DURABILITY_QOS: md["durability"] = "transient_local"; break;
+    case fdds::TRANSIENT_DURABILITY_QOS: md["durability"] = "transient"; break;
+    default: md["durability"] = "persistent";
+  }
+  md["history"] = q.history().kind == fdds::KEEP_LAST_HISTORY_QOS ? "keep_last" : "keep_all";
+  md["depth"] = std::to_string(q.history().depth);
+  return md;
+}
+
+struct RecordArgs {
+  ProcessOptions common;
+  std::string out, topics = "all", recover, json;
+  double duration_s = 0, flush_period_s = 1.0;
+  std::size_t chunk_kib = 1024;
+  bool quiet = false;
+};
+
+int runRecover(const RecordArgs& a) {
+  mcap::ReadOptions o;
+  o.tolerate_truncation = true;
+  const auto before = mcap::readFile(a.recover, o);
+  if (before.complete) std::printf("record --recover: %s is already complete\n", a.recover.c_str());
+  else std::printf("record --recover: %s: %s\n", a.recover.c_str(), before.problem.c_str());
+  const std::uint64_t n = mcap::recover(a.recover, a.out);
+  std::printf("record --recover: %llu messages of the complete chunks written to %s (%s)\n",
+              static_cast<unsigned long long>(n), a.out.c_str(), fileSizeText(a.out).c_str());
+  return 0;
+}
+
+int runRecord(const RecordArgs& a) {
+  if (!a.recover.empty()) return runRecover(a);
+  installStopHandlers();
+  const CellConfig cell = loadCell(a.common);
+  const std::vector<std::string> topics = parseTopicList(a.topics);
+  if (!(a.flush_period_s > 0)) throw std::runtime_error("--flush-period-s must be > 0");
+  RecordingWriter rec(a.out, a.chunk_kib * 1024);
+  struct TopicStats {
+    std::uint64_t received = 0, lost = 0;
+    std::map<eprosima::fastrtps::rtps::GUID_t, std::uint64_t> last_sequence;  // per writer: gaps are lost samples
+  };
+  std::mutex mutex;
+  std::map<std::string, TopicStats> stats;
+  for (const auto& t : topics) stats[t];
+  DdsNode node(cell, "cellcal_recorder", identity::kObserver);
+  for (const auto& topic : topics) {
+    visitTopic(topic, [&](auto tag) {
+      using M = typename decltype(tag)::type;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        rec.channel(topic, qosMetadata(node.readerQos<M>()));
+      }
+      TopicStats* st = &stats[topic];
+      const std::string* name = &stats.find(topic)->first;
+      node.reader<M>([&rec, &mutex, st, name](const M& m, const fdds::SampleInfo& info) {
+        const std::int64_t now = wallNs();
+        std::string cdr = encodeCdr(m);
+        const std::uint64_t seq = static_cast<std::uint64_t>(info.sample_identity.sequence_number().to64long());
+        std::lock_guard<std::mutex> lock(mutex);
+        ++st->received;
+        auto [it, fresh] = st->last_sequence.emplace(info.sample_identity.writer_guid(), seq);
+        if (!fresh) {
+          if (seq > it->second + 1) st->lost += seq - it->second - 1;
+          it->second = std::max(it->second, seq);
+        }
+        rec.writeEncoded(*name, std::move(cdr), static_cast<std::uint64_t>(now),
+                         static_cast<std::uint64_t>(info.source_timestamp.to_ns()), static_cast<std::uint32_t>(seq));
+      });
+    });
+  }
+  std::fprintf(stderr, "record: %zu topic(s) on domain %d (%s) -> %s; chunks flushed every %g s\n", topics.size(),
+               cell.dds.domain_id, cell.dds.participant_profile.c_str(), a.out.c_str(), a.flush_period_s);
+  const auto start = std::chrono::steady_clock::now();
+  const RunLimit limit(a.duration_s);
+  auto next_flush = start;
+  auto next_status = start + std::chrono::seconds(10);
+  while (sleepUntil(std::chrono::steady_clock::now() + std::chrono::milliseconds(20))) {
+    const auto now = std::chrono::steady_clock::now();
+    if (limit.timeUp()) break;
+    if (now >= next_flush) {
+      next_flush = now + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                             std::chrono::duration<double>(a.flush_period_s));
+      std::lock_guard<std::mutex> lock(mutex);
+      rec.file().flush();  // whole chunks on disk: a SIGKILL loses at most this period
+    }
+    if (!a.quiet && now >= next_status) {
+      next_status = now + std::chrono::seconds(10);
+      std::lock_guard<std::mutex> lock(mutex);
+      std::fprintf(stderr, "record: %llu messages, %llu on disk\n",
+                   static_cast<unsigned long long>(rec.file().messagesWritten()),
+                   static_cast<unsigned long long>(rec.file().messagesInFile()));
+    }
+  }
+  node.shutdown();  // no callback after this
+  rec.file().close();
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::uint64_t lost = 0;
+  nlohmann::json per_topic = nlohmann::json::object();
+  std::printf("record: %llu messages in %.1f s written to %s (%s)\n",
+              static_cast<unsigned long long>(rec.file().messagesWritten()), wall_s, a.out.c_str(),
+              fileSizeText(a.out).c_str());
+  for (const auto& [t, s] : stats) {
+    std::printf("record:   %-34s %10llu received, %llu lost before the recorder (writer sequence gaps)\n", t.c_str(),
+                static_cast<unsigned long long>(s.received), static_cast<unsigned long long>(s.lost));
+    per_topic[t] = {{"received", s.received}, {"lost", s.lost}};
+    lost += s.lost;
+  }
+  const nlohmann::json counts = {{"file", a.out},
+                                 {"messages", rec.file().messagesWritten()},
+                                 {"lost", lost},
+                                 {"duration_s", wall_s},
+                                 {"topics", per_topic}};
+  writeJsonFile(a.json, counts);
+  writeJsonFile(a.common.stats_json, {{"name", "recorder"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"extra", counts}});
+  return 0;
+}
+
+}  // namespace
+
+Runner addRecordCommand(CLI::App& app) {
+  auto rec = std::make_shared<RecordArgs>();
+  CLI::App* r = addSubcommand(app, "record",
+      "Record the cell's topics to MCAP: one schema per type (encoding omgidl, the IDL text), CDR payloads as on the "
+      "wire, channel metadata with the QoS; log time = receive time, publish time = DDS source timestamp, sequence = "
+      "the writer's sequence number. Whole chunks reach the disk every --flush-period-s: a recorder killed with "
+      "SIGKILL leaves a file readable up to its last complete chunk (replay/validate read it; --recover rewrites it "
+      "whole). Stops on SIGINT/SIGTERM or after --duration-s and says how many messages it wrote.",
+      "  cellcal record --out cell.mcap                               every topic until Ctrl-C\n  cellcal record --out in.mcap --topics inputs --duration-s 600\n  cellcal record --recover cut.mcap --out fixed.mcap           a file cut short (SIGKILL, power loss)\n",
+      "  MCAP: omgidl schemas (the IDL text), CDR payloads as on the wire (docs/recording.md)\n");
+  addCommonOptions(*r, rec->common);
+  r->add_option("--out", rec->out, "MCAP file to write")->required();
+  r->add_option("--topics", rec->topics, "all | inputs | comma-separated topic names")->capture_default_str();
+  r->add_option("--duration-s", rec->duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
+  r->add_option("--flush-period-s", rec->flush_period_s, "close the chunk and flush it this often")->capture_default_str();
+  r->add_option("--chunk-kib", rec->chunk_kib, "close a chunk when it reaches this size")->capture_default_str();
+  r->add_option("--recover", rec->recover, "instead of recording: rewrite this (cut short) recording whole to --out")
+      ->check(CLI::ExistingFile);
+  r->add_option("--json", rec->json, "write the counts as JSON");
+  r->add_flag("-q,--quiet", rec->quiet, "no status line every 10 s");
+
+  return [rec] { return runRecord(*rec); };
+}
+
+}  // namespace cellcal::cli

@@ -1,0 +1,340 @@
+// `cellcal validate`: the engine host (components/engine_host.hpp) over a recording's inputs in log order, each
+// calibration compared with the one recorded.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/engine_host.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/recording/recording.hpp"
+#include "commands.hpp"
+#include "progress.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+using namespace cellcal::components;
+using namespace cellcal::recording;
+
+struct ValidateArgs {
+  ProcessOptions common;
+  std::string file, json, figures;
+  double tolerance_m = 1e-9, tolerance_rad = 1e-9;
+  bool require_match = false, no_progress = false;
+};
+
+// Figures of one robot's calibrations over a recording (gnuplot, PNG): <robot>_accuracy.png, the a-priori
+// verification error (each pose predicted by the calibration before it) and the a-posteriori residual against the
+// time of the reading; <robot>_joint_drift.png, each joint's zero offset as identified, minus its nominal value.
+void writeRecordingFigures(const std::string& dir, const std::string& robot, const RobotModel& model,
+                           const std::vector<ReceivedCalibration>& versions) {
+  if (versions.empty()) return;
+  const double t0 = static_cast<double>(versions.front().last_measurement_stamp_ns);
+  std::ostringstream acc, drift, drift_gp;
+  acc << "t_h verification_mm residual_mm\n";
+  drift << "t_h";
+  for (int j = 0; j < model.numJoints(); ++j) drift << " joint" << j + 1;
+  drift << "\n";
+  for (const auto& v : versions) {
+    const double t_h = (static_cast<double>(v.last_measurement_stamp_ns) - t0) / 3.6e12;
+    auto num = [](double x) { return std::isfinite(x) ? std::to_string(x) : std::string("NaN"); };
+    acc << t_h << ' ' << num(v.verification_mean_position_m * 1e3) << ' ' << num(v.residual_rms_position_m * 1e3) << '\n';
+    drift << t_h;
+    for (int j = 0; j < model.numJoints(); ++j) {
+      const int i = model.jointParam(j, JointParam::kThetaOffset);
+      drift << ' ' << (v.params[i] - model.nominal[i]) * 180.0 / kPi * 1e3;
+    }
+    drift << '\n';
+  }
+  std::string error;
+  const std::string acc_gp =
+      "set title '" + robot + ": accuracy over the recording (" + std::to_string(versions.size()) +
+      " calibrations)'\nset xlabel 'time of the reading (h since the first calibration)'\n"
+      "set ylabel 'position error (mm)'\nset logscale y\nset grid\nset key top right\n"
+      "plot datafile using 1:($2 > 1e-3 ? $2 : 1/0) skip 1 with lines lw 2 title 'a-priori: each pose predicted before it was used', "
+      "datafile using 1:($3 > 1e-3 ? $3 : 1/0) skip 1 with lines lw 1 title 'a-posteriori residual (recent poses)'\n";
+  if (!renderGnuplot(dir, robot + "_accuracy", acc.str(), acc_gp, &error)) std::cerr << "warning: " << error << "\n";
+  drift_gp << "set title '" << robot << ": identified joint zero offsets over the recording'\n"
+           << "set xlabel 'time of the reading (h since the first calibration)'\n"
+           << "set ylabel 'zero offset - nominal (millidegrees)'\nset grid\nset key outside right\n"
+           << "plot for [c=2:" << model.numJoints() + 1 << "] datafile using 1:c skip 1 with lines lw 2 title sprintf('joint %d', c-1)\n";
+  if (!renderGnuplot(dir, robot + "_joint_drift", drift.str(), drift_gp.str(), &error))
+    std::cerr << "warning: " << error << "\n";
+}
+
+struct Difference {
+  double length_m = 0, angle_rad = 0, other = 0, verification_m = 0;
+  std::string worst;  // the parameter that differs most (relative to its tolerance)
+  double worst_ratio = 0;
+};
+
+Difference compare(const RobotModel& model, const std::vector<Extension>& exts, const ReceivedCalibration& a,
+                   const ReceivedCalibration& b,
+                   double tol_m, double tol_rad) {
+  Difference d;
+  auto consider = [&](const std::string& name, double delta) {
+    delta = std::abs(delta);
+    const bool length = name.size() > 2 && name.compare(name.size() - 2, 2, "_m") == 0;
+    const bool angle = name.size() > 4 && name.compare(name.size() - 4, 4, "_rad") == 0;
+    double& slot = length ? d.length_m : angle ? d.angle_rad : d.other;
+    slot = std::max(slot, delta);
+    const double ratio = delta / (length ? tol_m : tol_rad);
+    if (ratio > d.worst_ratio) d.worst_ratio = ratio, d.worst = name;
+  };
+  for (int i = 0; i < model.numParams(); ++i) consider(model.paramName(i), a.params[i] - b.params[i]);
+  const auto names = extensionParamNames(model, exts);
+  if (a.extension_params.size() == b.extension_params.size())
+    for (Eigen::Index i = 0; i < a.extension_params.size(); ++i)
+      consider(names[static_cast<size_t>(i)], a.extension_params[i] - b.extension_params[i]);
+  else
+    d.worst = "model extensions differ", d.worst_ratio = INFINITY;
+  const bool both_nan = std::isnan(a.verification_mean_position_m) && std::isnan(b.verification_mean_position_m);
+  d.verification_m = both_nan ? 0 : std::abs(a.verification_mean_position_m - b.verification_mean_position_m);
+  if (std::isnan(d.verification_m)) d.verification_m = INFINITY;
+  return d;
+}
+
+// The robot whose target this is (the cell file was checked: every target belongs to one robot).
+std::string robotOfTarget(const CellConfig& cell, const std::string& target_id) {
+  for (const auto& r : cell.robots)
+    if (r.target_id == target_id) return r.robot_id;
+  return "";
+}
+
+int runValidate(const ValidateArgs& a) {
+  const auto t_read = std::chrono::steady_clock::now();
+  const Recording rec = readRecording(a.file);
+  const CellConfig cell = loadCell(a.common);
+  // What the engine process would publish, as a consumer receives it (through the wire type).
+  struct Run {
+    std::vector<ReceivedCalibration> reproduced;
+    std::map<std::uint64_t, ReceivedCalibration> recorded;  // first CalibrationState of each version
+    std::uint64_t joint_states = 0, tracker_readings = 0;
+  };
+  std::map<std::string, Run> runs;
+  for (const auto& r : cell.robots) runs[r.robot_id];
+  EngineHost host(cell, {/*persist=*/false, nullptr}, [&](EngineHost::Robot& r) {
+    std::string error;
+    auto c = fromCalibrationState(r.robot->model, toCalibrationState(*r.robot, r.engine->snapshot(), 0, 0), &error);
+    if (!c) throw std::logic_error("validate: a calibration does not survive its own conversion: " + error);
+    runs[r.robot->robot_id].reproduced.push_back(std::move(*c));
+  });
+  std::uint64_t unknown_keys = 0, undecodable = 0, state_errors = 0;
+  std::string first_error;
+  auto note = [&](std::uint64_t& counter, const std::string& what) {
+    ++counter;
+    if (first_error.empty()) first_error = what;
+  };
+  const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
+  const auto t0 = std::chrono::steady_clock::now();
+  ProgressBar bar("validate", !a.no_progress);
+  // Decoded into reused samples: constructing one costs more than decoding it (see DdsNode::Listener).
+  msg::JointState js;
+  msg::TrackerPose tp;
+  msg::CalibrationState cs;
+  for (size_t i = 0; i < rec.in_log_order.size(); ++i) {
+    const mcap::Message& m = *rec.in_log_order[i].message;
+    const std::string& topic = *rec.in_log_order[i].topic;
+    const auto now = static_cast<std::int64_t>(m.log_time_ns);
+    auto where = [&] { return a.file + ": " + topic + " message " + std::to_string(i) + " (log time " + std::to_string(m.log_time_ns) + ")"; };
+    std::string error;
+    if (topic == TopicOf<msg::JointState>::name) {
+      if (!decodeCdr(m.data, &js, &error)) { note(undecodable, where() + ": " + error); continue; }
+      if (!host.onJointState(js.robot_id().to_string(), toJointSample(js), now)) {
+        note(unknown_keys, where() + ": robot_id '" + js.robot_id().to_string() + "' not in " + cell.source);
+        continue;
+      }
+      ++runs[js.robot_id().to_string()].joint_states;
+    } else if (topic == TopicOf<msg::TrackerPose>::name) {
+      if (!decodeCdr(m.data, &tp, &error)) { note(undecodable, where() + ": " + error); continue; }
+      if (!host.onTrackerSample(tp.target_id().to_string(), toTrackerSample(tp), now)) {
+        note(unknown_keys, where() + ": target_id '" + tp.target_id().to_string() + "' not in " + cell.source);
+        continue;
+      }
+      ++runs[robotOfTarget(cell, tp.target_id().to_string())].tracker_readings;
+    } else if (topic == TopicOf<msg::CalibrationState>::name) {
+      if (!decodeCdr(m.data, &cs, &error)) { note(undecodable, where() + ": " + error); continue; }
+      auto it = runs.find(cs.robot_id().to_string());
+      if (it == runs.end()) { note(unknown_keys, where() + ": robot_id '" + cs.robot_id().to_string() + "' not in " + cell.source); continue; }
+      if (cs.version() == 0 || it->second.recorded.count(cs.version())) continue;  // republished
+      auto rc = fromCalibrationState(host.robots().at(it->first).robot->model, cs, &error);
+      if (!rc) { note(state_errors, where() + ": " + error); continue; }
+      it->second.recorded[rc->version] = std::move(*rc);
+    }
+    // The engine process also polls every robot every EngineHost::kTickPeriod (readings whose joint state never came
+    // time out).
+    host.tickIfDue(now);
+    if ((i & 1023) == 0)
+      bar.update(static_cast<double>(i) / static_cast<double>(rec.in_log_order.size()),
+                 std::to_string(i) + "/" + std::to_string(rec.in_log_order.size()) + " messages");
+  }
+  host.tick(static_cast<std::int64_t>(rec.end_ns) + 1000000000LL);
+  bar.done();
+  const double process_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double span_s = (rec.end_ns - rec.start_ns) / 1e9;
+  const double real_time_factor = span_s / std::max(read_s + process_s, 1e-9);
+  std::printf("validate: %s: %zu messages over %.1f s of recording (%s); read in %.3f s, engine logic in %.3f s: "
+              "%.0fx real time\n",
+              a.file.c_str(), rec.in_log_order.size(), span_s,
+              (rec.file.complete ? std::string("complete") : "incomplete: " + rec.file.problem).c_str(), read_s,
+              process_s, real_time_factor);
+  std::printf("validate: cell file %s\n", cell.source.c_str());
+  bool all_match = true;
+  nlohmann::json robots = nlohmann::json::object();
+  for (auto& [id, run] : runs) {
+    if (run.joint_states == 0 && run.tracker_readings == 0 && run.recorded.empty()) continue;
+    const EngineHost::Robot& hosted = host.robots().at(id);
+    const RobotModel& model = hosted.robot->model;
+    const auto& exts = hosted.engine->snapshot().extensions;
+    std::uint64_t compared = 0, mismatched = 0, not_recorded = 0;
+    Difference worst;
+    std::string first_mismatch;
+    nlohmann::json series = nlohmann::json::array();
+    std::set<std::uint64_t> reproduced_versions;
+    for (const auto& c : run.reproduced) {
+      reproduced_versions.insert(c.version);
+      nlohmann::json row = {{"version", c.version}, {"poses_used", c.poses_used},
+                            {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()}};
+      auto it = run.recorded.find(c.version);
+      if (it == run.recorded.end()) {
+        ++not_recorded;
+        series.push_back(row);
+        continue;
+      }
+      ++compared;
+      const Difference d = compare(model, exts, c, it->second, a.tolerance_m, a.tolerance_rad);
+      row["recorded_verification_mm"] = std::isfinite(it->second.verification_mean_position_m) ? nlohmann::json(it->second.verification_mean_position_m * 1e3) : nlohmann::json();
+      row["max_difference_m"] = d.length_m;
+      row["max_difference_rad"] = d.angle_rad;
+      series.push_back(row);
+      worst.length_m = std::max(worst.length_m, d.length_m);
+      worst.angle_rad = std::max(worst.angle_rad, d.angle_rad);
+      worst.other = std::max(worst.other, d.other);
+      worst.verification_m = std::max(worst.verification_m, d.verification_m);
+      const bool ok = d.length_m <= a.tolerance_m && d.angle_rad <= a.tolerance_rad && d.other <= a.tolerance_rad &&
+                      d.verification_m <= a.tolerance_m && std::isfinite(d.worst_ratio);
+      if (!ok) {
+        ++mismatched;
+        if (first_mismatch.empty())
+          first_mismatch = "v" + std::to_string(c.version) + ": " + d.worst + " differs by " + std::to_string(d.worst_ratio) +
+                           "x the tolerance; verification by " + std::to_string(d.verification_m * 1e3) + " mm";
+      }
+    }
+    std::uint64_t missing = 0;
+    for (const auto& [v, c] : run.recorded)
+      if (!reproduced_versions.count(v)) ++missing;
+    if (mismatched || missing) all_match = false;
+    const ReceivedCalibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
+    const ReceivedCalibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
+    std::printf("validate: %s: %llu joint states, %llu tracker readings -> %zu calibrations (last v%llu, %u poses, "
+                "verification %.4f mm)\n",
+                id.c_str(), static_cast<unsigned long long>(run.joint_states),
+                static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
+                static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
+                last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
+    if (run.recorded.empty()) {
+      std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
+    } else {
+      std::printf("validate: %s: %zu recorded calibrations (last v%llu, verification %.4f mm): %llu compared, %llu differ, "
+                  "%llu recorded but not reproduced, %llu reproduced but not recorded\n",
+                  id.c_str(), run.recorded.size(), static_cast<unsigned long long>(last_rec->version),
+                  last_rec->verification_mean_position_m * 1e3, static_cast<unsigned long long>(compared),
+                  static_cast<unsigned long long>(mismatched), static_cast<unsigned long long>(missing),
+                  static_cast<unsigned long long>(not_recorded));
+      std::printf("validate: %s: largest differences: %.3g m, %.3g rad, verification %.3g m (tolerance %.0e m, %.0e rad)%s\n",
+                  id.c_str(), worst.length_m, worst.angle_rad, worst.verification_m, a.tolerance_m, a.tolerance_rad,
+                  first_mismatch.empty() ? "" : ("; first: " + first_mismatch).c_str());
+    }
+    const auto& c = host.robots().at(id).engine->counters();
+    nlohmann::json rej = nlohmann::json::object();
+    for (size_t k = 0; k < c.rejected.size(); ++k)
+      if (c.rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = c.rejected[k];
+    robots[id] = {{"joint_states", run.joint_states},
+                  {"tracker_readings", run.tracker_readings},
+                  {"paired", c.paired},
+                  {"rejected", rej},
+                  {"reproduced", run.reproduced.size()},
+                  {"recorded", run.recorded.size()},
+                  {"compared", compared},
+                  {"differ", mismatched},
+                  {"recorded_not_reproduced", missing},
+                  {"reproduced_not_recorded", not_recorded},
+                  {"max_difference_m", worst.length_m},
+                  {"max_difference_rad", worst.angle_rad},
+                  {"max_difference_verification_m", worst.verification_m},
+                  {"first_difference", first_mismatch},
+                  {"final_version", last_rep ? last_rep->version : 0},
+                  {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
+                  {"final_parameters", [&] {
+                     nlohmann::json p = nlohmann::json::object();
+                     if (!last_rep) return p;
+                     for (int i = 0; i < model.numParams(); ++i) p[model.paramName(i)] = last_rep->params[i];
+                     const auto names = extensionParamNames(model, exts);
+                     for (size_t k = 0; k < names.size(); ++k) p[names[k]] = last_rep->extension_params[static_cast<Eigen::Index>(k)];
+                     return p;
+                   }()},
+                  {"calibrations", series}};
+  }
+  if (!a.figures.empty()) {
+    for (auto& [id, run] : runs) writeRecordingFigures(a.figures, id, host.robots().at(id).robot->model, run.reproduced);
+    std::printf("validate: figures in %s (<robot>_accuracy.png, <robot>_joint_drift.png)\n", a.figures.c_str());
+  }
+  if (unknown_keys || undecodable || state_errors)
+    std::printf("validate: %llu messages of unknown robots/targets, %llu undecodable, %llu unusable CalibrationStates "
+                "(first: %s)\n",
+                static_cast<unsigned long long>(unknown_keys), static_cast<unsigned long long>(undecodable),
+                static_cast<unsigned long long>(state_errors), first_error.c_str());
+  writeJsonFile(a.json, {{"file", a.file},
+                         {"cell_file", cell.source},
+                         {"complete", rec.file.complete},
+                         {"messages", rec.in_log_order.size()},
+                         {"recording_span_s", span_s},
+                         {"read_s", read_s},
+                         {"engine_s", process_s},
+                         {"real_time_factor", real_time_factor},
+                         {"unknown_keys", unknown_keys},
+                         {"undecodable", undecodable},
+                         {"all_match", all_match},
+                         {"robots", robots}});
+  if (a.require_match && !all_match) {
+    std::printf("validate: the calibrations differ from the recorded ones (--require-match)\n");
+    return 3;
+  }
+  return 0;
+}
+
+}  // namespace
+
+Runner addValidateCommand(CLI::App& app) {
+  auto val = std::make_shared<ValidateArgs>();
+  CLI::App* v = addSubcommand(app, "validate",
+      "Run the calibration engine's logic (core CalibrationEngine, no DDS) over a recording's JointState and "
+      "TrackerPose messages in log-time order, with the engine settings and robots of --config, and compare each "
+      "calibration with the CalibrationState of the same robot and version in the recording (parameters, "
+      "verification error). Deterministic: the same file and settings give the same output.",
+      "  cellcal validate cell.mcap --json v.json --require-match\n  cellcal validate cell.mcap --figures figs                     accuracy and joint drift over the recording\n",
+      "", "; 3 with --require-match when a calibration differs");
+  addCommonOptions(*v, val->common);
+  v->add_option("file", val->file, "MCAP recording")->required()->check(CLI::ExistingFile);
+  v->add_option("--json", val->json, "write the comparison and every calibration as JSON");
+  v->add_option("--tolerance-m", val->tolerance_m, "lengths (and verification errors) equal within this")->capture_default_str();
+  v->add_option("--tolerance-rad", val->tolerance_rad, "angles equal within this")->capture_default_str();
+  v->add_flag("--require-match", val->require_match, "exit 3 when a calibration differs from the recorded one");
+  v->add_flag("--no-progress", val->no_progress, "no progress bar");
+  v->add_option("--figures", val->figures,
+                "write <robot>_accuracy.png (a-priori verification and residual over time) and <robot>_joint_drift.png "
+                "(identified joint zero offsets over time) into this directory (gnuplot)");
+
+  return [val] { return runValidate(*val); };
+}
+
+}  // namespace cellcal::cli
