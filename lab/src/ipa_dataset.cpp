@@ -88,6 +88,18 @@ MeasurementFile readIpaSeries(const std::string& path, const RobotModel& robot, 
     const Eigen::Matrix3d R = (Eigen::AngleAxisd(a, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(b, Eigen::Vector3d::UnitY()) *
                                Eigen::AngleAxisd(c, Eigen::Vector3d::UnitZ())).toRotationMatrix();
     r.orientation = Eigen::Quaterniond(R).normalized();
+    // The tracker's own uncertainty of the reading, where the series has it (mm and deg per axis): one sigma per axis
+    // for the position and for the orientation (the RMS of the three).
+    auto rms3 = [&](const char* x, const char* y, const char* z) {
+      const double a2 = number(x), b2 = number(y), c2 = number(z);
+      return std::sqrt((a2 * a2 + b2 * b2 + c2 * c2) / 3.0);
+    };
+    if (col.count("measurement_std_x") && col.count("measurement_std_y") && col.count("measurement_std_z"))
+      r.sigma_position_m = rms3("measurement_std_x", "measurement_std_y", "measurement_std_z") * 1e-3;
+    if (col.count("measurement_std_rx") && col.count("measurement_std_ry") && col.count("measurement_std_rz"))
+      r.sigma_orientation_rad = degToRad(rms3("measurement_std_rx", "measurement_std_ry", "measurement_std_rz"));
+    if (r.sigma_position_m && !(*r.sigma_position_m > 0)) r.sigma_position_m.reset();
+    if (r.sigma_orientation_rad && !(*r.sigma_orientation_rad > 0)) r.sigma_orientation_rad.reset();
     if (col.count("measurement_temperature")) {
       r.temperature_c = number("measurement_temperature");
       tmin = std::min(tmin, *r.temperature_c);

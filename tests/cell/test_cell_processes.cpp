@@ -86,9 +86,11 @@ TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
   // depends on the seed's drift rate). Convergence is judged at the time of the last update; the end-of-run
   // error against the uncalibrated robot and against the in-process engine at the same time.
   const double at_update = s["verify_after_last_update_mm"];
+  // (The end-of-run error itself is not judged against the uncalibrated one: with a fast-drifting seed the unseen
+  // warm-up alone can exceed a tenth of it, e.g. seed 13730649175658362321: 0.127 mm against 1.27 mm.)
   EXPECT_GT(before, 0.3);
   EXPECT_LT(at_update, 0.05);
-  EXPECT_LT(after, before / 10);
+  EXPECT_LT(at_update, before / 10);
   // Through the processes as good as core's engine fed the same program in-process.
   EXPECT_LT(after, 1.5 * ref + 0.005) << "in-process " << ref;
   const auto& r = s["robots"][0];

@@ -9,9 +9,12 @@
 
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/outliers.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
@@ -23,12 +26,81 @@ struct CalibrateArgs {
   InputArgs input;
   std::string json, model = "geometric", solver = "gn";
   double rank_tolerance = IdentifiabilityOptions{}.rank_tolerance;
+  double excitation_ratio = DiagnosisOptions{}.excitation_ratio;
+  std::string save_robot;
+  bool frames_only = false;
 };
+
+// The predicted model error on the identification and verification rows (prediction.hpp) and whether the actual
+// errors agree: RMS of actual / sqrt(predicted^2 + 3 s^2 sigma_reading^2) over the verification rows.
+struct Trust {
+  double ident_rms_mm = 0, ident_max_mm = 0, verify_rms_mm = 0, verify_max_mm = 0, ratio_rms = 0;
+  int extrapolated = 0;  // verification rows predicted more than 3x the largest identification row
+};
+
+Trust trustOf(const RobotModel& robot, const ExtendedFit& fit, const PredictionModel& pm,
+              const std::vector<Observation>& ident, const std::vector<Drivers>& idr,
+              const std::vector<Observation>& verify, const std::vector<Drivers>& vdr) {
+  Trust t;
+  double sq = 0;
+  for (size_t i = 0; i < ident.size(); ++i) {
+    const double s = predictedPositionSigma(robot, fit, pm, ident[i].q_rad, idr[i]) * 1e3;
+    sq += s * s;
+    t.ident_max_mm = std::max(t.ident_max_mm, s);
+  }
+  t.ident_rms_mm = ident.empty() ? 0 : std::sqrt(sq / static_cast<double>(ident.size()));
+  sq = 0;
+  double ratio_sq = 0;
+  KinematicsData data(robot);
+  for (size_t i = 0; i < verify.size(); ++i) {
+    const double s = predictedPositionSigma(robot, fit, pm, verify[i].q_rad, vdr[i]) * 1e3;
+    sq += s * s;
+    t.verify_max_mm = std::max(t.verify_max_mm, s);
+    if (s > 3 * t.ident_max_mm) ++t.extrapolated;
+    const Eigen::VectorXd p = extendedParams(robot, fit.params, fit.extensions, fit.extension_params, verify[i].q_rad, vdr[i]);
+    const double actual_mm =
+        (forwardKinematics(robot, data, p, verify[i].q_rad).translation() - verify[i].measured_in_tracker.translation()).norm() * 1e3;
+    const double noise_mm = std::sqrt(3.0 * pm.variance_factor_position) * verify[i].sigma_position_m * 1e3;
+    ratio_sq += actual_mm * actual_mm / (s * s + noise_mm * noise_mm);
+  }
+  t.verify_rms_mm = verify.empty() ? 0 : std::sqrt(sq / static_cast<double>(verify.size()));
+  t.ratio_rms = verify.empty() ? 0 : std::sqrt(ratio_sq / static_cast<double>(verify.size()));
+  return t;
+}
 
 ExtendedFit asFit(const Eigen::VectorXd& params) {
   ExtendedFit f;
   f.params = params;
   return f;
+}
+
+ExtendedFit asFit(const CalibrationResult& r) {
+  ExtendedFit f = asFit(r.params);
+  f.estimated = r.estimated;
+  f.covariance = r.covariance;
+  f.converged = r.converged;
+  f.iterations = r.iterations;
+  f.message = r.message;
+  return f;
+}
+
+// Joint parameters the fit moved further from the robot file than a robot that was built to its drawing could be:
+// lengths 5 mm, angles 0.5 deg (base and tool frames are registered, not nominal).
+std::vector<std::string> implausibleParameters(const RobotModel& robot, const Eigen::VectorXd& start,
+                                               const ExtendedFit& fit) {
+  std::vector<std::string> out;
+  for (int i : fit.estimated) {
+    if (i >= 5 * robot.numJoints()) continue;
+    const double moved = robot.toHuman(i, fit.params[i] - start[i]);
+    const double limit = robot.isLength(i) ? 5.0 : 0.5;
+    if (std::abs(moved) > limit) {
+      char buf[200];
+      std::snprintf(buf, sizeof buf, "%s moved %+.3f %s from the robot file (more than %.1f)",
+                    robot.paramNameHuman(i).c_str(), moved, robot.isLength(i) ? "mm" : "deg", limit);
+      out.push_back(buf);
+    }
+  }
+  return out;
 }
 
 int runCalibrate(const CalibrateArgs& a) {
@@ -39,54 +111,103 @@ int runCalibrate(const CalibrateArgs& a) {
   const Eigen::VectorXd& start = in.start;
   using Clock = std::chrono::steady_clock;
   const auto t1 = Clock::now();
+  const auto& idr = in.data.identification_drivers;
+  const auto& vdr = in.data.verification_drivers;
   CalibrationProblem p{&robot, start, ident, std::nullopt, {}, {}};
-  p.identifiability.rank_tolerance = a.rank_tolerance;
   p.outliers = outlierOptions(a.input);
-  std::string why;
-  if (!p.IsValid(&why)) throw std::runtime_error(why);
-  const CalibrationResult r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
-  ExtendedFit after = asFit(r.params);
-  OutlierScreen ident_outliers = r.outliers;
-  std::string model_label = "geometric";
-  bool converged = r.converged;
-  int iterations = r.iterations;
-  size_t estimated = r.estimated.size();
-  std::string message = r.message;
-  if (a.model != "geometric") {
-    if (a.model == "auto") {
-      DiagnosisOptions o;
-      o.identifiability = p.identifiability;
-      o.outliers = p.outliers;
-      const DiagnosisResult d = diagnose(robot, start, in.data, o);
-      after = d.best().fit;
-      ident_outliers = d.identification_outliers;
-    } else {
-      after = fitExtendedRobust(robot, start, ident, in.data.identification_drivers, parseModel(a.model, robot), {},
-                                p.identifiability, &r.params, p.outliers, &ident_outliers);
+  CalibrationResult r;
+  ExtendedFit after;
+  std::vector<ExcitationDeficit> held_after;
+  OutlierScreen ident_outliers;
+  std::string model_label, message;
+  bool converged = false;
+  int iterations = 0;
+  size_t estimated = 0;
+  if (a.frames_only) {
+    // The robot file's kinematics and model extensions as they are; only where the robot stands in the tracker
+    // frame and where the target sits on the flange are registered on these rows.
+    if (a.model != "geometric") throw std::runtime_error("--frames-only keeps the robot file's model: no --model");
+    after.extensions = in.calibration ? in.calibration->extensions : std::vector<Extension>{};
+    after.extension_params = in.calibration ? in.calibration->extension_params : Eigen::VectorXd();
+    after.extension_names = extensionParamNames(robot, after.extensions);
+    const RegistrationResult rr = refineFrames(robot, start, after.extensions, after.extension_params, ident, idr);
+    after.params = rr.params;
+    for (int k = 0; k < 6; ++k) {
+      after.estimated.push_back(robot.baseParam(static_cast<FrameParam>(k)));
+      after.estimated.push_back(robot.toolParam(static_cast<FrameParam>(k)));
     }
-    model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
-    converged = after.converged;
-    iterations = after.iterations;
-    estimated = after.estimated.size() + after.estimated_extension.size();
-    message = after.message;
+    std::sort(after.estimated.begin(), after.estimated.end());
+    after.converged = converged = true;
+    iterations = rr.iterations;
+    estimated = 12;
+    model_label = "the robot file's (" + modelLabel(after.extensions) + "), frames only";
+    ident_outliers = screenRows(robot, after, ident, idr, p.outliers);
+  } else {
+    const std::vector<Extension> named =
+        a.model == "geometric" || a.model == "auto" ? std::vector<Extension>{} : parseModel(a.model, robot);
+    // Parameters the identification rows leave unexcited where a verification row excites them: held, and said.
+    const std::vector<ExcitationDeficit> held =
+        a.excitation_ratio > 0 ? excitationDeficits(robot, start, named, ident, idr, verify, vdr, a.excitation_ratio)
+                               : std::vector<ExcitationDeficit>{};
+    p.identifiability.rank_tolerance = a.rank_tolerance;
+    for (const auto& h : held)
+      if (h.column < robot.numParams()) p.identifiability.held.push_back(h.column);
+    std::string why;
+    if (!p.IsValid(&why)) throw std::runtime_error(why);
+    r = a.solver == "lm" ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
+    after = asFit(r);
+    held_after = held;
+    ident_outliers = r.outliers;
+    model_label = "geometric";
+    converged = r.converged;
+    iterations = r.iterations;
+    estimated = r.estimated.size();
+    message = r.message;
+    if (a.model != "geometric") {
+      if (a.model == "auto") {
+        DiagnosisOptions o;
+        o.identifiability.rank_tolerance = a.rank_tolerance;
+        o.outliers = p.outliers;
+        o.excitation_ratio = a.excitation_ratio;
+        const DiagnosisResult d = diagnose(robot, start, in.data, o);
+        after = d.best().fit;
+        held_after = d.best().held;
+        ident_outliers = d.identification_outliers;
+      } else {
+        IdentifiabilityOptions io = p.identifiability;
+        io.held = heldColumns(held);
+        after = fitExtendedRobust(robot, start, ident, idr, named, {}, io, &r.params, p.outliers, &ident_outliers);
+      }
+      model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
+      converged = after.converged;
+      iterations = after.iterations;
+      estimated = after.estimated.size() + after.estimated_extension.size();
+      message = after.message;
+    }
   }
   const auto t2 = Clock::now();
   const double reg_s = in.registration_s, solve_s = std::chrono::duration<double>(t2 - t1).count();
   const ExtendedFit before = asFit(start);
-  const auto& idr = in.data.identification_drivers;
-  const auto& vdr = in.data.verification_drivers;
   const ErrorStats ib = errorStats(robot, before, ident, idr), ia = errorStats(robot, after, ident, idr);
   const ErrorStats vb = errorStats(robot, before, verify, vdr), va = errorStats(robot, after, verify, vdr);
   // Gross errors among the verification rows, judged against the calibrated model, and the figures without them.
   const OutlierScreen verify_outliers = screenRows(robot, after, verify, vdr, p.outliers);
   const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), verify_outliers.rows);
-  std::vector<Observation> verify_kept;
-  std::vector<Drivers> vdr_kept;
-  for (int i : vk) {
-    verify_kept.push_back(verify[static_cast<size_t>(i)]);
-    vdr_kept.push_back(vdr[static_cast<size_t>(i)]);
-  }
+  const std::vector<Observation> verify_kept = subset(verify, vk);
+  const std::vector<Drivers> vdr_kept = subset(vdr, vk);
   const ErrorStats vbk = errorStats(robot, before, verify_kept, vdr_kept), vak = errorStats(robot, after, verify_kept, vdr_kept);
+  const std::vector<int> ik = keptRows(static_cast<int>(ident.size()), ident_outliers.rows);
+  const std::vector<Observation> ident_kept = subset(ident, ik);
+  const std::vector<Drivers> idr_kept = subset(idr, ik);
+  const ErrorStats iak = errorStats(robot, after, ident_kept, idr_kept);
+  // How far the model can be trusted: its predicted position error on every kept row, against the actual one.
+  // Not with --frames-only: the kinematics' uncertainty is the robot file's, from its own data.
+  const PredictionModel pm = a.frames_only ? PredictionModel{} : predictionModel(robot, after, ident_kept, idr_kept);
+  const Trust trust = a.frames_only ? Trust{} : trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
+  // With --frames-only the start is the same model with its frames registered in closed form: no baseline to beat,
+  // only the extrapolation rule applies.
+  const std::string unusable = unusableFit(a.frames_only ? vak : vbk, vak, iak);
+  const std::vector<std::string> implausible = implausibleParameters(robot, start, after);
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.input.data.c_str(),
               in.file.rows.size(), a.input.split.c_str(), ident.size(), verify.size(),
               in.measurementText().c_str(), robot.name.c_str());
@@ -109,7 +230,12 @@ int runCalibrate(const CalibrateArgs& a) {
     row("  without gross errors", vbk);
     row("  without gross errors", vak);
   }
-  std::printf("\n('before': nominal kinematics with the registered frames; 'after': every identifiable parameter)\n");
+  if (a.frames_only)
+    std::printf("\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': its "
+                "kinematics and extensions with the frames fitted)\n");
+  else
+    std::printf("\n('before': the robot file's kinematics with the registered frames; 'after': every identifiable "
+                "parameter)\n");
   if (!ident_outliers.rows.empty() || !verify_outliers.rows.empty()) {
     std::printf("gross errors (more than %.0f robust sigmas of %.4f mm per axis):\n", p.outliers.threshold,
                 ident_outliers.sigma_position_m * 1e3);
@@ -120,6 +246,19 @@ int runCalibrate(const CalibrateArgs& a) {
       std::printf("  verification:   %zu rows: %s\n", verify_outliers.rows.size(),
                   linesText(verify_outliers.rows, in.verification_lines).c_str());
   }
+  for (const auto& h : held_after) std::printf("held: %s\n", deficitText(h).c_str());
+  if (!a.frames_only)
+    std::printf("predicted model error (1 sigma, position): identification rows %.4f mm RMS (max %.4f), verification "
+                "rows %.4f mm RMS (max %.4f); actual/predicted (with the reading noise, position variance factor %.2f): "
+                "RMS %.2f\n",
+                trust.ident_rms_mm, trust.ident_max_mm, trust.verify_rms_mm, trust.verify_max_mm,
+                pm.variance_factor_position, trust.ratio_rms);
+  if (trust.extrapolated > 0)
+    std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
+                "the identification rows)\n", trust.extrapolated);
+  for (const auto& w : implausible)
+    std::printf("implausible: %s: a target offset or frame the robot file does not have (a gauge with its own frame?), "
+                "or too little excitation\n", w.c_str());
   if (!r.identifiability.dropped.empty()) {
     std::printf("not identifiable from these data (held at their start value):");
     for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramName(d.index).c_str());
@@ -133,18 +272,15 @@ int runCalibrate(const CalibrateArgs& a) {
     std::printf("\n");
   }
   if (!a.json.empty()) {
+    // Every model alike: names and values in mm and deg (the unit in the name), stddev from the fit's covariance
+    // (reading sigmas), null where the parameter was not estimated.
     nlohmann::json params = nlohmann::json::array();
-    if (a.model == "geometric") {
-      for (const auto& np : r.parameters(robot, start))
-        params.push_back({{"name", np.name}, {"initial", np.initial}, {"value", np.value}, {"stddev", np.stddev},
-                          {"estimated", np.estimated}});
-    } else {  // SI names and values; stddev from the extended fit's covariance (reading sigmas)
-      for (int i = 0; i < robot.numParams(); ++i) {
-        const double sd = after.paramStddev(i);
-        params.push_back({{"name", robot.paramName(i)}, {"initial", start[i]}, {"value", after.params[i]},
-                          {"stddev", std::isnan(sd) ? nlohmann::json(nullptr) : nlohmann::json(sd)},
-                          {"estimated", !std::isnan(sd)}});
-      }
+    for (int i = 0; i < robot.numParams(); ++i) {
+      const double sd = after.paramStddev(i);
+      params.push_back({{"name", robot.paramNameHuman(i)}, {"initial", robot.toHuman(i, start[i])},
+                        {"value", robot.toHuman(i, after.params[i])},
+                        {"stddev", std::isnan(sd) ? nlohmann::json(nullptr) : nlohmann::json(robot.toHuman(i, sd))},
+                        {"estimated", !std::isnan(sd)}});
     }
     nlohmann::json ext = nlohmann::json::object(), ext_sd = nlohmann::json::object();
     for (int k : after.estimated_extension) {
@@ -165,10 +301,83 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"outliers", {{"identification", outliersJson(ident_outliers, in.identification_lines)},
                                       {"verification", outliersJson(verify_outliers, in.verification_lines)},
                                       {"threshold_robust_sigmas", p.outliers.threshold}}},
-                        {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd}};
+                        {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd},
+                        {"held", heldJson(held_after)},
+                        {"prediction", {{"identification_rms_mm", trust.ident_rms_mm},
+                                        {"identification_max_mm", trust.ident_max_mm},
+                                        {"verification_rms_mm", trust.verify_rms_mm},
+                                        {"verification_max_mm", trust.verify_max_mm},
+                                        {"variance_factor_position", pm.variance_factor_position},
+                                        {"variance_factor_orientation", pm.variance_factor_orientation},
+                                        {"actual_over_predicted_rms", trust.ratio_rms},
+                                        {"verification_rows_outside_calibrated_region", trust.extrapolated}}},
+                        {"implausible", implausible},
+                        {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
-  return converged ? 0 : 3;
+  if (!converged) {
+    if (!a.save_robot.empty()) std::printf("%s not written: the solver did not converge\n", a.save_robot.c_str());
+    return 3;
+  }
+  if (!unusable.empty()) {
+    std::printf("not usable: %s (exit 4)\n", unusable.c_str());
+    if (!a.save_robot.empty()) std::printf("%s not written\n", a.save_robot.c_str());
+    return 4;
+  }
+  if (!a.save_robot.empty()) {
+    RobotCalibration cal;
+    cal.extensions = after.extensions;
+    cal.extension_params = after.extension_params.size() ? after.extension_params : Eigen::VectorXd(0);
+    if (!a.frames_only) {
+      cal.columns = pm.columns;
+      cal.covariance = pm.covariance;
+      cal.variance_factor_position = pm.variance_factor_position;
+      for (int c : pm.columns) {
+        const bool kin = c < robot.numParams();
+        const auto& set = kin ? after.estimated : after.estimated_extension;
+        cal.estimated.push_back(std::count(set.begin(), set.end(), kin ? c : c - robot.numParams()) > 0);
+      }
+    } else if (in.calibration) {  // the kinematics' uncertainty stays the robot file's
+      cal.columns = in.calibration->columns;
+      cal.covariance = in.calibration->covariance;
+      cal.estimated = in.calibration->estimated;
+      cal.variance_factor_position = in.calibration->variance_factor_position;
+    }
+    auto fixed = [](double v, int digits) {
+      char b[64];
+      std::snprintf(b, sizeof b, "%.*f", digits, v);
+      return std::string(b);
+    };
+    if (a.frames_only && in.calibration)
+      for (const auto& kv : in.calibration->provenance) cal.provenance.emplace_back("kinematics_" + kv.first, kv.second);
+    cal.provenance = [&] {
+      std::vector<std::pair<std::string, std::string>> pv = {
+          {"date_utc", utcNow()},
+          {"tool", a.frames_only ? "cellcal calibrate --frames-only" : "cellcal calibrate"},
+          {"robot_file", a.input.robot},
+          {"data_file", a.input.data},
+          {"data_sha256", fileSha256(a.input.data)},
+          {"rows", std::to_string(in.file.rows.size())},
+          {"split", a.input.split},
+          {"identification_rows", std::to_string(ident.size())},
+          {"verification_rows", std::to_string(verify.size())},
+          {"measurement", in.measurementJson()},
+          {"model", a.frames_only ? "frames only" : model_label},
+          {"verification_before_mean_mm", fixed(vbk.mean_mm, 4)},
+          {"verification_mean_mm", fixed(vak.mean_mm, 4)},
+          {"verification_rms_mm", fixed(vak.rms_mm, 4)},
+          {"verification_max_mm", fixed(vak.max_mm, 4)},
+          {"identification_max_mm", fixed(iak.max_mm, 4)}};
+      if (!a.frames_only) pv.emplace_back("predicted_verification_rms_mm", fixed(trust.verify_rms_mm, 4));
+      for (auto& kv : cal.provenance) pv.push_back(kv);
+      return pv;
+    }();
+    saveRobotFile(a.save_robot, robot.withParams(after.params), &cal,
+                  "Calibrated " + robot.name + ": written by `cellcal calibrate" + (a.frames_only ? " --frames-only" : "") +
+                      "` from " + a.input.data + " (docs/robot-file.md, calibrated robot files)");
+    std::printf("calibrated robot file: %s\n", a.save_robot.c_str());
+  }
+  return 0;
 }
 
 }  // namespace
@@ -181,7 +390,9 @@ Runner addCalibrateCommand(CLI::App& app) {
       "position and orientation errors on identification and verification rows, before and after. Split: "
       "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies",
       "  cellcal calibrate --robot config/robots/ur10.yaml --data m.csv --json calib.json\n  cellcal calibrate --robot R.yaml --data m.csv --model auto                   the model diagnose chooses\n  cellcal calibrate --robot R.yaml --data m.csv --model joint_compliance:2     a named extension\n",
-      "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n");
+      "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n",
+      "; 3 when the solver did not converge; 4 when the calibrated model is not usable: worse than nominal on the "
+      "verification rows, or a verification max beyond 3x the identification max (it extrapolates)");
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
   cmd->add_option("--model", a->model,
@@ -190,6 +401,17 @@ Runner addCalibrateCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; geometric model)")
       ->check(CLI::IsMember({"gn", "lm"}))
+      ->capture_default_str();
+  cmd->add_option("--save-robot", a->save_robot,
+                  "write the calibrated model as a robot file: identified kinematics, frames, extensions, the covariance "
+                  "and where it came from (not written when the exit status is not 0)");
+  cmd->add_flag("--frames-only", a->frames_only,
+                "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
+                "base and tool frames on the identification rows: the tracker or the target was moved");
+  cmd->add_option("--excitation-ratio", a->excitation_ratio,
+                  "hold (and name) a parameter whose excitation on the identification rows is below this fraction of "
+                  "its largest on a verification row; 0: off")
+      ->check(CLI::Range(0.0, 0.99))
       ->capture_default_str();
   cmd->add_option("--rank-tolerance", a->rank_tolerance,
                   "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "

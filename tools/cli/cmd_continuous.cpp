@@ -1,6 +1,7 @@
 // `cellcal continuous`: a measurement file in time order run as a cell would run it (core/continuous_scenario.hpp):
 // an initial batch, then every interval a few fresh poses update the RLS estimate; every row is predicted before it
 // could be used. Prints a table per interval and the overall figures; --json writes them.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -18,6 +19,7 @@ struct ContinuousArgs {
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
   bool position_only = false, skip_bad_rows = false, quiet = false;
   double block_h = 6.0;
+  double period_s = 0;  // rows without stamp_s: row k at k * period_s (the file's order is the visiting order)
   ContinuousScenarioOptions options;
 };
 
@@ -32,10 +34,18 @@ int runContinuous(const ContinuousArgs& a) {
   sc.options = a.options;
   if (!a.model.empty() && a.model != "geometric") sc.options.extensions = parseModel(a.model, robot);
   const MeasurementKind kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
-  for (const auto& r : file.rows) {
-    if (!r.stamp_s) throw std::runtime_error(a.data + ":" + std::to_string(r.line) + ": stamp_s: needed (time order)");
-    sc.rows.push_back({toObservation(r, kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180),
-                       *r.stamp_s, r.temperature_c});
+  const bool stamped = std::any_of(file.rows.begin(), file.rows.end(), [](const auto& r) { return r.stamp_s.has_value(); });
+  if (stamped && a.period_s > 0)
+    throw std::runtime_error(a.data + ": has stamp_s; --period-s is for files without stamps");
+  for (size_t k = 0; k < file.rows.size(); ++k) {
+    const auto& r = file.rows[k];
+    if (!r.stamp_s && a.period_s <= 0)
+      throw std::runtime_error(a.data + ":" + std::to_string(r.line) +
+                               ": stamp_s: needed (time order), or --period-s for a file whose rows are in visiting "
+                               "order without stamps");
+    const double t_s = r.stamp_s ? *r.stamp_s : static_cast<double>(k) * a.period_s;
+    sc.rows.push_back({toObservation(r, kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180), t_s,
+                       r.temperature_c});
   }
   const ContinuousScenarioResult res = runContinuousScenario(sc);
   const bool ext = !sc.options.extensions.empty();
@@ -129,7 +139,10 @@ Runner addContinuousCommand(CLI::App& app) {
       "  cellcal continuous --robot config/robots/ur10.yaml --data a.csv --initial-h 5 --model joint_compliance:2\n",
       "  --data: a measurement file with stamp_s, CSV v1 (docs/measurement-csv.md)\n");
   cmd->add_option("--robot", a->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
-  cmd->add_option("--data", a->data, "measurement file, CSV v1, with stamp_s")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--data", a->data, "measurement file, CSV v1, with stamp_s (or --period-s)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--period-s", a->period_s,
+                  "a file without stamp_s: its rows in visiting order, this many seconds apart")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--interval-h", a->options.update_interval_h, "hours between updates")->capture_default_str();
   cmd->add_option("--poses-per-update", a->options.poses_per_update, "fresh poses per update")->capture_default_str();
   cmd->add_option("--initial-h", a->options.initial_h, "the initial batch comes from the first hours")

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 #include "progress.hpp"
@@ -29,6 +30,7 @@ const char* verdictName(Verdict v) {
     case Verdict::kNamed: return "named";
     case Verdict::kPartlyExplained: return "partly_explained";
     case Verdict::kUnexplained: return "unexplained";
+    case Verdict::kUnusable: return "unusable";
   }
   return "?";
 }
@@ -222,10 +224,12 @@ int runDiagnose(const DiagnoseArgs& a) {
   std::printf("reading noise: %.4f mm per axis (%.4f mm RMS), estimated from the %s\n", d.noise.sigma_position_mm,
               d.noise_rms_mm, d.noise.source.c_str());
   std::printf("unexplained: %.4f mm RMS beyond that noise (diagnosis %.2f s)\n", d.unexplained_rms_mm, d.solve_time_s);
+  for (const auto& h : b.held) std::printf("held: %s\n", deficitText(h).c_str());
   // What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model).
+  // Nothing when the model is not usable.
   std::vector<std::string> cell_extensions;
   bool thermal = false;
-  for (const auto& e : d.causes()) {
+  for (const auto& e : d.unusable.empty() ? d.causes() : std::vector<Extension>{}) {
     if (e.cause == Cause::kThermalDrift) thermal = true;
     else cell_extensions.push_back(extensionSpec(e));
   }
@@ -287,7 +291,9 @@ int runDiagnose(const DiagnoseArgs& a) {
                         {"noise", {{"sigma_position_mm", d.noise.sigma_position_mm}, {"dof", d.noise.dof},
                                    {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
                         {"noise_rms_mm", d.noise_rms_mm},
-                        {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s}};
+                        {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s},
+                        {"held", heldJson(b.held)},
+                        {"unusable", d.unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.unusable)}};
     std::ofstream o(a.json);
     if (!o) throw std::runtime_error(a.json + ": cannot write");
     o << j.dump(2) << "\n";
@@ -295,6 +301,10 @@ int runDiagnose(const DiagnoseArgs& a) {
   if (!a.report.empty()) {
     writeReport(a, in, d);
     std::printf("report: %s/report.md\n", a.report.c_str());
+  }
+  if (!d.unusable.empty()) {
+    std::printf("not usable: %s (exit 4)\n", d.unusable.c_str());
+    return 4;
   }
   return 0;
 }
@@ -311,7 +321,9 @@ Runner addDiagnoseCommand(CLI::App& app) {
       "verification rows, and says what structure is still left. Rows more than 6 robust sigmas off are listed and left "
       "out. See docs/diagnosis.md",
       "  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
-      "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n");
+      "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n",
+      "; 4 when the chosen model is not usable (worse than nominal on the held-out rows, or a held-out max beyond 3x "
+      "the identification max): nothing is recommended");
   addInputOptions(cmd, a->input);
   cmd->add_option("--json", a->json, "write the results as JSON");
   cmd->add_flag("--no-progress", a->no_progress, "no progress bar (it is drawn only when stderr is a terminal)");

@@ -1,11 +1,16 @@
 #include "measurement_input.hpp"
 
+#include <openssl/evp.h>
+
 #include <chrono>
+#include <ctime>
+#include <fstream>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 
@@ -22,7 +27,9 @@ OutlierOptions outlierOptions(const InputArgs& a) {
 
 LoadedInput loadInput(const InputArgs& a) {
   LoadedInput in;
-  in.robot = loadRobotModel(a.robot);
+  RobotFile rf = loadRobotFile(a.robot);
+  in.robot = std::move(rf.model);
+  in.calibration = std::move(rf.calibration);
   MeasurementCsvOptions mo;
   mo.skip_bad_rows = a.skip_bad_rows;
   in.file = readMeasurementCsv(a.data, in.robot, mo);
@@ -101,11 +108,50 @@ nlohmann::json outliersJson(const OutlierScreen& s, const std::vector<int>& line
   return {{"rows", rows}, {"robust_sigma_position_mm", s.sigma_position_m * 1e3}};
 }
 
+nlohmann::json heldJson(const std::vector<ExcitationDeficit>& held) {
+  nlohmann::json j = nlohmann::json::array();
+  for (const auto& h : held)
+    j.push_back({{"name", h.name}, {"identification_rms", h.identification_rms}, {"elsewhere_max", h.elsewhere_max}});
+  return j;
+}
+
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix) {
   const std::string& p = prefix;
   nlohmann::json j = {{p + "mean_mm", s.mean_mm}, {p + "rms_mm", s.rms_mm}, {p + "max_mm", s.max_mm}};
   if (s.oriented) j.update({{p + "mean_deg", s.mean_deg}, {p + "rms_deg", s.rms_deg}, {p + "max_deg", s.max_deg}});
   return j;
+}
+
+std::string fileSha256(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot read");
+  EVP_MD_CTX* ctx = EVP_MD_CTX_new();
+  EVP_DigestInit_ex(ctx, EVP_sha256(), nullptr);
+  char buf[1 << 16];
+  while (in) {
+    in.read(buf, sizeof buf);
+    if (in.gcount() > 0) EVP_DigestUpdate(ctx, buf, static_cast<size_t>(in.gcount()));
+  }
+  unsigned char md[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  EVP_DigestFinal_ex(ctx, md, &len);
+  EVP_MD_CTX_free(ctx);
+  std::string hex;
+  char h[3];
+  for (unsigned int i = 0; i < len; ++i) {
+    std::snprintf(h, sizeof h, "%02x", md[i]);
+    hex += h;
+  }
+  return hex;
+}
+
+std::string utcNow() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
 }
 
 void addInputOptions(CLI::App* cmd, InputArgs& a) {

@@ -9,6 +9,7 @@
 
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
 namespace cellcal::cli {
@@ -22,6 +23,7 @@ struct InputArgs {
 
 struct LoadedInput {
   RobotModel robot;
+  std::optional<RobotCalibration> calibration;  // the robot file's calibration section (a calibrated robot file)
   MeasurementFile file;
   MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D when no row used has an orientation
   int oriented_rows = 0, position_rows = 0;          // rows used as 6D poses / as points
@@ -49,8 +51,16 @@ std::vector<Extension> parseModel(const std::string& spec, const RobotModel& rob
 std::string linesText(const std::vector<int>& rows, const std::vector<int>& lines, size_t most = 12);
 nlohmann::json outliersJson(const OutlierScreen& s, const std::vector<int>& lines);
 
+// Parameters held for an excitation deficit: [{name, identification_rms, elsewhere_max}].
+nlohmann::json heldJson(const std::vector<ExcitationDeficit>& held);
+
 // {"<prefix>mean_mm", "<prefix>rms_mm", "<prefix>max_mm"} and, with 6D rows, the same in _deg.
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix = "");
+
+// SHA-256 of a file, hex; throws std::runtime_error naming the file when it cannot be read.
+std::string fileSha256(const std::string& path);
+// Now as 2026-11-28T21:50:07Z.
+std::string utcNow();
 
 // Adds --robot --data --split --sigma-* --position-only --skip-bad-rows --no-register to a subcommand.
 void addInputOptions(CLI::App* cmd, InputArgs& a);

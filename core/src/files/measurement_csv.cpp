@@ -118,7 +118,8 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
   if (has_q && !(col.count("qw") && col.count("qx") && col.count("qy") && col.count("qz")))
     throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: orientation needs all of qw, qx, qy, qz");
   std::map<std::string, bool> known = {{"x_mm", 1}, {"y_mm", 1}, {"z_mm", 1}, {"qw", 1}, {"qx", 1}, {"qy", 1},
-                                       {"qz", 1}, {"stamp_s", 1}, {"group", 1}, {"temperature_c", 1}, {"payload_kg", 1}};
+                                       {"qz", 1}, {"stamp_s", 1}, {"group", 1}, {"temperature_c", 1}, {"payload_kg", 1},
+                                       {"sigma_position_mm", 1}, {"sigma_orientation_deg", 1}};
   for (int j = 1; j <= n; ++j) known["q" + std::to_string(j) + unit] = true;
   for (const auto& h : header)
     if (!known.count(h)) f.ignored_columns.push_back(h);
@@ -189,6 +190,12 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     if (col.count("stamp_s") && number(col["stamp_s"], false, &v)) row.stamp_s = v;
     if (col.count("temperature_c") && number(col["temperature_c"], false, &v)) row.temperature_c = v;
     if (col.count("payload_kg") && number(col["payload_kg"], false, &v)) row.payload_kg = v;
+    for (const char* name : {"sigma_position_mm", "sigma_orientation_deg"})
+      if (col.count(name) && number(col[name], false, &v)) {
+        if (!(v > 0)) err = RowError{col[name] + 1, name, "a sigma must be > 0"};
+        else if (std::string(name) == "sigma_position_mm") row.sigma_position_m = v * 1e-3;
+        else row.sigma_orientation_rad = v * kPi / 180;
+      }
     if (col.count("group") && number(col["group"], false, &v)) {
       if (v != std::floor(v)) err = RowError{col["group"] + 1, "group", "expected an integer"};
       else row.group = static_cast<long long>(v);
@@ -224,19 +231,21 @@ Observation toObservation(const MeasurementRow& row, MeasurementKind kind, doubl
   o.measured_in_tracker.translation() = row.position_m;
   if (row.orientation) o.measured_in_tracker.linear() = row.orientation->toRotationMatrix();
   o.kind = (kind == MeasurementKind::kPose6D && row.orientation) ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-  o.sigma_position_m = sigma_position_m;
-  o.sigma_orientation_rad = sigma_orientation_rad;
+  o.sigma_position_m = row.sigma_position_m.value_or(sigma_position_m);
+  o.sigma_orientation_rad = row.sigma_orientation_rad.value_or(sigma_orientation_rad);
   return o;
 }
 
 void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints, const std::string& comment) {
-  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false;
+  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false, sp = false, so = false;
   for (const auto& r : f.rows) {
     oriented |= r.orientation.has_value();
     stamped |= r.stamp_s.has_value();
     grouped |= r.group.has_value();
     temp |= r.temperature_c.has_value();
     payload |= r.payload_kg.has_value();
+    sp |= r.sigma_position_m.has_value();
+    so |= r.sigma_orientation_rad.has_value();
   }
   std::istringstream c(comment);
   std::string line;
@@ -248,6 +257,8 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
   if (grouped) out << ",group";
   if (temp) out << ",temperature_c";
   if (payload) out << ",payload_kg";
+  if (sp) out << ",sigma_position_mm";
+  if (so) out << ",sigma_orientation_deg";
   out << "\n" << std::setprecision(12);
   for (const auto& r : f.rows) {
     for (int j = 0; j < joints; ++j) out << r.q_rad[j] << ",";
@@ -267,6 +278,8 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
     opt(grouped, r.group);
     opt(temp, r.temperature_c);
     opt(payload, r.payload_kg);
+    opt(sp, r.sigma_position_m ? std::optional<double>(*r.sigma_position_m * 1e3) : std::nullopt);
+    opt(so, r.sigma_orientation_rad ? std::optional<double>(*r.sigma_orientation_rad * 180 / kPi) : std::nullopt);
     out << "\n";
   }
 }

@@ -1,12 +1,18 @@
 #include "cellcal/core/files/robot_yaml.hpp"
 
+#include <unistd.h>
+
+#include <charconv>
 #include <cmath>
+#include <cstdio>
+#include <map>
 
 #include <yaml-cpp/yaml.h>
 
 #include <fstream>
 #include <sstream>
 
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/model/se3.hpp"
 #include "yaml_reader.hpp"
 
@@ -22,11 +28,271 @@ void readFrame(const YamlReader& r, const YAML::Node& node, const std::string& f
 
 }  // namespace
 
-RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) try {
+namespace {
+
+// Parameter names a calibration section may use: kinematic ones in human units, then the extensions' own.
+std::map<std::string, int> columnNames(const RobotModel& m, const std::vector<Extension>& exts) {
+  std::map<std::string, int> names;
+  for (int i = 0; i < m.numParams(); ++i) names[m.paramNameHuman(i)] = i;
+  const auto ext = extensionParamNames(m, exts);
+  for (size_t k = 0; k < ext.size(); ++k) names[ext[k]] = m.numParams() + static_cast<int>(k);
+  return names;
+}
+
+double columnScale(const RobotModel& m, int column) {  // human units per SI unit
+  if (column >= m.numParams()) return 1.0;
+  return m.isLength(column) ? 1e3 : 180.0 / kPi;
+}
+
+RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const RobotModel& m) {
+  const std::string f = "calibration";
+  r.requireMap(c, f);
+  r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
+                     "correlation"});
+  RobotCalibration cal;
+  if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
+    r.requireMap(pv, f + ".provenance");
+    for (const auto& kv : pv) {
+      if (!kv.second.IsScalar()) r.fail(kv.second, f + ".provenance." + kv.first.Scalar(), "expected a plain value");
+      cal.provenance.emplace_back(kv.first.Scalar(), kv.second.Scalar());
+    }
+  }
+  if (const YAML::Node ex = c["extensions"]; ex.IsDefined() && !ex.IsNull()) {
+    if (!ex.IsSequence()) r.fail(ex, f + ".extensions", "expected a list of {spec, time_constant_h}");
+    for (size_t i = 0; i < ex.size(); ++i) {
+      const std::string fi = f + ".extensions[" + std::to_string(i) + "]";
+      r.requireMap(ex[i], fi);
+      r.checkKeys(ex[i], fi, {"spec", "time_constant_h"});
+      const YAML::Node spec = r.required(ex[i], "spec", fi + ".spec");
+      if (!spec.IsScalar()) r.fail(spec, fi + ".spec", "expected e.g. joint_compliance:2");
+      Extension e;
+      try {
+        e = parseExtension(spec.Scalar(), m);
+      } catch (const std::invalid_argument& err) {
+        r.fail(spec, fi + ".spec", err.what());
+      }
+      if (const YAML::Node tc = ex[i]["time_constant_h"]; tc.IsDefined() && !tc.IsNull()) {
+        if (tc.IsScalar() && (tc.Scalar() == "inf" || tc.Scalar() == ".inf")) e.time_constant_h = INFINITY;
+        else e.time_constant_h = r.number(tc, fi + ".time_constant_h");
+      }
+      cal.extensions.push_back(e);
+    }
+  }
+  const std::vector<std::string> ext_names = extensionParamNames(m, cal.extensions);
+  cal.extension_params = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ext_names.size()));
+  {
+    const YAML::Node ep = c["extension_parameters"];
+    const size_t given = ep.IsDefined() && !ep.IsNull() ? ep.size() : 0;
+    if (given != ext_names.size() || (given > 0 && !ep.IsSequence()))
+      r.fail(ep.IsDefined() ? ep : c, f + ".extension_parameters",
+             "expected one {name, value} per extension parameter (" + std::to_string(ext_names.size()) + ")");
+    for (size_t k = 0; k < given; ++k) {
+      const std::string fk = f + ".extension_parameters[" + std::to_string(k) + "]";
+      r.requireMap(ep[k], fk);
+      r.checkKeys(ep[k], fk, {"name", "value"});
+      const YAML::Node name = r.required(ep[k], "name", fk + ".name");
+      if (!name.IsScalar() || name.Scalar() != ext_names[k])
+        r.fail(name, fk + ".name", "expected " + ext_names[k] + " (the parameters of the extensions, in order)");
+      cal.extension_params[static_cast<Eigen::Index>(k)] = r.number(r.required(ep[k], "value", fk + ".value"), fk + ".value");
+    }
+  }
+  if (const YAML::Node vf = c["variance_factor_position"]; vf.IsDefined() && !vf.IsNull()) {
+    cal.variance_factor_position = r.number(vf, f + ".variance_factor_position");
+    if (!(cal.variance_factor_position > 0)) r.fail(vf, f + ".variance_factor_position", "must be > 0");
+  }
+  const YAML::Node ps = c["parameters"];
+  if (ps.IsDefined() && !ps.IsNull()) {
+    if (!ps.IsSequence()) r.fail(ps, f + ".parameters", "expected a list of {name, stddev, estimated}");
+    const auto names = columnNames(m, cal.extensions);
+    std::vector<double> sd;
+    for (size_t i = 0; i < ps.size(); ++i) {
+      const std::string fi = f + ".parameters[" + std::to_string(i) + "]";
+      r.requireMap(ps[i], fi);
+      r.checkKeys(ps[i], fi, {"name", "stddev", "estimated"});
+      const YAML::Node name = r.required(ps[i], "name", fi + ".name");
+      const auto it = name.IsScalar() ? names.find(name.Scalar()) : names.end();
+      if (it == names.end()) r.fail(name, fi + ".name", "not a parameter of this robot and its extensions");
+      if (std::find(cal.columns.begin(), cal.columns.end(), it->second) != cal.columns.end())
+        r.fail(name, fi + ".name", "listed twice");
+      cal.columns.push_back(it->second);
+      const double v = r.number(r.required(ps[i], "stddev", fi + ".stddev"), fi + ".stddev");
+      if (!(v >= 0)) r.fail(ps[i]["stddev"], fi + ".stddev", "must be >= 0");
+      sd.push_back(v / columnScale(m, it->second));
+      cal.estimated.push_back(r.boolean(r.required(ps[i], "estimated", fi + ".estimated"), fi + ".estimated"));
+    }
+    const auto n = static_cast<Eigen::Index>(sd.size());
+    const YAML::Node cr = r.required(c, "correlation", f + ".correlation");
+    if (!cr.IsSequence() || static_cast<Eigen::Index>(cr.size()) != n)
+      r.fail(cr, f + ".correlation", "expected " + std::to_string(n) + " rows (one per parameter)");
+    cal.covariance.resize(n, n);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const std::string fi = f + ".correlation[" + std::to_string(i) + "]";
+      const auto row = r.vector(cr[static_cast<size_t>(i)], fi, static_cast<size_t>(n));
+      for (Eigen::Index j = 0; j < n; ++j) {
+        if (std::abs(row[static_cast<size_t>(j)]) > 1 + 1e-9 || (i == j && std::abs(row[static_cast<size_t>(j)] - 1) > 1e-9))
+          r.fail(cr[static_cast<size_t>(i)], fi, "a correlation matrix has 1 on the diagonal and |r| <= 1");
+        cal.covariance(i, j) = row[static_cast<size_t>(j)] * sd[static_cast<size_t>(i)] * sd[static_cast<size_t>(j)];
+      }
+    }
+    if ((cal.covariance - cal.covariance.transpose()).cwiseAbs().maxCoeff() >
+        1e-9 * std::max(1e-300, cal.covariance.cwiseAbs().maxCoeff()))
+      r.fail(cr, f + ".correlation", "not symmetric");
+  } else if (c["correlation"].IsDefined()) {
+    r.fail(c["correlation"], f + ".correlation", "given without parameters");
+  }
+  return cal;
+}
+
+// Shortest text that reads back as the same double.
+std::string num(double v) {
+  if (std::isinf(v)) return v > 0 ? ".inf" : "-.inf";
+  char buf[64];
+  const auto res = std::to_chars(buf, buf + sizeof buf, v);
+  return std::string(buf, res.ptr);
+}
+
+std::string quoted(const std::string& s) {
+  std::string out = "\"";
+  for (char ch : s) {
+    if (ch == '"' || ch == '\\') out += '\\';
+    if (ch == '\n') {
+      out += "\\n";
+      continue;
+    }
+    out += ch;
+  }
+  return out + "\"";
+}
+
+}  // namespace
+
+std::string RobotCalibration::provenanceValue(const std::string& key) const {
+  for (const auto& [k, v] : provenance)
+    if (k == key) return v;
+  return "";
+}
+
+bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) const {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = m;
+    return false;
+  };
+  const int k = numExtensionParams(model, extensions);
+  if (extension_params.size() != k) return fail("extension_params: expected " + std::to_string(k) + " values");
+  const auto n = static_cast<Eigen::Index>(columns.size());
+  if (static_cast<Eigen::Index>(estimated.size()) != n || covariance.rows() != n || covariance.cols() != n)
+    return fail("columns, estimated and covariance disagree in size");
+  for (int c : columns)
+    if (c < 0 || c >= model.numParams() + k) return fail("column " + std::to_string(c) + " out of range");
+  if (!covariance.allFinite() || !extension_params.allFinite()) return fail("not finite");
+  return true;
+}
+
+std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, const std::string& header) {
+  std::string err;
+  if (!m.IsValid(&err)) throw std::invalid_argument("robotFileText: " + err);
+  if (cal && !cal->IsValid(m, &err)) throw std::invalid_argument("robotFileText: " + err);
+  std::ostringstream o;
+  std::istringstream h(header);
+  for (std::string line; std::getline(h, line);) o << "# " << line << "\n";
+  o << "name: " << m.name << "\njoints:\n";
+  for (int j = 0; j < m.numJoints(); ++j) {
+    auto v = [&](JointParam p) { return m.nominal[m.jointParam(j, p)]; };
+    o << "  - { theta_offset_deg: " << num(radToDeg(v(JointParam::kThetaOffset))) << ", d_mm: " << num(v(JointParam::kD) * 1e3)
+      << ", a_mm: " << num(v(JointParam::kA) * 1e3) << ", alpha_deg: " << num(radToDeg(v(JointParam::kAlpha)))
+      << ", beta_deg: " << num(radToDeg(v(JointParam::kBeta)))
+      << ", parallel_to_next: " << (m.parallel_to_next[static_cast<size_t>(j)] ? "true" : "false") << ", limits_deg: ["
+      << num(radToDeg(m.limits[static_cast<size_t>(j)].lower_rad)) << ", "
+      << num(radToDeg(m.limits[static_cast<size_t>(j)].upper_rad)) << "] }\n";
+  }
+  if (!m.links.empty()) {
+    o << "links:\n";
+    for (const auto& l : m.links)
+      o << "  - { mass_kg: " << num(l.mass_kg) << ", com_mm: [" << num(l.com_m.x() * 1e3) << ", " << num(l.com_m.y() * 1e3)
+        << ", " << num(l.com_m.z() * 1e3) << "] }\n";
+  }
+  o << "gravity_in_base_mps2: [" << num(m.gravity_in_base_mps2.x()) << ", " << num(m.gravity_in_base_mps2.y()) << ", "
+    << num(m.gravity_in_base_mps2.z()) << "]\n";
+  auto frame = [&](const char* key, int first) {
+    o << key << ": { x_mm: " << num(m.nominal[first] * 1e3) << ", y_mm: " << num(m.nominal[first + 1] * 1e3)
+      << ", z_mm: " << num(m.nominal[first + 2] * 1e3) << ", roll_deg: " << num(radToDeg(m.nominal[first + 3]))
+      << ", pitch_deg: " << num(radToDeg(m.nominal[first + 4])) << ", yaw_deg: " << num(radToDeg(m.nominal[first + 5]))
+      << " }\n";
+  };
+  frame("base_in_tracker", m.baseParam(FrameParam::kX));
+  frame("tool_in_flange", m.toolParam(FrameParam::kX));
+  if (!cal) return o.str();
+  o << "calibration:\n";
+  if (!cal->provenance.empty()) {
+    o << "  provenance:\n";
+    for (const auto& [k, v] : cal->provenance) o << "    " << k << ": " << quoted(v) << "\n";
+  }
+  if (!cal->extensions.empty()) {
+    o << "  extensions:\n";
+    for (const auto& e : cal->extensions) {
+      o << "    - { spec: " << quoted(extensionSpec(e));
+      if (e.cause == Cause::kThermalDrift && e.time_constant_h != 0) o << ", time_constant_h: " << num(e.time_constant_h);
+      o << " }\n";
+    }
+    o << "  extension_parameters:\n";
+    const auto names = extensionParamNames(m, cal->extensions);
+    for (size_t k = 0; k < names.size(); ++k)
+      o << "    - { name: " << names[k] << ", value: " << num(cal->extension_params[static_cast<Eigen::Index>(k)]) << " }\n";
+  }
+  o << "  variance_factor_position: " << num(cal->variance_factor_position) << "\n";
+  if (!cal->columns.empty()) {
+    const auto ext_names = extensionParamNames(m, cal->extensions);
+    auto name = [&](int c) { return c < m.numParams() ? m.paramNameHuman(c) : ext_names[static_cast<size_t>(c - m.numParams())]; };
+    const auto n = static_cast<Eigen::Index>(cal->columns.size());
+    Eigen::VectorXd sd(n);
+    for (Eigen::Index i = 0; i < n; ++i) sd[i] = std::sqrt(std::max(0.0, cal->covariance(i, i)));
+    o << "  # 1 sigma of every parameter a prediction depends on, in the unit of its name (estimated: false = not\n"
+         "  # estimated from the data, its prior width), and their correlation\n  parameters:\n";
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const int c = cal->columns[static_cast<size_t>(i)];
+      o << "    - { name: " << name(c) << ", stddev: " << num(sd[i] * columnScale(m, c))
+        << ", estimated: " << (cal->estimated[static_cast<size_t>(i)] ? "true" : "false") << " }\n";
+    }
+    o << "  correlation:\n";
+    for (Eigen::Index i = 0; i < n; ++i) {
+      o << "    - [";
+      for (Eigen::Index j = 0; j < n; ++j) {
+        const double r = i == j ? 1.0 : (sd[i] > 0 && sd[j] > 0 ? cal->covariance(i, j) / (sd[i] * sd[j]) : 0.0);
+        o << (j ? ", " : "") << num(std::clamp(r, -1.0, 1.0));
+      }
+      o << "]\n";
+    }
+  }
+  return o.str();
+}
+
+void saveRobotFile(const std::string& path, const RobotModel& model, const RobotCalibration* calibration,
+                   const std::string& header) {
+  const std::string text = robotFileText(model, calibration, header);
+  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw std::runtime_error(path + ": cannot write (" + tmp + ")");
+    out << text;
+    out.flush();
+    if (!out) throw std::runtime_error(path + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path + ": cannot replace");
+  }
+}
+
+RobotModel parseRobotModel(const std::string& yaml_text, const std::string& source) {
+  return parseRobotFile(yaml_text, source).model;
+}
+
+RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source) try {
   YamlReader r(source);
   const YAML::Node root = r.load(yaml_text);
   if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with name, joints, ...");
-  r.checkKeys(root, "", {"name", "joints", "links", "gravity_in_base_mps2", "base_in_tracker", "tool_in_flange"});
+  r.checkKeys(root, "", {"name", "joints", "links", "gravity_in_base_mps2", "base_in_tracker", "tool_in_flange",
+                         "calibration"});
 
   RobotModel m;
   const YAML::Node name = r.required(root, "name", "name");
@@ -105,14 +371,18 @@ RobotModel parseRobotModel(const std::string& yaml_text, const std::string& sour
                " mm: no robot arm is that small; metres written where millimetres are expected?");
   std::string err;
   if (!m.IsValid(&err)) throw ConfigError(source + ": " + err);
-  return m;
+  RobotFile file{m, std::nullopt};
+  if (const YAML::Node c = root["calibration"]; c.IsDefined() && !c.IsNull()) file.calibration = readCalibration(r, c, m);
+  return file;
 } catch (const YAML::Exception& e) {
   // The checks above name file, line and field; a yaml-cpp error that slips past them still names the file.
   throw ConfigError(source + ": " + e.what());
 }
 
-RobotModel loadRobotModel(const std::string& path) {
-  return parseRobotModel(detail::readConfigFile(path, "robot file"), path);
+RobotModel loadRobotModel(const std::string& path) { return loadRobotFile(path).model; }
+
+RobotFile loadRobotFile(const std::string& path) {
+  return parseRobotFile(detail::readConfigFile(path, "robot file"), path);
 }
 
 }  // namespace cellcal

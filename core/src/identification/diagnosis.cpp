@@ -1,5 +1,7 @@
 #include "cellcal/core/identification/diagnosis.hpp"
 
+#include "cellcal/core/identification/prediction.hpp"
+
 #include <Eigen/QR>
 #include <algorithm>
 #include <chrono>
@@ -249,13 +251,6 @@ OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, con
   return out;
 }
 
-template <typename T>
-std::vector<T> subset(const std::vector<T>& v, const std::vector<int>& rows) {
-  std::vector<T> out;
-  out.reserve(rows.size());
-  for (int i : rows) out.push_back(v[static_cast<size_t>(i)]);
-  return out;
-}
 
 }  // namespace
 
@@ -476,6 +471,8 @@ bool DiagnosisOptions::IsValid(std::string* error) const {
   if (!(parsimony_z >= 0)) return fail("parsimony_z must be >= 0");
   if (max_causes < 1) return fail("max_causes must be >= 1");
   if (!(structure_alpha > 0 && structure_alpha < 1)) return fail("structure_alpha must be in (0, 1)");
+  if (!(excitation_ratio >= 0 && excitation_ratio < 1)) return fail("excitation_ratio must be in [0, 1)");
+  if (!(max_extrapolation_ratio >= 0)) return fail("max_extrapolation_ratio must be >= 0 (0: off)");
   if (std::string e; !outliers.IsValid(&e)) return fail(e);
   for (Cause c : causes)
     if (c == Cause::kNone) return fail("causes: 'none' is not an extension (it is the default outcome)");
@@ -782,8 +779,20 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
       c.fit = std::move(fit);
       return c;
     };
+    // Parameters the identification rows leave unexcited (where the verification rows excite them) are held.
+    auto heldFor = [&](const std::vector<Extension>& exts, std::vector<ExcitationDeficit>* deficits) {
+      IdentifiabilityOptions io = options.identifiability;
+      if (options.excitation_ratio > 0) {
+        *deficits = excitationDeficits(model, start, exts, I, ID, V, VD, options.excitation_ratio);
+        for (const auto& d : *deficits) io.held.push_back(d.column);
+      }
+      return io;
+    };
     Selection sel;
-    sel.geometric = evaluate(fitExtended(model, start, I, ID, Extension{}, options.solver, options.identifiability));
+    std::vector<ExcitationDeficit> geometric_held;
+    const IdentifiabilityOptions geometric_io = heldFor({}, &geometric_held);
+    sel.geometric = evaluate(fitExtended(model, start, I, ID, Extension{}, options.solver, geometric_io));
+    sel.geometric.held = geometric_held;
     progress();
     CandidateResult base = sel.geometric;
     std::vector<Eigen::Vector3d> base_res = positionResiduals(model, base.fit, V, VD);
@@ -796,8 +805,10 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
         if (conflicts(ext, chosen)) continue;
         std::vector<Extension> exts = chosen;
         exts.push_back(ext);
-        CandidateResult c = evaluate(
-            fitExtended(model, start, I, ID, exts, options.solver, options.identifiability, &base.fit.params));
+        std::vector<ExcitationDeficit> held;
+        const IdentifiabilityOptions io = heldFor(exts, &held);
+        CandidateResult c = evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &base.fit.params));
+        c.held = std::move(held);
         progress();
         // Nothing the model so far could not already do.
         if (c.fit.numEstimatedExtension() <= base.fit.numEstimatedExtension()) continue;
@@ -860,8 +871,10 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
     sel = select(subset(I, ik), subset(ID, ik), subset(V, vk), subset(VD, vk));
     const CandidateResult& best = sel.steps.empty() ? sel.geometric : sel.steps.back().result;
     OutlierScreen id2;
-    const ExtendedFit final_fit = fitExtendedRobust(model, start, I, ID, best.fit.extensions, options.solver,
-                                                    options.identifiability, &best.fit.params, options.outliers, &id2);
+    IdentifiabilityOptions io = options.identifiability;
+    for (const auto& d : best.held) io.held.push_back(d.column);
+    const ExtendedFit final_fit = fitExtendedRobust(model, start, I, ID, best.fit.extensions, options.solver, io,
+                                                    &best.fit.params, options.outliers, &id2);
     OutlierScreen ver2 = screenFitRows(model, final_fit, V, VD, options.outliers);
     const bool same = id2.rows == id_screen.rows && ver2.rows == ver_screen.rows;
     id_screen = std::move(id2);
@@ -901,6 +914,14 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
     out.verdict = left ? Verdict::kPartlyExplained : Verdict::kNamed;
     out.verdict_text = left ? "partly explained by " + modelLabel(out.causes()) + "; " + share : modelLabel(out.causes());
   }
+  ExtendedFit start_fit;
+  start_fit.params = start;
+  out.start_verification = errorStats(model, start_fit, Vk, VDk);
+  out.unusable = unusableFit(out.start_verification, best.verification, best.identification, options.max_extrapolation_ratio);
+  if (!out.unusable.empty()) {
+    out.verdict = Verdict::kUnusable;
+    out.verdict_text = "no recommendation: " + out.unusable;
+  }
   out.noise = estimateNoise(model, best.fit, subset(I, ik), subset(ID, ik), Vk, VDk);
   out.noise_rms_mm = std::sqrt(3.0) * out.noise.sigma_position_mm;
   out.unexplained_rms_mm =
@@ -908,6 +929,25 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
   if (options.progress) options.progress(fits_total, fits_total);
   out.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
+}
+
+std::string unusableFit(const ErrorStats& start_held_out, const ErrorStats& held_out, const ErrorStats& identification,
+                        double max_ratio) {
+  char buf[300];
+  if (held_out.mean_mm > start_held_out.mean_mm) {
+    std::snprintf(buf, sizeof buf,
+                  "the fitted model is worse than the start model on the held-out rows (mean %.4f mm against %.4f mm)",
+                  held_out.mean_mm, start_held_out.mean_mm);
+    return buf;
+  }
+  if (max_ratio > 0 && held_out.max_mm > max_ratio * identification.max_mm) {
+    std::snprintf(buf, sizeof buf,
+                  "it extrapolates: held-out max %.3f mm is %.1fx the identification max %.3f mm (limit %gx): the "
+                  "held-out rows reach where the identification rows do not pin the model down",
+                  held_out.max_mm, held_out.max_mm / identification.max_mm, identification.max_mm, max_ratio);
+    return buf;
+  }
+  return "";
 }
 
 CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geometric, const ExtendedFit& extended,

@@ -42,7 +42,8 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
   // stability): R.col(i) is candidate i's part outside the kept span, its norm the sine of its angle to that span.
   std::vector<int> cand;
   for (int c : order)
-    if (J.col(c).norm() > min_norm) cand.push_back(c);
+    if (J.col(c).norm() > min_norm && std::find(options.held.begin(), options.held.end(), c) == options.held.end())
+      cand.push_back(c);
   const auto nc = static_cast<Eigen::Index>(cand.size());
   Eigen::MatrixXd R(m, nc);
   for (Eigen::Index i = 0; i < nc; ++i) R.col(i) = J.col(cand[i]) / J.col(cand[i]).norm();
@@ -77,13 +78,12 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
                                              const IdentifiabilityOptions& options) {
   if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
   std::vector<int> cand = identificationPriority(model);
-  if (!options.candidates.empty())
-    cand.erase(std::remove_if(cand.begin(), cand.end(),
-                              [&](int c) {
-                                return std::find(options.candidates.begin(), options.candidates.end(), c) ==
-                                       options.candidates.end();
-                              }),
-               cand.end());
+  auto in = [](const std::vector<int>& v, int c) { return std::find(v.begin(), v.end(), c) != v.end(); };
+  cand.erase(std::remove_if(cand.begin(), cand.end(),
+                            [&](int c) {
+                              return (!options.candidates.empty() && !in(options.candidates, c)) || in(options.held, c);
+                            }),
+             cand.end());
 
   IdentifiabilityReport rep;
   rep.num_candidates = static_cast<int>(cand.size());

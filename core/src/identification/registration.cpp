@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "cellcal/core/identification/identifiability.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -106,6 +107,72 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
     ss += (forwardKinematics(model, data, p, o.q_rad).translation() - o.measured_in_tracker.translation()).squaredNorm();
   out.rms_position_m = std::sqrt(ss / static_cast<double>(obs.size()));
   out.params = p;
+  return out;
+}
+
+RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& params,
+                                const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                                const std::vector<Observation>& observations, const std::vector<Drivers>& drivers,
+                                int iterations) {
+  if (drivers.size() != observations.size()) throw std::invalid_argument("refineFrames: one Drivers entry per observation");
+  if (params.size() != model.numParams()) throw std::invalid_argument("refineFrames: params has the wrong size");
+  std::vector<int> frames;
+  for (int k = 0; k < 6; ++k) frames.push_back(model.toolParam(static_cast<FrameParam>(k)));
+  for (int k = 0; k < 6; ++k) frames.push_back(model.baseParam(static_cast<FrameParam>(k)));
+  const int rows = totalRows(observations);
+  KinematicsData data(model);
+  RegistrationResult out;
+  out.params = params;
+  auto stack = [&](const Eigen::VectorXd& p, Eigen::VectorXd& r, Eigen::MatrixXd* J) {
+    r.resize(rows);
+    if (J) J->resize(rows, static_cast<Eigen::Index>(frames.size()));
+    Eigen::Matrix<double, 6, 1> ri;
+    Eigen::MatrixXd Ji;
+    int row = 0;
+    for (size_t i = 0; i < observations.size(); ++i) {
+      const Eigen::VectorXd pe = extensions.empty()
+                                     ? p
+                                     : extendedParams(model, p, extensions, extension_params, observations[i].q_rad, drivers[i]);
+      const int n = whitenedResidual(model, data, pe, observations[i], ri, J ? &Ji : nullptr);
+      r.segment(row, n) = ri.head(n);
+      if (J)
+        for (size_t c = 0; c < frames.size(); ++c) J->block(row, static_cast<Eigen::Index>(c), n, 1) = Ji.block(0, frames[c], n, 1);
+      row += n;
+    }
+  };
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stack(out.params, r, &J);
+  std::vector<int> order(frames.size());
+  for (size_t c = 0; c < order.size(); ++c) order[c] = static_cast<int>(c);
+  const std::vector<int> cols = independentColumns(J, order);
+  double cost = r.squaredNorm();
+  for (int it = 0; it < iterations; ++it) {
+    Eigen::MatrixXd A(rows, static_cast<Eigen::Index>(cols.size()));
+    for (size_t c = 0; c < cols.size(); ++c) A.col(static_cast<Eigen::Index>(c)) = J.col(cols[c]);
+    const Eigen::VectorXd step = A.colPivHouseholderQr().solve(r);
+    Eigen::VectorXd trial = out.params;
+    for (size_t c = 0; c < cols.size(); ++c) trial[frames[static_cast<size_t>(cols[c])]] += step[static_cast<Eigen::Index>(c)];
+    Eigen::VectorXd r2;
+    stack(trial, r2, nullptr);
+    out.iterations = it + 1;
+    if (!(r2.squaredNorm() < cost)) break;
+    const bool small = cost - r2.squaredNorm() < 1e-12 * cost;
+    out.params = trial;
+    cost = r2.squaredNorm();
+    if (small) break;
+    stack(out.params, r, &J);
+  }
+  // Position RMS of the refined model.
+  double sq = 0;
+  for (size_t i = 0; i < observations.size(); ++i) {
+    const Eigen::VectorXd pe = extensions.empty() ? out.params
+                                                  : extendedParams(model, out.params, extensions, extension_params,
+                                                                   observations[i].q_rad, drivers[i]);
+    sq += (forwardKinematics(model, data, pe, observations[i].q_rad).translation() -
+           observations[i].measured_in_tracker.translation()).squaredNorm();
+  }
+  out.rms_position_m = observations.empty() ? 0 : std::sqrt(sq / static_cast<double>(observations.size()));
   return out;
 }
 

@@ -5,6 +5,8 @@
 #include <sstream>
 
 #include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "test_support.hpp"
 
@@ -102,6 +104,65 @@ TEST(MeasurementCsv, SkipBadRowsKeepsTheGoodOnesAndCountsTheRest) {
   EXPECT_EQ(f.skipped_rows, 1);
   ASSERT_EQ(f.warnings.size(), 1u);
   EXPECT_NE(f.warnings[0].find("m.csv:3:3: q3_deg"), std::string::npos);
+}
+
+// Per-reading sigmas (a tracker's own uncertainty of each reading): read, written back, refused when not > 0, and
+// used as weights: on a file where half the readings are 30x noisier, a fit that knows which lands closer to the truth
+// than one that weighs every reading alike (robot, frames and noise drawn at random).
+TEST(MeasurementCsv, PerReadingSigmasAreReadWrittenAndWeighTheFit) {
+  const RobotModel m = test::robot("staubli_tx60");
+  const auto f = parseMeasurementCsv("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,sigma_position_mm,sigma_orientation_deg\n"
+                                     "10,20,30,40,50,60,1000.5,-20,300,0.02,0.004\n0,0,0,0,0,0,1,2,3,,\n",
+                                     "m.csv", m);
+  ASSERT_EQ(f.rows.size(), 2u);
+  EXPECT_NEAR(*f.rows[0].sigma_position_m, 2e-5, 1e-18);
+  EXPECT_NEAR(*f.rows[0].sigma_orientation_rad, 0.004 * kPi / 180, 1e-18);
+  EXPECT_FALSE(f.rows[1].sigma_position_m.has_value());
+  const Observation o0 = toObservation(f.rows[0], MeasurementKind::kPose6D, 1e-3, 1e-3);
+  const Observation o1 = toObservation(f.rows[1], MeasurementKind::kPose6D, 1e-3, 1e-3);
+  EXPECT_EQ(o0.sigma_position_m, 2e-5);
+  EXPECT_EQ(o1.sigma_position_m, 1e-3);
+  std::ostringstream out;
+  writeMeasurementCsv(out, f, 6, "");
+  const auto back = parseMeasurementCsv(out.str(), "back.csv", m);
+  EXPECT_NEAR(*back.rows[0].sigma_position_m, 2e-5, 1e-15);
+  EXPECT_FALSE(back.rows[1].sigma_position_m.has_value());
+  EXPECT_NE(errorOf("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,sigma_position_mm\n1,2,3,4,5,6,1,2,3,0\n")
+                .find("m.csv:2:10: sigma_position_mm: a sigma must be > 0"),
+            std::string::npos);
+
+  std::mt19937_64 rng(test::testSeed());
+  SimulationConfig sc;
+  sc.seed = rng();
+  const SimulatedCell cell(m, sc);
+  std::vector<Observation> weighted, uniform;
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (const auto& q : cell.randomConfigurations(120, rng)) {
+    const bool noisy = weighted.size() % 2 == 1;
+    const double sigma_m = noisy ? 0.3e-3 : 0.01e-3;
+    MeasurementRow r;
+    r.q_rad = q;
+    r.position_m = cell.truePose(q, 0.0).translation() + sigma_m * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    r.sigma_position_m = sigma_m;
+    weighted.push_back(toObservation(r, MeasurementKind::kPosition3D, 0.1e-3, 0.01));
+    r.sigma_position_m.reset();
+    uniform.push_back(toObservation(r, MeasurementKind::kPosition3D, 0.1e-3, 0.01));
+  }
+  auto heldOut = [&](const std::vector<Observation>& obs) {
+    Eigen::VectorXd start = m.nominal;
+    start.segment(m.baseParam(FrameParam::kX), 6) = sc.base_in_tracker;
+    start.segment(m.toolParam(FrameParam::kX), 6) = sc.tool_in_flange;
+    const CalibrationResult res = solveGaussNewton(CalibrationProblem{&m, start, obs, std::nullopt, {}, {}});
+    KinematicsData d(m);
+    double s = 0;
+    std::mt19937_64 qr(5);
+    const auto qs = cell.randomConfigurations(200, qr);
+    for (const auto& q : qs) s += (forwardKinematics(m, d, res.params, q).translation() - cell.truePose(q, 0.0).translation()).norm();
+    return s / qs.size() * 1e3;
+  };
+  const double w = heldOut(weighted), u = heldOut(uniform);
+  std::printf("model error against the truth: weighted by the readings' sigmas %.4f mm, weighted alike %.4f mm\n", w, u);
+  EXPECT_LT(w, 0.8 * u);
 }
 
 }  // namespace

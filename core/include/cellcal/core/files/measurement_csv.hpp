@@ -4,7 +4,9 @@
 //   - Required: q1_deg..qN_deg (or q1_rad..qN_rad), x_mm, y_mm, z_mm (target position in the tracker frame),
 //     N = joints of the robot file.
 //   - Optional: qw, qx, qy, qz (target orientation in the tracker frame; all four empty = position-only row),
-//     stamp_s, group (integer), temperature_c, payload_kg. Unknown columns are reported once and ignored.
+//     stamp_s, group (integer), temperature_c, payload_kg, sigma_position_mm and sigma_orientation_deg (the reading's
+//     own 1-sigma per axis, as a tracker reports it: the row's weight in every fit, instead of the command line's
+//     --sigma-*). Unknown columns are reported once and ignored.
 //   - Row order is the order the robot visited the poses.
 // Bad rows (missing required cell, non-number, non-unit quaternion, joint outside limits) throw ConfigError
 // "<file>:<line>:<column>: <column name>: <message>"; with skip_bad_rows they become counted warnings and the row
@@ -30,6 +32,7 @@ struct MeasurementRow {
   Eigen::Vector3d position_m = Eigen::Vector3d::Zero();
   std::optional<Eigen::Quaterniond> orientation;  // unit; absent for a position-only row
   std::optional<double> stamp_s, temperature_c, payload_kg;
+  std::optional<double> sigma_position_m, sigma_orientation_rad;  // the reading's own 1 sigma per axis (> 0)
   std::optional<long long> group;
 };
 
@@ -55,7 +58,8 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
 // comment's lines first as '#' lines.
 void writeMeasurementCsv(std::ostream& out, const MeasurementFile& file, int joints, const std::string& comment);
 
-// The observation of a row (6D if it has an orientation and kind allows, else 3D).
+// The observation of a row (6D if it has an orientation and kind allows, else 3D), with the row's own sigmas where it
+// has them, else the ones given.
 Observation toObservation(const MeasurementRow& row, MeasurementKind kind, double sigma_position_m,
                           double sigma_orientation_rad);
 

@@ -133,14 +133,28 @@ struct DiagnosisOptions {
   OutlierOptions outliers;
   SolverOptions solver;
   IdentifiabilityOptions identifiability;
+  // A parameter (kinematic or of a candidate extension) whose excitation on the identification rows is below this
+  // fraction of its largest on a verification row is held, not estimated (excitationDeficits, prediction.hpp). 0: off.
+  double excitation_ratio = 0.1;
+  // Held-out max beyond this many times the identification max (or a held-out mean worse than the start model's):
+  // the fit is not usable and nothing is recommended (unusableFit).
+  double max_extrapolation_ratio = 3.0;
   // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
   // bars on large files; runs on the caller's thread.
   std::function<void(int done, int total)> progress;
   bool IsValid(std::string* error) const;
 };
 
+// A parameter the identification rows leave unexcited while another row of the same data excites it (prediction.hpp).
+struct ExcitationDeficit {
+  int column = -1;  // kinematic index, or numParams() + k for extension parameter k
+  std::string name;
+  double identification_rms = 0, elsewhere_max = 0;  // whitened column norms per observation
+};
+
 struct CandidateResult {
   ExtendedFit fit;
+  std::vector<ExcitationDeficit> held;      // parameters held for an excitation deficit
   ErrorStats identification, verification;  // over the rows kept (gross errors left out)
   double verify_mse_m2 = 0;  // mean squared position error on the verification rows
   double score = 0;          // verify_mse_m2 * (1 + penalty * k / rows)
@@ -194,6 +208,7 @@ enum class Verdict {
   kNamed,            // causes named; no structure left
   kPartlyExplained,  // causes named, structure left
   kUnexplained,      // no cause, structure left: something the library does not have
+  kUnusable,         // the chosen model is worse than the start on held-out rows or extrapolates: no recommendation
 };
 
 struct DiagnosisResult {
@@ -216,6 +231,8 @@ struct DiagnosisResult {
   // rows kept; these are the geometric and the final model on every verification row, outliers included.
   OutlierScreen identification_outliers, verification_outliers;
   ErrorStats geometric_verification_all_rows, verification_all_rows;
+  ErrorStats start_verification;            // the start model (nominal kinematics, registered frames), rows kept
+  std::string unusable;                     // why the chosen model cannot be used (unusableFit); empty: it can
   double solve_time_s = 0;
   const CandidateResult& best() const { return selection.empty() ? geometric : selection.back().result; }
 };
@@ -233,6 +250,12 @@ struct CauseSignature {
 CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geometric, const ExtendedFit& extended,
                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                               const std::string& thermal_source);
+
+// Why a fitted model cannot be used, or empty when it can: its held-out mean position error is worse than the start
+// model's (nominal kinematics with registered frames), or its held-out max exceeds max_ratio times its identification
+// max (it extrapolates: the held-out rows reach where the identification rows did not pin the model down).
+std::string unusableFit(const ErrorStats& start_held_out, const ErrorStats& held_out, const ErrorStats& identification,
+                        double max_ratio = 3.0);
 
 DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
                          const DiagnosisOptions& options = {});

@@ -31,6 +31,9 @@ struct IdentifiabilityOptions {
   double rank_tolerance = 1e-5;      // sine of the angle between a scaled column and the span of the kept ones
   double conditioning_guard = 0.1;  // a pivot's sine is at least this fraction of the largest one left
   std::vector<int> candidates;      // a subset of model.canonicalParams(); empty: all of them
+  // Columns never estimated, whatever the data (held at their start value and not reported as unidentifiable):
+  // kinematic index, or numParams() + k for extension parameter k. Excitation deficits (prediction.hpp) go here.
+  std::vector<int> held;
   bool IsValid(std::string* error) const;
 };
 

@@ -42,4 +42,13 @@ OutlierScreen screenOutliers(const std::vector<Eigen::Vector3d>& position_residu
 // The rows of `all` (0..n-1) not in `flagged` (ascending).
 std::vector<int> keptRows(int n, const std::vector<int>& flagged);
 
+// The elements of v at `rows`, in that order (e.g. the observations keptRows keeps, and their drivers).
+template <typename T>
+std::vector<T> subset(const std::vector<T>& v, const std::vector<int>& rows) {
+  std::vector<T> out;
+  out.reserve(rows.size());
+  for (int i : rows) out.push_back(v[static_cast<size_t>(i)]);
+  return out;
+}
+
 }  // namespace cellcal

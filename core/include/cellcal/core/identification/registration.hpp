@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
 namespace cellcal {
@@ -23,6 +24,14 @@ struct RegistrationResult {
 // Needs >= 4 observations with non-coplanar flange positions; throws std::invalid_argument otherwise.
 RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd& initial,
                                   const std::vector<Observation>& observations, int iterations = 10);
+
+// Base and tool frames of a calibrated model on new readings ("the tracker was moved"): Gauss-Newton on the 12 frame
+// parameters (those the readings excite) with the kinematics and the model extensions held, starting from `params`
+// (e.g. registerFrames on the calibrated kinematics). `drivers`: one per observation (extensions only).
+RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& params,
+                                const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
+                                const std::vector<Observation>& observations, const std::vector<Drivers>& drivers,
+                                int iterations = 20);
 
 // Frame parameters (x, y, z, roll, pitch, yaw) of a pose, inverse of poseFromXyzRpy (T = Trans Rz Ry Rx).
 Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T);

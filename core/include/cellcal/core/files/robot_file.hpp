@@ -1,0 +1,49 @@
+// A calibrated robot file: a robot file (docs/robot-file.md) whose joints, base_in_tracker and tool_in_flange hold
+// the identified kinematics, plus a `calibration:` section with what a calibration adds: the model extensions and
+// their parameters, the covariance of the parameters (every one a prediction depends on, with a flag for those the
+// data estimated: prediction.hpp can be rebuilt from it), and where it came from. `cellcal calibrate --save-robot`
+// writes it; every command that takes --robot reads it (loadRobotModel reads the kinematics and checks the section).
+// Round trip: the predictions of a saved and reloaded model agree to rounding (1e-15 relative).
+#pragma once
+
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/model/robot_model.hpp"
+
+namespace cellcal {
+
+struct RobotCalibration {
+  std::vector<Extension> extensions;     // in the order of their parameters
+  Eigen::VectorXd extension_params;      // SI (the units their names say), numExtensionParams(model, extensions)
+  // The parameters the covariance covers: kinematic index, or numParams() + k for extension parameter k.
+  std::vector<int> columns;
+  std::vector<bool> estimated;           // per column: estimated by the calibration (else its prior width)
+  Eigen::MatrixXd covariance;            // SI, over `columns`
+  double variance_factor_position = 1;   // of the fit (prediction.hpp): scales the readings' position noise
+  // Where it came from, in order: date_utc, data_file, data_sha256, rows, split, verification figures, ...
+  std::vector<std::pair<std::string, std::string>> provenance;
+  std::string provenanceValue(const std::string& key) const;  // "" when absent
+  bool IsValid(const RobotModel& model, std::string* error) const;
+};
+
+struct RobotFile {
+  RobotModel model;
+  std::optional<RobotCalibration> calibration;
+};
+
+// Throws ConfigError "<file>:<line>:<column>: <field>: <message>" on bad input (as loadRobotModel).
+RobotFile loadRobotFile(const std::string& path);
+RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source);
+
+// The file's text: `header` as comment lines, then the model (mm, deg) and the calibration section if given.
+std::string robotFileText(const RobotModel& model, const RobotCalibration* calibration, const std::string& header);
+// Writes robotFileText to path through a temporary file and rename. Throws std::runtime_error naming the path.
+void saveRobotFile(const std::string& path, const RobotModel& model, const RobotCalibration* calibration,
+                   const std::string& header);
+
+}  // namespace cellcal

@@ -1,0 +1,73 @@
+// How far a fitted model can be trusted at a configuration: the predicted 1-sigma error of the target position, and
+// the parameters the identification rows leave unexcited (extrapolation).
+//
+// The prediction covers every parameter the model could get wrong, not only the estimated ones: each canonical
+// kinematic parameter and each extension parameter starts with a prior (lengths and angles as plausible for a robot
+// that has not been calibrated; extension parameters from extensionPriorSigma), and the identification rows' whitened
+// Jacobian at the fit turns it into a posterior
+//     C = D (D^T J^T J D / s^2 + I)^-1 D,      D = diag(prior sigmas),
+// with s^2 the a-posteriori variance factor of the fit (residual sum of squares over its degrees of freedom; 1 when
+// the readings' sigmas are right and the model leaves nothing but noise), one for the position rows and one for the
+// orientation rows (J^T J / s^2 is their sum). A direction the identification rows do not
+// excite keeps its prior width, so a configuration that moves along it gets a large predicted error: the model is
+// extrapolating there. The actual held-out error compared with sqrt(sigma_model^2 + reading noise) says whether the
+// covariance can be trusted (their ratio's RMS is 1 when it can).
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/model/robot_model.hpp"
+
+namespace cellcal {
+
+struct PredictionOptions {
+  double prior_length_m = 5e-3;                         // 1 sigma of a length no one calibrated
+  double prior_angle_rad = 0.5 * 3.14159265358979323846 / 180;
+  double extension_joint_error_rad = 0.05 * 3.14159265358979323846 / 180;  // extensionPriorSigma's RMS joint error
+  bool IsValid(std::string* error) const;
+};
+
+struct PredictionModel {
+  std::vector<int> columns;      // kinematic index, or numParams() + k for extension parameter k
+  Eigen::VectorXd prior_sigma;   // per column, SI
+  Eigen::MatrixXd covariance;    // posterior over `columns`, SI (variance factor applied)
+  double variance_factor = 1.0;              // s^2 of every row together
+  double variance_factor_position = 1.0;     // s^2 of the position rows: the one that scales the readings' position noise
+  double variance_factor_orientation = 1.0;  // s^2 of the orientation rows (1 without 6D rows)
+  int rows = 0, estimated = 0;   // whitened rows of the identification data; parameters the fit estimated
+};
+
+// The posterior of `fit` on its identification rows (those it was fitted on, gross errors left out).
+PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                                const std::vector<Drivers>& drivers, const PredictionOptions& options = {});
+
+// Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
+// 3D position error the model makes there, reading noise not included).
+double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
+                              const Eigen::VectorXd& q_rad, const Drivers& drivers);
+
+// Excitation deficits: parameters the identification rows barely move while other rows of the same data move them
+// strongly. Estimating one would extrapolate: its value would rest on rows where it hardly acts and then decide the
+// prediction where it acts most (e.g. a gravity moment of link 4 near zero on every identification pose and 9.81 N m
+// on one held-out upright pose). Column c of the whitened Jacobian [J, J B] is measured per row (the norm of its
+// entries in that observation's 3 or 6 rows): its RMS over the identification rows against its largest value on the
+// `other` rows. A canonical kinematic or extension parameter whose RMS there is below `ratio` times that largest value
+// is a deficit (IdentifiabilityOptions::held takes their columns; ExcitationDeficit in diagnosis.hpp). `other` empty:
+// none.
+std::vector<ExcitationDeficit> excitationDeficits(const RobotModel& model, const Eigen::VectorXd& params,
+                                                  const std::vector<Extension>& extensions,
+                                                  const std::vector<Observation>& identification,
+                                                  const std::vector<Drivers>& identification_drivers,
+                                                  const std::vector<Observation>& other,
+                                                  const std::vector<Drivers>& other_drivers, double ratio = 0.1);
+// "joint4.compliance_link4_mass_rad_per_Nm_kg: excited 31x less on the identification rows (RMS 0.05) than on
+// another row (9.8)".
+std::string deficitText(const ExcitationDeficit& d);
+std::vector<int> heldColumns(const std::vector<ExcitationDeficit>& deficits);
+
+}  // namespace cellcal

@@ -1,0 +1,177 @@
+#include "cellcal/core/identification/prediction.hpp"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace cellcal {
+namespace {
+
+// Whitened Jacobian rows of one observation with respect to [kinematic parameters, extension parameters].
+int jacobianRows(const RobotModel& model, KinematicsData& data, const ExtendedFit& fit, const Observation& obs,
+                 const Drivers& drivers, Eigen::VectorXd* r, Eigen::MatrixXd& J) {
+  const int np = model.numParams();
+  const int k = static_cast<int>(fit.extension_params.size());
+  Eigen::MatrixXd B;
+  Eigen::VectorXd p = fit.params;
+  if (k > 0) {
+    B = extensionBasis(model, fit.params, fit.extensions, obs.q_rad, drivers, fit.extension_params);
+    p += B * fit.extension_params;
+  }
+  Eigen::Matrix<double, 6, 1> ri;
+  Eigen::MatrixXd Ji;
+  const int rows = whitenedResidual(model, data, p, obs, ri, &Ji);
+  J.resize(rows, np + k);
+  J.leftCols(np) = Ji.topRows(rows);
+  if (k > 0) J.rightCols(k) = Ji.topRows(rows) * B;
+  if (r) *r = ri.head(rows);
+  return rows;
+}
+
+}  // namespace
+
+bool PredictionOptions::IsValid(std::string* error) const {
+  if (!(prior_length_m > 0) || !(prior_angle_rad > 0) || !(extension_joint_error_rad > 0)) {
+    if (error) *error = "prior_length_m, prior_angle_rad and extension_joint_error_rad must be > 0";
+    return false;
+  }
+  return true;
+}
+
+PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+                                const std::vector<Drivers>& drivers, const PredictionOptions& options) {
+  std::string err;
+  if (!options.IsValid(&err)) throw std::invalid_argument("PredictionOptions: " + err);
+  if (obs.size() != drivers.size()) throw std::invalid_argument("predictionModel: one Drivers entry per observation");
+  const int np = model.numParams();
+  const int k = static_cast<int>(fit.extension_params.size());
+  PredictionModel pm;
+  std::vector<double> prior;
+  for (int c : model.canonicalParams()) {
+    pm.columns.push_back(c);
+    prior.push_back(model.isLength(c) ? options.prior_length_m : options.prior_angle_rad);
+  }
+  if (k > 0) {
+    const Eigen::VectorXd ext_prior =
+        extensionPriorSigma(model, fit.params, fit.extensions, options.extension_joint_error_rad);
+    for (int e = 0; e < k; ++e)
+      if (ext_prior[e] > 0) {
+        pm.columns.push_back(np + e);
+        prior.push_back(ext_prior[e]);
+      }
+  }
+  const auto n = static_cast<Eigen::Index>(pm.columns.size());
+  pm.prior_sigma = Eigen::Map<const Eigen::VectorXd>(prior.data(), n);
+  // Normal matrices of the scaled columns (D^T J^T J D), position rows and orientation rows apart: each gets its own
+  // variance factor (a model error shows in millimetres and in degrees by different amounts than the readings' sigmas
+  // say), from its residual sum of squares over its share of the degrees of freedom.
+  Eigen::MatrixXd Np = Eigen::MatrixXd::Zero(n, n), No = Eigen::MatrixXd::Zero(n, n);
+  KinematicsData data(model);
+  Eigen::MatrixXd J, Js(6, n);
+  Eigen::VectorXd r;
+  double rss_p = 0, rss_o = 0;
+  int rows_p = 0, rows_o = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const int rows = jacobianRows(model, data, fit, obs[i], drivers[i], &r, J);
+    for (Eigen::Index c = 0; c < n; ++c) Js.col(c).head(rows) = J.col(pm.columns[c]) * pm.prior_sigma[c];
+    Np.noalias() += Js.topRows(3).transpose() * Js.topRows(3);
+    rss_p += r.head(3).squaredNorm();
+    rows_p += 3;
+    if (rows == 6) {
+      No.noalias() += Js.middleRows(3, 3).transpose() * Js.middleRows(3, 3);
+      rss_o += r.tail(3).squaredNorm();
+      rows_o += 3;
+    }
+  }
+  pm.rows = rows_p + rows_o;
+  pm.estimated = static_cast<int>(fit.estimated.size() + fit.estimated_extension.size());
+  auto factor = [&](double rss, int rows) {
+    const double dof = rows - pm.estimated * static_cast<double>(rows) / std::max(pm.rows, 1);
+    return dof > 0 ? std::max(rss / dof, 1e-12) : 1.0;
+  };
+  pm.variance_factor_position = factor(rss_p, rows_p);
+  pm.variance_factor_orientation = rows_o > 0 ? factor(rss_o, rows_o) : 1.0;
+  pm.variance_factor = rows_o > 0 ? (rss_p + rss_o) / std::max(1.0, pm.rows - static_cast<double>(pm.estimated))
+                                  : pm.variance_factor_position;
+  const Eigen::MatrixXd A = Np / pm.variance_factor_position + No / pm.variance_factor_orientation +
+                            Eigen::MatrixXd::Identity(n, n);
+  const Eigen::MatrixXd inv = A.ldlt().solve(Eigen::MatrixXd::Identity(n, n));
+  pm.covariance = pm.prior_sigma.asDiagonal() * inv * pm.prior_sigma.asDiagonal();
+  return pm;
+}
+
+double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
+                              const Eigen::VectorXd& q_rad, const Drivers& drivers) {
+  Observation o;
+  o.q_rad = q_rad;
+  o.kind = MeasurementKind::kPosition3D;
+  o.sigma_position_m = 1.0;  // unwhitened: position rows in metres
+  KinematicsData data(model);
+  Eigen::MatrixXd J;
+  jacobianRows(model, data, fit, o, drivers, nullptr, J);
+  const auto n = static_cast<Eigen::Index>(prediction.columns.size());
+  Eigen::MatrixXd Jp(3, n);
+  for (Eigen::Index c = 0; c < n; ++c) Jp.col(c) = J.col(prediction.columns[c]);
+  return std::sqrt(std::max(0.0, (Jp * prediction.covariance * Jp.transpose()).trace()));
+}
+
+std::vector<ExcitationDeficit> excitationDeficits(const RobotModel& model, const Eigen::VectorXd& params,
+                                                  const std::vector<Extension>& extensions,
+                                                  const std::vector<Observation>& identification,
+                                                  const std::vector<Drivers>& identification_drivers,
+                                                  const std::vector<Observation>& other,
+                                                  const std::vector<Drivers>& other_drivers, double ratio) {
+  if (identification.size() != identification_drivers.size() || other.size() != other_drivers.size())
+    throw std::invalid_argument("excitationDeficits: one Drivers entry per observation");
+  if (identification.empty() || other.empty()) return {};
+  ExtendedFit at;
+  at.params = params;
+  at.extensions = extensions;
+  at.extension_params = Eigen::VectorXd::Zero(numExtensionParams(model, extensions));
+  const int np = model.numParams();
+  std::vector<int> columns = model.canonicalParams();
+  for (int e = 0; e < at.extension_params.size(); ++e) columns.push_back(np + e);
+  const std::vector<std::string> ext_names = extensionParamNames(model, extensions);
+  KinematicsData data(model);
+  Eigen::MatrixXd J;
+  std::vector<double> sum_sq(columns.size(), 0.0), most(columns.size(), 0.0);
+  for (size_t i = 0; i < identification.size(); ++i) {
+    jacobianRows(model, data, at, identification[i], identification_drivers[i], nullptr, J);
+    for (size_t c = 0; c < columns.size(); ++c) sum_sq[c] += J.col(columns[c]).squaredNorm();
+  }
+  for (size_t i = 0; i < other.size(); ++i) {
+    jacobianRows(model, data, at, other[i], other_drivers[i], nullptr, J);
+    for (size_t c = 0; c < columns.size(); ++c) most[c] = std::max(most[c], J.col(columns[c]).norm());
+  }
+  std::vector<ExcitationDeficit> out;
+  for (size_t c = 0; c < columns.size(); ++c) {
+    const double rms = std::sqrt(sum_sq[c] / static_cast<double>(identification.size()));
+    if (most[c] > 0 && rms < ratio * most[c]) {
+      const int col = columns[c];
+      out.push_back({col, col < np ? model.paramName(col) : ext_names[static_cast<size_t>(col - np)], rms, most[c]});
+    }
+  }
+  return out;
+}
+
+std::string deficitText(const ExcitationDeficit& d) {
+  std::ostringstream s;
+  s.precision(2);
+  s << d.name << ": excited ";
+  if (d.identification_rms > 0) s << std::fixed << d.elsewhere_max / d.identification_rms << "x less";
+  else s << "not at all";
+  s.unsetf(std::ios::fixed);
+  s << " on the identification rows (RMS " << d.identification_rms << ") than on another row (" << d.elsewhere_max
+    << "): held at its start value";
+  return s.str();
+}
+
+std::vector<int> heldColumns(const std::vector<ExcitationDeficit>& deficits) {
+  std::vector<int> held;
+  for (const auto& d : deficits) held.push_back(d.column);
+  return held;
+}
+
+}  // namespace cellcal

@@ -1,0 +1,126 @@
+// Calibrated robot files (robot_file.hpp): what is saved is what is loaded, on robots, parameter errors, extensions
+// and covariances drawn at random; a damaged calibration section is refused with its line and field.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  RobotCalibration c;
+  if (u(rng) < 0.7) {
+    const int j = 1 + static_cast<int>(2 * u(rng));
+    c.extensions.push_back(Extension{u(rng) < 0.5 ? Cause::kJointCompliance : Cause::kCyclicTransmission, j});
+  }
+  if (u(rng) < 0.3) c.extensions.push_back(Extension{Cause::kThermalDrift, -1, 0.5 + 3 * u(rng)});
+  const int k = numExtensionParams(m, c.extensions);
+  c.extension_params = Eigen::VectorXd::NullaryExpr(k, [&] { return 1e-6 * g(rng); });
+  c.columns = m.canonicalParams();
+  for (int e = 0; e < k; ++e) c.columns.push_back(m.numParams() + e);
+  const auto n = static_cast<Eigen::Index>(c.columns.size());
+  const Eigen::MatrixXd A = Eigen::MatrixXd::NullaryExpr(n, n, [&] { return 1e-5 * g(rng); });
+  c.covariance = A * A.transpose() + 1e-12 * Eigen::MatrixXd::Identity(n, n);
+  for (Eigen::Index i = 0; i < n; ++i) c.estimated.push_back(u(rng) < 0.8);
+  c.variance_factor_position = 0.5 + 100 * u(rng);
+  c.provenance = {{"date_utc", "2026-11-28T21:50:00Z"}, {"data_file", "dir with space/m \"1\".csv"}, {"rows", "120"}};
+  return c;
+}
+
+TEST(RobotFile, SavedAndLoadedPredictIdentically) {
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::string dir = ::testing::TempDir();
+  double worst_m = 0, worst_cov = 0;
+  for (int d = 0; d < 40; ++d) {
+    const RobotModel file = test::robot(d % 2 ? "ur10" : "staubli_tx60");
+    Eigen::VectorXd p = file.nominal;
+    for (int i : file.canonicalParams()) p[i] += (file.isLength(i) ? 1e-3 : 1e-3) * g(rng);
+    p.segment(file.baseParam(FrameParam::kX), 3) += Eigen::Vector3d::Random() * 3;
+    const RobotModel calibrated = file.withParams(p);
+    const RobotCalibration cal = randomCalibration(calibrated, rng);
+    const std::string path = dir + "/calibrated_" + std::to_string(d) + ".yaml";
+    saveRobotFile(path, calibrated, &cal, "a test\nof two lines");
+    const RobotFile back = loadRobotFile(path);
+    ASSERT_TRUE(back.calibration.has_value());
+    const RobotCalibration& c2 = *back.calibration;
+    EXPECT_EQ(back.model.name, calibrated.name);
+    ASSERT_EQ(c2.extensions.size(), cal.extensions.size());
+    for (size_t e = 0; e < cal.extensions.size(); ++e) {
+      EXPECT_EQ(c2.extensions[e].cause, cal.extensions[e].cause);
+      EXPECT_EQ(c2.extensions[e].joint, cal.extensions[e].joint);
+      EXPECT_EQ(c2.extensions[e].time_constant_h, cal.extensions[e].time_constant_h);
+    }
+    EXPECT_EQ(c2.extension_params, cal.extension_params);
+    EXPECT_EQ(c2.columns, cal.columns);
+    EXPECT_EQ(c2.estimated, cal.estimated);
+    EXPECT_EQ(c2.provenance, cal.provenance);
+    EXPECT_EQ(c2.variance_factor_position, cal.variance_factor_position);
+    worst_cov = std::max(worst_cov, (c2.covariance - cal.covariance).cwiseAbs().maxCoeff() / cal.covariance.cwiseAbs().maxCoeff());
+    // Predictions (with the extensions) at random configurations.
+    KinematicsData a(calibrated), b(back.model);
+    std::mt19937_64 qr(rng());
+    for (int t = 0; t < 50; ++t) {
+      Eigen::VectorXd q(calibrated.numJoints());
+      for (int j = 0; j < q.size(); ++j)
+        q[j] = std::uniform_real_distribution<double>(calibrated.limits[j].lower_rad, calibrated.limits[j].upper_rad)(qr);
+      Drivers dr;
+      dr.thermal = 3.0;
+      const Eigen::VectorXd pa = extendedParams(calibrated, calibrated.nominal, cal.extensions, cal.extension_params, q, dr);
+      const Eigen::VectorXd pb = extendedParams(back.model, back.model.nominal, c2.extensions, c2.extension_params, q, dr);
+      const Pose A = forwardKinematics(calibrated, a, pa, q), B = forwardKinematics(back.model, b, pb, q);
+      worst_m = std::max(worst_m, (A.translation() - B.translation()).norm());
+      worst_m = std::max(worst_m, 1.0 * (A.linear() - B.linear()).norm());
+    }
+  }
+  std::printf("worst prediction difference %.3g m, covariance %.3g relative\n", worst_m, worst_cov);
+  EXPECT_LT(worst_m, 1e-12);
+  EXPECT_LT(worst_cov, 1e-12);
+}
+
+TEST(RobotFile, APlainRobotFileHasNoCalibration) {
+  const RobotFile f = loadRobotFile(std::string(CELLCAL_CONFIG_DIR) + "/robots/ur10.yaml");
+  EXPECT_FALSE(f.calibration.has_value());
+  EXPECT_EQ(f.model.links.size(), 6u);  // UR's published masses
+}
+
+TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
+  const RobotModel m = test::robot("ur10");
+  std::mt19937_64 rng(7);
+  RobotCalibration cal = randomCalibration(m, rng);
+  cal.extensions = {Extension{Cause::kJointCompliance, 1}};
+  cal.extension_params = Eigen::VectorXd::Constant(numExtensionParams(m, cal.extensions), 1e-6);
+  cal.columns = {0, 1};
+  cal.estimated = {true, false};
+  cal.covariance = Eigen::Matrix2d::Identity() * 1e-8;
+  const std::string good = robotFileText(m, &cal, "");
+  EXPECT_NO_THROW(parseRobotFile(good, "<good>"));
+  auto expectError = [&](const std::string& from, const std::string& to, const std::string& what) {
+    std::string text = good;
+    const auto at = text.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    text.replace(at, from.size(), to);
+    try {
+      parseRobotFile(text, "<bad>");
+      ADD_FAILURE() << "accepted: " << to;
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()).rfind("<bad>:", 0), 0u) << e.what();
+    }
+  };
+  expectError("joint_compliance:2", "joint_compliance:9", "calibration.extensions[0].spec");
+  expectError("name: joint1.theta_offset_deg", "name: joint1.theta_offset_rad", "calibration.parameters[0].name");
+  expectError("- [1, 0]", "- [1, 2]", "calibration.correlation[0]");
+  expectError("estimated: true", "estimated: maybe", "calibration.parameters[0].estimated");
+  expectError("variance_factor_position:", "variance_factorposition:", "unknown key");
+}
+
+}  // namespace
+}  // namespace cellcal
