@@ -19,13 +19,17 @@ void reportStart(const EngineHost& host) {
     std::cerr << "calibration_engine: " << id << " (" << r.robot->model.name << ") "
               << (r.restored ? "resumed version " + std::to_string(snap.version) + " (" + std::to_string(snap.poses_used) +
                                    " poses) from "
-                             : "starts uncalibrated; state in ")
+                             : !r.engine->startNote().empty()
+                                   ? "starts calibrated (version 1, health " + std::string(healthName(snap.health)) +
+                                         "); state in "
+                                   : "starts uncalibrated; state in ")
               << r.state_file << "\n";
     if (!r.robot->extensions.empty()) {
       std::cerr << "calibration_engine: " << id << " model extensions:";
       for (const auto& e : r.robot->extensions) std::cerr << " " << extensionSpec(e);
       std::cerr << " (" << snap.extension_params.size() << " extra parameters in the RLS state)\n";
     }
+    if (!r.engine->startNote().empty()) std::cerr << "calibration_engine: " << id << ": " << r.engine->startNote() << "\n";
     if (!r.engine->restoreNote().empty()) std::cerr << "calibration_engine: " << id << ": " << r.engine->restoreNote() << "\n";
   }
 }

@@ -117,7 +117,7 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
                                                              static_cast<Eigen::Index>(t.seed_position_rad().size()));
     if (seed.size() == 0 && !r.path.empty()) seed = r.path.back();
     // With model extensions, backlash's play is that of the path through the previous compensated targets.
-    const IdentifiedModel identified{use.params, use.extensions, use.extension_params};
+    const IdentifiedModel identified{use.params, use.extensions, use.extension_params, use.estimated, use.covariance};
     const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
                                             seed, cell_.compensation, r.path);
     out.applied(c.applied);

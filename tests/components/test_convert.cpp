@@ -3,6 +3,8 @@
 // namespace, whose operator templates make Eigen's enum comparisons ambiguous.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include "cdr_round_trip.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/core/files/cell_config.hpp"
@@ -12,11 +14,47 @@ namespace {
 
 using cellcal::test::roundTrip;
 
-TEST(Convert, CalibrationStateCarriesModelExtensions) {
-  // The engine's snapshot with extensions -> wire -> what the compensation publisher rebuilds: the same model.
+// The shipped cell's robot, for a snapshot to convert.
+struct Convert : ::testing::Test {
   cellcal::CellConfig cell = cellcal::loadCellConfig(std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml");
   cellcal::CellRobot& robot = cell.robots[0];
   const cellcal::RobotModel& m = robot.model;
+};
+
+// The estimate's covariance crosses the wire as stddevs and correlations: a random covariance over estimated
+// parameters listed in any order comes back as the kinematic block, in index order, to rounding.
+TEST_F(Convert, CalibrationStateCarriesTheCovariance) {
+  cellcal::CalibrationSnapshot s;
+  s.version = 2;
+  s.params = m.nominal;
+  s.estimated = {7, 2, 11, 0, 5};  // not in index order
+  s.extensions = {{cellcal::Cause::kJointCompliance, 1}};
+  s.extension_params = Eigen::VectorXd::Zero(cellcal::numExtensionParams(m, s.extensions));
+  s.estimated_extension = {1, 0};
+  const Eigen::MatrixXd A = Eigen::MatrixXd::Random(7, 7);
+  s.covariance = 1e-8 * (A * A.transpose() + 0.1 * Eigen::MatrixXd::Identity(7, 7));
+  const auto wire = roundTrip<cellcal::msg::CalibrationStatePubSubType>(cellcal::components::toCalibrationState(robot, s, 1, 1));
+  EXPECT_EQ(wire.parameter_correlations().size(), 7u * 6u / 2u);
+  std::string error;
+  const auto back = cellcal::components::fromCalibrationState(m, wire, &error);
+  ASSERT_TRUE(back) << error;
+  ASSERT_EQ(back->estimated, (std::vector<int>{0, 2, 5, 7, 11}));
+  for (size_t a = 0; a < 5; ++a)
+    for (size_t b = 0; b < 5; ++b) {
+      const auto ia = std::find(s.estimated.begin(), s.estimated.end(), back->estimated[a]) - s.estimated.begin();
+      const auto ib = std::find(s.estimated.begin(), s.estimated.end(), back->estimated[b]) - s.estimated.begin();
+      EXPECT_NEAR(back->covariance(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)), s.covariance(ia, ib),
+                  1e-14 * s.covariance.norm());
+    }
+  auto bad = wire;
+  bad.parameter_correlations().pop_back();
+  EXPECT_FALSE(cellcal::components::fromCalibrationState(m, bad, &error));
+  EXPECT_NE(error.find("parameter_correlations: 20 values, expected 21 for 7 parameters with a stddev"), std::string::npos)
+      << error;
+}
+
+TEST_F(Convert, CalibrationStateCarriesModelExtensions) {
+  // The engine's snapshot with extensions -> wire -> what the compensation publisher rebuilds: the same model.
   cellcal::CalibrationSnapshot s;
   s.version = 3;
   s.params = m.nominal + 1e-4 * Eigen::VectorXd::Random(m.numParams());

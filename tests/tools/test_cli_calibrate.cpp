@@ -184,6 +184,28 @@ TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {
 }
 
 
+// Usage errors exit 2 as --help documents (CLI11's own codes are 105, 106, ...); --help exits 0; a file to write
+// into a folder that does not exist yet gets its folder.
+TEST(CliUsage, UsageErrorsExitTwoAndOutputFoldersAreMade) {
+  const std::string dir = testDir();
+  const std::string tx60 = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"cellcal", "calibrate", "--robot", tx60},           // required --data missing
+        std::vector<std::string>{"cellcal", "calibrate", "--no-such-option"},         // unknown option
+        std::vector<std::string>{"cellcal", "validate", dir + "/none.mcap"},          // not an existing file
+        std::vector<std::string>{"cellcal"}}) {                                        // no subcommand
+    Process p(dir, "usage", args);
+    EXPECT_EQ(p.wait(30), 2) << args.back() << "\n" << p.log();
+  }
+  Process help(dir, "help", {"cellcal", "calibrate", "--help"});
+  EXPECT_EQ(help.wait(30), 0) << help.log();
+  std::ofstream(dir + "/m.csv") << "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n1,2,3,4,5,6,1,2,3\n";
+  Process imp(dir, "import", {"cellcal", "import", "csv", dir + "/m.csv", "--robot", tx60, "--out",
+                              dir + "/made/here/m.mcap"});
+  EXPECT_EQ(imp.wait(30), 0) << imp.log();
+  EXPECT_TRUE(std::filesystem::exists(dir + "/made/here/m.mcap"));
+}
+
 // `cellcal diagnose` and `cellcal calibrate --model` on a file with an effect hidden in it (robot, tracker placement,
 // target offset, points or 6D, cause, joint, size, gross errors and seed drawn at random; sizes from 0.005 to 0.05 deg
 // RMS, mostly above the tracker noise). The tool sees only the file and registers the frames itself.

@@ -477,7 +477,7 @@ Runner addBenchCellCommand(CLI::App& app) {
   cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
   cmd->add_option("--seed", a->seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
       ->capture_default_str();
-  cmd->add_option("--json", a->json, "write the figures as JSON");
+  cmd->add_option("--json", a->json, "write the figures as JSON")->check(outputFile());
   cmd->add_option("--record", a->record, "also run `cellcal record` of every topic into this MCAP file");
   cmd->add_option("--series-csv", a->series_csv,
                   "write, once a second: RSS of the engine, compensation and this process, and the mean error of the "

@@ -213,6 +213,7 @@ int runCalibrate(const CalibrateArgs& a) {
               in.measurementText().c_str(), robot.name.c_str());
   if (!a.input.no_register)
     std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", in.registration_rms_mm, reg_s * 1e3);
+  if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
   std::printf("calibration, model %s (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
               model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
@@ -293,7 +294,9 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"measurement", in.measurementJson()},
                         {"model", a.model}, {"model_fitted", model_label}, {"solver", a.solver},
                         {"converged", converged}, {"iterations", iterations},
-                        {"registration_rms_mm", in.registration_rms_mm}, {"registration_time_s", reg_s},
+                        {"registration_rms_mm", in.registration_rms_mm},
+                        {"setup_change", in.setup_hint.empty() ? nlohmann::json(nullptr)
+                                                               : nlohmann::json{{"line", in.setup_change_line}, {"text", in.setup_hint}}}, {"registration_time_s", reg_s},
                         {"solve_time_s", solve_s},
                         {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
                         {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
@@ -325,23 +328,13 @@ int runCalibrate(const CalibrateArgs& a) {
     return 4;
   }
   if (!a.save_robot.empty()) {
-    RobotCalibration cal;
-    cal.extensions = after.extensions;
-    cal.extension_params = after.extension_params.size() ? after.extension_params : Eigen::VectorXd(0);
-    if (!a.frames_only) {
-      cal.columns = pm.columns;
-      cal.covariance = pm.covariance;
-      cal.variance_factor_position = pm.variance_factor_position;
-      for (int c : pm.columns) {
-        const bool kin = c < robot.numParams();
-        const auto& set = kin ? after.estimated : after.estimated_extension;
-        cal.estimated.push_back(std::count(set.begin(), set.end(), kin ? c : c - robot.numParams()) > 0);
-      }
-    } else if (in.calibration) {  // the kinematics' uncertainty stays the robot file's
-      cal.columns = in.calibration->columns;
-      cal.covariance = in.calibration->covariance;
-      cal.estimated = in.calibration->estimated;
-      cal.variance_factor_position = in.calibration->variance_factor_position;
+    RobotCalibration cal = robotCalibration(robot, after, pm);
+    if (a.frames_only) {  // the kinematics' uncertainty stays the robot file's (none when it has no section)
+      const RobotCalibration kept = in.calibration ? *in.calibration : RobotCalibration{};
+      cal.columns = kept.columns;
+      cal.covariance = kept.covariance;
+      cal.estimated = kept.estimated;
+      cal.variance_factor_position = kept.variance_factor_position;
     }
     auto fixed = [](double v, int digits) {
       char b[64];
@@ -394,7 +387,7 @@ Runner addCalibrateCommand(CLI::App& app) {
       "; 3 when the solver did not converge; 4 when the calibrated model is not usable: worse than nominal on the "
       "verification rows, or a verification max beyond 3x the identification max (it extrapolates)");
   addInputOptions(cmd, a->input);
-  cmd->add_option("--json", a->json, "write the results as JSON");
+  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
   cmd->add_option("--model", a->model,
                   "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
                   "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
@@ -404,7 +397,7 @@ Runner addCalibrateCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--save-robot", a->save_robot,
                   "write the calibrated model as a robot file: identified kinematics, frames, extensions, the covariance "
-                  "and where it came from (not written when the exit status is not 0)");
+                  "and where it came from (not written when the exit status is not 0)")->check(outputFile());
   cmd->add_flag("--frames-only", a->frames_only,
                 "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
                 "base and tool frames on the identification rows: the tracker or the target was moved");

@@ -161,7 +161,7 @@ Runner addContinuousCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_flag("--quiet", a->quiet, "no per-interval table");
   cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");
-  cmd->add_option("--json", a->json, "write the results as JSON");
+  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
   return [a] { return runContinuous(*a); };
 }
 

@@ -175,6 +175,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   options.progress = [&bar](int done, int total) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
   };
+  if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
   const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
   bar.done();
   const CandidateResult& g = d.geometric;
@@ -325,7 +326,7 @@ Runner addDiagnoseCommand(CLI::App& app) {
       "; 4 when the chosen model is not usable (worse than nominal on the held-out rows, or a held-out max beyond 3x "
       "the identification max): nothing is recommended");
   addInputOptions(cmd, a->input);
-  cmd->add_option("--json", a->json, "write the results as JSON");
+  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
   cmd->add_flag("--no-progress", a->no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
   cmd->add_option("--report", a->report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
   return [a] { return runDiagnose(*a); };

@@ -264,7 +264,7 @@ Runner addExperimentCommand(CLI::App& app) {
       "  --plot DIR: maintenance.png, residuals.png, joint_drift.png, pose_sweep.png (gnuplot; docs/figures.md)\n");
   paper->add_option("--robot", args->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   paper->add_option("--seed", args->seed, "seed of the simulated robot, tracker and poses")->capture_default_str();
-  paper->add_option("--json", args->json_path, "write the results as JSON to this file");
+  paper->add_option("--json", args->json_path, "write the results as JSON to this file")->check(outputFile());
   paper->add_option("--plot", args->plot_dir, "write PNG figures (gnuplot) into this directory");
   paper->add_option("--forgetting", args->forgetting, "lambda of the forgetting-factor variant")->capture_default_str();
   paper->add_option("--seeds", args->seeds,

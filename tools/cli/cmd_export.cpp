@@ -97,7 +97,7 @@ Runner addExportCommand(CLI::App& app) {
       "");
   addCommonOptions(*e, exp->common);
   e->add_option("file", exp->file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  e->add_option("--out", exp->out, "CSV v1 file to write")->required();
+  e->add_option("--out", exp->out, "CSV v1 file to write")->required()->check(outputFile());
   e->add_option("--robot-id", exp->robot_id, "robot of the cell file (default: the first)");
 
   return [exp] { return runExport(*exp); };

@@ -93,7 +93,7 @@ Runner addImportCommand(CLI::App& app) {
   ipa->add_option("series", *in, "Series_A/measurements_grid.csv or Series_B/measurements_joint_configurations.csv")
       ->required()
       ->check(CLI::ExistingFile);
-  ipa->add_option("--out", *out, "CSV v1 file to write")->required();
+  ipa->add_option("--out", *out, "CSV v1 file to write")->required()->check(outputFile());
   ipa->add_option("--robot", *robot, "robot file (joint limits are checked)")->capture_default_str();
   auto csv = std::make_shared<ImportCsvArgs>();
   CLI::App* c = addSubcommand(*imp, "csv",
@@ -103,7 +103,7 @@ Runner addImportCommand(CLI::App& app) {
       "  the output: an MCAP recording of the cell topics (docs/recording.md)\n");
   c->add_option("file", csv->csv, "CSV v1 measurement file")->required()->check(CLI::ExistingFile);
   c->add_option("--robot", csv->robot_file, "robot file (YAML)")->required()->check(CLI::ExistingFile);
-  c->add_option("--out", csv->out, "MCAP file to write")->required();
+  c->add_option("--out", csv->out, "MCAP file to write")->required()->check(outputFile());
   c->add_option("--robot-id", csv->robot_id, "JointState robot_id (default: the robot file's name)");
   c->add_option("--target-id", csv->target_id, "TrackerPose target_id (default: <robot_id>_target)");
   c->add_option("--start-unix-s", csv->start_unix_s, "Unix time of the first row")->capture_default_str();

@@ -152,6 +152,14 @@ int runRecord(const RecordArgs& a) {
                                  {"topics", per_topic}};
   writeJsonFile(a.json, counts);
   writeJsonFile(a.common.stats_json, {{"name", "recorder"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"extra", counts}});
+  if (rec.file().messagesWritten() == 0) {
+    std::fprintf(stderr,
+                 "record: WARNING: nothing received in %.1f s on domain %d with participant profile %s: is the cell "
+                 "running, on this domain and profile? (--domain-id, --dds-profile; `cellcal cell` runs on "
+                 "cellcal_loopback) (exit 3)\n",
+                 wall_s, cell.dds.domain_id, cell.dds.participant_profile.c_str());
+    return 3;
+  }
   return 0;
 }
 
@@ -166,16 +174,17 @@ Runner addRecordCommand(CLI::App& app) {
       "SIGKILL leaves a file readable up to its last complete chunk (replay/validate read it; --recover rewrites it "
       "whole). Stops on SIGINT/SIGTERM or after --duration-s and says how many messages it wrote.",
       "  cellcal record --out cell.mcap                               every topic until Ctrl-C\n  cellcal record --out in.mcap --topics inputs --duration-s 600\n  cellcal record --recover cut.mcap --out fixed.mcap           a file cut short (SIGKILL, power loss)\n",
-      "  MCAP: omgidl schemas (the IDL text), CDR payloads as on the wire (docs/recording.md)\n");
+      "  MCAP: omgidl schemas (the IDL text), CDR payloads as on the wire (docs/recording.md)\n",
+      "; 3 when nothing was received (no writer of the cell's topics on this domain and profile)");
   addCommonOptions(*r, rec->common);
-  r->add_option("--out", rec->out, "MCAP file to write")->required();
+  r->add_option("--out", rec->out, "MCAP file to write")->required()->check(outputFile());
   r->add_option("--topics", rec->topics, "all | inputs | comma-separated topic names")->capture_default_str();
   r->add_option("--duration-s", rec->duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
   r->add_option("--flush-period-s", rec->flush_period_s, "close the chunk and flush it this often")->capture_default_str();
   r->add_option("--chunk-kib", rec->chunk_kib, "close a chunk when it reaches this size")->capture_default_str();
   r->add_option("--recover", rec->recover, "instead of recording: rewrite this (cut short) recording whole to --out")
       ->check(CLI::ExistingFile);
-  r->add_option("--json", rec->json, "write the counts as JSON");
+  r->add_option("--json", rec->json, "write the counts as JSON")->check(outputFile());
   r->add_flag("-q,--quiet", rec->quiet, "no status line every 10 s");
 
   return [rec] { return runRecord(*rec); };

@@ -215,7 +215,7 @@ Runner addReplayCommand(CLI::App& app) {
   p->add_option("--wait-for-readers", rep->wait_for_readers, "wait until every replayed topic has this many readers")
       ->capture_default_str();
   p->add_option("--wait-s", rep->wait_s, "... for at most this long")->capture_default_str();
-  p->add_option("--json", rep->json, "write the summary as JSON");
+  p->add_option("--json", rep->json, "write the summary as JSON")->check(outputFile());
   p->add_flag("--no-progress", rep->no_progress, "no progress bar");
 
   return [rep] { return runReplay(*rep); };

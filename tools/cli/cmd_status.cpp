@@ -218,7 +218,7 @@ Runner addStatusCommand(CLI::App& app) {
   cmd->add_option("--wait-s", a->wait_s, "without --watch: listen this long, then print once")->capture_default_str();
   cmd->add_option("--period-s", a->period_s, "--watch: redraw period")->check(CLI::Range(0.1, 60.0))->capture_default_str();
   cmd->add_option("--duration-s", a->duration_s, "--watch: stop after this long (0: until Ctrl-C)");
-  cmd->add_option("--json", a->json, "also write the last view as JSON to this file");
+  cmd->add_option("--json", a->json, "also write the last view as JSON to this file")->check(outputFile());
   cmd->footer(
       "EXAMPLES\n"
       "  cellcal status                       print the cell's state once (after 3 s of listening)\n"

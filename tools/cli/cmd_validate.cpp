@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <iostream>
 #include <map>
+#include <numeric>
 #include <set>
 #include <sstream>
 #include <string>
@@ -241,6 +242,19 @@ int runValidate(const ValidateArgs& a) {
                 static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
                 static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
                 last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
+    // How the engine started shows in its first poses: each predicted a priori, windows of kRecentPoses.
+    std::vector<double> first_windows;  // a-priori mean of poses 1-30, 31-60, ...
+    for (const auto& c : run.reproduced)
+      if (c.poses_used == (first_windows.size() + 1) * CalibrationEngine::kRecentPoses && first_windows.size() < 10)
+        first_windows.push_back(c.verification_mean_position_m * 1e3);
+    const double first_window_mm = first_windows.empty() ? std::nan("") : first_windows.front();
+    const double first_ten_mm = first_windows.size() < 10 ? std::nan("")
+                                : std::accumulate(first_windows.begin(), first_windows.end(), 0.0) / 10;
+    if (!first_windows.empty())
+      std::printf("validate: %s: a-priori mean position error of the first %zu poses %.4f mm, of the first %zu %.4f mm "
+                  "(started %s)\n", id.c_str(), CalibrationEngine::kRecentPoses, first_window_mm,
+                  10 * CalibrationEngine::kRecentPoses, first_ten_mm,
+                  hosted.robot->start ? ("from " + hosted.robot->calibration_file).c_str() : "from the nominal model");
     if (run.recorded.empty()) {
       std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
     } else {
@@ -273,6 +287,9 @@ int runValidate(const ValidateArgs& a) {
                   {"max_difference_verification_m", worst.verification_m},
                   {"first_difference", first_mismatch},
                   {"final_version", last_rep ? last_rep->version : 0},
+                  {"first_poses_verification_mm", std::isfinite(first_window_mm) ? nlohmann::json(first_window_mm) : nlohmann::json()},
+                  {"first_ten_windows_verification_mm", std::isfinite(first_ten_mm) ? nlohmann::json(first_ten_mm) : nlohmann::json()},
+                  {"started_from", hosted.robot->start ? hosted.robot->calibration_file : std::string("nominal")},
                   {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
                   {"final_parameters", [&] {
                      nlohmann::json p = nlohmann::json::object();
@@ -309,6 +326,14 @@ int runValidate(const ValidateArgs& a) {
     std::printf("validate: the calibrations differ from the recorded ones (--require-match)\n");
     return 3;
   }
+  size_t calibrations = 0;
+  for (const auto& [id, run] : runs) calibrations += run.reproduced.size();
+  if (calibrations == 0) {
+    std::printf("validate: WARNING: no calibration came out of %s: it holds no paired JointState and TrackerPose of "
+                "the cell file's robots (recorded on another domain or profile, or of another cell?) (exit 4)\n",
+                a.file.c_str());
+    return 4;
+  }
   return 0;
 }
 
@@ -322,10 +347,10 @@ Runner addValidateCommand(CLI::App& app) {
       "calibration with the CalibrationState of the same robot and version in the recording (parameters, "
       "verification error). Deterministic: the same file and settings give the same output.",
       "  cellcal validate cell.mcap --json v.json --require-match\n  cellcal validate cell.mcap --figures figs                     accuracy and joint drift over the recording\n",
-      "", "; 3 with --require-match when a calibration differs");
+      "", "; 3 with --require-match when a calibration differs; 4 when no calibration came out of the recording");
   addCommonOptions(*v, val->common);
   v->add_option("file", val->file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  v->add_option("--json", val->json, "write the comparison and every calibration as JSON");
+  v->add_option("--json", val->json, "write the comparison and every calibration as JSON")->check(outputFile());
   v->add_option("--tolerance-m", val->tolerance_m, "lengths (and verification errors) equal within this")->capture_default_str();
   v->add_option("--tolerance-rad", val->tolerance_rad, "angles equal within this")->capture_default_str();
   v->add_flag("--require-match", val->require_match, "exit 3 when a calibration differs from the recorded one");

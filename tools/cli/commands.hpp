@@ -11,6 +11,10 @@ namespace cellcal::cli {
 using Runner = std::function<int()>;
 
 // Adds `experiment paper` under `app`; returns the function to run when it is selected.
+// For options naming a file to write (--out, --json, --save-robot): makes its folder when missing, so a command runs
+// as written on a fresh clone; a folder that cannot be made is a usage error naming it.
+const CLI::Validator& outputFile();
+
 Runner addExperimentCommand(CLI::App& app);
 // Adds `cell` (the four-process cell on localhost).
 Runner addCellCommand(CLI::App& app);

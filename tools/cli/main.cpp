@@ -1,4 +1,5 @@
 // cellcal: command-line entry point. Subcommands live in cmd_*.cpp.
+#include <filesystem>
 #include <iostream>
 #include <string>
 #include <utility>
@@ -9,6 +10,19 @@
 #include "commands.hpp"
 
 namespace cellcal::cli {
+const CLI::Validator& outputFile() {
+  static const CLI::Validator v(
+      [](std::string& path) -> std::string {
+        const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+        if (dir.empty()) return "";
+        std::error_code ec;
+        std::filesystem::create_directories(dir, ec);
+        return ec ? "cannot make the folder " + dir.string() + ": " + ec.message() : "";
+      },
+      "", "");
+  return v;
+}
+
 std::string defaultRobotFile(const std::string& name) { return components::configDir() + "/robots/" + name; }
 
 std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra) {
@@ -45,7 +59,7 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return cellcal::components::usageExit(app, e);
   }
   try {
     for (const auto& [name, run] : commands)

@@ -66,6 +66,26 @@ LoadedInput loadInput(const InputArgs& a) {
     const RegistrationResult reg = registerFrames(in.robot, in.robot.nominal, in.data.identification);
     in.start = reg.params;
     in.registration_rms_mm = reg.rms_position_m * 1e3;
+    // No robot is off its nominal model by this much: rows of two placements of the tracker (or the target)?
+    constexpr double kSetupHintRmsMm = 5.0;
+    if (in.registration_rms_mm > kSetupHintRmsMm) {
+      std::vector<Observation> all;
+      for (const auto& r : rows)
+        all.push_back(toObservation(r, in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180));
+      if (const auto c = findSetupChange(in.robot, in.robot.nominal, all)) {
+        const auto k = static_cast<size_t>(c->first_row);
+        in.setup_change_line = rows[k].line;
+        char b[512];
+        std::snprintf(b, sizeof b,
+                      "the rows look like two set-ups (the tracker or the target moved): one registration leaves %.1f mm "
+                      "RMS; lines %d-%d register to %.2f mm and lines %d-%d to %.2f mm on their own. Calibrate each "
+                      "set-up from its own file, or carry a calibrated model to the other with --frames-only "
+                      "(docs/real-robots.md)",
+                      c->rms_single_m * 1e3, rows.front().line, rows[k - 1].line, c->rms_first_m * 1e3, rows[k].line,
+                      rows.back().line, c->rms_second_m * 1e3);
+        in.setup_hint = b;
+      }
+    }
   }
   in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return in;

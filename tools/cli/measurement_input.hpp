@@ -33,6 +33,10 @@ struct LoadedInput {
   std::vector<int> identification_lines, verification_lines;  // the file line of each of those rows
   Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
   double registration_rms_mm = 0;  // NaN with --no-register
+  // When one registration cannot fit the file (RMS above kSetupHintRmsMm) and its rows split into two set-ups that
+  // each register: where they change and what each side leaves (empty otherwise).
+  std::string setup_hint;
+  int setup_change_line = -1;         // file line of the first row of the second set-up
   double registration_s = 0;
 };
 

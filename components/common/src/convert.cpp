@@ -1,6 +1,7 @@
 #include "cellcal/components/convert.hpp"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <map>
 
@@ -105,6 +106,19 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
     m.parameter_values().push_back(s.extension_params[static_cast<Eigen::Index>(k)]);
     m.parameter_stddevs().push_back(ext_sigma[static_cast<Eigen::Index>(k)]);
   }
+  // Correlations over the parameters with a stddev, in wire order: the estimated kinematic ones by index, then the
+  // estimated extension ones by index; each with its row of the snapshot's covariance.
+  std::vector<std::pair<int, Eigen::Index>> order;  // (wire position, covariance row)
+  for (size_t k = 0; k < s.estimated.size(); ++k) order.emplace_back(s.estimated[k], static_cast<Eigen::Index>(k));
+  for (size_t k = 0; k < s.estimated_extension.size(); ++k)
+    order.emplace_back(model.numParams() + s.estimated_extension[k], nk + static_cast<Eigen::Index>(k));
+  std::sort(order.begin(), order.end());
+  for (size_t a = 0; a < order.size(); ++a)
+    for (size_t b = a + 1; b < order.size(); ++b) {
+      const Eigen::Index i = order[a].second, j = order[b].second;
+      const double d = std::sqrt(std::max(0.0, s.covariance(i, i)) * std::max(0.0, s.covariance(j, j)));
+      m.parameter_correlations().push_back(d > 0 ? s.covariance(i, j) / d : 0.0);
+    }
   m.residual_rms_position_m(s.residual_rms_position_m);
   m.residual_rms_orientation_rad(s.residual_rms_orientation_rad);
   m.verification_mean_position_m(s.verification_mean_position_m);
@@ -192,6 +206,40 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
     }
   r.params = values.head(model.numParams());
   r.extension_params = values.tail(next - model.numParams());
+  // The covariance of the estimated kinematic parameters, when the correlations were sent.
+  if (m.parameter_stddevs().size() != m.parameter_names().size())
+    return fail("parameter_names and parameter_stddevs differ in length");
+  std::vector<int> with_sd;    // wire positions with a stddev
+  std::vector<double> sd;
+  for (size_t k = 0; k < m.parameter_stddevs().size(); ++k) {
+    const double v = m.parameter_stddevs()[k];
+    if (!(v >= 0) || !std::isfinite(v)) return fail("parameter_stddevs[" + std::to_string(k) + "] is not a stddev");
+    if (v > 0) {
+      with_sd.push_back(static_cast<int>(k));
+      sd.push_back(v);
+    }
+  }
+  const size_t n = with_sd.size();
+  if (!m.parameter_correlations().empty()) {
+    if (m.parameter_correlations().size() != n * (n - 1) / 2)
+      return fail("parameter_correlations: " + std::to_string(m.parameter_correlations().size()) + " values, expected " +
+                  std::to_string(n * (n - 1) / 2) + " for " + std::to_string(n) + " parameters with a stddev");
+    Eigen::MatrixXd C(static_cast<Eigen::Index>(n), static_cast<Eigen::Index>(n));
+    size_t c = 0;
+    for (size_t a = 0; a < n; ++a) {
+      C(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a)) = sd[a] * sd[a];
+      for (size_t b = a + 1; b < n; ++b) {
+        const double rho = m.parameter_correlations()[c++];
+        if (!(std::abs(rho) <= 1.0 + 1e-9)) return fail("parameter_correlations: " + std::to_string(rho) + " is not a correlation");
+        C(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) = C(static_cast<Eigen::Index>(b), static_cast<Eigen::Index>(a)) =
+            rho * sd[a] * sd[b];
+      }
+    }
+    // The kinematic block (the wire names the parameters in RobotModel order, kinematic first).
+    for (size_t k = 0; k < n && with_sd[k] < model.numParams(); ++k) r.estimated.push_back(with_sd[k]);
+    const auto nk = static_cast<Eigen::Index>(r.estimated.size());
+    r.covariance = C.topLeftCorner(nk, nk);
+  }
   r.version = m.version();
   r.health = m.health();
   r.last_measurement_stamp_ns = m.last_measurement_stamp_ns();

@@ -99,11 +99,13 @@ void writeJsonFile(const std::string& path, const nlohmann::json& j) {
   std::filesystem::rename(tmp, path);
 }
 
+int usageExit(CLI::App& app, const CLI::ParseError& e) { return app.exit(e) == 0 ? 0 : 2; }
+
 int runMain(const char* program, int argc, char** argv, CLI::App& app, const std::function<int()>& body) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return usageExit(app, e);
   }
   try {
     installStopHandlers();

@@ -1,10 +1,12 @@
 #include "cellcal/core/engine/calibration_engine.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <chrono>
 #include <iomanip>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -26,7 +28,7 @@ PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& s) {
 
 namespace {
 
-constexpr size_t kRecentWindow = 30;
+constexpr size_t kRecentWindow = CalibrationEngine::kRecentPoses;
 
 std::int64_t steadyNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
@@ -72,11 +74,144 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
                                                     0.8 * std::min(m.limits[j].upper_rad, kPi))(ref_rng);
     reference_q_.push_back(q);
   }
+  if (robot.start) {
+    startFromCalibration(*robot.start, robot.calibration_file);
+    return;
+  }
   const GaussianPrior prior =
       diagonalPrior(m, m.nominal, m.canonicalParams(), settings.prior_length_m, settings.prior_angle_rad);
   rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot.measurement);
   if (!robot.extensions.empty()) startExtensions(rls_->params(), rls_->estimated(), rls_->covariance());
   publishEstimate();
+}
+
+void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::string& path) {
+  const RobotModel& m = robot_->model;
+  const RobotCalibration& cal = *file.calibration;
+  const auto& exts = robot_->extensions;
+  // The estimate: the file's kinematics and frames (the campaign's registration; a tracker moved since shows as poses
+  // beyond the outlier gate, and the engine then says to re-register).
+  const Eigen::VectorXd params = file.model.nominal;
+  // The state the engine estimates when it starts from nominal, and its uncalibrated prior widths.
+  const GaussianPrior prior =
+      diagonalPrior(m, params, m.canonicalParams(), settings_->prior_length_m, settings_->prior_angle_rad);
+  const RlsCalibrator plain(m, params, prior, robot_->measurement);
+  const std::vector<int> est = plain.estimated();
+  const Eigen::VectorXd ext_sigma = extensionPriorSigma(m, params, exts, settings_->prior_angle_rad);
+  std::vector<int> acting;
+  for (Eigen::Index k = 0; k < ext_sigma.size(); ++k)
+    if (ext_sigma[k] > 0) acting.push_back(static_cast<int>(k));
+  const auto ne = static_cast<Eigen::Index>(est.size()), n = ne + static_cast<Eigen::Index>(acting.size());
+  const std::vector<std::string> ext_names = extensionParamNames(m, exts);
+  std::vector<std::string> names;
+  Eigen::VectorXd prior_sd(n);
+  for (Eigen::Index k = 0; k < ne; ++k) {
+    names.push_back(m.paramName(est[static_cast<size_t>(k)]));
+    prior_sd[k] = std::sqrt(plain.covariance()(k, k));
+  }
+  for (size_t k = 0; k < acting.size(); ++k) {
+    names.push_back(ext_names[static_cast<size_t>(acting[k])]);
+    prior_sd[ne + static_cast<Eigen::Index>(k)] = ext_sigma[acting[k]];
+  }
+  // Each state entry's column in the file (-1: the file does not cover it).
+  std::map<std::string, int> file_column;
+  for (size_t j = 0; j < cal.columns.size(); ++j) file_column[cal.columnName(file.model, cal.columns[j])] = static_cast<int>(j);
+  std::vector<int> col(static_cast<size_t>(n), -1);
+  int covered = 0;
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const auto it = file_column.find(names[static_cast<size_t>(k)]);
+    if (it != file_column.end()) {
+      col[static_cast<size_t>(k)] = it->second;
+      ++covered;
+    }
+  }
+  // The file's covariance covers every parameter a prediction depends on, those its fit held at their prior width:
+  // parameters in the span of others (joint 1's offset and the base yaw) are individually wide and strongly
+  // correlated. The engine holds the parameters outside its state at the file's values, so its prior is the
+  // covariance of its state given those: P_ee - P_eh P_hh^+ P_he (Gaussian conditioning).
+  std::vector<int> e_rows, e_cols, h_cols;
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (col[static_cast<size_t>(k)] >= 0) {
+      e_rows.push_back(static_cast<int>(k));
+      e_cols.push_back(col[static_cast<size_t>(k)]);
+    }
+  for (int j = 0; j < static_cast<int>(cal.columns.size()); ++j)
+    if (std::find(e_cols.begin(), e_cols.end(), j) == e_cols.end()) h_cols.push_back(j);
+  auto block = [&](const std::vector<int>& r, const std::vector<int>& c) {
+    Eigen::MatrixXd b(r.size(), c.size());
+    for (size_t i = 0; i < r.size(); ++i)
+      for (size_t j = 0; j < c.size(); ++j) b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = cal.covariance(r[i], c[j]);
+    return b;
+  };
+  Eigen::MatrixXd Pee = block(e_cols, e_cols);
+  if (!h_cols.empty()) {
+    const Eigen::MatrixXd Peh = block(e_cols, h_cols);
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(block(h_cols, h_cols));
+    const Eigen::VectorXd ev = eig.eigenvalues();
+    Eigen::VectorXd inv = Eigen::VectorXd::Zero(ev.size());
+    for (Eigen::Index i = 0; i < ev.size(); ++i)
+      if (ev[i] > 1e-12 * ev.maxCoeff()) inv[i] = 1.0 / ev[i];
+    const Eigen::MatrixXd W = Peh * eig.eigenvectors();
+    Pee -= W * inv.asDiagonal() * W.transpose();
+    Pee = 0.5 * (Pee + Pee.transpose());
+  }
+  Eigen::MatrixXd P = prior_sd.array().square().matrix().asDiagonal();
+  for (size_t a = 0; a < e_rows.size(); ++a)
+    for (size_t b = 0; b < e_rows.size(); ++b)
+      P(e_rows[a], e_rows[b]) = Pee(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b));
+  // The extension values the file fitted (same names); the others start at zero, no effect.
+  Eigen::VectorXd ext_params = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ext_names.size()));
+  const std::vector<std::string> file_ext_names = extensionParamNames(file.model, cal.extensions);
+  for (size_t k = 0; k < ext_names.size(); ++k)
+    for (size_t j = 0; j < file_ext_names.size(); ++j)
+      if (ext_names[k] == file_ext_names[j]) ext_params[static_cast<Eigen::Index>(k)] = cal.extension_params[static_cast<Eigen::Index>(j)];
+  // Drift since the file's date (wall clock), each variance at most the uncalibrated prior's.
+  const auto date_ns = cal.dateUtcNs();
+  const auto now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                          std::chrono::system_clock::now().time_since_epoch()).count();
+  const double age_h = date_ns ? std::max(0.0, static_cast<double>(now_ns - *date_ns) * 1e-9 / 3600.0) : 0.0;
+  for (Eigen::Index k = 0; k < ne; ++k) {
+    const double sd = drift_sigma_[est[static_cast<size_t>(k)]];
+    P(k, k) += sd * sd * age_h / settings_->drift_per_h;
+  }
+  int capped = 0;
+  for (Eigen::Index k = 0; k < n; ++k)
+    if (P(k, k) > prior_sd[k] * prior_sd[k]) {
+      const double f = prior_sd[k] / std::sqrt(P(k, k));
+      P.row(k) *= f;
+      P.col(k) *= f;
+      ++capped;
+    }
+  rls_ = std::make_unique<RlsCalibrator>(m, params, est, exts, ext_params, acting, P);
+  started_calibrated_ = true;
+  std::ostringstream note;
+  note << "started from " << path << ": calibrated " << (date_ns ? cal.provenanceValue("date_utc") : "(no date)");
+  if (date_ns) note << ", " << std::fixed << std::setprecision(1) << age_h << " h ago (drift since then widens its covariance)";
+  else note << " (no date_utc: no drift added)";
+  note << "; " << covered << " of the " << n << " estimated parameters from it";
+  if (capped) note << ", " << capped << " at most as wide as the uncalibrated prior";
+  if (robot_->base_in_tracker || robot_->tool_in_flange)
+    note << "; base and tool frames from the file (the cell file's base_in_tracker / tool_in_flange are the "
+            "controller's nominal; a moved tracker shows as poses beyond the outlier gate: re-register with "
+            "`cellcal calibrate --frames-only`)";
+  for (const auto& e : cal.extensions) {
+    bool kept = false;
+    for (const auto& x : exts) kept = kept || extensionSpec(x) == extensionSpec(e);
+    if (!kept)
+      note << "; WARNING: its kinematics were identified with " << extensionSpec(e)
+           << ", which the cell's extensions do not name (add it to robots[].extensions)";
+  }
+  for (const auto& x : exts) {
+    bool from_file = false;
+    for (const auto& e : cal.extensions) from_file = from_file || extensionSpec(x) == extensionSpec(e);
+    if (!from_file) note << "; " << extensionSpec(x) << " starts from its prior (not in the file)";
+  }
+  start_note_ = note.str();
+  publishEstimate();
+  snap_.version = 1;
+  refreshStatistics();
+  decideHealth();
+  ++state_revision_;
 }
 
 void CalibrationEngine::publishEstimate() {
@@ -321,7 +456,7 @@ double CalibrationEngine::predictionSigma() const {
 void CalibrationEngine::decideHealth() {
   const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
   const size_t state = rls_->estimated().size() + rls_->estimatedExtension().size();
-  const size_t needed = 2 * ((state + rows - 1) / rows);
+  const size_t needed = started_calibrated_ ? 0 : 2 * ((state + rows - 1) / rows);
   snap_.prediction_sigma_position_m = predictionSigma();
   snap_.health_reason.clear();
   snap_.held_version = 0;
@@ -481,6 +616,10 @@ void CalibrationEngine::importState(const EngineState& s) {
              "): kinematic estimate kept, extensions start from their prior";
     }
   }
+  start_note_.clear();
+  if (started_calibrated_)
+    note += std::string(note.empty() ? "" : "; ") + "resumed from its state file: calibration_file " +
+            robot_->calibration_file + " (the start of a new cell) is not used";
   restore_note_ = note;
   if (tracks_play_ && s.play && static_cast<int>(s.play->joints.size()) == m.numJoints())
     play_.restore(s.play->joints, s.play->last_stamp_ns);

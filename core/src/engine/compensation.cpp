@@ -70,6 +70,22 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     return out;
   }
   KinematicsData data(nominal);
+  if (!model.estimated.empty() && model.covariance.rows() == static_cast<Eigen::Index>(model.estimated.size())) {
+    forwardKinematics(nominal, data, identified, ik.q_rad);
+    Eigen::MatrixXd J(6, nominal.numParams());
+    computePoseJacobian(nominal, data, J);
+    Eigen::MatrixXd Js(3, static_cast<Eigen::Index>(model.estimated.size()));
+    for (size_t k = 0; k < model.estimated.size(); ++k) Js.col(static_cast<Eigen::Index>(k)) = J.col(model.estimated[k]).head<3>();
+    out.predicted_sigma_position_m = std::sqrt(std::max(0.0, (Js * model.covariance * Js.transpose()).trace()));
+    if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
+      std::ostringstream m;
+      m << "predicted error " << out.predicted_sigma_position_m * 1e3 << " mm (1 sigma) at this target above "
+        << "compensation.max_predicted_sigma_mm " << s.max_predicted_sigma_m * 1e3
+        << ": outside the region the model was calibrated in, passed through uncorrected";
+      out.reason = m.str();
+      return out;
+    }
+  }
   const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
   const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
   out.correction_position_m = c.head<3>().norm();

@@ -99,7 +99,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     const YAML::Node n = robots[i];
     r.requireMap(n, f);
     r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange",
-                         "extensions"});
+                         "extensions", "calibration_file"});
     CellRobot rb;
     rb.robot_id = r.string(r.required(n, "robot_id", f + ".robot_id"), f + ".robot_id");
     rb.target_id = r.string(r.required(n, "target_id", f + ".target_id"), f + ".target_id");
@@ -142,6 +142,26 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
       rb.model = loadRobotModel(rb.robot_file);
     } catch (const ConfigError& e) {
       r.fail(n["robot_file"], f + ".robot_file", e.what());
+    }
+    if (n["calibration_file"].IsDefined()) {
+      const std::string fc = f + ".calibration_file";
+      rb.calibration_file = resolve(base_dir, r.string(n["calibration_file"], fc));
+      try {
+        rb.start = loadRobotFile(rb.calibration_file);
+      } catch (const ConfigError& e) {
+        r.fail(n["calibration_file"], fc, e.what());
+      }
+      if (!rb.start->calibration)
+        r.fail(n["calibration_file"], fc,
+               rb.calibration_file + " has no calibration section: not written by `cellcal calibrate --save-robot` "
+               "(the controller's nominal model belongs in robot_file)");
+      const RobotModel& sm = rb.start->model;
+      bool same = sm.numParams() == rb.model.numParams();
+      for (int i = 0; same && i < sm.numParams(); ++i) same = sm.paramName(i) == rb.model.paramName(i);
+      if (!same)
+        r.fail(n["calibration_file"], fc,
+               "its kinematic parameters differ from those of robot_file " + rb.robot_file +
+                   " (another robot or joint layout)");
     }
     if (rb.base_in_tracker) rb.model.nominal.segment<6>(rb.model.baseParam(FrameParam::kX)) = *rb.base_in_tracker;
     if (rb.tool_in_flange) rb.model.nominal.segment<6>(rb.model.toolParam(FrameParam::kX)) = *rb.tool_in_flange;
@@ -207,10 +227,12 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     ds.num("per_h", c.engine.drift_per_h, 1, 0, true);
   }
 
-  const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm"});
+  const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm",
+                                                       "max_predicted_sigma_mm"});
   cp.num("max_correction_mm", c.compensation.max_correction_m, 1e-3, 0, true);
   cp.num("max_correction_deg", c.compensation.max_correction_rad, kDeg, 0, true);
   cp.num("max_ik_error_mm", c.compensation.max_ik_error_m, 1e-3, 0, true);
+  cp.num("max_predicted_sigma_mm", c.compensation.max_predicted_sigma_m, 1e-3, 0, false);
   if (cp.has("on_exceed")) {
     const std::string a = r.string(cp.node["on_exceed"], cp.f("on_exceed"));
     if (a == "refuse") c.compensation.on_exceed = ExceedAction::kRefuse;

@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <charconv>
+#include <ctime>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -170,6 +172,41 @@ std::string RobotCalibration::provenanceValue(const std::string& key) const {
   for (const auto& [k, v] : provenance)
     if (k == key) return v;
   return "";
+}
+
+std::optional<std::int64_t> RobotCalibration::dateUtcNs() const {
+  const std::string d = provenanceValue("date_utc");
+  std::tm tm{};
+  int consumed = 0;
+  if (d.size() != 20 ||
+      std::sscanf(d.c_str(), "%4d-%2d-%2dT%2d:%2d:%2dZ%n", &tm.tm_year, &tm.tm_mon, &tm.tm_mday, &tm.tm_hour,
+                  &tm.tm_min, &tm.tm_sec, &consumed) != 6 || consumed != 20)
+    return std::nullopt;
+  tm.tm_year -= 1900;
+  tm.tm_mon -= 1;
+  const std::time_t t = ::timegm(&tm);
+  if (t == static_cast<std::time_t>(-1)) return std::nullopt;
+  return static_cast<std::int64_t>(t) * 1'000'000'000;
+}
+
+std::string RobotCalibration::columnName(const RobotModel& model, int column) const {
+  if (column < model.numParams()) return model.paramName(column);
+  return extensionParamNames(model, extensions).at(static_cast<size_t>(column - model.numParams()));
+}
+
+RobotCalibration robotCalibration(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& pm) {
+  RobotCalibration cal;
+  cal.extensions = fit.extensions;
+  cal.extension_params = fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(0);
+  cal.columns = pm.columns;
+  cal.covariance = pm.covariance;
+  cal.variance_factor_position = pm.variance_factor_position;
+  for (int c : pm.columns) {
+    const bool kin = c < model.numParams();
+    const auto& set = kin ? fit.estimated : fit.estimated_extension;
+    cal.estimated.push_back(std::count(set.begin(), set.end(), kin ? c : c - model.numParams()) > 0);
+  }
+  return cal;
 }
 
 bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) const {

@@ -146,9 +146,13 @@ std::vector<ExcitationDeficit> excitationDeficits(const RobotModel& model, const
     for (size_t c = 0; c < columns.size(); ++c) most[c] = std::max(most[c], J.col(columns[c]).norm());
   }
   std::vector<ExcitationDeficit> out;
+  constexpr double kNumericalFloor = 1e-9;
+  const double largest = most.empty() ? 0.0 : *std::max_element(most.begin(), most.end());
   for (size_t c = 0; c < columns.size(); ++c) {
     const double rms = std::sqrt(sum_sq[c] / static_cast<double>(identification.size()));
-    if (most[c] > 0 && rms < ratio * most[c]) {
+    // A column no row excites beyond rounding (a regressor column that never acts here) is structurally
+    // unidentifiable, not a deficit: the identifiable-set choice leaves it out.
+    if (most[c] > kNumericalFloor * largest && rms < ratio * most[c]) {
       const int col = columns[c];
       out.push_back({col, col < np ? model.paramName(col) : ext_names[static_cast<size_t>(col - np)], rms, most[c]});
     }

@@ -2,7 +2,9 @@
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "cellcal/core/identification/identifiability.hpp"
@@ -174,6 +176,43 @@ RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& 
   }
   out.rms_position_m = observations.empty() ? 0 : std::sqrt(sq / static_cast<double>(observations.size()));
   return out;
+}
+
+std::optional<SetupChange> findSetupChange(const RobotModel& model, const Eigen::VectorXd& initial,
+                                           const std::vector<Observation>& obs, double ratio, int min_rows) {
+  const int n = static_cast<int>(obs.size());
+  if (n < 2 * min_rows) return std::nullopt;
+  // Sum of squared residuals of a side registered on its own (infinite where it cannot be registered).
+  auto sse = [&](int from, int to) {
+    try {
+      const std::vector<Observation> side(obs.begin() + from, obs.begin() + to);
+      const double rms = registerFrames(model, initial, side).rms_position_m;
+      return rms * rms * (to - from);
+    } catch (const std::invalid_argument&) {
+      return std::numeric_limits<double>::infinity();
+    }
+  };
+  SetupChange best;
+  double best_sse = std::numeric_limits<double>::infinity();
+  auto tryAt = [&](int k) {
+    if (k < min_rows || k > n - min_rows) return;
+    const double v = sse(0, k) + sse(k, n);
+    if (v < best_sse) {
+      best_sse = v;
+      best.first_row = k;
+    }
+  };
+  const int step = std::max(1, n / 40);
+  for (int k = min_rows; k <= n - min_rows; k += step) tryAt(k);
+  if (best.first_row < 0) return std::nullopt;
+  const int coarse = best.first_row;
+  for (int k = coarse - step + 1; k < coarse + step; ++k) tryAt(k);
+  best.rms_single_m = std::sqrt(sse(0, n) / n);
+  best.rms_first_m = std::sqrt(sse(0, best.first_row) / best.first_row);
+  best.rms_second_m = std::sqrt(sse(best.first_row, n) / (n - best.first_row));
+  const double split_rms = std::sqrt(best_sse / n);
+  if (!(best.rms_single_m > ratio * split_rms)) return std::nullopt;
+  return best;
 }
 
 }  // namespace cellcal

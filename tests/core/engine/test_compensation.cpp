@@ -2,11 +2,15 @@
 // beyond the bound refused or clamped.
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
+#include <algorithm>
 #include <random>
 
+#include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/lab/sim_program.hpp"
+#include "core/engine/engine_feed.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -139,6 +143,96 @@ TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {
   EXPECT_LE(c.head<3>().norm(), s.max_correction_m * (1 + 1e-9));
   EXPECT_LE(c.tail<3>().norm(), s.max_correction_rad * (1 + 1e-9));
   EXPECT_GT(std::max(c.head<3>().norm() / s.max_correction_m, c.tail<3>().norm() / s.max_correction_rad), 0.999);
+}
+
+// Outside the region the calibration poses covered, the model's correction is a guess. An engine calibrated on poses
+// from one corner of the workspace (every joint within 10 deg of one random configuration): its predicted error is
+// checked against a plain Monte Carlo reference (parameters drawn from the covariance), is small at targets in the
+// corner and large far from it, and compensate() passes every target above the bound through uncorrected.
+TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {
+  const std::uint64_t seed = test::testSeed();
+  CellConfig config = loadCellConfig(kCell);
+  config.simulation.seed = seed;
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  const RobotModel& m = cell.model();
+  std::mt19937_64 rng(seed);
+  const Eigen::VectorXd q0 = cell.randomConfigurations(1, rng).front();
+  auto nearCorner = [&] {
+    Eigen::VectorXd q = q0;
+    for (int j = 0; j < m.numJoints(); ++j)
+      q[j] = std::clamp(q0[j] + std::uniform_real_distribution<double>(-10, 10)(rng) * kPi / 180, m.limits[j].lower_rad,
+                        m.limits[j].upper_rad);
+    return q;
+  };
+  CalibrationEngine engine(robot, config.engine, 1.0);
+  test::Stream stream{cell, rng};
+  for (int k = 0; k < 40; ++k) {
+    const Eigen::VectorXd q = nearCorner();
+    stream.advance(30);
+    stream.feed(engine, q, stream.reading(q));
+  }
+  const CalibrationSnapshot& snap = engine.snapshot();
+  ASSERT_EQ(snap.poses_used, 40u) << engine.counters().last_rejection;
+  const auto ne = static_cast<Eigen::Index>(snap.estimated.size());
+  const IdentifiedModel model{snap.params, {}, {}, snap.estimated, snap.covariance.topLeftCorner(ne, ne)};
+  CompensationSettings off = config.compensation;
+  off.max_predicted_sigma_m = 0;
+  off.max_correction_m = 1;  // this test is about the predicted error, not the correction bound
+  off.max_correction_rad = 1;
+  KinematicsData d(m);
+  std::vector<double> inside, outside;
+  std::vector<std::pair<Eigen::VectorXd, double>> solved;  // (q*, predicted) of every target
+  auto run = [&](const Eigen::VectorXd& q, std::vector<double>& into) {
+    const CompensationResult c = compensate(m, model, cell.truePose(q, 0.0), q, off);
+    if (!c.applied) return;
+    into.push_back(c.predicted_sigma_position_m);
+    solved.emplace_back(c.q_rad, c.predicted_sigma_position_m);
+  };
+  for (int k = 0; k < 20; ++k) run(nearCorner(), inside);
+  for (const auto& q : cell.randomConfigurations(20, rng)) run(q, outside);
+  ASSERT_GE(inside.size(), 15u);
+  ASSERT_GE(outside.size(), 15u);
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const double med_in = median(inside), med_out = median(outside);
+  std::printf("  predicted 1-sigma position error: median %.4f mm in the corner, %.4f mm elsewhere\n", med_in * 1e3,
+              med_out * 1e3);
+  EXPECT_GT(med_out, 3 * med_in);
+  // Reference: the RMS spread of the target position over parameters drawn from the covariance.
+  const Eigen::LLT<Eigen::MatrixXd> llt(model.covariance);
+  ASSERT_EQ(llt.info(), Eigen::Success);
+  std::normal_distribution<double> g;
+  for (size_t t = 0; t < solved.size(); t += 7) {
+    const Eigen::Vector3d mean = forwardKinematics(m, d, snap.params, solved[t].first).translation();
+    double sum = 0;
+    constexpr int kDraws = 4000;
+    for (int k = 0; k < kDraws; ++k) {
+      Eigen::VectorXd z(ne);
+      for (Eigen::Index i = 0; i < ne; ++i) z[i] = g(rng);
+      const Eigen::VectorXd dx = llt.matrixL() * z;
+      Eigen::VectorXd p = snap.params;
+      for (Eigen::Index i = 0; i < ne; ++i) p[snap.estimated[static_cast<size_t>(i)]] += dx[i];
+      sum += (forwardKinematics(m, d, p, solved[t].first).translation() - mean).squaredNorm();
+    }
+    EXPECT_NEAR(std::sqrt(sum / kDraws), solved[t].second, 0.1 * solved[t].second) << "target " << t;
+  }
+  // The guard: a bound between the two; every target above it passes through uncorrected, saying why.
+  CompensationSettings on = off;
+  on.max_predicted_sigma_m = std::sqrt(med_in * med_out);
+  int refused = 0;
+  for (const auto& [q, predicted] : solved) {
+    const CompensationResult c = compensate(m, model, forwardKinematics(m, d, snap.params, q), q, on);
+    EXPECT_EQ(c.applied, predicted <= on.max_predicted_sigma_m) << predicted << " " << c.reason;
+    if (!c.applied) {
+      ++refused;
+      EXPECT_NE(c.reason.find("outside the region the model was calibrated in"), std::string::npos) << c.reason;
+      EXPECT_EQ(c.corrected_in_tracker.matrix(), forwardKinematics(m, d, snap.params, q).matrix());
+    }
+  }
+  EXPECT_GT(refused, 0);
 }
 
 }  // namespace

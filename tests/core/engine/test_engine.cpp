@@ -3,12 +3,15 @@
 // tests/components/test_engine_host.cpp.
 #include <gtest/gtest.h>
 
+#include <ctime>
 #include <iomanip>
 #include <random>
 #include <sstream>
 
 #include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/lab/sim_program.hpp"
 #include "core/engine/engine_feed.hpp"
@@ -233,6 +236,70 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
   }
   // The effects are large enough to matter: most draws leave the geometric engine well above the floor.
   EXPECT_GE(gained, kDraws / 2);
+}
+
+// A cell that starts from a measurement campaign: the campaign's calibration, saved as `calibrate --save-robot` saves
+// it, is the engine's first version (healthy, the saved kinematics to rounding), and its first poses are predicted
+// as well as the campaign calibrated them, where an engine started from nominal predicts them with the nominal error.
+TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFirstVersion) {
+  CellRobot robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  std::vector<Observation> campaign;
+  for (const auto& q : cell.randomConfigurations(60, rng)) campaign.push_back(cell.measure(q, 0.0, rng));
+  const std::vector<Drivers> drivers(campaign.size());
+  const ExtendedFit fit = fitExtended(robot.model, robot.model.nominal, campaign, drivers, std::vector<Extension>{});
+  ASSERT_TRUE(fit.converged) << fit.message;
+  RobotCalibration cal = robotCalibration(robot.model, fit, predictionModel(robot.model, fit, campaign, drivers));
+  const std::time_t made = std::time(nullptr) - 3 * 3600;  // three hours ago: drift since then widens the prior
+  char date[32];
+  std::strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&made));
+  cal.provenance = {{"date_utc", date}};
+  const std::string path = config.engine.state_dir + "/calibrated.yaml";
+  saveRobotFile(path, robot.model.withParams(fit.params), &cal, "test campaign");
+  robot.calibration_file = path;
+  robot.start = loadRobotFile(path);
+
+  // Cell time as the stream's (one wall second a cell second), as in the stream tests above.
+  CalibrationEngine started(robot, config.engine, 1.0);
+  CalibrationEngine fresh(config.robots[0], config.engine, 1.0);
+  const CalibrationSnapshot& s0 = started.snapshot();
+  EXPECT_EQ(s0.version, 1u);
+  EXPECT_EQ(s0.health, Health::kOk) << s0.health_reason << "\n" << started.startNote();
+  EXPECT_EQ(fresh.snapshot().health, Health::kUncalibrated);
+  EXPECT_LT((s0.params - fit.params).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_NE(started.startNote().find("3.0 h ago"), std::string::npos) << started.startNote();
+  // Its prior: the file's covariance, widened (never narrowed) by three hours of drift: against the same file dated now.
+  RobotFile now_file = *robot.start;
+  char now_date[32];
+  const std::time_t now = std::time(nullptr);
+  std::strftime(now_date, sizeof now_date, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&now));
+  now_file.calibration->provenance = {{"date_utc", now_date}};
+  CellRobot robot_now = robot;
+  robot_now.start = now_file;
+  const CalibrationEngine started_now(robot_now, config.engine, 1.0);
+  ASSERT_EQ(started_now.snapshot().covariance.rows(), s0.covariance.rows());
+  for (Eigen::Index k = 0; k < s0.covariance.rows(); ++k)
+    EXPECT_GE(s0.covariance(k, k), started_now.snapshot().covariance(k, k) * (1 - 1e-12)) << k;
+  EXPECT_GT(s0.covariance.trace(), started_now.snapshot().covariance.trace());
+  const double nominal = verifyError(cell, cell.nominalParams(), 0.0, seed + 5);
+  const double at_start = verifyError(cell, s0.params, 0.0, seed + 5);
+  EXPECT_LT(at_start, nominal / 5) << "nominal " << nominal * 1e3 << " mm, started " << at_start * 1e3 << " mm";
+
+  // The same twelve stand-stills for both: each predicted before it is used (the engines' running verification).
+  test::Stream stream{cell, rng};
+  for (const auto& q : cell.randomConfigurations(12, rng)) {
+    stream.advance(60);
+    const TrackerSample s = stream.reading(q);
+    stream.feed(started, q, s);
+    stream.feed(fresh, q, s);
+  }
+  EXPECT_EQ(started.snapshot().version, 13u) << started.counters().last_rejection;
+  EXPECT_EQ(started.snapshot().health, Health::kOk) << started.snapshot().health_reason;
+  const double a = started.snapshot().verification_mean_position_m, b = fresh.snapshot().verification_mean_position_m;
+  std::printf("  a-priori mean over the first 12 poses: from the file %.4f mm, from nominal %.4f mm (nominal model "
+              "%.4f, file at start %.4f mm)\n", a * 1e3, b * 1e3, nominal * 1e3, at_start * 1e3);
+  EXPECT_LT(a, b / 3);
 }
 
 }  // namespace

@@ -62,6 +62,18 @@ TEST(CellFile, ErrorsNameLineAndField) {
   EXPECT_NE(errorOf(robot + "compensation: { max_correction_mm: -1 }\n").find("compensation.max_correction_mm: must be > "),
             std::string::npos);
   EXPECT_NE(errorOf("dds: {}\n").find("missing required key 'robots'"), std::string::npos);
+  // calibration_file: a calibrated robot file of the same robot, not a plain robot file nor another robot's.
+  EXPECT_NE(errorOf("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml,\n"
+                    "      calibration_file: robots/ur10.yaml }\n")
+                .find("cell.yaml:3:25: robots[0].calibration_file: " + std::string(CELLCAL_CONFIG_DIR) +
+                      "/robots/ur10.yaml has no calibration section"),
+            std::string::npos)
+      << errorOf("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml,\n"
+                 "      calibration_file: robots/ur10.yaml }\n");
+  EXPECT_NE(errorOf("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml, calibration_file: "
+                    "robots/none.yaml }\n")
+                .find("robots[0].calibration_file: "),
+            std::string::npos);
 }
 
 // A registration drawn at random (tracker 0.5-5 m from the base, target 10-300 mm off the flange, any rotation) loads;

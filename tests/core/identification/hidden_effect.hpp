@@ -254,7 +254,16 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
     switch (cause) {
       case Cause::kJointCompliance: {
         RobotModel m = plain.model();
-        m.links = randomLinks(m, true0, rng);
+        // The arm's real masses: near the robot file's where it has them (published data are approximate: each
+        // mass within +-10 %, each centre of mass within 10 mm), anything plausible where it has none.
+        if (m.links.empty()) {
+          m.links = randomLinks(m, true0, rng);
+        } else {
+          for (auto& l : m.links) {
+            l.mass_kg *= 1 + 0.1 * (2 * u(rng) - 1);
+            l.com_m += 0.01 * Eigen::Vector3d(2 * u(rng) - 1, 2 * u(rng) - 1, 2 * u(rng) - 1) / std::sqrt(3.0);
+          }
+        }
         const std::vector<int> loaded = gravityLoadedJoints(m, true0, qs);
         const int joint = loaded[static_cast<size_t>(u(rng) * loaded.size())];
         e = scaledHiddenEffect(m, true0, Cause::kJointCompliance, joint, sign * t.amplitude_rad, m.links, qs, rng);

@@ -118,7 +118,8 @@ TEST(Prediction, ExcitationDeficitsAgreeWithAPlainReferenceAndAreHeld) {
   std::mt19937_64 rng(test::testSeed());
   std::uniform_real_distribution<double> u(0.0, 1.0);
   int deficits_drawn = 0, held_ok = 0;
-  for (int d = 0; d < 30; ++d) {
+  constexpr int kDraws = 60;
+  for (int d = 0; d < kDraws; ++d) {
     const Draw dr = draw(rng);
     const MeasurementKind kind = dr.kind;
     const RobotModel& model = dr.model;
@@ -169,9 +170,11 @@ TEST(Prediction, ExcitationDeficitsAgreeWithAPlainReferenceAndAreHeld) {
       }
     }
   }
-  std::printf("%d of 30 draws left their drawn column below 0.08x on the identification rows; %d held\n", deficits_drawn,
-              held_ok);
-  EXPECT_GE(deficits_drawn, 5);  // the construction makes deficits (mostly in the extension's columns)
+  std::printf("%d of %d draws left their drawn column below 0.08x on the identification rows; %d held\n", deficits_drawn,
+              kDraws, held_ok);
+  // The construction makes deficits (mostly in the extension's columns: a UR10's compliance, with its link masses,
+  // is one column; a TX60's, without, four per link): 8-22 of 60 over 40 seeds.
+  EXPECT_GE(deficits_drawn, 5);
 }
 
 }  // namespace

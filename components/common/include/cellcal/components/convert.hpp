@@ -50,6 +50,10 @@ struct ReceivedCalibration {
   double verification_mean_position_m = 0;
   double residual_rms_position_m = 0;          // a-posteriori, over the recent poses
   std::uint64_t last_measurement_stamp_ns = 0;  // with version: tells a new calibration from a republished one
+  // The estimated kinematic parameters and their covariance (from parameter_stddevs and parameter_correlations;
+  // empty when the sender sent no correlations).
+  std::vector<int> estimated;
+  Eigen::MatrixXd covariance;
 };
 std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,
                                                          std::string* error);

@@ -65,6 +65,10 @@ inline std::int64_t wallNs() {
 // Writes `j` to `path` (if not empty) through a temporary file and rename.
 void writeJsonFile(const std::string& path, const nlohmann::json& j);
 
+// A usage error's exit: CLI11's message, then 0 for --help / --version and 2 for every usage error (CLI11's own
+// codes, 105, 106, ..., are not the documented ones).
+int usageExit(CLI::App& app, const CLI::ParseError& e);
+
 // Runs `body` and turns exceptions into "<program>: error: <message>" on stderr and exit code 1 (2 for usage).
 int runMain(const char* program, int argc, char** argv, CLI::App& app, const std::function<int()>& body);
 

@@ -86,7 +86,14 @@ struct EngineCounters {
 
 class CalibrationEngine {
  public:
-  // `robot` and `settings` must outlive the engine. It starts uncalibrated, from the prior.
+  // The recent window of the snapshot's statistics (verification_mean_position_m, residuals, NIS): this many poses.
+  static constexpr size_t kRecentPoses = 30;
+  // `robot` and `settings` must outlive the engine. It starts uncalibrated, from the nominal model and the prior; or,
+  // when the cell file gives the robot a calibration_file (CellRobot::start), calibrated: version 1, health ok (when
+  // its predicted error is within hold_prediction_sigma_m), the file's kinematics, frames and extension values the
+  // estimate, its covariance the prior, each parameter's variance widened by the drift model over the wall-clock hours
+  // since the file's date (at most to the uncalibrated prior's). Parameters the file does not cover (an extension it
+  // did not fit) start from the engine's prior. startNote() says what was taken.
   CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression);
 
   // Resumes from a saved state. Throws std::runtime_error saying why when the state does not fit this robot (another
@@ -98,6 +105,8 @@ class CalibrationEngine {
   // What importState did beyond resuming (e.g. the cell file added an extension: kinematic estimate kept, the
   // extension started from its prior); empty otherwise.
   const std::string& restoreNote() const { return restore_note_; }
+  // How the engine started from CellRobot::start ("started from <file>: calibrated ..."); empty without one.
+  const std::string& startNote() const { return start_note_; }
 
   // Returns false (and counts the rejection) for a sample that will never be used.
   bool onJointState(const JointSample& s, std::int64_t receive_ns);
@@ -124,6 +133,7 @@ class CalibrationEngine {
   double predictionSigma() const;
   void decideHealth();
   void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
+  void startFromCalibration(const RobotFile& file, const std::string& path);
   void finishUpdate(std::int64_t stamp_ns, std::uint64_t sequence);
   void refreshStatistics();
   // The RLS estimate (parameters, covariance, extensions) into the snapshot.
@@ -137,6 +147,8 @@ class CalibrationEngine {
   double time_compression_;
   std::uint64_t state_revision_ = 0;
   std::string restore_note_;
+  std::string start_note_;
+  bool started_calibrated_ = false;  // from a calibrated robot file: healthy without poses of its own
   PairingBuffer pairing_;
   std::unique_ptr<RlsCalibrator> rls_;
   Eigen::VectorXd drift_sigma_;       // accumulated over settings.drift_per_h

@@ -15,9 +15,15 @@
 // passes settle to the solver tolerance). Backlash's play state is that of the path the robot took: `path_rad`, the
 // joints it visited before, oldest first (e.g. the previous compensated targets; the last kPlayHistory matter), then a
 // straight move to q*. Without a path: a straight move from the seed.
+//
+// Outside the region the model was calibrated in its correction is a guess: with the estimate's covariance
+// (IdentifiedModel::covariance), the predicted 1-sigma position error at q* is sqrt(trace(J P J^T)) over the position
+// rows (the kinematic part, as the engine's hold bound); above CompensationSettings::max_predicted_sigma_m the target
+// is passed through uncorrected (applied = false) with the reason.
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <string>
 
 #include "cellcal/core/files/cell_config.hpp"
@@ -35,12 +41,19 @@ struct CompensationResult {
   Eigen::VectorXd q_rad;                   // joint solution the robot will move to (empty when refused)
   double correction_position_m = 0;        // of the correction as computed (before any clamping)
   double correction_orientation_rad = 0;
+  // The identified model's predicted 1-sigma position error at q_rad (NaN without a covariance).
+  double predicted_sigma_position_m = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct IdentifiedModel {
   Eigen::VectorXd params;                  // full kinematic vector (RobotModel layout)
   std::vector<Extension> extensions;       // empty: the geometric model
   Eigen::VectorXd extension_params;
+  // Covariance of the estimated kinematic parameters (indices into params): with it, a target where the model's
+  // predicted position error exceeds CompensationSettings::max_predicted_sigma_m is passed through uncorrected.
+  // Empty: no such guard.
+  std::vector<int> estimated = {};
+  Eigen::MatrixXd covariance = Eigen::MatrixXd();
 };
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,

@@ -13,6 +13,7 @@
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/model/robot_model.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 
 namespace cellcal {
@@ -42,8 +43,15 @@ struct CellRobot {
   // Model extensions the engine estimates with the kinematic parameters (what `cellcal diagnose` named), e.g.
   // [joint_compliance:2]. Not thermal_drift: the cell's topics carry no temperature (the drift model follows warm-up).
   std::vector<Extension> extensions;
-  // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig.
+  // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig. It stays the
+  // controller's model (what compensation corrects) whatever the engine starts from.
   RobotModel model;
+  // Where the engine starts when it has no state file yet (key calibration_file): a calibrated robot file of this
+  // robot (`cellcal calibrate --save-robot`). Its kinematics, frames and extension values are the RLS start, its
+  // covariance widened by the drift since its date the prior (calibration_engine.hpp). Empty / nullopt: start from
+  // `model` and the engine's prior.
+  std::string calibration_file;                // absolute path
+  std::optional<RobotFile> start;
 };
 
 struct EngineSettings {
@@ -84,6 +92,9 @@ struct CompensationSettings {
   double max_correction_rad = 0.5 * 3.14159265358979323846 / 180.0;
   ExceedAction on_exceed = ExceedAction::kRefuse;
   double max_ik_error_m = 1e-6;                // the identified model must reach the target this closely
+  // The model's predicted 1-sigma position error at the target's joints above this: passed through uncorrected (the
+  // target lies where the calibration poses did not pin the model down). 0 = off.
+  double max_predicted_sigma_m = 1e-3;
 };
 
 // The simulated cell behind the `sim` sources (and the launcher's hold-out check).

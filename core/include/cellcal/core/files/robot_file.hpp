@@ -7,11 +7,14 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
@@ -28,6 +31,10 @@ struct RobotCalibration {
   // Where it came from, in order: date_utc, data_file, data_sha256, rows, split, verification figures, ...
   std::vector<std::pair<std::string, std::string>> provenance;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
+  // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.
+  std::optional<std::int64_t> dateUtcNs() const;
+  // Name of a column: the kinematic parameter's paramName (SI unit), an extension parameter's own name.
+  std::string columnName(const RobotModel& model, int column) const;
   bool IsValid(const RobotModel& model, std::string* error) const;
 };
 
@@ -35,6 +42,11 @@ struct RobotFile {
   RobotModel model;
   std::optional<RobotCalibration> calibration;
 };
+
+// The calibration section of a fit and its prediction model (prediction.hpp): the fit's extensions and their values,
+// the prediction's covariance over every parameter a prediction depends on, flagged estimated where the fit estimated
+// it. Provenance is the caller's to fill.
+RobotCalibration robotCalibration(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction);
 
 // Throws ConfigError "<file>:<line>:<column>: <field>: <message>" on bad input (as loadRobotModel).
 RobotFile loadRobotFile(const std::string& path);

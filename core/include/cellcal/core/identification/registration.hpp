@@ -6,6 +6,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -32,6 +33,20 @@ RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& 
                                 const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
                                 const std::vector<Observation>& observations, const std::vector<Drivers>& drivers,
                                 int iterations = 20);
+
+// Where rows of two tracker (or target) placements meet in one file, in visiting order. A single registration of
+// rows from two set-ups leaves residuals of the size of the move (hundreds of mm); registered apart, each side fits to
+// the robot's own error (mm). Tries every split that leaves both sides `min_rows` rows (coarse steps, then every row
+// around the best) and returns the one whose two registrations leave the least total squared residual, when the
+// single registration's RMS is more than `ratio` times that split's; nullopt otherwise (or too few rows).
+struct SetupChange {
+  int first_row = -1;              // first observation of the second set-up
+  double rms_single_m = 0;         // one registration over all rows
+  double rms_first_m = 0, rms_second_m = 0;  // each side registered on its own
+};
+std::optional<SetupChange> findSetupChange(const RobotModel& model, const Eigen::VectorXd& initial,
+                                           const std::vector<Observation>& observations, double ratio = 10,
+                                           int min_rows = 8);
 
 // Frame parameters (x, y, z, roll, pitch, yaw) of a pose, inverse of poseFromXyzRpy (T = Trans Rz Ry Rx).
 Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T);
