@@ -4,6 +4,7 @@
 
 #include "cell/cell_test_support.hpp"
 #include "cellcal/lab/ipa_dataset.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "core/identification/hidden_effect.hpp"
@@ -48,6 +49,60 @@ TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   EXPECT_GT(before, 0.2) << p.log();
   EXPECT_LT(after, 1.3 * floor_mm) << "floor " << floor_mm << " mm\n" << p.log();
   EXPECT_LT(j["solve_time_s"].get<double>(), 5.0);
+}
+
+// Two campaigns of the same robot from two tracker placements (random robot errors, placements), each its own file:
+// `calibrate --data a.csv --data b.csv` fits one kinematic model with a base and tool per set-up, reports each set-up,
+// and predicts each set-up's held-out rows at least as well as calibrating that file alone; `--save-robot` keeps the
+// frames of the set-up given last; a command that takes one set-up refuses several.
+TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  SimulationConfig sc;
+  sc.seed = seed;
+  const std::string tx60 = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
+  std::vector<std::string> files;
+  for (int s = 0; s < 2; ++s) {
+    SimulationConfig c = sc;  // the same robot with the same hidden errors
+    if (s == 1) {
+      c.base_in_tracker.head<3>() += Eigen::Vector3d(1.0 + u(rng), 1.0 + u(rng), 0.2 * u(rng));
+      c.base_in_tracker[5] += 0.5 * kPi * u(rng);
+    }
+    const SimulatedCell cell(robot("staubli_tx60"), c);
+    MeasurementFile f;
+    for (const auto& q : cell.randomConfigurations(60, rng)) {
+      const Observation o = cell.measure(q, 0.0, rng);
+      MeasurementRow r;
+      r.q_rad = q;
+      r.position_m = o.measured_in_tracker.translation();
+      r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+      f.rows.push_back(r);
+    }
+    files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
+    std::ofstream out(files.back());
+    writeMeasurementCsv(out, f, 6, "simulated TX60, set-up " + std::to_string(s + 1));
+  }
+  Process joint(dir, "joint", {"cellcal", "calibrate", "--robot", tx60, "--data", files[0], "--data", files[1], "--json",
+                               dir + "/joint.json", "--save-robot", dir + "/joint.yaml"});
+  ASSERT_EQ(joint.wait(60), 0) << joint.log();
+  EXPECT_NE(joint.log().find("2 set-ups, one kinematic model"), std::string::npos) << joint.log();
+  const auto j = readJson(dir + "/joint.json");
+  ASSERT_EQ(j["setups"].size(), 2u);
+  for (int s = 0; s < 2; ++s) {
+    Process own(dir, "own", {"cellcal", "calibrate", "--robot", tx60, "--data", files[s], "--json", dir + "/own.json"});
+    ASSERT_EQ(own.wait(60), 0) << own.log();
+    const double own_mm = readJson(dir + "/own.json")["verification"]["after"]["mean_mm"];
+    const double joint_mm = j["setups"][s]["verification"]["after"]["mean_mm"];
+    EXPECT_LT(joint_mm, 1.05 * own_mm) << "set-up " << s + 1 << "\n" << joint.log();
+  }
+  const RobotFile saved = loadRobotFile(dir + "/joint.yaml");
+  ASSERT_TRUE(saved.calibration);
+  EXPECT_EQ(saved.calibration->provenanceValue("frames_of"), files[1]);
+  Process diag(dir, "diagnose", {"cellcal", "diagnose", "--robot", tx60, "--data", files[0], "--data", files[1]});
+  EXPECT_EQ(diag.wait(60), 2);
+  EXPECT_NE(diag.log().find("only `cellcal calibrate` takes several set-ups"), std::string::npos) << diag.log();
 }
 
 // `cellcal continuous` on a file of a simulated robot warming up over 6 h (stamps and temperatures in the file,

@@ -14,6 +14,7 @@
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/identification/setups.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
@@ -103,7 +104,139 @@ std::vector<std::string> implausibleParameters(const RobotModel& robot, const Ei
   return out;
 }
 
+
+// Several set-ups (--data given again): one kinematic model, a base and a tool frame per set-up (setups.hpp), errors
+// per set-up. The geometric model; every file registered and split on its own.
+int runCalibrateSetups(const CalibrateArgs& a) {
+  if (a.model != "geometric") throw std::runtime_error("several --data: the geometric model only (no --model)");
+  if (a.frames_only) throw std::runtime_error("--frames-only takes one --data");
+  std::vector<std::string> files = {a.input.data};
+  files.insert(files.end(), a.input.more_data.begin(), a.input.more_data.end());
+  std::vector<LoadedInput> ins;
+  for (const auto& f : files) {
+    InputArgs one = a.input;
+    one.data = f;
+    one.more_data.clear();
+    ins.push_back(loadInput(one));
+  }
+  const RobotModel& robot = ins[0].robot;
+  SetupsProblem pr;
+  pr.model = &robot;
+  pr.identifiability.rank_tolerance = a.rank_tolerance;
+  for (const auto& in : ins) {
+    pr.starts.push_back(in.start);
+    pr.observations.push_back(in.data.identification);
+  }
+  const auto t1 = std::chrono::steady_clock::now();
+  const SetupsFit fit = fitSetups(pr);
+  const double solve_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  const int f0 = robot.baseParam(FrameParam::kX), np = robot.numParams();
+  std::printf("%zu set-ups, one kinematic model (geometric), a base and a tool frame per set-up: %zu kinematic and "
+              "%zu frame parameters estimated, %s after %d iterations (%.1f ms)\n",
+              files.size(), fit.estimated_kinematic.size(), fit.estimated.size() - fit.estimated_kinematic.size(),
+              fit.converged ? "converged" : "NOT converged", fit.iterations, solve_s * 1e3);
+  {  // What the rows leave open: kinematic parameters (held for all set-ups) and frame parameters (per set-up).
+    std::string held;
+    const auto& cand = robot.canonicalParams();
+    for (int c : cand) {
+      if (std::count(fit.estimated.begin(), fit.estimated.end(), c)) continue;
+      held += " " + (c < f0 ? robot.paramNameHuman(c) : "set-up1." + robot.paramNameHuman(c));
+    }
+    for (size_t s = 1; s < ins.size(); ++s)
+      for (int k = 0; k < 12; ++k) {
+        const int col = np + 12 * static_cast<int>(s - 1) + k;
+        if (std::count(cand.begin(), cand.end(), f0 + k) && !std::count(fit.estimated.begin(), fit.estimated.end(), col))
+          held += " set-up" + std::to_string(s + 1) + "." + robot.paramNameHuman(f0 + k);
+      }
+    if (!held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", held.c_str());
+  }
+  nlohmann::json per = nlohmann::json::array();
+  std::string unusable;
+  for (size_t s = 0; s < ins.size(); ++s) {
+    const LoadedInput& in = ins[s];
+    const auto& d = in.data;
+    const ExtendedFit before = asFit(in.start), after = asFit(fit.params[s]);
+    const ErrorStats ib = errorStats(robot, before, d.identification, d.identification_drivers),
+                     ia = errorStats(robot, after, d.identification, d.identification_drivers),
+                     vb = errorStats(robot, before, d.verification, d.verification_drivers),
+                     va = errorStats(robot, after, d.verification, d.verification_drivers);
+    std::printf("\nset-up %zu: %s: %zu rows (%s split: %zu identify, %zu verify), %s; registration rms %.3f mm\n",
+                s + 1, files[s].c_str(), in.file.rows.size(), a.input.split.c_str(), d.identification.size(),
+                d.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);
+    if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+    std::printf("                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
+    auto row = [](const char* name, const ErrorStats& e) {
+      std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, e.mean_mm, e.rms_mm, e.max_mm, e.mean_deg,
+                  e.rms_deg, e.max_deg);
+    };
+    row("identification before", ib);
+    row("identification after", ia);
+    row("verification before", vb);
+    row("verification after", va);
+    const std::string why = unusableFit(vb, va, ia);
+    if (!why.empty()) unusable += (unusable.empty() ? "" : "; ") + ("set-up " + std::to_string(s + 1) + ": " + why);
+    nlohmann::json frames = nlohmann::json::object();
+    for (int k = 0; k < 12; ++k) frames[robot.paramNameHuman(f0 + k)] = robot.toHuman(f0 + k, fit.params[s][f0 + k]);
+    per.push_back({{"data", files[s]}, {"rows", in.file.rows.size()}, {"measurement", in.measurementJson()},
+                   {"registration_rms_mm", in.registration_rms_mm},
+                   {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
+                   {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
+                   {"frames", frames}});
+  }
+  std::printf("\n('before': the robot file's kinematics with each set-up's registered frames; 'after': the common "
+              "kinematics with each set-up's fitted frames; gross-error screening and --model are for one --data)\n");
+  if (!a.json.empty()) {
+    nlohmann::json params = nlohmann::json::array();
+    for (int i = 0; i < f0; ++i) {
+      const bool est = std::count(fit.estimated_kinematic.begin(), fit.estimated_kinematic.end(), i) > 0;
+      params.push_back({{"name", robot.paramNameHuman(i)}, {"initial", robot.toHuman(i, ins[0].start[i])},
+                        {"value", robot.toHuman(i, fit.params[0][i])}, {"estimated", est}});
+    }
+    std::ofstream(a.json) << nlohmann::json{{"robot", robot.name}, {"setups", per}, {"parameters", params},
+                                            {"converged", fit.converged}, {"iterations", fit.iterations},
+                                            {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}}
+                                 .dump(2)
+                          << "\n";
+  }
+  if (!fit.converged) {
+    if (!a.save_robot.empty()) std::printf("%s not written: the solver did not converge\n", a.save_robot.c_str());
+    return 3;
+  }
+  if (!unusable.empty()) {
+    std::printf("not usable: %s (exit 4)\n", unusable.c_str());
+    if (!a.save_robot.empty()) std::printf("%s not written\n", a.save_robot.c_str());
+    return 4;
+  }
+  if (!a.save_robot.empty()) {
+    // The kinematics with the frames of the set-up given last (the newest placement). Its covariance is that of a
+    // fit on that set-up's rows alone (the other set-ups pin the kinematics further: conservative).
+    const size_t last = ins.size() - 1;
+    ExtendedFit f = asFit(fit.params[last]);
+    f.estimated = fit.estimated_kinematic;
+    for (int c : fit.estimated) {
+      const int k = c < np ? c - f0 : (c - np) % 12;
+      const size_t owner = c < f0 ? SIZE_MAX : c < np ? 0 : static_cast<size_t>((c - np) / 12 + 1);
+      if (owner == last) f.estimated.push_back(f0 + k);
+    }
+    std::sort(f.estimated.begin(), f.estimated.end());
+    const auto& d = ins[last].data;
+    RobotCalibration cal = robotCalibration(robot, f, predictionModel(robot, f, d.identification, d.identification_drivers));
+    std::string all;
+    for (const auto& file : files) all += (all.empty() ? "" : ", ") + file;
+    cal.provenance = {{"date_utc", utcNow()},          {"tool", "cellcal calibrate (several set-ups)"},
+                      {"robot_file", a.input.robot},   {"data_files", all},
+                      {"data_sha256", fileSha256(files[last])}, {"frames_of", files[last]},
+                      {"split", a.input.split},        {"model", "geometric"}};
+    saveRobotFile(a.save_robot, robot.withParams(fit.params[last]), &cal,
+                  "Calibrated " + robot.name + ": written by `cellcal calibrate` from " + std::to_string(files.size()) +
+                      " set-ups (" + all + "); base and tool frames of " + files[last]);
+    std::printf("calibrated robot file: %s (frames of set-up %zu)\n", a.save_robot.c_str(), last + 1);
+  }
+  return 0;
+}
+
 int runCalibrate(const CalibrateArgs& a) {
+  if (!a.input.more_data.empty()) return runCalibrateSetups(a);
   const LoadedInput in = loadInput(a.input);
   const RobotModel& robot = in.robot;
   const auto& ident = in.data.identification;

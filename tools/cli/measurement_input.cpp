@@ -26,6 +26,9 @@ OutlierOptions outlierOptions(const InputArgs& a) {
 }
 
 LoadedInput loadInput(const InputArgs& a) {
+  if (!a.more_data.empty())
+    throw ConfigError("--data given " + std::to_string(1 + a.more_data.size()) +
+                      " times: only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
   LoadedInput in;
   RobotFile rf = loadRobotFile(a.robot);
   in.robot = std::move(rf.model);
@@ -176,7 +179,15 @@ std::string utcNow() {
 
 void addInputOptions(CLI::App* cmd, InputArgs& a) {
   cmd->add_option("--robot", a.robot, "robot file (YAML)")->required()->check(CLI::ExistingFile);
-  cmd->add_option("--data", a.data, "measurement file (CSV v1, docs/measurement-csv.md)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--data", a.data_files,
+                  "measurement file (CSV v1, docs/measurement-csv.md); calibrate: given again for each further set-up "
+                  "(another placement of the tracker or the target)")
+      ->required()
+      ->check(CLI::ExistingFile)
+      ->each([&a](const std::string& f) {
+        if (a.data.empty()) a.data = f;
+        else a.more_data.push_back(f);
+      });
   cmd->add_option("--split", a.split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
   cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
   cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();

@@ -16,6 +16,8 @@ namespace cellcal::cli {
 
 struct InputArgs {
   std::string robot, data, split = "alternate";
+  std::vector<std::string> more_data;  // --data given again: further set-ups (only `calibrate` takes them)
+  std::vector<std::string> data_files; // every --data, in order (what the option fills)
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
   double outlier_threshold = OutlierOptions{}.threshold;  // robust sigmas; 0: no screening
   bool position_only = false, skip_bad_rows = false, no_register = false;
