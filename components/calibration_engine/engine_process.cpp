@@ -189,6 +189,12 @@ void EngineProcess::stopAndReport() {
                  {"extra", {{"updates", host_.updates()}, {"unknown_keys", host_.unknownKeys()}, {"robots", robots},
                             {"input_queue", {{"peak", inputs_->peak()}, {"refused", inputs_->refused()},
                                              {"max", kMaxQueuedInputs}}}}}});
+  // A clean exit says so (a silent one reads like a crash in a log).
+  std::cerr << "calibration_engine: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
+            << "), " << host_.updates() << " updates this run; state files synced:";
+  for (auto& [id, r] : host_.robots())
+    std::cerr << " " << id << " v" << r.engine->snapshot().version << " " << healthName(r.engine->snapshot().health);
+  std::cerr << "\n";
 }
 
 }  // namespace cellcal::components

@@ -151,6 +151,9 @@ int CompensationPublisher::run() {
                  {"topics", node_.stats()},
                  {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
                             {"bad_calibration_states", bad_states_}, {"calibration_versions", versions}}}});
+  std::cerr << "compensation_publisher: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
+            << "): " << applied_ << " targets corrected, " << refused_ << " passed through uncorrected (" << clamped_
+            << " clamped)\n";
   return 0;
 }
 

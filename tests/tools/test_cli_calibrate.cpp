@@ -14,6 +14,15 @@ namespace {
 
 using namespace cellcal::test;
 
+// A measurement file's row of a simulated 6D reading at joints q.
+MeasurementRow measuredRow(const Eigen::VectorXd& q, const Observation& o) {
+  MeasurementRow r;
+  r.q_rad = q;
+  r.position_m = o.measured_in_tracker.translation();
+  r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+  return r;
+}
+
 TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
@@ -26,11 +35,7 @@ TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   int n = 0;
   for (const auto& q : cell.randomConfigurations(200, rng)) {
     const Observation o = cell.measure(q, 0.0, rng);
-    MeasurementRow r;
-    r.q_rad = q;
-    r.position_m = o.measured_in_tracker.translation();
-    r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-    f.rows.push_back(r);
+    f.rows.push_back(measuredRow(q, o));
     if (n++ % 2 == 1) floor_mm += (o.measured_in_tracker.translation() - cell.truePose(q, 0).translation()).norm() * 1e3;
   }
   floor_mm /= 100;
@@ -74,11 +79,7 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
     MeasurementFile f;
     for (const auto& q : cell.randomConfigurations(60, rng)) {
       const Observation o = cell.measure(q, 0.0, rng);
-      MeasurementRow r;
-      r.q_rad = q;
-      r.position_m = o.measured_in_tracker.translation();
-      r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-      f.rows.push_back(r);
+      f.rows.push_back(measuredRow(q, o));
     }
     files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
     std::ofstream out(files.back());

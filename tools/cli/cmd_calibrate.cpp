@@ -105,6 +105,28 @@ std::vector<std::string> implausibleParameters(const RobotModel& robot, const Ei
 }
 
 
+// The error table: a header, then one row per (name, stats).
+void printErrorTable(const std::vector<std::pair<const char*, const ErrorStats*>>& rows) {
+  std::printf("                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
+  for (const auto& [name, e] : rows)
+    std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, e->mean_mm, e->rms_mm, e->max_mm, e->mean_deg,
+                e->rms_deg, e->max_deg);
+}
+
+// Exit 3 (not converged) or 4 (not usable) with what was not written; 0 to go on.
+int failedExit(bool converged, const std::string& unusable, const std::string& save_robot) {
+  if (!converged) {
+    if (!save_robot.empty()) std::printf("%s not written: the solver did not converge\n", save_robot.c_str());
+    return 3;
+  }
+  if (!unusable.empty()) {
+    std::printf("not usable: %s (exit 4)\n", unusable.c_str());
+    if (!save_robot.empty()) std::printf("%s not written\n", save_robot.c_str());
+    return 4;
+  }
+  return 0;
+}
+
 // Several set-ups (--data given again): one kinematic model, a base and a tool frame per set-up (setups.hpp), errors
 // per set-up. The geometric model; every file registered and split on its own.
 int runCalibrateSetups(const CalibrateArgs& a) {
@@ -164,15 +186,8 @@ int runCalibrateSetups(const CalibrateArgs& a) {
                 s + 1, files[s].c_str(), in.file.rows.size(), a.input.split.c_str(), d.identification.size(),
                 d.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);
     if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
-    std::printf("                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
-    auto row = [](const char* name, const ErrorStats& e) {
-      std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, e.mean_mm, e.rms_mm, e.max_mm, e.mean_deg,
-                  e.rms_deg, e.max_deg);
-    };
-    row("identification before", ib);
-    row("identification after", ia);
-    row("verification before", vb);
-    row("verification after", va);
+    printErrorTable({{"identification before", &ib}, {"identification after", &ia}, {"verification before", &vb},
+                     {"verification after", &va}});
     const std::string why = unusableFit(vb, va, ia);
     if (!why.empty()) unusable += (unusable.empty() ? "" : "; ") + ("set-up " + std::to_string(s + 1) + ": " + why);
     nlohmann::json frames = nlohmann::json::object();
@@ -198,15 +213,7 @@ int runCalibrateSetups(const CalibrateArgs& a) {
                                  .dump(2)
                           << "\n";
   }
-  if (!fit.converged) {
-    if (!a.save_robot.empty()) std::printf("%s not written: the solver did not converge\n", a.save_robot.c_str());
-    return 3;
-  }
-  if (!unusable.empty()) {
-    std::printf("not usable: %s (exit 4)\n", unusable.c_str());
-    if (!a.save_robot.empty()) std::printf("%s not written\n", a.save_robot.c_str());
-    return 4;
-  }
+  if (const int code = failedExit(fit.converged, unusable, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     // The kinematics with the frames of the set-up given last (the newest placement). Its covariance is that of a
     // fit on that set-up's rows alone (the other set-ups pin the kinematics further: conservative).
@@ -351,19 +358,14 @@ int runCalibrate(const CalibrateArgs& a) {
               model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
   if (!converged) std::printf("  solver: %s\n", message.c_str());
-  std::printf("\n                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
-  auto row = [](const char* name, const ErrorStats& s) {
-    std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, s.mean_mm, s.rms_mm, s.max_mm, s.mean_deg,
-                s.rms_deg, s.max_deg);
-  };
-  row("identification before", ib);
-  row("identification after", ia);
-  row("verification before", vb);
-  row("verification after", va);
+  std::printf("\n");
+  std::vector<std::pair<const char*, const ErrorStats*>> table = {
+      {"identification before", &ib}, {"identification after", &ia}, {"verification before", &vb}, {"verification after", &va}};
   if (!verify_outliers.rows.empty()) {
-    row("  without gross errors", vbk);
-    row("  without gross errors", vak);
+    table.push_back({"  without gross errors", &vbk});
+    table.push_back({"  without gross errors", &vak});
   }
+  printErrorTable(table);
   if (a.frames_only)
     std::printf("\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': its "
                 "kinematics and extensions with the frames fitted)\n");
@@ -451,15 +453,7 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
-  if (!converged) {
-    if (!a.save_robot.empty()) std::printf("%s not written: the solver did not converge\n", a.save_robot.c_str());
-    return 3;
-  }
-  if (!unusable.empty()) {
-    std::printf("not usable: %s (exit 4)\n", unusable.c_str());
-    if (!a.save_robot.empty()) std::printf("%s not written\n", a.save_robot.c_str());
-    return 4;
-  }
+  if (const int code = failedExit(converged, unusable, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);
     if (a.frames_only) {  // the kinematics' uncertainty stays the robot file's (none when it has no section)

@@ -289,9 +289,10 @@ class CellJudge {
     j->verify_mm = j->verify(j->identified, t_h);
     j->nominal_mm = j->verifyNominal(t_h);
     if (a_.quiet) return;
-    const double corr = j->correction_mm.empty() ? std::nan("") : j->correction_mm.back();
+    char corr[32] = "none yet";  // no target compensated with a calibration so far
+    if (!j->correction_mm.empty()) std::snprintf(corr, sizeof corr, "%.3f mm", j->correction_mm.back());
     std::printf("[%6.2f s] %-8s v%-4llu poses %-4u cell time %5.2f h | hold-out error %.4f mm (uncalibrated %.3f mm) | "
-                "last correction %.3f mm\n",
+                "last correction %s\n",
                 elapsed(), j->robot->robot_id.c_str(), static_cast<unsigned long long>(c->version), c->poses_used, t_h,
                 j->verify_mm, j->nominal_mm, corr);
     std::fflush(stdout);

@@ -1,5 +1,6 @@
 // `cellcal experiment paper`: the published experiments on the simulated robot (core/paper_experiment.hpp).
 #include <cstdio>
+#include <unistd.h>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -61,9 +62,9 @@ void printSeedSummary(const RobotModel& robot, PaperExperimentConfig cfg, std::u
       tally[i].worst_max = std::max(tally[i].worst_max, m.worst_verify_to_floor);
       tally[i].verify_impr_sum += improvement(m.verify_before_m, m.verify_after_m);
     }
-    std::fprintf(stderr, "\rseed %d/%d", s + 1, seeds);
+    if (::isatty(2)) std::fprintf(stderr, "\rseed %d/%d", s + 1, seeds);  // progress only on a terminal
   }
-  std::fprintf(stderr, "\n");
+  if (::isatty(2)) std::fprintf(stderr, "\n");
   char line[256];
   os << "Over " << seeds << " random robots (seeds " << first << ".." << first + seeds - 1
      << "): share whose every update ends within 1.5x the noise floor\n";
@@ -291,7 +292,7 @@ Runner addExperimentCommand(CLI::App& app) {
       return 0;
     }
     ProgressFn progress;
-    if (!args->quiet)
+    if (!args->quiet && ::isatty(2))  // progress frames only on a terminal, not into a redirected log
       progress = [](const std::string& step, int done, int total) {
         std::fprintf(stderr, "\r[%-30s] %3d%%  %-24s", std::string(30 * done / total, '#').c_str(), 100 * done / total,
                      step.c_str());

@@ -94,6 +94,9 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
   if (!publisher_ || !subscriber_) throw std::runtime_error("cannot create the DDS publisher/subscriber");
+  // Where it joined: what a second tool must match to see it (`cellcal cell` runs on cellcal_loopback).
+  std::cerr << node_name << ": DDS domain " << domain_id_ << ", participant profile " << cell.dds.participant_profile
+            << ", DDS Security " << (secure_ ? "on (identity " + identity + ")" : std::string("off")) << "\n";
 }
 
 DdsNode::~DdsNode() { shutdown(); }

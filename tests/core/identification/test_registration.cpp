@@ -5,6 +5,7 @@
 
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/sim/simulation.hpp"
+#include "core/identification/placements.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -41,18 +42,11 @@ TEST(Registration, RowsOfTwoSetUpsAreFoundWhereTheyChange) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1, 1);
   for (int draw = 0; draw < 12; ++draw) {
-    SimulationConfig sc;
-    sc.seed = rng();
-    sc.base_in_tracker << 3 * u(rng), 3 * u(rng), u(rng), 0.02 * u(rng), 0.02 * u(rng), kPi * u(rng);
-    sc.tool_in_flange << 0.1 * u(rng), 0.1 * u(rng), 0.05 + 0.1 * std::abs(u(rng)), 0, 0, 0;
+    const SimulationConfig sc = test::randomPlacement(rng);
     const RobotModel robot = test::robot(draw % 2 ? "ur10" : "staubli_tx60");
     const MeasurementKind kind = u(rng) < 0 ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
     const SimulatedCell first(robot, sc);
-    SimulationConfig moved = sc;
-    const Eigen::Vector3d dir = Eigen::Vector3d(u(rng), u(rng), 0.3 * u(rng)).normalized();
-    moved.base_in_tracker.head<3>() += (0.3 + 1.7 * std::abs(u(rng))) * dir;
-    moved.base_in_tracker[5] += 0.5 * kPi * u(rng);
-    const SimulatedCell second(robot, moved);  // same robot (same seed: same hidden errors), tracker elsewhere
+    const SimulatedCell second(robot, test::trackerMoved(sc, rng));  // same robot and hidden errors, tracker elsewhere
     const int n = 60 + static_cast<int>(100 * std::abs(u(rng)));
     const int change = 10 + static_cast<int>((n - 20) * std::abs(u(rng)));
     std::vector<Observation> obs;
@@ -70,7 +64,9 @@ TEST(Registration, RowsOfTwoSetUpsAreFoundWhereTheyChange) {
     EXPECT_LT(std::max(c->rms_first_m, c->rms_second_m), 2e-3) << what;
     // One placement: never split.
     const std::vector<Observation> one(obs.begin(), obs.begin() + change);
-    if (change >= 16) EXPECT_FALSE(findSetupChange(robot, start, one)) << what;
+    if (change >= 16) {
+      EXPECT_FALSE(findSetupChange(robot, start, one)) << what;
+    }
   }
 }
 

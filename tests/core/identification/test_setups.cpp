@@ -10,6 +10,7 @@
 #include "cellcal/core/identification/setups.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
+#include "core/identification/placements.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -29,25 +30,14 @@ TEST(Setups, OneModelWithAFramePairPerSetUp) {
   std::uniform_real_distribution<double> u(-1, 1);
   double joint_sum = 0, separate_sum = 0;
   for (int draw = 0; draw < 8; ++draw) {
-    SimulationConfig sc;
-    sc.seed = rng();
-    sc.base_in_tracker << 3 * u(rng), 3 * u(rng), u(rng), 0.02 * u(rng), 0.02 * u(rng), kPi * u(rng);
-    sc.tool_in_flange << 0.1 * u(rng), 0.1 * u(rng), 0.05 + 0.1 * std::abs(u(rng)), 0, 0, 0;
+    const SimulationConfig sc = test::randomPlacement(rng);
     const RobotModel robot = test::robot(draw % 2 ? "ur10" : "staubli_tx60");
     const MeasurementKind kind = draw % 4 < 2 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
     const int setups = draw < 2 ? 1 : 2 + draw % 2;
     const std::string what = robot.name + (kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", " +
                              std::to_string(setups) + " set-ups, seed " + std::to_string(sc.seed);
     std::vector<SimulatedCell> cells;
-    for (int s = 0; s < setups; ++s) {
-      SimulationConfig c = sc;  // same seed: the same robot with the same hidden errors
-      if (s > 0) {
-        const Eigen::Vector3d dir = Eigen::Vector3d(u(rng), u(rng), 0.3 * u(rng)).normalized();
-        c.base_in_tracker.head<3>() += (0.3 + 1.7 * std::abs(u(rng))) * dir;
-        c.base_in_tracker[5] += 0.5 * kPi * u(rng);
-      }
-      cells.emplace_back(robot, c);
-    }
+    for (int s = 0; s < setups; ++s) cells.emplace_back(robot, s == 0 ? sc : test::trackerMoved(sc, rng));
     SetupsProblem problem;
     problem.model = &robot;
     std::vector<std::vector<Observation>> fresh;
