@@ -1,5 +1,7 @@
 #include "engine_process.hpp"
 
+#include <cctype>
+
 #include <unistd.h>
 
 #include <chrono>
@@ -86,7 +88,11 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
   diag_writer_.write(d);
   // Say it once on stderr when it changes (the diagnostics topic carries it every republish period).
   const auto& snap = r.engine->snapshot();
-  const std::string line = stale + "|" + r.persist_error + "|" + snap.health_reason;
+  // Without its figures ("nothing for 4.1 s" grows every period): a line when what is stale changes, not each second.
+  std::string stale_key;
+  for (char ch : stale)
+    if (!std::isdigit(static_cast<unsigned char>(ch)) && ch != '.') stale_key += ch;
+  const std::string line = stale_key + "|" + r.persist_error + "|" + snap.health_reason;
   if (p.reported == line) return;
   p.reported = line;
   const std::string& id = r.robot->robot_id;

@@ -190,7 +190,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
 
   const Section e = section(r, root, "engine",
                             {"mode", "batch_poses", "state_dir", "max_pairing_skew_ms", "settle_tolerance_deg",
-                             "max_sample_age_s", "stale_input_s", "republish_period_s", "outlier_gate_nis_per_row", "outlier_hold_after",
+                             "max_sample_age_s", "stale_input_s", "stale_stand_stills", "tracker_silence_s", "republish_period_s", "outlier_gate_nis_per_row", "outlier_hold_after",
                              "hold_prediction_sigma_mm", "drift_alarm_nis_per_row",
                              "prior_length_mm", "prior_angle_deg", "drift"});
   if (e.has("mode")) {
@@ -206,9 +206,11 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   e.num("settle_tolerance_deg", c.engine.settle_tolerance_rad, kDeg, 0);
   e.num("max_sample_age_s", c.engine.max_sample_age_s, 1, 0, false);
   e.num("stale_input_s", c.engine.stale_input_s, 1, 0, true);
+  e.num("tracker_silence_s", c.engine.tracker_silence_s, 1, 0, false);
   e.num("republish_period_s", c.engine.republish_period_s, 1, 0, true);
   e.num("outlier_gate_nis_per_row", c.engine.outlier_gate_nis_per_row, 1, 0);
   e.integer("outlier_hold_after", c.engine.outlier_hold_after, 1, 1000000);
+  e.integer("stale_stand_stills", c.engine.stale_stand_stills, 1, 1000000);
   e.num("hold_prediction_sigma_mm", c.engine.hold_prediction_sigma_m, 1e-3, 0, true);
   e.num("drift_alarm_nis_per_row", c.engine.drift_alarm_nis_per_row, 1, 0, true);
   e.num("prior_length_mm", c.engine.prior_length_m, 1e-3, 0, true);

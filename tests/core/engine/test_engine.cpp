@@ -302,5 +302,75 @@ TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFi
   EXPECT_LT(a, b / 3);
 }
 
+// A pause in the robot program is not a stale tracker: while the robot works (moving, or standing at places the
+// tracker does not measure fewer than stale_stand_stills times in a row) the tracker is not called stale; after that
+// many stand-stills without a reading it is, and a reading clears it. tracker_silence_s adds a plain time limit.
+// Joint states are stale after stale_input_s without one.
+TEST_F(EngineFixture, APauseInTheProgramIsNotAStaleTracker) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  const auto qs = sim.randomConfigurations(8, rng);
+  CalibrationEngine engine(robot, config.engine, 1.0);
+  std::int64_t t = 1'700'000'000'000'000'000;
+  std::uint64_t seq = 0;
+  auto move = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b, double seconds) {  // 100 Hz joint states
+    for (int k = 1; k <= static_cast<int>(seconds * 100); ++k) {
+      t += 10'000'000;
+      engine.onJointState({t, ++seq, a + (b - a) * k / (seconds * 100), false}, t);
+    }
+  };
+  auto standStill = [&](const Eigen::VectorXd& q, double seconds, bool read) {
+    for (int k = 0; k < static_cast<int>(seconds * 100); ++k) {
+      t += 10'000'000;
+      engine.onJointState({t, ++seq, q, true}, t);
+      if (read && k == 50) {
+        const Observation o = sim.measure(q, 0.0, rng);
+        TrackerSample s;
+        s.stamp_ns = t;
+        s.sequence = ++seq;
+        s.position_m = o.measured_in_tracker.translation();
+        const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+        s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+        engine.onTrackerSample(s, t);
+      }
+      engine.process(t);
+    }
+  };
+  auto trackerStale = [&] { return engine.staleInputs(t).find("tracker_pose") != std::string::npos; };
+  standStill(qs[0], 2, true);
+  EXPECT_FALSE(trackerStale()) << engine.staleInputs(t);
+  move(qs[0], qs[1], 60);  // works for a minute: moving, no reading
+  EXPECT_FALSE(trackerStale()) << engine.staleInputs(t);
+  const int n = config.engine.stale_stand_stills;
+  for (int k = 0; k < n - 1; ++k) {  // stand-stills the tracker does not measure (a pick, a place)
+    standStill(qs[1 + k % 2], 5, false);
+    move(qs[1 + k % 2], qs[2 - k % 2], 1);
+  }
+  EXPECT_FALSE(trackerStale()) << engine.staleInputs(t);
+  standStill(qs[3], 5, false);
+  move(qs[3], qs[4], 1);
+  EXPECT_TRUE(trackerStale()) << engine.staleInputs(t);
+  EXPECT_NE(engine.staleInputs(t).find("stand-stills"), std::string::npos) << engine.staleInputs(t);
+  EXPECT_EQ(engine.staleInputs(t).find("joint_state"), std::string::npos) << engine.staleInputs(t);
+  standStill(qs[4], 2, true);
+  EXPECT_FALSE(trackerStale()) << engine.staleInputs(t);
+  // Joint states stop: stale after stale_input_s.
+  EXPECT_NE(engine.staleInputs(t + static_cast<std::int64_t>((config.engine.stale_input_s + 0.5) * 1e9)).find("joint_state"),
+            std::string::npos);
+  // A plain time limit when set.
+  EngineSettings timed = config.engine;
+  timed.tracker_silence_s = 30;
+  CalibrationEngine timed_engine(robot, timed, 1.0);
+  TrackerSample s;
+  s.stamp_ns = t;
+  s.sequence = 1;
+  s.position_m = Eigen::Vector3d(1, 0, 0);
+  timed_engine.onTrackerSample(s, t);
+  EXPECT_EQ(timed_engine.staleInputs(t + 20'000'000'000).find("tracker_pose"), std::string::npos);
+  EXPECT_NE(timed_engine.staleInputs(t + 40'000'000'000).find("tracker_pose: nothing for 40.0 s"), std::string::npos)
+      << timed_engine.staleInputs(t + 40'000'000'000);
+}
+
 }  // namespace
 }  // namespace cellcal

@@ -118,7 +118,9 @@ class CalibrationEngine {
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
-  // A stream counts as stale after EngineSettings::stale_input_s without a sample (or before its first one).
+  // Joint states: stale after EngineSettings::stale_input_s without a sample (or before the first). Tracker readings:
+  // after stale_stand_stills stand-stills of the robot in a row without one (a robot that works between campaigns,
+  // moving or standing, is not a stale tracker), or after tracker_silence_s without one when that is set.
   std::string staleInputs(std::int64_t now_ns) const;
   // Wall time of the last update (linearization + RLS), ns.
   std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
@@ -164,6 +166,9 @@ class CalibrationEngine {
   };
   std::deque<Recent> recent_;
   std::int64_t last_joint_ns_ = 0, last_tracker_ns_ = 0;  // receive time of the last sample per stream
+  // Stand-stills (settled joint states at one configuration) and whether a tracker reading came during each.
+  bool in_stand_still_ = false, read_in_stand_still_ = false;
+  int stand_stills_without_reading_ = 0;
   struct Good {  // the last version published with health ok
     std::uint64_t version = 0;
     Eigen::VectorXd params, extension_params;

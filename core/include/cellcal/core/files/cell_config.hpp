@@ -61,7 +61,13 @@ struct EngineSettings {
   double max_pairing_skew_s = 0.05;            // joint state used for a tracker reading: at most this far in time
   double settle_tolerance_rad = 1e-5;          // joints of the bracketing states may differ by at most this
   double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem; 0 = off
-  double stale_input_s = 3.0;                  // no tracker/joint sample for this long: stale_input in diagnostics
+  // Stale inputs (stale_input in the diagnostics). Joint states: none for stale_input_s (a controller streams without
+  // pause). Tracker readings come only while the robot stands still for them, so a pause in the robot program is not
+  // an alarm: stale after stale_stand_stills stand-stills in a row without a reading, or, when tracker_silence_s > 0,
+  // after that long without one.
+  double stale_input_s = 3.0;
+  int stale_stand_stills = 3;
+  double tracker_silence_s = 0;
   double republish_period_s = 1.0;             // CalibrationState and diagnostics are republished this often
   // Outlier gate on a pose's normalized innovation squared (NIS; chi-square with the measurement rows as dof when the
   // noise model holds, mean 1 per row): gated above this many per row, times the recent median NIS per row when that
