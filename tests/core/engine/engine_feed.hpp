@@ -25,6 +25,17 @@ inline std::string tempDir(const std::string& name) {
   return d.string();
 }
 
+// The tracker sample of a simulated reading: its pose (quaternion x, y, z, w), stamp and sequence number.
+inline TrackerSample trackerSample(const Observation& o, std::int64_t stamp_ns, std::uint64_t sequence) {
+  TrackerSample s;
+  s.stamp_ns = stamp_ns;
+  s.sequence = sequence;
+  s.position_m = o.measured_in_tracker.translation();
+  const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
+  s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+  return s;
+}
+
 // The simulated cell's robot program streamed at the joint-state rate: every joint state, a tracker reading in each
 // stand-still, process() after every joint state; cell time compressed as in the cell file.
 struct Feed {
@@ -56,12 +67,7 @@ struct Feed {
           if (!read && t >= read_at) {
             read = true;
             const Observation o = cell.measure(st.q_rad, &hidden, t / 3600.0, rng);
-            TrackerSample s;
-            s.stamp_ns = wallNs(t) - 1000;
-            s.sequence = ++tseq;
-            s.position_m = o.measured_in_tracker.translation();
-            const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
-            s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
+            TrackerSample s = trackerSample(o, wallNs(t) - 1000, ++tseq);
             for (int i = 0; i < 3; ++i) {
               s.covariance[i * 7] = o.sigma_position_m * o.sigma_position_m;
               s.covariance[(i + 3) * 7] = o.sigma_orientation_rad * o.sigma_orientation_rad;
@@ -86,14 +92,7 @@ struct Stream {
   double cell_h = 0;
 
   TrackerSample reading(const Eigen::VectorXd& q) {
-    const Observation o = sim.measure(q, cell_h, rng);
-    TrackerSample s;
-    s.stamp_ns = t_ns;
-    s.sequence = ++seq;
-    s.position_m = o.measured_in_tracker.translation();
-    const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
-    s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
-    return s;
+    return trackerSample(sim.measure(q, cell_h, rng), t_ns, ++seq);
   }
   // Feeds `s` (made by reading() for q) as the reading of a stand-still at q.
   // The robot arrives (a moving joint state), stands still around the reading, then the engine processes.

@@ -92,14 +92,7 @@ TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
     for (int k = 0; k < 100; ++k) {  // standing still: the tracker streams at 1 kHz
       t += 1'000'000;
       engine.onJointState({t, ++seq, q, true}, t);
-      const Observation o = sim.measure(q, 0.0, rng);
-      TrackerSample s;
-      s.stamp_ns = t;
-      s.sequence = ++seq;
-      s.position_m = o.measured_in_tracker.translation();
-      const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
-      s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
-      engine.onTrackerSample(s, t);
+      engine.onTrackerSample(test::trackerSample(sim.measure(q, 0.0, rng), t, ++seq), t);
       engine.process(t);
       ++readings;
     }
@@ -325,14 +318,7 @@ TEST_F(EngineFixture, APauseInTheProgramIsNotAStaleTracker) {
       t += 10'000'000;
       engine.onJointState({t, ++seq, q, true}, t);
       if (read && k == 50) {
-        const Observation o = sim.measure(q, 0.0, rng);
-        TrackerSample s;
-        s.stamp_ns = t;
-        s.sequence = ++seq;
-        s.position_m = o.measured_in_tracker.translation();
-        const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
-        s.orientation_xyzw = {qn.x(), qn.y(), qn.z(), qn.w()};
-        engine.onTrackerSample(s, t);
+        engine.onTrackerSample(test::trackerSample(sim.measure(q, 0.0, rng), t, ++seq), t);
       }
       engine.process(t);
     }
