@@ -83,7 +83,11 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
   std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", std::localtime(&now));
   out << "cellcal status  " << when << "  domain " << cell.dds.domain_id << " (" << cell.dds.participant_profile
       << ")  engine " << (engine_writers > 0 ? "seen" : "NOT SEEN") << ", compensation "
-      << (compensation_writers > 0 ? "seen" : "not seen") << "\n\n";
+      << (compensation_writers > 0 ? "seen" : "not seen") << "\n";
+  if (engine_writers == 0)  // the usual reason on one host: `cellcal cell` joins on another profile
+    out << "  (no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile
+        << ": `cellcal cell` runs on cellcal_loopback, try --dds-profile cellcal_loopback; or --domain-id)\n";
+  out << "\n";
   out << std::left << std::setw(12) << "robot" << std::setw(8) << "version" << std::setw(15) << "health"
       << std::setw(7) << "poses" << std::setw(12) << "verify" << std::setw(12) << "predicted" << std::setw(12)
       << "residual" << std::setw(34) << "correction: last (max)" << std::setw(10) << "rejected" << "\n";
