@@ -26,7 +26,9 @@ build: configure
 demo: build
 	$(BUILD_DIR)/bin/cellcal cell --duration-s 32 --work-dir $(BUILD_DIR)/demo/cell \
 	  --summary-json $(BUILD_DIR)/demo/cell-summary.json --record $(BUILD_DIR)/demo/demo.mcap
-	$(BUILD_DIR)/bin/cellcal validate $(BUILD_DIR)/demo/demo.mcap --json $(BUILD_DIR)/demo/validate.json --require-match
+	$(BUILD_DIR)/bin/cellcal validate $(BUILD_DIR)/demo/demo.mcap --json $(BUILD_DIR)/demo/validate.json --require-match \
+	  --figures $(BUILD_DIR)/demo/figures
+	@echo "demo: figures in $(BUILD_DIR)/demo/figures: $$(ls $(BUILD_DIR)/demo/figures/*.png | tr '\n' ' ')"
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)

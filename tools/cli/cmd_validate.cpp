@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <numeric>
 #include <set>
@@ -45,7 +46,23 @@ void writeRecordingFigures(const std::string& dir, const std::string& robot, con
   drift << "t_h";
   for (int j = 0; j < model.numJoints(); ++j) drift << " joint" << j + 1;
   drift << "\n";
-  for (const auto& v : versions) {
+  // A pause (no calibration for 20 times the median interval: the robot worked, the cell was off) breaks the lines:
+  // gnuplot starts a new segment after a blank line, instead of drawing across hours without data.
+  std::vector<double> gaps;
+  for (size_t k = 1; k < versions.size(); ++k)
+    gaps.push_back(static_cast<double>(versions[k].last_measurement_stamp_ns - versions[k - 1].last_measurement_stamp_ns));
+  double pause_ns = std::numeric_limits<double>::infinity();
+  if (!gaps.empty()) {
+    std::vector<double> sorted = gaps;
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+    if (sorted[sorted.size() / 2] > 0) pause_ns = 20 * sorted[sorted.size() / 2];
+  }
+  for (size_t k = 0; k < versions.size(); ++k) {
+    const auto& v = versions[k];
+    if (k > 0 && gaps[k - 1] > pause_ns) {
+      acc << '\n';
+      drift << '\n';
+    }
     const double t_h = (static_cast<double>(v.last_measurement_stamp_ns) - t0) / 3.6e12;
     auto num = [](double x) { return std::isfinite(x) ? std::to_string(x) : std::string("NaN"); };
     acc << t_h << ' ' << num(v.verification_mean_position_m * 1e3) << ' ' << num(v.residual_rms_position_m * 1e3) << '\n';
@@ -250,11 +267,14 @@ int runValidate(const ValidateArgs& a) {
     const double first_window_mm = first_windows.empty() ? std::nan("") : first_windows.front();
     const double first_ten_mm = first_windows.size() < 10 ? std::nan("")
                                 : std::accumulate(first_windows.begin(), first_windows.end(), 0.0) / 10;
-    if (!first_windows.empty())
-      std::printf("validate: %s: a-priori mean position error of the first %zu poses %.4f mm, of the first %zu %.4f mm "
-                  "(started %s)\n", id.c_str(), CalibrationEngine::kRecentPoses, first_window_mm,
-                  10 * CalibrationEngine::kRecentPoses, first_ten_mm,
+    if (!first_windows.empty()) {
+      std::printf("validate: %s: a-priori mean position error of the first %zu poses %.4f mm", id.c_str(),
+                  CalibrationEngine::kRecentPoses, first_window_mm);
+      if (std::isfinite(first_ten_mm))
+        std::printf(", of the first %zu %.4f mm", 10 * CalibrationEngine::kRecentPoses, first_ten_mm);
+      std::printf(" (started %s)\n",
                   hosted.robot->start ? ("from " + hosted.robot->calibration_file).c_str() : "from the nominal model");
+    }
     if (run.recorded.empty()) {
       std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
     } else {
