@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -76,6 +77,7 @@ struct Judge {
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
   std::uint64_t target_seq = 0, applied = 0, refused = 0;
+  std::map<std::string, std::uint64_t> refused_why;  // the compensation publisher's reason, without its figures
   std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
 
   double verify(const IdentifiedModel& m, double t_h) const {
@@ -224,6 +226,7 @@ class CellJudge {
                         {"in_process_verify_after_mm", ref},
                         {"targets_applied", j.applied},
                         {"targets_refused", j.refused},
+                        {"targets_refused_why", j.refused_why},
                         {"correction_mean_mm", mean(j.correction_mm)},
                         {"correction_mean_deg", mean(j.correction_deg)},
                         {"landed_error_compensated_mean_mm", mean(j.compensated_error_mm)},
@@ -250,6 +253,18 @@ class CellJudge {
                 "p50 %.0f us, p99 %.0f us\n",
                 percentile(tracker_to_state_us_, 0.5), percentile(tracker_to_state_us_, 0.99),
                 percentile(target_to_compensated_us_, 0.5), percentile(target_to_compensated_us_, 0.99));
+    // Targets passed through uncorrected, and why (# stands for the figures of each answer).
+    for (const auto& j : judges_) {
+      if (!j.refused) continue;
+      std::printf("cell: %s: %llu of %llu targets passed through uncorrected:", j.robot->robot_id.c_str(),
+                  static_cast<unsigned long long>(j.refused), static_cast<unsigned long long>(j.refused + j.applied));
+      const char* sep = " ";
+      for (const auto& [why, n] : j.refused_why) {
+        std::printf("%s%llu %s", sep, static_cast<unsigned long long>(n), why.c_str());
+        sep = "; ";
+      }
+      std::printf("\n");
+    }
   }
 
   nlohmann::json topicStats() const { return node_.stats(); }
@@ -308,6 +323,17 @@ class CellJudge {
     j->sent.erase(it);
     if (!m.applied()) {
       ++j->refused;
+      // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
+      std::string why;
+      for (char ch : m.reason().to_string()) {
+        if (ch == ';') break;
+        if (std::isdigit(static_cast<unsigned char>(ch)) || ch == '.') {
+          if (why.empty() || why.back() != '#') why += '#';
+        } else {
+          why += ch;
+        }
+      }
+      ++j->refused_why[why];
       return;
     }
     ++j->applied;

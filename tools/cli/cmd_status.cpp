@@ -89,7 +89,7 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
         << ": `cellcal cell` runs on cellcal_loopback, try --dds-profile cellcal_loopback; or --domain-id)\n";
   out << "\n";
   out << std::left << std::setw(12) << "robot" << std::setw(8) << "version" << std::setw(15) << "health"
-      << std::setw(7) << "poses" << std::setw(12) << "verify" << std::setw(12) << "predicted" << std::setw(12)
+      << std::setw(7) << "poses" << std::setw(12) << "a-priori" << std::setw(12) << "predicted" << std::setw(12)
       << "residual" << std::setw(34) << "correction: last (max)" << std::setw(10) << "rejected" << "\n";
   for (const auto& [id, r] : robots) {
     std::uint64_t rejected = 0;
@@ -229,7 +229,9 @@ Runner addStatusCommand(CLI::App& app) {
       "  cellcal status --watch               live view, redrawn every second\n"
       "  cellcal status --json status.json    for scripts and monitoring\n"
       "COLUMNS\n"
-      "  verify     mean position error of each pose predicted before it was used (a-priori), from CalibrationState\n"
+      "  a-priori   running a-priori error: mean position error of the recent poses, each predicted before it was used\n"
+      "             (CalibrationState.verification_mean_position_m; `cellcal cell`'s hold-out error is the simulated\n"
+      "             truth at fresh poses, another measure)\n"
       "  predicted  the estimate's own 1-sigma position error, worst of 16 reference poses (CalibrationDiagnostics)\n"
       "  residual   RMS position residual over the recent poses (a-posteriori)\n"
       "EXIT STATUS\n"

@@ -244,7 +244,7 @@ int runValidate(const ValidateArgs& a) {
         ++mismatched;
         if (first_mismatch.empty())
           first_mismatch = "v" + std::to_string(c.version) + ": " + d.worst + " differs by " + std::to_string(d.worst_ratio) +
-                           "x the tolerance; verification by " + std::to_string(d.verification_m * 1e3) + " mm";
+                           "x the tolerance; a-priori error by " + std::to_string(d.verification_m * 1e3) + " mm";
       }
     }
     std::uint64_t missing = 0;
@@ -254,7 +254,7 @@ int runValidate(const ValidateArgs& a) {
     const ReceivedCalibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
     const ReceivedCalibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
     std::printf("validate: %s: %llu joint states, %llu tracker readings -> %zu calibrations (last v%llu, %u poses, "
-                "verification %.4f mm)\n",
+                "running a-priori error %.4f mm: the last 30 poses, each predicted before it was used)\n",
                 id.c_str(), static_cast<unsigned long long>(run.joint_states),
                 static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
                 static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
@@ -278,13 +278,13 @@ int runValidate(const ValidateArgs& a) {
     if (run.recorded.empty()) {
       std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
     } else {
-      std::printf("validate: %s: %zu recorded calibrations (last v%llu, verification %.4f mm): %llu compared, %llu differ, "
+      std::printf("validate: %s: %zu recorded calibrations (last v%llu, running a-priori error %.4f mm): %llu compared, %llu differ, "
                   "%llu recorded but not reproduced, %llu reproduced but not recorded\n",
                   id.c_str(), run.recorded.size(), static_cast<unsigned long long>(last_rec->version),
                   last_rec->verification_mean_position_m * 1e3, static_cast<unsigned long long>(compared),
                   static_cast<unsigned long long>(mismatched), static_cast<unsigned long long>(missing),
                   static_cast<unsigned long long>(not_recorded));
-      std::printf("validate: %s: largest differences: %.3g m, %.3g rad, verification %.3g m (tolerance %.0e m, %.0e rad)%s\n",
+      std::printf("validate: %s: largest differences: %.3g m, %.3g rad, running a-priori error %.3g m (tolerance %.0e m, %.0e rad)%s\n",
                   id.c_str(), worst.length_m, worst.angle_rad, worst.verification_m, a.tolerance_m, a.tolerance_rad,
                   first_mismatch.empty() ? "" : ("; first: " + first_mismatch).c_str());
     }
