@@ -19,6 +19,7 @@
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
+#include "progress.hpp"
 
 namespace cellcal::cli {
 namespace {
@@ -309,7 +310,12 @@ int runCalibrate(const CalibrateArgs& a) {
         o.identifiability.rank_tolerance = a.rank_tolerance;
         o.outliers = p.outliers;
         o.excitation_ratio = a.excitation_ratio;
+        ProgressBar bar("calibrate --model auto");  // tens of fits on a large file; drawn only on a terminal
+        o.progress = [&bar](int done, int total) {
+          bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
+        };
         const DiagnosisResult d = diagnose(robot, start, in.data, o);
+        bar.done();
         after = d.best().fit;
         held_after = d.best().held;
         ident_outliers = d.identification_outliers;
@@ -382,6 +388,20 @@ int runCalibrate(const CalibrateArgs& a) {
       std::printf("  verification:   %zu rows: %s\n", verify_outliers.rows.size(),
                   linesText(verify_outliers.rows, in.verification_lines).c_str());
   }
+  // The estimated parameters: value, change from the start (the robot file's, frames registered) and 1 sigma.
+  // The readings' sigmas weight the fit; the residual says how far they hold: the sigmas are scaled by the square root
+  // of the a-posteriori variance factor (1 when the readings' sigmas and the model are right).
+  const double vf = std::sqrt(std::max(1.0, a.frames_only ? 1.0 : pm.variance_factor));
+  std::printf("\nestimated parameters: value, change from the start, 1 sigma (the fit's, x %.2f: the root of the "
+              "variance factor)\n", vf);
+  for (int i : after.estimated) {
+    const double sd = after.paramStddev(i);
+    std::printf("  %-24s %12.4f %+10.4f  sigma %.4f\n", robot.paramNameHuman(i).c_str(), robot.toHuman(i, after.params[i]),
+                robot.toHuman(i, after.params[i] - start[i]), std::isnan(sd) ? 0.0 : vf * robot.toHuman(i, sd));
+  }
+  for (int k : after.estimated_extension)
+    std::printf("  %-24s %12.6g %+10.3g  sigma %.3g\n", after.extension_names[k].c_str(), after.extension_params[k],
+                after.extension_params[k], vf * after.extensionStddev(k));
   for (const auto& h : held_after) std::printf("held: %s\n", deficitText(h).c_str());
   if (!a.frames_only)
     std::printf("predicted model error (1 sigma, position): identification rows %.4f mm RMS (max %.4f), verification "
