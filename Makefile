@@ -31,9 +31,10 @@ demo: build
 	@echo "demo: figures in $(BUILD_DIR)/demo/figures: $$(ls $(BUILD_DIR)/demo/figures/*.png | tr '\n' ' ')"
 
 test: build
-	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
+	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE bench
 
 bench: build
+	cd $(BUILD_DIR) && ctest --output-on-failure -L bench
 	$(BUILD_DIR)/bin/cellcal_bench
 	$(BUILD_DIR)/bin/cellcal_ik_sweep --seeds 5000
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
