@@ -5,7 +5,7 @@ BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 
-.PHONY: all deps configure build demo test bench install clean
+.PHONY: all deps configure build demo test bench install clean fuzz
 
 all: build
 
@@ -32,6 +32,10 @@ demo: build
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE bench
+
+# libFuzzer on every file parser, 300 s each (make test runs a 5 s smoke of the same).
+fuzz: build
+	tools/fuzz.sh 300 $(BUILD_DIR)/fuzz
 
 bench: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -L bench

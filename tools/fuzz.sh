@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Builds the libFuzzer targets (tests/fuzz) with clang and runs each for a bounded time on its corpus.
 #   tools/fuzz.sh [seconds per target, default 20] [build dir, default build/fuzz]
-# CI runs it through ctest (Fuzz.Parsers, 20 s each); a longer hunt: tools/fuzz.sh 3600.
+# `make test` runs a smoke through ctest (Fuzz.Parsers, 5 s each: the corpus replayed, a short hunt); `make fuzz`
+# 300 s each; a longer hunt: tools/fuzz.sh 3600.
 # A finding leaves its input in <build dir>/findings/<target>/ and makes the script exit non-zero; add it to
 # tests/fuzz/corpus/<target>/ once fixed, so every later run replays it.
 set -euo pipefail
@@ -9,9 +10,11 @@ SECONDS_PER_TARGET="${1:-20}"
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 BUILD="${2:-$ROOT/build/fuzz}"
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (make deps installs clang and libclang-rt-14-dev)" >&2; exit 1; }
+echo "fuzz: building the libFuzzer targets with clang in $BUILD (the first time several minutes, then only what changed; log: $BUILD.build.log)"
 cmake -S "$ROOT/tests/fuzz" -B "$BUILD" -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUILD_TYPE=RelWithDebInfo >"$BUILD.configure.log" 2>&1 ||
   { cat "$BUILD.configure.log" >&2; exit 1; }
 cmake --build "$BUILD" -j "$(nproc)" >"$BUILD.build.log" 2>&1 || { tail -50 "$BUILD.build.log" >&2; exit 1; }
+echo "fuzz: built; running each parser for $SECONDS_PER_TARGET s"
 status=0
 for t in robot_yaml cell_yaml measurement_csv mcap; do
   corpus="$ROOT/tests/fuzz/corpus/$t"
