@@ -643,6 +643,11 @@ NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, con
   std::vector<const Eigen::VectorXd*> q;
   for (const auto& o : fitted) q.push_back(&o.q_rad);
   for (const auto& o : predicted) q.push_back(&o.q_rad);
+  // A row the model cannot predict (before a backlash joint first moves: its play state unknown) differs from its
+  // repeat by the play, not by the readings' noise: it is no repeat.
+  std::vector<bool> known;
+  for (const auto& d : fitted_drivers) known.push_back(!unpredictable(fit.extensions, d));
+  for (const auto& d : predicted_drivers) known.push_back(!unpredictable(fit.extensions, d));
   constexpr double kSameRad = 2e-3;
   std::vector<size_t> order(q.size());
   for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -653,9 +658,9 @@ NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, con
     const size_t i = order[a];
     if (group[i] >= 0) continue;
     group[i] = groups;
-    for (size_t b = a + 1; b < order.size() && (*q[order[b]])[0] - (*q[i])[0] < kSameRad; ++b) {
+    for (size_t b = a + 1; known[i] && b < order.size() && (*q[order[b]])[0] - (*q[i])[0] < kSameRad; ++b) {
       const size_t k = order[b];
-      if (group[k] < 0 && ((*q[k]) - (*q[i])).cwiseAbs().maxCoeff() < kSameRad) group[k] = groups;
+      if (group[k] < 0 && known[k] && ((*q[k]) - (*q[i])).cwiseAbs().maxCoeff() < kSameRad) group[k] = groups;
     }
     ++groups;
   }
