@@ -1,7 +1,5 @@
 #include "engine_process.hpp"
 
-#include <cctype>
-
 #include <unistd.h>
 
 #include <chrono>
@@ -89,10 +87,7 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
   // Say it once on stderr when it changes (the diagnostics topic carries it every republish period).
   const auto& snap = r.engine->snapshot();
   // Without its figures ("nothing for 4.1 s" grows every period): a line when what is stale changes, not each second.
-  std::string stale_key;
-  for (char ch : stale)
-    if (!std::isdigit(static_cast<unsigned char>(ch)) && ch != '.') stale_key += ch;
-  const std::string line = stale_key + "|" + r.persist_error + "|" + snap.health_reason;
+  const std::string line = maskFigures(stale) + "|" + r.persist_error + "|" + snap.health_reason;
   if (p.reported == line) return;
   p.reported = line;
   const std::string& id = r.robot->robot_id;

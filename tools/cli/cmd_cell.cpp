@@ -8,7 +8,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -324,16 +323,8 @@ class CellJudge {
     if (!m.applied()) {
       ++j->refused;
       // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
-      std::string why;
-      for (char ch : m.reason().to_string()) {
-        if (ch == ';') break;
-        if (std::isdigit(static_cast<unsigned char>(ch)) || ch == '.') {
-          if (why.empty() || why.back() != '#') why += '#';
-        } else {
-          why += ch;
-        }
-      }
-      ++j->refused_why[why];
+      const std::string reason = m.reason().to_string();
+      ++j->refused_why[maskFigures(reason.substr(0, reason.find(';')))];
       return;
     }
     ++j->applied;

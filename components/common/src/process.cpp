@@ -1,5 +1,6 @@
 #include "cellcal/components/process.hpp"
 
+#include <cctype>
 #include <atomic>
 #include <csignal>
 #include <cstdlib>
@@ -97,6 +98,18 @@ void writeJsonFile(const std::string& path, const nlohmann::json& j) {
     out << j.dump(2) << "\n";
   }
   std::filesystem::rename(tmp, path);
+}
+
+std::string maskFigures(const std::string& text) {
+  std::string out;
+  for (char ch : text) {
+    if (std::isdigit(static_cast<unsigned char>(ch)) || ch == '.') {
+      if (out.empty() || out.back() != '#') out += '#';
+    } else {
+      out += ch;
+    }
+  }
+  return out;
 }
 
 int usageExit(CLI::App& app, const CLI::ParseError& e) { return app.exit(e) == 0 ? 0 : 2; }

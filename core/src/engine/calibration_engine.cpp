@@ -12,6 +12,7 @@
 #include <stdexcept>
 
 #include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/identification/statistics.hpp"
 
@@ -448,21 +449,11 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
 
 // Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state.
 double CalibrationEngine::predictionSigma() const {
-  const RobotModel& m = robot_->model;
-  KinematicsData data(m);
-  Eigen::MatrixXd J(6, m.numParams());
-  const auto& est = rls_->estimated();
-  const auto n = static_cast<Eigen::Index>(est.size());
-  const Eigen::MatrixXd P = rls_->covariance().topLeftCorner(n, n);
-  Eigen::MatrixXd Js(3, n);
+  KinematicsData data(robot_->model);
   double worst = 0;
-  for (const auto& q : reference_q_) {
-    forwardKinematics(m, data, rls_->params(), q);
-    computePoseJacobian(m, data, J);
-    for (Eigen::Index k = 0; k < n; ++k) Js.col(k) = J.col(est[static_cast<size_t>(k)]).head<3>();
-    const double var = (Js * P * Js.transpose()).trace();
-    worst = std::max(worst, std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity());
-  }
+  for (const auto& q : reference_q_)
+    worst = std::max(worst, kinematicPositionSigma(robot_->model, data, rls_->params(), rls_->estimated(),
+                                                   rls_->covariance(), q));
   return worst;
 }
 

@@ -2,6 +2,7 @@
 
 #include <sstream>
 
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -71,12 +72,8 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   }
   KinematicsData data(nominal);
   if (!model.estimated.empty() && model.covariance.rows() == static_cast<Eigen::Index>(model.estimated.size())) {
-    forwardKinematics(nominal, data, identified, ik.q_rad);
-    Eigen::MatrixXd J(6, nominal.numParams());
-    computePoseJacobian(nominal, data, J);
-    Eigen::MatrixXd Js(3, static_cast<Eigen::Index>(model.estimated.size()));
-    for (size_t k = 0; k < model.estimated.size(); ++k) Js.col(static_cast<Eigen::Index>(k)) = J.col(model.estimated[k]).head<3>();
-    out.predicted_sigma_position_m = std::sqrt(std::max(0.0, (Js * model.covariance * Js.transpose()).trace()));
+    out.predicted_sigma_position_m =
+        kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad);
     if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
       std::ostringstream m;
       m << "predicted error " << out.predicted_sigma_position_m * 1e3 << " mm (1 sigma) at this target above "

@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -115,6 +116,19 @@ double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, c
   Eigen::MatrixXd Jp(3, n);
   for (Eigen::Index c = 0; c < n; ++c) Jp.col(c) = J.col(prediction.columns[c]);
   return std::sqrt(std::max(0.0, (Jp * prediction.covariance * Jp.transpose()).trace()));
+}
+
+double kinematicPositionSigma(const RobotModel& model, KinematicsData& data, const Eigen::VectorXd& params,
+                              const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
+                              const Eigen::VectorXd& q_rad) {
+  Eigen::MatrixXd J(6, model.numParams());
+  forwardKinematics(model, data, params, q_rad);
+  computePoseJacobian(model, data, J);
+  const auto n = static_cast<Eigen::Index>(estimated.size());
+  Eigen::MatrixXd Js(3, n);
+  for (Eigen::Index k = 0; k < n; ++k) Js.col(k) = J.col(estimated[static_cast<size_t>(k)]).head<3>();
+  const double var = (Js * covariance.topLeftCorner(n, n) * Js.transpose()).trace();
+  return std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity();
 }
 
 std::vector<ExcitationDeficit> excitationDeficits(const RobotModel& model, const Eigen::VectorXd& params,

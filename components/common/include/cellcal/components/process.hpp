@@ -62,6 +62,10 @@ inline std::int64_t wallNs() {
       .count();
 }
 
+// `text` with each run of figures (digits, decimal points) as one '#': "nothing for 4.1 s" and "nothing for 5.2 s"
+// read alike (a message said once per change, not per figure; reasons counted by kind).
+std::string maskFigures(const std::string& text);
+
 // Writes `j` to `path` (if not empty) through a temporary file and rename.
 void writeJsonFile(const std::string& path, const nlohmann::json& j);
 

@@ -20,6 +20,7 @@
 
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/observation.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
@@ -50,6 +51,13 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
 // 3D position error the model makes there, reading noise not included).
 double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
                               const Eigen::VectorXd& q_rad, const Drivers& drivers);
+
+// Predicted 1-sigma position error (m) of a kinematic estimate at q: sqrt(trace(J P J^T)) over the position rows,
+// J the pose Jacobian's columns `estimated` at `params`, P their covariance. Infinite where it is not finite (a
+// covariance gone bad is never read as a small error). The engine's hold bound and compensation's guard use it.
+double kinematicPositionSigma(const RobotModel& model, KinematicsData& data, const Eigen::VectorXd& params,
+                              const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
+                              const Eigen::VectorXd& q_rad);
 
 // Excitation deficits: parameters the identification rows barely move while other rows of the same data move them
 // strongly. Estimating one would extrapolate: its value would rest on rows where it hardly acts and then decide the
