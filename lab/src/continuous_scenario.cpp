@@ -128,8 +128,8 @@ ContinuousScenarioResult runContinuousScenario(const ContinuousScenario& sc) {
     // Update: drift since the last update as process noise, then the interval's fresh poses one by one.
     const double dt_h = (rows[e - 1].stamp_s - last_update_s) / 3600.0;
     if (dt_h > 0 && sc.options.drift_scale > 0) {
-      rls.addProcessNoise(drift_sigma * std::sqrt(dt_h));
-      rls_ext.addProcessNoise(drift_sigma * std::sqrt(dt_h));
+      rls.addProcessNoise(drift_sigma * std::sqrt(dt_h), rows[0].observation.kind);
+      rls_ext.addProcessNoise(drift_sigma * std::sqrt(dt_h), rows[0].observation.kind);
     }
     for (size_t i : evenlySpaced(b, e, sc.options.poses_per_update)) {
       rls.addObservation(rows[i].observation);

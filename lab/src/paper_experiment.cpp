@@ -40,11 +40,47 @@ struct Group {
   Eigen::VectorXd truth;  // the simulated robot's parameters at t_h (for the figures only)
 };
 
-Eigen::VectorXd jointOffsets(const RobotModel& model, const Eigen::VectorXd& params) {
-  Eigen::VectorXd out(model.numJoints());
-  for (int j = 0; j < model.numJoints(); ++j) out[j] = params[model.jointParam(j, JointParam::kThetaOffset)];
-  return out;
-}
+// Each joint's zero as the estimated parameters carry it (MaintenanceGroup::joint_offsets_rad).
+struct ZeroCarriers {
+  Eigen::MatrixXd T;             // absorption map over the structurally identifiable set
+  std::vector<int> kept;         // its rows' parameters
+  std::vector<Eigen::Index> row;  // per joint: the row that carries its zero
+  std::vector<double> coef;      // per joint: that row's coefficient for the zero
+
+  ZeroCarriers(const RobotModel& model, const Eigen::VectorXd& p0, MeasurementKind kind) {
+    const auto rep = structuralIdentifiability(model, p0, kind);
+    T = rep.absorption;
+    kept = rep.identifiable;
+    for (int j = 0; j < model.numJoints(); ++j) {
+      Eigen::Index r = 0;
+      T.col(model.jointParam(j, JointParam::kThetaOffset)).cwiseAbs().maxCoeff(&r);
+      row.push_back(r);
+      coef.push_back(T(r, model.jointParam(j, JointParam::kThetaOffset)));
+    }
+  }
+  std::string name(const RobotModel& model, int j) const {
+    const int carrier = kept[static_cast<size_t>(row[static_cast<size_t>(j)])];
+    std::string n = "joint " + std::to_string(j + 1);
+    if (carrier != model.jointParam(j, JointParam::kThetaOffset)) n += " (as " + model.paramName(carrier) + ")";
+    return n;
+  }
+  // The estimate's change since p0, per joint.
+  Eigen::VectorXd estimate(const Eigen::VectorXd& params, const Eigen::VectorXd& p0) const {
+    Eigen::VectorXd out(static_cast<Eigen::Index>(row.size()));
+    for (size_t j = 0; j < row.size(); ++j) {
+      const int k = kept[static_cast<size_t>(row[j])];
+      out[static_cast<Eigen::Index>(j)] = coef[j] != 0 ? (params[k] - p0[k]) / coef[j] : 0.0;
+    }
+    return out;
+  }
+  // The truth's change since p0 in the same parametrization.
+  Eigen::VectorXd truth(const Eigen::VectorXd& truth, const Eigen::VectorXd& p0) const {
+    const Eigen::VectorXd mapped = T * (truth - p0);
+    Eigen::VectorXd out(static_cast<Eigen::Index>(row.size()));
+    for (size_t j = 0; j < row.size(); ++j) out[static_cast<Eigen::Index>(j)] = coef[j] != 0 ? mapped[row[j]] / coef[j] : 0.0;
+    return out;
+  }
+};
 
 std::vector<Observation> firstN(const std::vector<Observation>& v, int n) {
   return {v.begin(), v.begin() + std::min<size_t>(n, v.size())};
@@ -105,6 +141,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
   out.true_error_nominal_m = mean(positionErrors(model, p0, groups[0].verify));
 
   const std::vector<int> all = model.canonicalParams();
+  const ZeroCarriers zeros(model, p0, cfg.kind);
+  for (int j = 0; j < model.numJoints(); ++j) out.joint_zero_names.push_back(zeros.name(model, j));
   const Eigen::VectorXd drift = cfg.drift.sigmas(model);
   const GaussianPrior prior0 = diagonalPrior(model, p0, all, cfg.prior_sigma_length_m, cfg.prior_sigma_angle_rad);
   const int total_steps =
@@ -146,8 +184,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       mg.update_time_s = since(t0);
       mg.ident_after_m = mean(positionErrors(model, params(), used));
       mg.verify_after_m = mean(positionErrors(model, params(), groups[g].verify));
-      mg.joint_offsets_rad = jointOffsets(model, params());
-      mg.true_joint_offsets_rad = jointOffsets(model, groups[g].truth);
+      mg.joint_offsets_rad = zeros.estimate(params(), p0);
+      mg.true_joint_offsets_rad = zeros.truth(groups[g].truth, p0);
       run.groups.push_back(mg);
     }
     summarize(run);
@@ -173,7 +211,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
-            if (g > 0) rls.addProcessNoise(drift);
+            if (g > 0) rls.addProcessNoise(drift, cfg.kind);
             const auto t0 = Clock::now();
             for (const auto& o : used) rls.addObservation(o);
             rls_time += since(t0);
@@ -198,7 +236,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       run.pose_selection = "i-optimal";
       const Chooser choose = [&](int g, int count) {
         if (g == 0) return firstN(groups[g].ident, count);
-        rls.addProcessNoise(drift);
+        rls.addProcessNoise(drift, cfg.kind);
         std::vector<Eigen::VectorXd> qs;
         if (cfg.selection_candidates > 0) {
           qs = cell.randomConfigurations(cfg.selection_candidates, select_rng);
@@ -245,9 +283,10 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
-            if (g > 0)
-              for (Eigen::Index i = 0; i < prior.covariance.rows(); ++i)
-                prior.covariance(i, i) += drift[prior.indices[i]] * drift[prior.indices[i]];
+            if (g > 0) {  // as RlsCalibrator::addProcessNoise: with the drift of the parameters they stand for
+              const Eigen::MatrixXd T = structuralAbsorption(model, params, cfg.kind, prior.indices);
+              prior.covariance += T * drift.cwiseAbs2().asDiagonal() * T.transpose();
+            }
             CalibrationProblem p{&model, params, used, prior, {}, {}};
             const auto r = solveLevenbergMarquardt(p);
             params = r.params;

@@ -1,9 +1,10 @@
 // The paper experiment on fresh random robots: the published targets hold.
-// Measured rates (cellcal experiment paper --seeds 300 --seed 1000, 2026-11-28): every continuous RLS update within
-// 1.5x the noise floor for 97.7% of robots with 20 poses and 88.3% with 15 random poses; when RLS chooses its poses,
-// 100% and 97.3%. The test draws 10 robots per run and asserts counts whose chance of failing by bad luck is
-// 1e-4-4e-4 at those rates (binomial) while a real regression fails them. (With 5 robots and the rates of an earlier
-// run, 99.7 / 93.3 / 100 / 99.3 %, the counts failed a CI run: CELLCAL_TEST_SEED=18191186204246796854.)
+// Measured rates (cellcal experiment paper --seeds 300 --seed 1000, 2026-11-29): every continuous RLS update within
+// 1.5x the noise floor for 99.7% of robots with 20 poses and 93.3% with 15 random poses; when RLS chooses its poses,
+// 100% and 99.3%. The test draws 10 robots per run and asserts counts whose chance of failing by bad luck is
+// below 4e-4 at those rates (binomial) while a real regression fails them. (From d78b375 to 9d8d77e the rates were
+// 97.7 / 88.3 / 100 / 97.3 %: the drift of the parameters dropped for the tool frame was lost, see RlsDrift in
+// test_rls.cpp; the 5-robot counts of that time failed a CI run, CELLCAL_TEST_SEED=18191186204246796854.)
 #include <gtest/gtest.h>
 
 #include "cellcal/lab/paper_experiment.hpp"
@@ -58,12 +59,12 @@ TEST(PaperExperiment, ContinuousCalibrationStaysNearTheNoiseFloor) {
     EXPECT_EQ(continuous_rls, 2 * static_cast<int>(cfg.continuous_poses.size()));  // random and chosen poses
     EXPECT_GT(r.rls_time_per_pose_s, 0);
   }
-  // P(fail by chance) at the measured rates: within20 >= 7 of 10 at 97.7 %: 5e-5; within15 >= 5 at 88.3 %: 4e-4;
-  // selected20 >= 9 at 99.7 %: 4e-4; selected15 >= 7 at 97.3 %: 1e-4.
-  EXPECT_GE(within20, robots - 3) << "robots whose every 20-pose update stayed within 1.5x the floor";
-  EXPECT_GE(within15, robots / 2) << "robots whose every 15-pose update stayed within 1.5x the floor";
+  // P(fail by chance) at the measured rates: within20 >= 9 of 10 at 99.7 %: 4e-4; within15 >= 6 at 93.3 %: 4e-4;
+  // selected20 >= 9 (300 of 300 measured; at 99.7 %: 4e-4); selected15 >= 8 at 99.3 %: 4e-5.
+  EXPECT_GE(within20, robots - 1) << "robots whose every 20-pose update stayed within 1.5x the floor";
+  EXPECT_GE(within15, robots - 4) << "robots whose every 15-pose update stayed within 1.5x the floor";
   EXPECT_GE(selected20, robots - 1) << "same with 20 chosen poses";
-  EXPECT_GE(selected15, robots - 3) << "same with 15 chosen poses";
+  EXPECT_GE(selected15, robots - 2) << "same with 15 chosen poses";
 }
 
 TEST(PaperExperiment, InvalidConfigIsReported) {

@@ -241,13 +241,19 @@ void writePlots(const PaperExperimentResult& r, const std::string& dir) {
            << (mg.joint_offsets_rad[j] - first.joint_offsets_rad[j]) * 180 / kPi * 1e3;
       d4 << "\n";
     }
-    g4 << "set title 'Joint zero drift since the initial calibration: truth (lines) and continuous RLS, 15 poses per "
-          "update (points)'\nset xlabel 'time (h)'\nset ylabel 'zero offset change (millidegrees)'\nset grid\n"
+    g4 << "set title 'Joint zero drift: truth (lines), continuous RLS with 15 poses per update (points)'\nset xlabel 'time (h)'\nset ylabel 'zero offset change (millidegrees)'\nset grid\n"
        << "set key outside right\n"
+       << "names = \"";
+    for (Eigen::Index j = 0; j < joints; ++j)
+      g4 << (j ? " " : "") << "'"
+         << (static_cast<size_t>(j) < r.joint_zero_names.size() ? r.joint_zero_names[static_cast<size_t>(j)]
+                                                                 : "joint " + std::to_string(j + 1))
+         << "'";
+    g4 << "\"\n"
        << "plot for [j=1:" << joints << "] datafile using 1:(column(2*j)) skip 1 with lines lw 2 lc j "
-          "title sprintf('joint %d truth', j), "
+          "title word(names, j).' truth', "
        << "for [j=1:" << joints << "] datafile using 1:(column(2*j+1)) skip 1 with points pt 7 ps 1.2 lc j "
-          "title sprintf('joint %d RLS', j)\n";
+          "title word(names, j).' RLS'\n";
     if (!renderGnuplot(dir, "joint_drift", d4.str(), g4.str(), &err)) std::cerr << "warning: " << err << "\n";
   }
 }

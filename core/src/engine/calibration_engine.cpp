@@ -171,10 +171,10 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   const auto now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
                           std::chrono::system_clock::now().time_since_epoch()).count();
   const double age_h = date_ns ? std::max(0.0, static_cast<double>(now_ns - *date_ns) * 1e-9 / 3600.0) : 0.0;
-  for (Eigen::Index k = 0; k < ne; ++k) {
-    const double sd = drift_sigma_[est[static_cast<size_t>(k)]];
-    P(k, k) += sd * sd * age_h / settings_->drift_per_h;
-  }
+  // Each estimated parameter also takes the drift of those it stands for (structuralAbsorption).
+  const Eigen::MatrixXd T = structuralAbsorption(m, m.nominal, robot_->measurement, est);
+  P.topLeftCorner(ne, ne) +=
+      T * drift_sigma_.cwiseAbs2().asDiagonal() * T.transpose() * (age_h / settings_->drift_per_h);
   int capped = 0;
   for (Eigen::Index k = 0; k < n; ++k)
     if (P(k, k) > prior_sd[k] * prior_sd[k]) {
@@ -407,7 +407,7 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
   // Random walk of the parameters over the cell time since the previous update.
   if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
     const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
-    rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h));
+    rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h), robot_->measurement);
   }
   const Observation& o = p.observation;
   const Pose before = rls_->predict(o.q_rad, drivers);

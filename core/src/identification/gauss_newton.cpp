@@ -1,4 +1,6 @@
+#include <Eigen/Cholesky>
 #include <Eigen/QR>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -19,6 +21,36 @@ GaussianPrior diagonalPrior(const RobotModel& model, const Eigen::VectorXd& mean
     p.covariance(i, i) = s * s;
   }
   return p;
+}
+
+Eigen::MatrixXd priorOverEstimated(const GaussianPrior& prior, const std::vector<int>& estimated,
+                                   const Eigen::MatrixXd& absorption) {
+  const auto ne = static_cast<Eigen::Index>(estimated.size());
+  if (absorption.rows() != ne || (ne > 0 && absorption.cols() <= *std::max_element(estimated.begin(), estimated.end())))
+    throw std::invalid_argument("priorOverEstimated: the absorption map does not match the estimated parameters");
+  // The prior's parameters that enter: the estimated ones and those they stand for; the rest are held.
+  std::vector<Eigen::Index> used;
+  for (size_t b = 0; b < prior.indices.size(); ++b) {
+    const int c = prior.indices[b];
+    const bool estimated_c = std::find(estimated.begin(), estimated.end(), c) != estimated.end();
+    if (estimated_c || (c < absorption.cols() && absorption.col(c).cwiseAbs().maxCoeff() > 0))
+      used.push_back(static_cast<Eigen::Index>(b));
+  }
+  for (int c : estimated)
+    if (std::find(prior.indices.begin(), prior.indices.end(), c) == prior.indices.end())
+      throw std::invalid_argument("priorOverEstimated: the prior has no variance for an estimated parameter");
+  // Conditioned on the held ones: the information restricted to `used`, inverted.
+  const Eigen::MatrixXd info = prior.covariance.inverse();
+  const auto nu = static_cast<Eigen::Index>(used.size());
+  Eigen::MatrixXd info_used(nu, nu);
+  Eigen::MatrixXd T(ne, nu);
+  for (Eigen::Index a = 0; a < nu; ++a) {
+    for (Eigen::Index b = 0; b < nu; ++b) info_used(a, b) = info(used[a], used[b]);
+    T.col(a) = absorption.col(prior.indices[static_cast<size_t>(used[a])]);
+  }
+  const Eigen::MatrixXd P_used = info_used.ldlt().solve(Eigen::MatrixXd::Identity(nu, nu));
+  Eigen::MatrixXd P = T * P_used * T.transpose();
+  return 0.5 * (P + P.transpose());
 }
 
 bool CalibrationProblem::IsValid(std::string* error) const {
@@ -92,15 +124,28 @@ void requireValid(const CalibrationProblem& problem, const SolverOptions& option
 ReducedProblem::ReducedProblem(const CalibrationProblem& p) : problem(&p) {
   const RobotModel& model = *p.model;
   identifiability = analyzeIdentifiability(model, p.initial_params, p.observations, p.identifiability);
+  IdentifiabilityReport structural;
   if (p.prior) {
-    const auto structural =
-        structuralIdentifiability(model, p.initial_params, p.observations.front().kind, p.identifiability);
+    structural = structuralIdentifiability(model, p.initial_params, p.observations.front().kind, p.identifiability);
     estimated = structural.identifiable;
   } else {
     estimated = identifiability.identifiable;
   }
-  if (p.prior) {
-    // Information over the prior's indices, restricted to the estimated ones (the others are held fixed).
+  const bool prior_covers = p.prior && std::all_of(estimated.begin(), estimated.end(), [&](int c) {
+                              return std::find(p.prior->indices.begin(), p.prior->indices.end(), c) !=
+                                     p.prior->indices.end();
+                            });
+  if (prior_covers) {
+    // The prior over the estimated parameters, with the uncertainty of those they stand for (priorOverEstimated).
+    const Eigen::MatrixXd P = priorOverEstimated(*p.prior, estimated, structural.absorption);
+    const auto n = P.rows();
+    Eigen::LLT<Eigen::MatrixXd> llt(P.ldlt().solve(Eigen::MatrixXd::Identity(n, n)) +
+                                    1e-30 * Eigen::MatrixXd::Identity(n, n));
+    prior_sqrt_info = llt.matrixU();
+    prior_mean.resize(n);
+    for (Eigen::Index a = 0; a < n; ++a) prior_mean[a] = p.prior->mean[estimated[a]];
+  } else if (p.prior) {
+    // Some estimated parameter has no prior: the information over the ones it has (the others held fixed).
     const Eigen::MatrixXd info = p.prior->covariance.inverse();
     const auto n = static_cast<Eigen::Index>(estimated.size());
     Eigen::MatrixXd sub = Eigen::MatrixXd::Zero(n, n);

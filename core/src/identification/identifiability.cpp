@@ -6,6 +6,7 @@
 #include <cmath>
 #include <random>
 #include <sstream>
+#include <stdexcept>
 
 namespace cellcal {
 
@@ -74,6 +75,25 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
   return kept;
 }
 
+namespace {
+std::vector<Observation> structuralObservations(const RobotModel& model, const Eigen::VectorXd& params,
+                                               MeasurementKind kind) {
+  std::mt19937_64 rng(20240607);
+  std::vector<Observation> obs(200);
+  KinematicsData data(model);
+  for (auto& o : obs) {
+    o.q_rad.resize(model.numJoints());
+    for (int j = 0; j < model.numJoints(); ++j) {
+      const double lo = std::max(model.limits[j].lower_rad, -kPi), hi = std::min(model.limits[j].upper_rad, kPi);
+      o.q_rad[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
+    }
+    o.kind = kind;
+    o.measured_in_tracker = forwardKinematics(model, data, params, o.q_rad);
+  }
+  return obs;
+}
+}  // namespace
+
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
                                              const IdentifiabilityOptions& options) {
   if (J.cols() != model.numParams()) throw std::invalid_argument("analyzeIdentifiability: J has the wrong column count");
@@ -121,7 +141,46 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
     }
     rep.dropped.push_back(std::move(d));
   }
+  rep.absorption = absorptionMap(model, J, rep.identifiable);
   return rep;
+}
+
+Eigen::MatrixXd absorptionMap(const RobotModel& model, const Eigen::MatrixXd& J, const std::vector<int>& kept,
+                              double absorb_sine) {
+  if (J.cols() != model.numParams()) throw std::invalid_argument("absorptionMap: J has the wrong column count");
+  const auto k = static_cast<Eigen::Index>(kept.size());
+  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(k, model.numParams());
+  for (Eigen::Index i = 0; i < k; ++i) T(i, kept[static_cast<size_t>(i)]) = 1.0;
+  if (k == 0) return T;
+  double max_norm = 0;
+  for (int c = 0; c < model.numParams(); ++c) max_norm = std::max(max_norm, J.col(c).norm());
+  Eigen::VectorXd scale(k);
+  Eigen::MatrixXd Js(J.rows(), k);
+  for (Eigen::Index i = 0; i < k; ++i) {
+    scale[i] = J.col(kept[static_cast<size_t>(i)]).norm();
+    if (!(scale[i] > 0)) throw std::invalid_argument("absorptionMap: a kept column is zero");
+    Js.col(i) = J.col(kept[static_cast<size_t>(i)]) / scale[i];
+  }
+  const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(Js);
+  for (int c : model.canonicalParams()) {
+    if (std::find(kept.begin(), kept.end(), c) != kept.end()) continue;
+    const double norm = J.col(c).norm();
+    if (!(norm > 1e-10 * max_norm)) continue;  // not excited: nothing to stand for
+    const Eigen::VectorXd u = J.col(c) / norm;
+    const Eigen::VectorXd coef = qr.solve(u);
+    if ((Js * coef - u).norm() > absorb_sine) continue;  // the kept columns do not span it
+    // J_c = norm * Js coef = J_kept diag(1/scale) coef * norm.
+    T.col(c) = coef.cwiseQuotient(scale) * norm;
+  }
+  return T;
+}
+
+Eigen::MatrixXd structuralAbsorption(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
+                                     const std::vector<int>& kept) {
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackResiduals(model, params, structuralObservations(model, params, kind), r, &J);
+  return absorptionMap(model, J, kept);
 }
 
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::VectorXd& params,
@@ -133,21 +192,10 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   return analyzeIdentifiability(model, J, options);
 }
 
+
 IdentifiabilityReport structuralIdentifiability(const RobotModel& model, const Eigen::VectorXd& params,
                                                 MeasurementKind kind, const IdentifiabilityOptions& options) {
-  std::mt19937_64 rng(20240607);
-  std::vector<Observation> obs(200);
-  KinematicsData data(model);
-  for (auto& o : obs) {
-    o.q_rad.resize(model.numJoints());
-    for (int j = 0; j < model.numJoints(); ++j) {
-      const double lo = std::max(model.limits[j].lower_rad, -kPi), hi = std::min(model.limits[j].upper_rad, kPi);
-      o.q_rad[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
-    }
-    o.kind = kind;
-    o.measured_in_tracker = forwardKinematics(model, data, params, o.q_rad);
-  }
-  return analyzeIdentifiability(model, params, obs, options);
+  return analyzeIdentifiability(model, params, structuralObservations(model, params, kind), options);
 }
 
 std::string IdentifiabilityReport::summary(const RobotModel& model) const {

@@ -68,27 +68,12 @@ void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>&
 
 void RlsEstimator::addProcessNoise(const Eigen::VectorXd& q_diag) { P_.diagonal() += q_diag; }
 
-namespace {
-std::vector<int> checkedStructural(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
-                                   const IdentifiabilityOptions& options) {
-  return structuralIdentifiability(model, params, kind, options).identifiable;
+void RlsEstimator::addProcessNoise(const Eigen::MatrixXd& Q) {
+  if (Q.rows() != P_.rows() || Q.cols() != P_.cols()) throw std::invalid_argument("RlsEstimator: Q size mismatch");
+  P_ += 0.5 * (Q + Q.transpose());
 }
 
-Eigen::MatrixXd priorOver(const GaussianPrior& prior, const std::vector<int>& estimated) {
-  const auto n = static_cast<Eigen::Index>(estimated.size());
-  Eigen::MatrixXd P = Eigen::MatrixXd::Zero(n, n);
-  std::vector<int> pos(estimated.size(), -1);
-  for (size_t a = 0; a < estimated.size(); ++a)
-    for (size_t b = 0; b < prior.indices.size(); ++b)
-      if (prior.indices[b] == estimated[a]) pos[a] = static_cast<int>(b);
-  for (Eigen::Index a = 0; a < n; ++a) {
-    if (pos[a] < 0)
-      throw std::invalid_argument("RlsCalibrator: the prior has no variance for an estimated parameter");
-    for (Eigen::Index b = 0; b < n; ++b)
-      if (pos[b] >= 0) P(a, b) = prior.covariance(pos[a], pos[b]);
-  }
-  return P;
-}
+namespace {
 
 Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx) {
   Eigen::VectorXd out(idx.size());
@@ -99,10 +84,16 @@ Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx)
 
 RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
                              MeasurementKind kind, RlsCalibratorOptions options)
+    : RlsCalibrator(model, params, structuralIdentifiability(model, params, kind, options.identifiability), prior, kind,
+                    options) {}
+
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params,
+                             const IdentifiabilityReport& structural, const GaussianPrior& prior, MeasurementKind kind,
+                             const RlsCalibratorOptions& options)
     : model_(&model),
       params_(params),
-      estimated_(checkedStructural(model, params, kind, options.identifiability)),
-      rls_(select(params, estimated_), priorOver(prior, estimated_), options.rls),
+      estimated_(structural.identifiable),
+      rls_(select(params, estimated_), priorOverEstimated(prior, estimated_, structural.absorption), options.rls),
       data_(model) {}
 
 RlsCalibrator::RlsCalibrator(const RobotModel& model, const CalibrationResult& initial, RlsCalibratorOptions options)
@@ -201,10 +192,18 @@ Pose RlsCalibrator::predict(const Eigen::VectorXd& q_rad, const Drivers* drivers
   return forwardKinematics(*model_, data_, rowParams(q_rad, drivers), q_rad);
 }
 
-void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full) {
-  Eigen::VectorXd q = Eigen::VectorXd::Zero(rls_.x().size());
-  for (size_t k = 0; k < estimated_.size(); ++k) q[k] = sigma_full[estimated_[k]] * sigma_full[estimated_[k]];
-  rls_.addProcessNoise(q);
+void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind) {
+  if (sigma_full.size() != model_->numParams()) throw std::invalid_argument("RlsCalibrator: sigma has the wrong size");
+  const auto ne = static_cast<Eigen::Index>(estimated_.size());
+  if (drift_map_.rows() != ne || drift_kind_ != kind) {
+    // At the nominal parameters, not the current estimate: a state resumed from a file adds the same noise as the
+    // run that saved it.
+    drift_map_ = structuralAbsorption(*model_, model_->nominal, kind, estimated_);
+    drift_kind_ = kind;
+  }
+  Eigen::MatrixXd Q = Eigen::MatrixXd::Zero(rls_.x().size(), rls_.x().size());
+  Q.topLeftCorner(ne, ne) = drift_map_ * sigma_full.cwiseAbs2().asDiagonal() * drift_map_.transpose();
+  rls_.addProcessNoise(Q);
 }
 
 Eigen::VectorXd DriftModel::sigmas(const RobotModel& model) const {

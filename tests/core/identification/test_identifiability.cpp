@@ -4,7 +4,11 @@
 #include <random>
 
 #include "cellcal/core/identification/identifiability.hpp"
+#include <Eigen/QR>
+
+#include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/sim/simulation.hpp"
+#include "core/identification/placements.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -93,6 +97,78 @@ TEST_P(Identifiability, SlightlyRotatedFramesDoNotSplitAGauge) {
                  contains(r.identifiable, m.jointParam(5, JointParam::kAlpha)))
         << r.summary(m);
   }
+}
+
+// The absorption map against a plain reference, on random placements (tracker, base tilt, target 50-150 mm off the
+// flange) and both measurement kinds: for a random change dp of every canonical parameter, T dp is the least-squares
+// solution of J_kept x = J dp, and J_kept T dp reproduces J dp (the kept columns span every candidate direction).
+TEST_P(Identifiability, AbsorptionMapStandsForEveryCanonicalChange) {
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int trial = 0; trial < 6; ++trial) {
+    const SimulatedCell cell(test::robot(GetParam()), test::randomPlacement(rng));
+    const RobotModel& m = cell.model();
+    const MeasurementKind kind = trial % 2 ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+    std::vector<Observation> obs;
+    for (const auto& q : cell.randomConfigurations(60, rng)) obs.push_back(cell.measure(q, 0.0, rng, kind));
+    Eigen::VectorXd r;
+    Eigen::MatrixXd J;
+    stackResiduals(m, m.nominal, obs, r, &J);
+    const auto rep = analyzeIdentifiability(m, J);
+    const Eigen::MatrixXd& T = rep.absorption;
+    ASSERT_EQ(T.rows(), rep.rank);
+    ASSERT_EQ(T.cols(), m.numParams());
+    Eigen::MatrixXd Jk(J.rows(), rep.rank);
+    for (int i = 0; i < rep.rank; ++i) Jk.col(i) = J.col(rep.identifiable[static_cast<size_t>(i)]);
+    for (const auto& d : rep.dropped)
+      if (!d.merged_into.empty()) EXPECT_GT(T.col(d.index).norm(), 0) << d.name << " merges but is not absorbed";
+    for (int draw = 0; draw < 5; ++draw) {
+      Eigen::VectorXd dp = Eigen::VectorXd::Zero(m.numParams());
+      for (int c : m.canonicalParams()) dp[c] = (m.isLength(c) ? 1e-4 : 2e-4) * g(rng);
+      const Eigen::VectorXd Jdp = J * dp;
+      const Eigen::VectorXd x_ref = Jk.colPivHouseholderQr().solve(Jdp);
+      const Eigen::VectorXd x = T * dp;
+      EXPECT_LT((Jk * x - Jdp).norm(), 1e-4 * Jdp.norm()) << rep.summary(m);
+      EXPECT_LT((Jk * (x - x_ref)).norm(), 1e-6 * Jdp.norm()) << rep.summary(m);
+    }
+  }
+}
+
+// priorOverEstimated against plain formulas: a diagonal prior over every canonical parameter maps to T P T^T; a
+// prior over the estimated parameters and one held parameter (one the rows separate from them, so it stands for
+// nothing) is conditioned on it, P_ee - P_eh P_hh^-1 P_he.
+TEST_P(Identifiability, PriorOverEstimatedMapsAndConditions) {
+  std::mt19937_64 rng(test::testSeed());
+  const SimulatedCell cell(test::robot(GetParam()), test::randomPlacement(rng));
+  const RobotModel& m = cell.model();
+  const auto rep = structuralIdentifiability(m, m.nominal, MeasurementKind::kPose6D);
+  const auto& est = rep.identifiable;
+  const auto ne = static_cast<Eigen::Index>(est.size());
+
+  const GaussianPrior diag = diagonalPrior(m, m.nominal, m.canonicalParams(), 1e-3, 1e-3);
+  Eigen::MatrixXd Tc(ne, static_cast<Eigen::Index>(diag.indices.size()));
+  for (size_t b = 0; b < diag.indices.size(); ++b) Tc.col(static_cast<Eigen::Index>(b)) = rep.absorption.col(diag.indices[b]);
+  const Eigen::MatrixXd ref = Tc * diag.covariance * Tc.transpose();
+  EXPECT_LT((priorOverEstimated(diag, est, rep.absorption) - ref).norm(), 1e-12 * ref.norm());
+  // Something was absorbed: the dropped parameters widen the ones that stand for them.
+  EXPECT_GT(ref.trace(), static_cast<double>(ne) * 1e-6 * (1 + 1e-3));
+
+  // Estimated plus one held parameter that stands for nothing: a joint parameter kept (so its column is
+  // independent), moved out of the estimated set by hand.
+  std::vector<int> est_less = est;
+  est_less.pop_back();
+  Eigen::MatrixXd T_less = Eigen::MatrixXd::Zero(ne - 1, m.numParams());
+  for (Eigen::Index i = 0; i < ne - 1; ++i) T_less(i, est_less[static_cast<size_t>(i)]) = 1;
+  GaussianPrior corr;
+  corr.mean = m.nominal;
+  corr.indices = est;  // est_less then `held` last
+  const Eigen::MatrixXd A = Eigen::MatrixXd::Random(ne, ne);
+  corr.covariance = 1e-6 * (A * A.transpose() + Eigen::MatrixXd::Identity(ne, ne));
+  const Eigen::MatrixXd Pee = corr.covariance.topLeftCorner(ne - 1, ne - 1);
+  const Eigen::VectorXd Peh = corr.covariance.col(ne - 1).head(ne - 1);
+  const double Phh = corr.covariance(ne - 1, ne - 1);
+  const Eigen::MatrixXd cond = Pee - Peh * Peh.transpose() / Phh;
+  EXPECT_LT((priorOverEstimated(corr, est_less, T_less) - cond).norm(), 1e-9 * cond.norm());
 }
 
 TEST(IdentifiabilityOptions, RejectsBadTolerance) {

@@ -51,7 +51,10 @@ struct MaintenanceGroup {
   double ident_before_m = 0, ident_after_m = 0, verify_before_m = 0, verify_after_m = 0;
   double noise_floor_m = 0;      // of this group's verification poses
   double update_time_s = 0;      // wall time of this group's update
-  // Joint zero offsets after this group's update, and the simulated robot's true ones at t_h (rad, per joint).
+  // Change of each joint's zero since the nominal model, after this group's update and in the simulated robot's
+  // truth at t_h (rad, per joint), as the estimated parameters carry it: theta_j when it is estimated, else the
+  // kept parameter that stands for it (joint_zero_names; joint 6's zero is the tool yaw when the tool frame is kept)
+  // in joint-zero units, with the truth mapped by the same absorption map (identifiability.hpp).
   Eigen::VectorXd joint_offsets_rad, true_joint_offsets_rad;
 };
 
@@ -81,6 +84,7 @@ struct PaperExperimentResult {
   double true_error_nominal_m = 0;     // mean error of the nominal model on group 0 verification poses
   double rls_time_per_pose_s = 0;      // mean wall time of one RLS pose update (linearization + update)
   double lm_time_50_s = 0;             // wall time of the 50-pose initial LM solve
+  std::vector<std::string> joint_zero_names;  // per joint: "joint 6" or "joint 6 (as tool.yaw_rad)"
 };
 
 using ProgressFn = std::function<void(const std::string& step, int done, int total)>;

@@ -37,6 +37,13 @@ struct GaussianPrior {
 GaussianPrior diagonalPrior(const RobotModel& model, const Eigen::VectorXd& mean, const std::vector<int>& indices,
                             double sigma_length_m, double sigma_angle_rad);
 
+// The covariance over `estimated` that `prior` implies when the estimated parameters also carry the ones they stand
+// for (absorption: absorptionMap over `estimated`, identifiability.hpp) and every other parameter is held at its
+// mean: the prior conditioned on the held ones, then mapped, T P T^T. With no absorbed parameter in the prior this is
+// the prior's information restricted to `estimated`, inverted. Throws if an estimated parameter has no variance.
+Eigen::MatrixXd priorOverEstimated(const GaussianPrior& prior, const std::vector<int>& estimated,
+                                   const Eigen::MatrixXd& absorption);
+
 struct CalibrationProblem {
   const RobotModel* model = nullptr;
   Eigen::VectorXd initial_params;          // full vector (model.numParams())

@@ -49,6 +49,8 @@ struct IdentifiabilityReport {
   double condition_number = 0;      // of the scaled, whitened Jacobian restricted to `identifiable`
   std::vector<int> identifiable;    // parameter indices, ascending
   std::vector<DroppedParameter> dropped;
+  // absorptionMap(model, J, identifiable): how the identifiable parameters stand for the dropped ones.
+  Eigen::MatrixXd absorption;
   std::string summary(const RobotModel& model) const;
 };
 
@@ -59,6 +61,20 @@ std::vector<int> identificationPriority(const RobotModel& model);
 // Works on any stacked Jacobian, e.g. kinematic parameters plus the parameters of a model extension.
 std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
                                     const IdentifiabilityOptions& options = {});
+
+// To first order, how the `kept` parameters stand for the canonical parameters left out of them. Returns T
+// (kept.size() x model.numParams()): the identity on `kept`; for a left-out canonical column of J within
+// `absorb_sine` (sine of the angle) of the span of the kept columns, its least-squares coefficients on them in model
+// units (joint 6's zero and the tool yaw are one direction: its column holds 1 at the tool yaw); zero otherwise (a
+// column the rows do not excite, or one they separate from the kept ones, e.g. a parameter held for lack of
+// excitation). A change dp of the whole parameter vector moves the measurements as the change T dp of the kept
+// parameters would, so a drift or an uncertainty of a left-out parameter is carried by the ones that stand for it
+// (covariance T P T^T) instead of being lost: a joint 6 zero that drifts makes the tool yaw drift.
+Eigen::MatrixXd absorptionMap(const RobotModel& model, const Eigen::MatrixXd& J, const std::vector<int>& kept,
+                              double absorb_sine = 1e-3);
+// absorptionMap on the structural pose set (structuralIdentifiability's).
+Eigen::MatrixXd structuralAbsorption(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
+                                     const std::vector<int>& kept);
 
 // J: stacked whitened Jacobian with all model.numParams() columns.
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,

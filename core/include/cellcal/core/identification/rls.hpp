@@ -46,6 +46,7 @@ class RlsEstimator {
   void updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>& A,
                             const Eigen::Ref<const Eigen::VectorXd>& innovation);
   void addProcessNoise(const Eigen::VectorXd& q_diag);
+  void addProcessNoise(const Eigen::MatrixXd& Q);  // symmetric, state size
 
   const Eigen::VectorXd& x() const { return x_; }
   Eigen::VectorXd& mutableX() { return x_; }
@@ -80,7 +81,8 @@ struct RlsCalibratorOptions {
 
 class RlsCalibrator {
  public:
-  // Starts from `params` with a Gaussian prior (P0 = prior covariance) over the structurally identifiable set.
+  // Starts from `params` with a Gaussian prior over the structurally identifiable set (P0 = priorOverEstimated: the
+  // prior's uncertainty of a parameter left out is carried by those that stand for it).
   RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
                 MeasurementKind kind, RlsCalibratorOptions options = {});
   // Starts from the parameters and covariance of a batch result (the paper's P0 = (A0^T A0)^-1 when it had no prior).
@@ -104,8 +106,11 @@ class RlsCalibrator {
   double normalizedInnovation(const Observation& obs, const Drivers* drivers = nullptr);
   // The model's pose for joint angles q (with the extension evaluated at `drivers` when there is one).
   Pose predict(const Eigen::VectorXd& q_rad, const Drivers* drivers = nullptr);
-  // Random-walk process noise: sigma (full parameter vector) of the change since the last update.
-  void addProcessNoise(const Eigen::VectorXd& sigma_full);
+  // Random-walk process noise: sigma (full parameter vector) of the change since the last update. The estimated
+  // parameters also take the drift of the parameters they stand for (structuralAbsorption for `kind` at the nominal
+  // parameters, computed once):
+  // a joint 6 zero that drifts moves the tool yaw that stands for it.
+  void addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind);
 
   const Eigen::VectorXd& params() const { return params_; }
   const std::vector<int>& estimated() const { return estimated_; }
@@ -117,6 +122,8 @@ class RlsCalibrator {
   GaussianPrior asPrior() const;  // kinematic part of the estimate and covariance, e.g. for a batch solve
 
  private:
+  RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const IdentifiabilityReport& structural,
+                const GaussianPrior& prior, MeasurementKind kind, const RlsCalibratorOptions& options);
   // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows.
   int linearize(const Observation& obs, const Drivers* drivers);
   Eigen::VectorXd rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers);
@@ -133,6 +140,8 @@ class RlsCalibrator {
   KinematicsData data_;
   Eigen::MatrixXd J_, A_;
   Eigen::Matrix<double, 6, 1> r_;
+  Eigen::MatrixXd drift_map_;  // structuralAbsorption over estimated_ at the nominal parameters, for drift_kind_
+  MeasurementKind drift_kind_ = MeasurementKind::kPose6D;
 };
 
 }  // namespace cellcal
