@@ -6,6 +6,7 @@
 #include <iostream>
 #include <thread>
 
+#include "cellcal/components/ros2.hpp"
 #include "cellcal/core/engine/compensation.hpp"
 
 namespace cellcal::components {
@@ -15,7 +16,18 @@ CompensationPublisher::CompensationPublisher(const Options& options)
       cell_(loadCell(options.process)),
       node_(cell_, "cellcal_compensation_publisher", identity::kCompensationPublisher),
       writer_(node_.writer<msg::CompensatedTarget>()) {
-  for (const auto& r : cell_.robots) robots_[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, {}, 0, ""};
+  for (const auto& r : cell_.robots) robots_[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, {}, 0, "", std::nullopt};
+  if (!options_.ros_pose_topic.empty()) {
+    for (auto& [id, r] : robots_) {
+      const std::string ros_name = robots_.size() == 1 ? options_.ros_pose_topic : options_.ros_pose_topic + "/" + id;
+      std::string err;
+      const auto topic = ros2DdsTopic(ros_name, &err);
+      if (!topic) throw std::runtime_error("--ros-pose-topic: " + err);
+      r.ros_pose = node_.writer<geometry_msgs::msg::dds_::PoseStamped_>(*topic);
+      std::cerr << "compensation_publisher: " << id << ": applied corrections also on ROS 2 topic " << ros_name
+                << " (geometry_msgs/PoseStamped, frame_id " << options_.ros_frame_id << ")\n";
+    }
+  }
   node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) { onCalibrationState(m); });
   node_.reader<msg::CalibrationDiagnostics>(
       [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
@@ -134,6 +146,21 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
   }
   out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
   writer_.write(out);
+  if (r.ros_pose && out.applied()) {
+    geometry_msgs::msg::dds_::PoseStamped_ ps;
+    const std::uint64_t stamp = t.source_stamp_ns() > 0 ? t.source_stamp_ns() : out.source_stamp_ns();
+    ps.header().stamp().sec(static_cast<std::int32_t>(stamp / 1000000000ULL));
+    ps.header().stamp().nanosec(static_cast<std::uint32_t>(stamp % 1000000000ULL));
+    ps.header().frame_id(options_.ros_frame_id);
+    ps.pose().position().x(out.corrected_position_m()[0]);
+    ps.pose().position().y(out.corrected_position_m()[1]);
+    ps.pose().position().z(out.corrected_position_m()[2]);
+    ps.pose().orientation().x(out.corrected_orientation_xyzw()[0]);
+    ps.pose().orientation().y(out.corrected_orientation_xyzw()[1]);
+    ps.pose().orientation().z(out.corrected_orientation_xyzw()[2]);
+    ps.pose().orientation().w(out.corrected_orientation_xyzw()[3]);
+    r.ros_pose->write(ps);
+  }
   if (out.applied()) ++applied_; else ++refused_;
   if (out.clamped()) ++clamped_;
 }

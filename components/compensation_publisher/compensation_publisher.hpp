@@ -7,6 +7,10 @@
 // with the reason) when it never had an ok calibration, the identified model cannot reach the target, or the
 // correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
 // A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).
+// With --ros-pose-topic it also publishes every applied correction as a ROS 2 geometry_msgs/PoseStamped (directly
+// over DDS, docs/ros2.md): the corrected pose in the targets' frame (header.frame_id from --ros-frame-id), stamped
+// with the target's stamp. Targets passed through uncorrected are not published there (an uncorrected pose on a
+// topic of corrected ones would look like a correction); their reasons stay on cellcal/compensated_target.
 //
 // Lifetime: the constructor joins the domain, creates the writer and the calibration readers, waits for every
 // robot's calibration (at most --wait-for-calibration-s), then takes targets; run() returns on SIGINT/SIGTERM or after
@@ -33,6 +37,8 @@ class CompensationPublisher {
     ProcessOptions process;
     double duration_s = 0;              // 0: until SIGINT/SIGTERM
     double wait_for_calibration_s = 3;  // at start, for every robot's calibration
+    std::string ros_pose_topic;         // empty: no ROS 2 output; with several robots, <topic>/<robot_id> each
+    std::string ros_frame_id = "cellcal_tracker";
   };
   explicit CompensationPublisher(const Options& options);
   int run();
@@ -46,6 +52,7 @@ class CompensationPublisher {
     std::vector<Eigen::VectorXd> path;
     std::uint64_t seq = 0;
     std::string engine_warning;                      // from the engine's diagnostics: stale inputs
+    std::optional<Writer<geometry_msgs::msg::dds_::PoseStamped_>> ros_pose;  // --ros-pose-topic
   };
   void onCalibrationState(const msg::CalibrationState& m);
   void onDiagnostics(const msg::CalibrationDiagnostics& d);

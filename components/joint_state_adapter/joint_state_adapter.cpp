@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <iostream>
 #include <map>
+#include <mutex>
 #include <thread>
 
 #include "cellcal/components/convert.hpp"
+#include "cellcal/components/ros2.hpp"
 #include "cellcal/components/udp_lines.hpp"
 #include "cellcal/lab/sim_program.hpp"
 
@@ -128,6 +130,78 @@ void JointStateAdapter::runUdp() {
   const UdpLineCounts n = serveUdpLines(name_, input_.udp_address, input_.udp_port, input_.duration_s, publish);
   extra_["udp_lines"] = n.lines;
   extra_["udp_bad_lines"] = n.bad;
+}
+
+void JointStateAdapter::runRos2() {
+  const CellRobot* robot = nullptr;
+  if (!input_.csv.robot_id.empty()) {
+    robot = cell_.robotById(input_.csv.robot_id);
+    if (!robot) throw std::runtime_error("--robot-id " + input_.csv.robot_id + ": not in " + cell_.source);
+  } else if (cell_.robots.size() == 1) {
+    robot = &cell_.robots.front();
+  } else {
+    throw std::runtime_error("--source ros2: the cell file has " + std::to_string(cell_.robots.size()) +
+                             " robots: say whose joints these are with --robot-id");
+  }
+  const std::vector<std::string> names =
+      options_.ros_joint_names.empty() ? robot->ros2_joint_names : options_.ros_joint_names;
+  if (names.empty())
+    throw std::runtime_error("--source ros2: no joint names for robot " + robot->robot_id +
+                             ": give robots[].ros2_joint_names in the cell file or --ros-joint-names (docs/ros2.md)");
+  if (static_cast<int>(names.size()) != robot->model.numJoints())
+    throw std::runtime_error("--ros-joint-names: " + std::to_string(names.size()) + " names for a robot of " +
+                             std::to_string(robot->model.numJoints()) + " joints");
+  std::string err;
+  const auto topic = ros2DdsTopic(options_.ros_topic, &err);
+  if (!topic) throw std::runtime_error("--ros-topic: " + err);
+
+  std::mutex mutex;
+  StandStillDetector still(options_.settle_window_s, cell_.engine.settle_tolerance_rad, options_.settle_velocity_radps);
+  std::uint64_t seq = 0, received = 0, published = 0, settled_count = 0, bad = 0;
+  std::string last_reason;
+  node_.reader<sensor_msgs::msg::dds_::JointState_>(
+      [&](const sensor_msgs::msg::dds_::JointState_& js, const fdds::SampleInfo&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        ++received;
+        std::string why;
+        const auto q = jointPositionsByName(js.name(), js.position(), names, &why);
+        std::optional<Eigen::VectorXd> v;
+        if (q && !js.velocity().empty()) {
+          v = jointPositionsByName(js.name(), js.velocity(), names, &why);
+          if (!v) why = "velocity: " + why;
+        }
+        if (!q || (!js.velocity().empty() && !v)) {
+          ++bad;
+          // Said once per kind of fault, not per sample (a driver at 500 Hz would flood the log).
+          const std::string reason = maskFigures(why);
+          if (reason != last_reason)
+            std::cerr << "joint_state_adapter: " << options_.ros_topic << " sample " << received << " skipped: " << why
+                      << "\n";
+          last_reason = reason;
+          return;
+        }
+        const std::int64_t header_ns =
+            static_cast<std::int64_t>(js.header().stamp().sec()) * 1000000000LL + js.header().stamp().nanosec();
+        const std::int64_t stamp = header_ns > 0 ? header_ns : wallNs();  // a driver that leaves the stamp at zero
+        std::vector<double> vel;
+        if (v) vel.assign(v->data(), v->data() + v->size());
+        const bool settled = still.update(stamp, *q, vel);
+        auto m = toJointState(robot->robot_id, stamp, ++seq, *q, settled);
+        if (joints_.write(m)) ++published;
+        if (settled) ++settled_count;
+      },
+      *topic);
+  std::cerr << "joint_state_adapter: ros2: " << options_.ros_topic << " (DDS topic " << *topic
+            << ", type sensor_msgs::msg::dds_::JointState_) -> " << robot->robot_id << ", joints";
+  for (const auto& n : names) std::cerr << " " << n;
+  std::cerr << "; settled after " << options_.settle_window_s << " s still, domain " << node_.domainId() << "\n";
+  const RunLimit limit(input_.duration_s);
+  while (!limit.over()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  node_.shutdown();  // no callback after this point: the counters are final
+  extra_["ros2_received"] = received;
+  extra_["ros2_skipped"] = bad;
+  extra_["published"] = published;
+  extra_["settled"] = settled_count;
 }
 
 }  // namespace cellcal::components

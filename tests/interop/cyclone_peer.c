@@ -2,12 +2,18 @@
  * TargetPose samples of an input file at their times, and counts the CalibrationState and CompensatedTarget samples
  * cellcal's processes send back. Used by the interop test (tests/interop, docs/interop.md).
  *
- *   cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON
+ *   cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC]
+ *
+ * With ROS_POSE_TOPIC (a DDS topic, e.g. rt/cellcal/corrected_pose) it is also a ROS 2 node as rmw_cyclonedds puts
+ * one on the wire: it publishes the robot's joints as sensor_msgs/JointState on rt/joint_states (R lines; types from
+ * idl/ros2_msgs.idl, ROS 2's default QoS: reliable, keep last 10) and reads geometry_msgs/PoseStamped on
+ * ROS_POSE_TOPIC; it then waits for a reader of rt/joint_states instead of cellcal/joint_state.
  *
  * Input lines (times in ns after the start; stamps are taken from the wall clock when the sample is sent):
  *   J t_ns robot_id settled n q1 .. qn
  *   T t_ns target_id has_orientation x y z qx qy qz qw c0 .. c35
  *   P t_ns robot_id x y z qx qy qz qw n seed1 .. seedn
+ *   R t_ns frame_id n name1 .. namen q1 .. qn        (header.stamp: the wall clock when sent)
  * Loopback needs CYCLONEDDS_URI with the 127.0.0.1 interface and peer (the test sets it).
  */
 #include <dds/dds.h>
@@ -18,6 +24,7 @@
 #include <time.h>
 
 #include "cellcal_msgs.h"
+#include "ros2_msgs.h"
 
 static int64_t now_ns(clockid_t c) {
   struct timespec ts;
@@ -35,12 +42,17 @@ static dds_entity_t check(dds_entity_t e, const char* what) {
   return e;
 }
 
+#define KEEP 256
 typedef struct {
   uint64_t states, max_version, compensated, applied;
   char last_reason[257];
+  /* ROS 2: PoseStamped received, and the applied corrections and poses in arrival order (the first KEEP of each) */
+  uint64_t poses;
+  char last_frame_id[65];
+  double corrected[KEEP][7], posed[KEEP][7];
 } counts_t;
 
-static void drain(dds_entity_t states, dds_entity_t compensated, counts_t* c) {
+static void drain(dds_entity_t states, dds_entity_t compensated, dds_entity_t poses, counts_t* c) {
   void* samples[16] = {0};
   dds_sample_info_t infos[16];
   int n;
@@ -58,16 +70,36 @@ static void drain(dds_entity_t states, dds_entity_t compensated, counts_t* c) {
       if (!infos[i].valid_data) continue;
       const cellcal_msg_CompensatedTarget* t = samples[i];
       ++c->compensated;
-      if (t->applied) ++c->applied;
+      if (t->applied) {
+        if (c->applied < KEEP) {
+          for (int k = 0; k < 3; ++k) c->corrected[c->applied][k] = t->corrected_position_m[k];
+          for (int k = 0; k < 4; ++k) c->corrected[c->applied][3 + k] = t->corrected_orientation_xyzw[k];
+        }
+        ++c->applied;
+      }
       snprintf(c->last_reason, sizeof c->last_reason, "%s", t->reason);
     }
     dds_return_loan(compensated, samples, n);
   }
+  while (poses > 0 && (n = dds_take(poses, samples, infos, 16, 16)) > 0) {
+    for (int i = 0; i < n; ++i) {
+      if (!infos[i].valid_data) continue;
+      const geometry_msgs_msg_dds__PoseStamped_* p = samples[i];
+      if (c->poses < KEEP) {
+        const double v[7] = {p->pose.position.x,    p->pose.position.y,    p->pose.position.z,   p->pose.orientation.x,
+                             p->pose.orientation.y, p->pose.orientation.z, p->pose.orientation.w};
+        memcpy(c->posed[c->poses], v, sizeof v);
+      }
+      ++c->poses;
+      snprintf(c->last_frame_id, sizeof c->last_frame_id, "%s", p->header.frame_id ? p->header.frame_id : "");
+    }
+    dds_return_loan(poses, samples, n);
+  }
 }
 
 int main(int argc, char** argv) {
-  if (argc != 5) {
-    fprintf(stderr, "usage: cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON\n");
+  if (argc != 5 && argc != 6) {
+    fprintf(stderr, "usage: cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC]\n");
     return 2;
   }
   const dds_domainid_t domain = (dds_domainid_t)atoi(argv[1]);
@@ -103,32 +135,45 @@ int main(int argc, char** argv) {
   const dds_entity_t w_tg = check(dds_create_writer(pp, t_tg, command, NULL), "writer");
   const dds_entity_t r_cs = check(dds_create_reader(pp, t_cs, calibration, NULL), "reader");
   const dds_entity_t r_ct = check(dds_create_reader(pp, t_ct, command, NULL), "reader");
+  const int ros = argc == 6;
+  dds_entity_t w_ros_js = 0, r_ros_pose = 0;
+  dds_qos_t* ros_default = dds_create_qos(); /* ROS 2's default: reliable, volatile, keep last 10 */
+  dds_qset_reliability(ros_default, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
+  dds_qset_history(ros_default, DDS_HISTORY_KEEP_LAST, 10);
+  if (ros) {
+    const dds_entity_t t_ros_js =
+        check(dds_create_topic(pp, &sensor_msgs_msg_dds__JointState__desc, "rt/joint_states", NULL, NULL), "topic");
+    const dds_entity_t t_ros_pose =
+        check(dds_create_topic(pp, &geometry_msgs_msg_dds__PoseStamped__desc, argv[5], NULL, NULL), "topic");
+    w_ros_js = check(dds_create_writer(pp, t_ros_js, ros_default, NULL), "writer");
+    r_ros_pose = check(dds_create_reader(pp, t_ros_pose, ros_default, NULL), "reader");
+  }
 
   /* Readers first: a best-effort sample sent before discovery is lost. */
   const int64_t wait_end = now_ns(CLOCK_MONOTONIC) + 20000000000LL;
   for (;;) {
     dds_publication_matched_status_t a, b, c;
-    dds_get_publication_matched_status(w_js, &a);
+    dds_get_publication_matched_status(ros ? w_ros_js : w_js, &a);
     dds_get_publication_matched_status(w_tp, &b);
     dds_get_publication_matched_status(w_tg, &c);
     if (a.current_count > 0 && b.current_count > 0 && c.current_count > 0) break;
     if (now_ns(CLOCK_MONOTONIC) > wait_end) {
-      fprintf(stderr, "cyclone_peer: no cellcal reader matched within 20 s (joint_state %u, tracker_pose %u, target_pose %u)\n",
-              a.current_count, b.current_count, c.current_count);
+      fprintf(stderr, "cyclone_peer: no cellcal reader matched within 20 s (%s %u, tracker_pose %u, target_pose %u)\n",
+              ros ? "rt/joint_states" : "joint_state", a.current_count, b.current_count, c.current_count);
       return 1;
     }
     dds_sleepfor(DDS_MSECS(20));
   }
   dds_sleepfor(DDS_MSECS(500));
 
-  counts_t counts = {0};
-  uint64_t seq = 0, n_js = 0, n_tp = 0, n_tg = 0;
+  static counts_t counts; /* large: not on the stack */
+  uint64_t seq = 0, n_js = 0, n_tp = 0, n_tg = 0, n_ros_js = 0;
   const int64_t t0 = now_ns(CLOCK_MONOTONIC);
   char kind[2], id[65];
   long long t_ns;
   while (fscanf(in, "%1s %lld %64s", kind, &t_ns, id) == 3) {
     while (now_ns(CLOCK_MONOTONIC) < t0 + t_ns) {
-      drain(r_cs, r_ct, &counts);
+      drain(r_cs, r_ct, r_ros_pose, &counts);
       dds_sleepfor(DDS_USECS(500));
     }
     ++seq;
@@ -181,6 +226,31 @@ int main(int argc, char** argv) {
       m.source_stamp_ns = stamp;
       m.sequence_number = seq;
       if (dds_write(w_tg, &m) == DDS_RETCODE_OK) ++n_tg;
+    } else if (kind[0] == 'R') {
+      if (!ros) die("R line without ROS_POSE_TOPIC", DDS_RETCODE_BAD_PARAMETER);
+      sensor_msgs_msg_dds__JointState_ m;
+      memset(&m, 0, sizeof m);
+      int n = 0;
+      if (fscanf(in, "%d", &n) != 1 || n < 0 || n > 16) die("bad R line", DDS_RETCODE_BAD_PARAMETER);
+      char names[16][65];
+      char* name_ptrs[16];
+      double q[16];
+      for (int i = 0; i < n; ++i) {
+        if (fscanf(in, "%64s", names[i]) != 1) die("bad R line", DDS_RETCODE_BAD_PARAMETER);
+        name_ptrs[i] = names[i];
+      }
+      for (int i = 0; i < n; ++i)
+        if (fscanf(in, "%lf", &q[i]) != 1) die("bad R line", DDS_RETCODE_BAD_PARAMETER);
+      m.header.stamp.sec = (int32_t)(stamp / 1000000000ULL);
+      m.header.stamp.nanosec = (uint32_t)(stamp % 1000000000ULL);
+      m.header.frame_id = id;
+      m.name._length = m.name._maximum = (uint32_t)n;
+      m.name._buffer = name_ptrs;
+      m.name._release = false;
+      m.position._length = m.position._maximum = (uint32_t)n;
+      m.position._buffer = q;
+      m.position._release = false;
+      if (dds_write(w_ros_js, &m) == DDS_RETCODE_OK) ++n_ros_js;
     } else {
       die("unknown line kind", DDS_RETCODE_BAD_PARAMETER);
     }
@@ -188,26 +258,38 @@ int main(int argc, char** argv) {
   fclose(in);
   const int64_t linger_end = now_ns(CLOCK_MONOTONIC) + (int64_t)(linger_s * 1e9);
   while (now_ns(CLOCK_MONOTONIC) < linger_end) {
-    drain(r_cs, r_ct, &counts);
+    drain(r_cs, r_ct, r_ros_pose, &counts);
     dds_sleepfor(DDS_MSECS(10));
   }
-  drain(r_cs, r_ct, &counts);
+  drain(r_cs, r_ct, r_ros_pose, &counts);
 
   FILE* out = fopen(argv[4], "w");
   if (!out) {
     fprintf(stderr, "cyclone_peer: cannot write %s\n", argv[4]);
     return 1;
   }
-  /* reason: cellcal's own text (no quotes or backslashes in it). */
+  /* The k-th PoseStamped against the k-th applied correction (both reliable, in order). */
+  double pose_max_diff = 0;
+  const uint64_t pairs = counts.poses < counts.applied ? counts.poses : counts.applied;
+  for (uint64_t k = 0; k < pairs && k < KEEP; ++k)
+    for (int i = 0; i < 7; ++i) {
+      const double d = counts.posed[k][i] - counts.corrected[k][i];
+      if ((d < 0 ? -d : d) > pose_max_diff) pose_max_diff = d < 0 ? -d : d;
+    }
+  /* reason and frame_id: cellcal's own text (no quotes or backslashes in it). */
   fprintf(out,
           "{\"published\": {\"joint_state\": %" PRIu64 ", \"tracker_pose\": %" PRIu64 ", \"target_pose\": %" PRIu64
-          "}, \"received\": {\"calibration_state\": %" PRIu64 ", \"max_version\": %" PRIu64
-          ", \"compensated_target\": %" PRIu64 ", \"applied\": %" PRIu64 ", \"last_reason\": \"%s\"}}\n",
-          n_js, n_tp, n_tg, counts.states, counts.max_version, counts.compensated, counts.applied, counts.last_reason);
+          ", \"ros_joint_state\": %" PRIu64 "}, \"received\": {\"calibration_state\": %" PRIu64
+          ", \"max_version\": %" PRIu64 ", \"compensated_target\": %" PRIu64 ", \"applied\": %" PRIu64
+          ", \"last_reason\": \"%s\", \"pose_stamped\": %" PRIu64 ", \"last_frame_id\": \"%s\""
+          ", \"pose_max_diff\": %.17g}}\n",
+          n_js, n_tp, n_tg, n_ros_js, counts.states, counts.max_version, counts.compensated, counts.applied,
+          counts.last_reason, counts.poses, counts.last_frame_id, pose_max_diff);
   fclose(out);
   dds_delete_qos(sensor);
   dds_delete_qos(command);
   dds_delete_qos(calibration);
+  dds_delete_qos(ros_default);
   dds_delete(pp);
   return 0;
 }

@@ -26,6 +26,40 @@ const char* kCycloneLoopback =
     "<MaxAutoParticipantIndex>40</MaxAutoParticipantIndex><Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery>"
     "</Domain></CycloneDDS>";
 
+// The cell's robot as the simulator plays it (hidden errors from the seed).
+SimulatedCell simulatedRobot(const CellConfig& cell, std::uint64_t seed) {
+  SimulationSettings settings;
+  settings.seed = seed;
+  return makeSimulatedCell(cell.robots[0], settings, 0);
+}
+
+// A tracker reading as a peer input line (cyclone_peer.c's T line).
+void trackerLine(std::ostream& in, std::int64_t t_ms, const Observation& reading) {
+  const msg::TrackerPose r = components::toTrackerPose("tx60_target", 0, 0, reading);
+  in << "T " << t_ms * 1000000 << " tx60_target " << (r.has_orientation() ? 1 : 0) << std::setprecision(17);
+  for (double v : r.position_m()) in << ' ' << v;
+  for (double v : r.orientation_xyzw()) in << ' ' << v;
+  for (double v : r.covariance()) in << ' ' << v;
+  in << '\n';
+}
+
+// `targets` targets the nominal model reaches, 50 ms apart from t_ms, the controller's joints for each as the solver's
+// seed (P lines).
+void targetLines(std::ostream& in, const SimulatedCell& sim, std::mt19937_64& rng, std::int64_t t_ms, int targets) {
+  KinematicsData kd(sim.model());
+  for (const auto& q : sim.randomConfigurations(targets, rng)) {
+    msg::TargetPose tp;
+    components::fromPose(forwardKinematics(sim.model(), kd, sim.nominalParams(), q), tp.position_m(), tp.orientation_xyzw());
+    in << "P " << t_ms * 1000000 << " tx60" << std::setprecision(17);
+    for (double v : tp.position_m()) in << ' ' << v;
+    for (double v : tp.orientation_xyzw()) in << ' ' << v;
+    in << ' ' << q.size();
+    for (int i = 0; i < q.size(); ++i) in << ' ' << q[i];
+    in << '\n';
+    t_ms += 50;
+  }
+}
+
 TEST(Interop, CycloneDdsFeedsTheEngineAndReceivesCalibrationsAndCompensatedTargets) {
   const std::string dir = testDir();
   const int domain = domainForTest();
@@ -37,9 +71,7 @@ TEST(Interop, CycloneDdsFeedsTheEngineAndReceivesCalibrationsAndCompensatedTarge
   // The inputs: 40 stand-stills of a simulated robot (hidden errors from the seed), each a move, two settled joint
   // states, the tracker reading, two more; then 20 targets the nominal model reaches, with those joints as the seed.
   std::mt19937_64 rng(seed);
-  SimulationSettings settings;
-  settings.seed = seed;
-  const SimulatedCell sim = makeSimulatedCell(cell.robots[0], settings, 0);
+  const SimulatedCell sim = simulatedRobot(cell, seed);
   const int poses = 40, targets = 20;
   const auto qs = sim.randomConfigurations(poses + 1, rng);
   std::ofstream in(dir + "/inputs.txt");
@@ -53,28 +85,11 @@ TEST(Interop, CycloneDdsFeedsTheEngineAndReceivesCalibrationsAndCompensatedTarge
     joints(t, qs[k] + 0.5 * (qs[k + 1] - qs[k]), false);
     joints(t + 40, qs[k + 1], true);
     joints(t + 50, qs[k + 1], true);
-    const msg::TrackerPose r = components::toTrackerPose("tx60_target", 0, 0, sim.measure(qs[k + 1], 0.0, rng));
-    in << "T " << (t + 55) * 1000000 << " tx60_target " << (r.has_orientation() ? 1 : 0) << std::setprecision(17);
-    for (double v : r.position_m()) in << ' ' << v;
-    for (double v : r.orientation_xyzw()) in << ' ' << v;
-    for (double v : r.covariance()) in << ' ' << v;
-    in << '\n';
+    trackerLine(in, t + 55, sim.measure(qs[k + 1], 0.0, rng));
     joints(t + 60, qs[k + 1], true);
     joints(t + 70, qs[k + 1], true);
   }
-  KinematicsData kd(sim.model());
-  std::int64_t t = 100LL * poses + 1000;  // 1 s after the last reading: the calibration has reached compensation
-  for (const auto& q : sim.randomConfigurations(targets, rng)) {
-    msg::TargetPose tp;
-    components::fromPose(forwardKinematics(sim.model(), kd, sim.nominalParams(), q), tp.position_m(), tp.orientation_xyzw());
-    in << "P " << t * 1000000 << " tx60" << std::setprecision(17);
-    for (double v : tp.position_m()) in << ' ' << v;
-    for (double v : tp.orientation_xyzw()) in << ' ' << v;
-    in << ' ' << q.size();  // the controller's joints for the target, as the solver's seed
-    for (int i = 0; i < q.size(); ++i) in << ' ' << q[i];
-    in << '\n';
-    t += 50;
-  }
+  targetLines(in, sim, rng, 100LL * poses + 1000, targets);  // 1 s after the last reading: calibrated by then
   in.close();
 
   Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet", "--stats-json", dir + "/engine.json"});
@@ -107,6 +122,99 @@ TEST(Interop, CycloneDdsFeedsTheEngineAndReceivesCalibrationsAndCompensatedTarge
               poses, targets, tracker_rx, p["received"]["max_version"].get<int>(),
               p["received"]["calibration_state"].get<int>(), p["received"]["compensated_target"].get<int>(),
               p["received"]["applied"].get<int>());
+}
+
+// A ROS 2 cell: the robot driver is a ROS 2 node publishing sensor_msgs/JointState on /joint_states, here played by
+// the Cyclone DDS peer as rmw_cyclonedds puts it on the wire (topic rt/joint_states, type
+// sensor_msgs::msg::dds_::JointState_, ROS 2's default QoS, names in the driver's own order with a gripper joint the
+// robot file does not have, no `settled` flag). The joint-state adapter reads it with --source ros2; the compensation
+// publisher answers targets on cellcal/compensated_target and also as geometry_msgs/PoseStamped on
+// /cellcal/corrected_pose, which the peer reads. One sample in 40 lacks a joint: skipped and said, nothing else lost.
+TEST(Interop, Ros2JointStatesInCorrectedPosesOut) {
+  const std::string dir = testDir();
+  const int domain = domainForTest();
+  const std::uint64_t seed = testSeed();
+  const std::string cfg = writeCell(dir, domain, seed, {{"tx60", "tx60_target"}}, "", "", ", type_information: false");
+  const CellConfig cell = loadCellConfig(cfg);
+  const std::vector<std::string> robot_joints = {"shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+                                                 "wrist_1_joint",      "wrist_2_joint",       "wrist_3_joint"};
+  // The driver's order (alphabetical, as ros2_control's joint_state_broadcaster sends a UR's joints) and a gripper.
+  const std::vector<int> wire_order = {2, -1, 1, 0, 3, 4, 5};  // index into robot_joints; -1: the gripper
+
+  std::mt19937_64 rng(seed);
+  const SimulatedCell sim = simulatedRobot(cell, seed);
+  const int poses = 40, targets = 20;
+  const auto qs = sim.randomConfigurations(poses + 1, rng);
+  std::ofstream in(dir + "/inputs.txt");
+  int ros_lines = 0, faulty = 0;
+  auto joints = [&](std::int64_t t_ms, const Eigen::VectorXd& q) {
+    const bool drop = ++ros_lines % 40 == 0;  // this sample lacks wrist_3_joint
+    faulty += drop;
+    const int n = static_cast<int>(wire_order.size()) - (drop ? 1 : 0);
+    in << "R " << t_ms * 1000000 << " base_link " << n;
+    for (int w : wire_order)
+      if (!(drop && w == 5)) in << ' ' << (w < 0 ? "gripper_finger_joint" : robot_joints[static_cast<size_t>(w)]);
+    for (int w : wire_order)
+      if (!(drop && w == 5)) in << ' ' << std::setprecision(17) << (w < 0 ? 0.01 : q[w]);
+    in << '\n';
+  };
+  for (int k = 0; k < poses; ++k) {
+    const std::int64_t t = 100LL * k;
+    for (int i = 0; i < 3; ++i) joints(t + 10 * i, qs[k] + (i + 1) / 3.0 * (qs[k + 1] - qs[k]));  // the move
+    for (std::int64_t ms = 30; ms < 100; ms += 10) {
+      joints(t + ms, qs[k + 1]);  // standing still: 70 ms, settled after 20 ms (--settle-window-s 0.02)
+      if (ms == 70) {
+        trackerLine(in, t + 75, sim.measure(qs[k + 1], 0.0, rng));
+      }
+    }
+  }
+  targetLines(in, sim, rng, 100LL * poses + 1000, targets);
+  in.close();
+
+  std::string names;
+  for (const auto& n : robot_joints) names += (names.empty() ? "" : ",") + n;
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet", "--stats-json", dir + "/engine.json"});
+  Process compensation(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg, "--ros-pose-topic",
+                                             "/cellcal/corrected_pose", "--ros-frame-id", "cell_tracker"});
+  Process adapter(dir, "joint_state_adapter",
+                  {"cellcal_joint_state_adapter", "--config", cfg, "--source", "ros2", "--ros-topic", "/joint_states",
+                   "--ros-joint-names", names, "--settle-window-s", "0.02", "--stats-json", dir + "/adapter.json"});
+  std::ofstream(dir + "/cyclone.xml") << kCycloneLoopback;
+  ::setenv("CYCLONEDDS_URI", ("file://" + dir + "/cyclone.xml").c_str(), 1);
+  Process peer(dir, "cyclone_peer", {"cyclone_peer", std::to_string(domain), dir + "/inputs.txt", "2", dir + "/peer.json",
+                                     "rt/cellcal/corrected_pose"});
+  ASSERT_EQ(peer.wait(60), 0) << peer.log() << adapter.log() << engine.log() << compensation.log();
+  EXPECT_EQ(adapter.stop(SIGINT), 0) << adapter.log();
+  EXPECT_EQ(engine.stop(SIGINT), 0) << engine.log();
+  EXPECT_EQ(compensation.stop(SIGINT), 0) << compensation.log();
+  const auto p = readJson(dir + "/peer.json");
+  const auto e = readJson(dir + "/engine.json");
+  const auto a = readJson(dir + "/adapter.json");
+  ASSERT_FALSE(p.is_discarded()) << peer.log();
+  ASSERT_FALSE(e.is_discarded()) << engine.log();
+  ASSERT_FALSE(a.is_discarded()) << adapter.log();
+  EXPECT_EQ(p["published"]["ros_joint_state"], ros_lines);
+  // ROS 2 -> the adapter: every JointState (reliable writer, loopback), the faulty ones skipped and said.
+  const int ros_rx = a["extra"]["ros2_received"];
+  EXPECT_GE(ros_rx, ros_lines - 2) << a.dump();
+  EXPECT_EQ(a["extra"]["ros2_skipped"].get<int>(), faulty) << a.dump();
+  EXPECT_NE(adapter.log().find("no joint 'wrist_3_joint'"), std::string::npos) << adapter.log();
+  EXPECT_GT(a["extra"]["settled"].get<int>(), 3 * (poses - 2)) << a.dump();
+  // The engine paired the adapter's settled joint states with the tracker and calibrated.
+  const int tracker_rx = e["topics"]["cellcal/tracker_pose"]["received"];
+  EXPECT_GE(tracker_rx, poses - 2) << e.dump();
+  EXPECT_GE(p["received"]["max_version"].get<int>(), poses - 4) << p.dump() << e.dump() << engine.log();
+  // Every applied correction also came as a PoseStamped, with the same pose, in the given frame.
+  EXPECT_EQ(p["received"]["compensated_target"], targets) << p.dump();
+  EXPECT_GE(p["received"]["applied"].get<int>(), targets / 2) << p.dump();
+  EXPECT_EQ(p["received"]["pose_stamped"], p["received"]["applied"]) << p.dump();
+  EXPECT_EQ(p["received"]["last_frame_id"], "cell_tracker") << p.dump();
+  EXPECT_EQ(p["received"]["pose_max_diff"].get<double>(), 0.0) << p.dump();
+  std::printf("  ROS 2 peer (Cyclone DDS): %d JointState sent (%d without a joint), the adapter received %d and skipped "
+              "%d; the engine published up to v%d from %d readings; %d targets, %d applied, %d PoseStamped received\n",
+              ros_lines, faulty, ros_rx, a["extra"]["ros2_skipped"].get<int>(),
+              p["received"]["max_version"].get<int>(), tracker_rx, targets, p["received"]["applied"].get<int>(),
+              p["received"]["pose_stamped"].get<int>());
 }
 
 }  // namespace

@@ -8,7 +8,7 @@ namespace cellcal::components {
 
 void addCsvReplayOptions(CLI::App& app, CsvReplayOptions& o) {
   app.add_option("--csv", o.path, "csv: measurement file (CSV v1)");
-  app.add_option("--robot-id", o.robot_id, "csv: robot the file belongs to (default: the first of the cell)");
+  app.add_option("--robot-id", o.robot_id, "csv: robot the file belongs to (default: the first of the cell); ros2: whose joints (default: the only one)");
   app.add_option("--period-s", o.period_s, "csv: seconds between rows without stamp_s")->capture_default_str();
   app.add_option("--rate", o.rate, "csv: replay stamp_s this many times faster")->capture_default_str();
   app.add_option("--start-unix-ns", o.start_unix_ns, "csv: wall time of the first row (same for both adapters)");

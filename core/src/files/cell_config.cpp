@@ -99,7 +99,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     const YAML::Node n = robots[i];
     r.requireMap(n, f);
     r.checkKeys(n, f, {"robot_id", "target_id", "robot_file", "measurement", "base_in_tracker", "tool_in_flange",
-                         "extensions", "calibration_file"});
+                         "extensions", "calibration_file", "ros2_joint_names"});
     CellRobot rb;
     rb.robot_id = r.string(r.required(n, "robot_id", f + ".robot_id"), f + ".robot_id");
     rb.target_id = r.string(r.required(n, "target_id", f + ".target_id"), f + ".target_id");
@@ -162,6 +162,20 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
         r.fail(n["calibration_file"], fc,
                "its kinematic parameters differ from those of robot_file " + rb.robot_file +
                    " (another robot or joint layout)");
+    }
+    if (n["ros2_joint_names"].IsDefined()) {
+      const YAML::Node x = n["ros2_joint_names"];
+      const std::string fx = f + ".ros2_joint_names";
+      if (!x.IsSequence() || static_cast<int>(x.size()) != rb.model.numJoints())
+        r.fail(x, fx, "expected a list of " + std::to_string(rb.model.numJoints()) +
+                          " joint names (one per joint of " + rb.robot_file + ", base to flange)");
+      std::set<std::string> seen;
+      for (size_t k = 0; k < x.size(); ++k) {
+        const std::string fk = fx + "[" + std::to_string(k) + "]";
+        const std::string name = r.string(x[k], fk);
+        if (!seen.insert(name).second) r.fail(x[k], fk, "'" + name + "' named twice");
+        rb.ros2_joint_names.push_back(name);
+      }
     }
     if (rb.base_in_tracker) rb.model.nominal.segment<6>(rb.model.baseParam(FrameParam::kX)) = *rb.base_in_tracker;
     if (rb.tool_in_flange) rb.model.nominal.segment<6>(rb.model.toolParam(FrameParam::kX)) = *rb.tool_in_flange;

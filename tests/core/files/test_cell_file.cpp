@@ -111,6 +111,31 @@ TEST(CellFile, MetresInTheRegistrationAreCalledOut) {
   }
 }
 
+// The ROS 2 joint names (docs/ros2.md): one per joint of the robot file, none empty or twice, each fault named with
+// its line and field.
+TEST(CellFile, Ros2JointNamesAreOnePerJoint) {
+  auto cell = [](const std::string& names) {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml,\n      ros2_joint_names: " + names +
+           " }\n";
+  };
+  const std::string ur = "[shoulder_pan_joint, shoulder_lift_joint, elbow_joint, wrist_1_joint, wrist_2_joint, wrist_3_joint]";
+  const CellConfig ok = parseCellConfig(cell(ur), "cell.yaml", CELLCAL_CONFIG_DIR);
+  ASSERT_EQ(ok.robots[0].ros2_joint_names.size(), 6u);
+  EXPECT_EQ(ok.robots[0].ros2_joint_names[2], "elbow_joint");
+  EXPECT_TRUE(parseCellConfig("robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml }\n", "cell.yaml",
+                              CELLCAL_CONFIG_DIR)
+                  .robots[0]
+                  .ros2_joint_names.empty());
+  EXPECT_NE(errorOf(cell("[a, b, c]")).find("cell.yaml:3:25: robots[0].ros2_joint_names: expected a list of 6 joint names"),
+            std::string::npos)
+      << errorOf(cell("[a, b, c]"));
+  EXPECT_NE(errorOf(cell("[a, b, c, d, e, a]")).find("robots[0].ros2_joint_names[5]: 'a' named twice"),
+            std::string::npos);
+  EXPECT_NE(errorOf(cell("[a, b, c, d, e, '']")).find("robots[0].ros2_joint_names[5]: expected a non-empty string"),
+            std::string::npos);
+  EXPECT_NE(errorOf(cell("elbow_joint")).find("robots[0].ros2_joint_names"), std::string::npos);
+}
+
 TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
   auto cell = [](const std::string& ext, const std::string& sim = "") {
     return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml, extensions: " + ext + " }\n" + sim;

@@ -25,6 +25,7 @@
 
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal_msgsPubSubTypes.h"
+#include "ros2_msgsPubSubTypes.h"
 
 namespace cellcal::components {
 
@@ -46,6 +47,11 @@ CELLCAL_TOPIC(cellcal::msg::CalibrationDiagnostics, "cellcal/calibration_diagnos
 CELLCAL_TOPIC(cellcal::msg::TargetPose, "cellcal/target_pose", "command")
 CELLCAL_TOPIC(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "command")
 CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream")
+// ROS 2 messages (ros2_msgs.idl): no fixed topic, the user names it (ros2.hpp turns "/joint_states" into
+// "rt/joint_states"); QoS profile "ros2": readers best effort (they match reliable and best-effort publishers),
+// writers reliable, volatile, keep last 10 (ROS 2's default).
+CELLCAL_TOPIC(sensor_msgs::msg::dds_::JointState_, "", "ros2")
+CELLCAL_TOPIC(geometry_msgs::msg::dds_::PoseStamped_, "", "ros2")
 #undef CELLCAL_TOPIC
 
 struct TopicCounters {
@@ -92,25 +98,29 @@ class DdsNode {
   DdsNode(const DdsNode&) = delete;
   DdsNode& operator=(const DdsNode&) = delete;
 
+  // `topic_name`: the DDS topic when M has no fixed one (the ROS 2 types); empty: TopicOf<M>::name.
   template <class M>
-  Writer<M> writer() {
-    fdds::Topic* t = topic<M>();
+  Writer<M> writer(const std::string& topic_name = "") {
+    const std::string name = topicName<M>(topic_name);
+    fdds::Topic* t = topic<M>(name);
     fdds::DataWriter* w = publisher_->create_datawriter_with_profile(t, TopicOf<M>::profile);
     if (!w)
-      throw std::runtime_error(std::string("cannot create a writer on ") + TopicOf<M>::name + " with profile " +
-                               TopicOf<M>::profile + (secure_ ? " (DDS Security: the permissions may not grant it)" : ""));
-    return Writer<M>(w, counters(TopicOf<M>::name));
+      throw std::runtime_error("cannot create a writer on " + name + " with profile " + TopicOf<M>::profile +
+                               (secure_ ? " (DDS Security: the permissions may not grant it)" : ""));
+    return Writer<M>(w, counters(name));
   }
 
   // `on_sample` runs on a Fast DDS thread for every valid sample; keep it short and thread-safe. Returns the reader
   // (owned by the node) for its QoS and status.
   template <class M>
-  fdds::DataReader* reader(std::function<void(const M&, const fdds::SampleInfo&)> on_sample) {
-    fdds::Topic* t = topic<M>();
-    auto l = std::make_unique<Listener<M>>(std::move(on_sample), counters(TopicOf<M>::name));
+  fdds::DataReader* reader(std::function<void(const M&, const fdds::SampleInfo&)> on_sample,
+                           const std::string& topic_name = "") {
+    const std::string name = topicName<M>(topic_name);
+    fdds::Topic* t = topic<M>(name);
+    auto l = std::make_unique<Listener<M>>(std::move(on_sample), counters(name));
     fdds::DataReader* r = subscriber_->create_datareader_with_profile(t, TopicOf<M>::profile, l.get());
     if (!r)
-      throw std::runtime_error(std::string("cannot create a reader on ") + TopicOf<M>::name +
+      throw std::runtime_error("cannot create a reader on " + name +
                                (secure_ ? " (DDS Security: the permissions may not grant it)" : ""));
     listeners_.push_back(std::move(l));
     return r;
@@ -167,9 +177,16 @@ class DdsNode {
   };
 
   template <class M>
-  fdds::Topic* topic() {
+  static std::string topicName(const std::string& given) {
+    const std::string name = given.empty() ? std::string(TopicOf<M>::name) : given;
+    if (name.empty()) throw std::invalid_argument("DdsNode: this message type has no fixed topic: name one");
+    return name;
+  }
+
+  template <class M>
+  fdds::Topic* topic(const std::string& name) {
     std::lock_guard<std::mutex> lock(mutex_);
-    auto it = topics_.find(TopicOf<M>::name);
+    auto it = topics_.find(name);
     if (it != topics_.end()) return it->second;
     fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
     // Discovery carries the TypeInformation (hashes; a recorder fetches the TypeObject through the TypeLookup service)
@@ -179,9 +196,9 @@ class DdsNode {
     type->auto_fill_type_object(false);
     type->auto_fill_type_information(type_information_);
     type.register_type(participant_);
-    fdds::Topic* t = participant_->create_topic(TopicOf<M>::name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
-    if (!t) throw std::runtime_error(std::string("cannot create topic ") + TopicOf<M>::name);
-    topics_[TopicOf<M>::name] = t;
+    fdds::Topic* t = participant_->create_topic(name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+    if (!t) throw std::runtime_error("cannot create topic " + name);
+    topics_[name] = t;
     return t;
   }
   std::shared_ptr<TopicCounters> counters(const std::string& topic);

@@ -52,6 +52,10 @@ struct CellRobot {
   // `model` and the engine's prior.
   std::string calibration_file;                // absolute path
   std::optional<RobotFile> start;
+  // The names this robot's joints have in a ROS 2 sensor_msgs/JointState (key ros2_joint_names), base to flange,
+  // one per joint of the robot file, e.g. a UR driver's [shoulder_pan_joint, ..., wrist_3_joint]. The joint-state
+  // adapter's ROS 2 source maps the message's names through it (docs/ros2.md). Empty: not given.
+  std::vector<std::string> ros2_joint_names;
 };
 
 struct EngineSettings {
