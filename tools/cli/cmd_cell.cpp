@@ -15,6 +15,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <thread>
 
 #include "cellcal/components/child_process.hpp"
@@ -46,6 +47,10 @@ struct CellArgs {
   bool quiet = false;
   bool in_process_reference = true;
   std::string record;  // MCAP file: a recorder process records every topic
+  // --host PROCESS=NETNS: run that process in that network namespace (`ip netns exec`), as on another host
+  // (tools/netns/cellnet.sh makes them); the others run where the launcher does.
+  std::vector<std::string> host_specs;
+  std::map<std::string, std::string> hosts;  // from host_specs
 };
 
 // A process of the cell: its name, the file it writes its counts to at exit, and the process.
@@ -54,13 +59,22 @@ struct Child {
   ChildProcess process;
 };
 
-// Starts bin/cellcal_<name> (or `cellcal <args>` when `self`) with its output in <work_dir>/<name>.log.
-Child spawn(const std::string& name, std::vector<std::string> args, const std::string& work_dir, bool self = false) {
+// Starts bin/cellcal_<name> (or `cellcal <args>` when `self`) with its output in <work_dir>/<name>.log; with `netns`,
+// in that network namespace (`ip netns exec` execs the program in place: same pid, same death signal).
+Child spawn(const std::string& name, std::vector<std::string> args, const std::string& work_dir, bool self = false,
+            const std::string& netns = "") {
   const fs::path exe = self ? fs::read_symlink("/proc/self/exe")
                             : fs::read_symlink("/proc/self/exe").parent_path() / ("cellcal_" + name);
   const std::string stats = (fs::path(work_dir) / (name + ".stats.json")).string();
   args.insert(args.end(), {"--stats-json", stats});
-  return Child{name, stats, ChildProcess(exe.string(), args, (fs::path(work_dir) / (name + ".log")).string())};
+  const std::string log = (fs::path(work_dir) / (name + ".log")).string();
+  if (netns.empty()) return Child{name, stats, ChildProcess(exe.string(), args, log)};
+  std::string ip;
+  for (const char* p : {"/usr/sbin/ip", "/usr/bin/ip", "/sbin/ip", "/bin/ip"})
+    if (ip.empty() && ::access(p, X_OK) == 0) ip = p;
+  if (ip.empty()) throw std::runtime_error("--host: no ip command (Debian package iproute2)");
+  args.insert(args.begin(), {"netns", "exec", netns, exe.string()});
+  return Child{name, stats, ChildProcess(ip, args, log)};
 }
 
 // The judge's view of one robot: truth, hold-out poses, calibrations, targets.
@@ -368,15 +382,22 @@ std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, con
     before.insert(before.end(), after.begin(), after.end());
     return before;
   };
+  auto host = [&](const std::string& name) {
+    const auto it = a.hosts.find(name);
+    return it == a.hosts.end() ? std::string() : it->second;
+  };
   std::vector<Child> children;
   if (!a.record.empty())
-    children.push_back(spawn("recorder", with({"record"}, {"--out", fs::absolute(a.record).string(), "--quiet"}), a.work_dir, true));
-  children.push_back(spawn("calibration_engine", with({}, {"--state-dir", state_dir, "--quiet"}), a.work_dir));
-  children.push_back(spawn("compensation_publisher", common, a.work_dir));
-  children.push_back(spawn("tracker_adapter", with({}, {"--source", "sim"}), a.work_dir));
+    children.push_back(spawn("recorder", with({"record"}, {"--out", fs::absolute(a.record).string(), "--quiet"}),
+                             a.work_dir, true, host("recorder")));
+  children.push_back(spawn("calibration_engine", with({}, {"--state-dir", state_dir, "--quiet"}), a.work_dir, false,
+                           host("calibration_engine")));
+  children.push_back(spawn("compensation_publisher", common, a.work_dir, false, host("compensation_publisher")));
+  children.push_back(spawn("tracker_adapter", with({}, {"--source", "sim"}), a.work_dir, false, host("tracker_adapter")));
   // The robot starts its program once the engine and the tracker listen (discovery on loopback takes a moment).
   children.push_back(spawn("joint_state_adapter",
-                           with({}, {"--source", "sim", "--wait-for-readers", a.record.empty() ? "2" : "3"}), a.work_dir));
+                           with({}, {"--source", "sim", "--wait-for-readers", a.record.empty() ? "2" : "3"}), a.work_dir,
+                           false, host("joint_state_adapter")));
   return children;
 }
 
@@ -480,7 +501,22 @@ Runner addCellCommand(CLI::App& app) {
   cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses published per second and robot")->capture_default_str();
   cmd->add_flag("--quiet", a->quiet, "no line per update");
   cmd->add_option("--record", a->record, "also run `cellcal record` on every topic into this MCAP file");
+  cmd->add_option("--host", a->host_specs,
+                  "PROCESS=NETNS: run that process (tracker_adapter, joint_state_adapter, calibration_engine, "
+                  "compensation_publisher, recorder) in that network namespace, as on another host "
+                  "(tools/netns/cellnet.sh, docs/deployment.md); repeatable")
+      ->delimiter(',')
+      ->check([](const std::string& v) {
+        const auto eq = v.find('=');
+        static const std::set<std::string> names = {"tracker_adapter", "joint_state_adapter", "calibration_engine",
+                                                    "compensation_publisher", "recorder"};
+        if (eq == std::string::npos || eq + 1 == v.size() || !names.count(v.substr(0, eq)))
+          return "expected PROCESS=NETNS with PROCESS one of tracker_adapter, joint_state_adapter, calibration_engine, "
+                 "compensation_publisher, recorder; got '" + v + "'";
+        return std::string();
+      });
   return [a] {
+    for (const auto& h : a->host_specs) a->hosts[h.substr(0, h.find('='))] = h.substr(h.find('=') + 1);
     installStopHandlers();
     return runCell(*a);
   };
