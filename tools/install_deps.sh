@@ -12,6 +12,7 @@ PACKAGES=(
   libfastrtps-dev fastddsgen
   openssl                           # config/security/make_pki.sh (DDS Security test CA and certificates)
   cyclonedds-dev cyclonedds-tools   # tests/interop (a Cyclone DDS peer from cellcal's IDL)
+  fastdds-tools iproute2            # tests/netns: the Discovery Server (fastdds discovery), network namespaces (ip)
   gnuplot-nox
   clang libclang-rt-14-dev          # tools/fuzz.sh (libFuzzer + sanitizers)
 )

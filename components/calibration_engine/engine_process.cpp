@@ -87,12 +87,15 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
   // Say it once on stderr when it changes (the diagnostics topic carries it every republish period).
   const auto& snap = r.engine->snapshot();
   // Without its figures ("nothing for 4.1 s" grows every period): a line when what is stale changes, not each second.
-  const std::string line = maskFigures(stale) + "|" + r.persist_error + "|" + snap.health_reason;
+  const std::string clock = d.clock_warning().to_string();
+  const std::string line = maskFigures(stale) + "|" + r.persist_error + "|" + snap.health_reason + "|" +
+                           (clock.empty() ? "" : "clock");
   if (p.reported == line) return;
   p.reported = line;
   const std::string& id = r.robot->robot_id;
   if (!stale.empty()) std::cerr << "calibration_engine: " << id << ": stale input: " << stale << "\n";
   if (!r.persist_error.empty()) std::cerr << "calibration_engine: " << id << ": " << r.persist_error << "\n";
+  if (!clock.empty()) std::cerr << "calibration_engine: " << id << ": clock: " << clock << "\n";
   if (snap.health != Health::kOk && snap.health != Health::kUncalibrated)
     std::cerr << "calibration_engine: " << id << ": health " << healthName(snap.health) << ": " << snap.health_reason << "\n";
 }

@@ -1,5 +1,6 @@
 #include "tracker_adapter.hpp"
 
+#include <cmath>
 #include <iostream>
 #include <map>
 #include <mutex>
@@ -48,7 +49,9 @@ void TrackerAdapter::runSim() {
     const Observation obs = r.sim.measure(q, t.cell_time_s() / 3600.0, r.rng, r.robot->measurement);
     // A tracker triggered in sync with the controller: the reading is stamped with the instant it measured, the
     // instant of the robot state it saw (so the engine finds the joint state of that very instant).
-    auto m = toTrackerPose(r.robot->target_id, static_cast<std::int64_t>(t.source_stamp_ns()), ++r.seq, obs);
+    // (simulation.tracker_clock_offset_ms: a tracker host whose clock runs ahead, a drill for the engine's warning.)
+    const auto offset_ns = static_cast<std::int64_t>(std::llround(sim.tracker_clock_offset_s * 1e9));
+    auto m = toTrackerPose(r.robot->target_id, static_cast<std::int64_t>(t.source_stamp_ns()) + offset_ns, ++r.seq, obs);
     writer_.write(m);
     ++measured;
   });

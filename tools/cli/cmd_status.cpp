@@ -38,7 +38,7 @@ struct RobotView {
   double verification_mm = std::nan(""), residual_mm = std::nan(""), predicted_mm = std::nan("");
   std::map<std::string, std::uint64_t> rejections;
   bool drift_alarm = false;
-  std::string health_reason, stale_inputs, persist_error, last_rejection;
+  std::string health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
   std::uint64_t answers = 0, applied = 0;
   double last_correction_mm = std::nan(""), last_correction_deg = std::nan(""), max_correction_mm = 0;
   std::string last_reason;
@@ -66,6 +66,7 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
              {"rejections", r.rejections},
              {"drift_alarm", r.drift_alarm},
              {"stale_inputs", r.stale_inputs},
+             {"clock_warning", r.clock_warning},
              {"persist_error", r.persist_error},
              {"compensated_targets", r.answers},
              {"applied", r.applied},
@@ -109,6 +110,7 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
     if (!r.health_reason.empty()) notes.push_back("health: " + r.health_reason);
     if (r.drift_alarm) notes.push_back("DRIFT ALARM");
     if (!r.stale_inputs.empty()) notes.push_back("STALE INPUT: " + r.stale_inputs);
+    if (!r.clock_warning.empty()) notes.push_back("CLOCKS DISAGREE: " + r.clock_warning);
     if (!r.persist_error.empty()) notes.push_back("STATE NOT SAVED: " + r.persist_error);
     if (!r.rejections.empty()) {
       std::string s = "rejected:";
@@ -156,6 +158,7 @@ int runStatus(const StatusArgs& a) {
     r.drift_alarm = d.drift_alarm();
     r.health_reason = d.health_reason().to_string();
     r.stale_inputs = d.stale_inputs().to_string();
+    r.clock_warning = d.clock_warning().to_string();
     r.persist_error = d.persist_error().to_string();
     r.predicted_mm = d.prediction_sigma_position_m() * 1e3;
     r.last_rejection = d.last_rejection().to_string();

@@ -4,8 +4,11 @@
 # robot-pc, .3 cell-server). Nothing is added to the machine's own network namespace; traffic stays between these.
 # Run as root (ip netns needs CAP_SYS_ADMIN). docs/deployment.md#several-hosts-on-one-machine.
 #
-#   cellnet.sh up PREFIX [NETEM...]   make them; NETEM (e.g. delay 3ms 1ms loss 1%) shapes every host's link with
-#                                     tc netem (exit 3 when the kernel has no netem; the namespaces are then removed)
+#   cellnet.sh up PREFIX [--no-multicast] [NETEM...]
+#                                     make them; --no-multicast: the hosts' links carry no multicast (no route for
+#                                     it, multicast off), as a network that blocks it; NETEM (e.g. delay 3ms 1ms loss
+#                                     1%) shapes every host's link with tc netem (exit 3 when the kernel has no netem;
+#                                     the namespaces are then removed)
 #   cellnet.sh down PREFIX            remove them (what exists of them; no error when already gone)
 #   cellnet.sh link PREFIX HOST up|down   cut or heal one host's link at the switch (HOST: tracker-pc, robot-pc,
 #                                     cell-server)
@@ -36,14 +39,16 @@ check() {
 }
 
 up() {
-  local p=$1
+  local p=$1 multicast=1
   shift
+  if [ "${1:-}" = "--no-multicast" ]; then multicast=0; shift; fi
   [ ${#p} -le 8 ] || die "prefix '$p': at most 8 characters (interface names are short)" 2
   down "$p"
   ip netns add "$p-switch" || die "ip netns add refused"
   ip -n "$p-switch" link set lo up
   ip -n "$p-switch" link add br0 type bridge || { down "$p"; die "no bridge"; }
   ip -n "$p-switch" link set br0 up
+  if [ $multicast = 0 ]; then ip -n "$p-switch" link set br0 type bridge mcast_snooping 0; fi
   local i=0
   for h in "${hosts[@]}"; do
     i=$((i + 1))
@@ -59,7 +64,13 @@ up() {
     ip -n "$ns" addr add "10.231.0.$i/24" dev eth0
     ip -n "$ns" link set eth0 up
     # DDS discovery by multicast (239.255.0.1) goes out of eth0: a default route through it.
-    ip -n "$ns" route add default dev eth0
+    if [ $multicast = 1 ]; then
+      ip -n "$ns" route add default dev eth0
+    else
+      # The switch floods no multicast to this port (without snooping every multicast frame is flooded, and a port
+      # with mcast_flood off gets none): a network that blocks multicast.
+      ip -n "$p-switch" link set "$sw_if" type bridge_slave mcast_flood off || { down "$p"; die "bridge mcast_flood refused"; }
+    fi
     if [ $# -gt 0 ]; then
       ip netns exec "$ns" tc qdisc add dev eth0 root netem "$@" 2>/dev/null || {
         down "$p"
@@ -67,7 +78,7 @@ up() {
       }
     fi
   done
-  echo "cellnet: $p-tracker-pc 10.231.0.1, $p-robot-pc 10.231.0.2, $p-cell-server 10.231.0.3${1:+ (netem $*)}"
+  echo "cellnet: $p-tracker-pc 10.231.0.1, $p-robot-pc 10.231.0.2, $p-cell-server 10.231.0.3$([ $multicast = 0 ] && echo ', no multicast')${1:+ (netem $*)}"
 }
 
 # The switch's port of that host: the host keeps its interface, address and routes (as a PC whose cable is pulled
@@ -81,9 +92,9 @@ link() {
 }
 
 case "${1:-}" in
-  up) [ $# -ge 2 ] || die "usage: cellnet.sh up PREFIX [NETEM...]" 2; shift; up "$@" ;;
+  up) [ $# -ge 2 ] || die "usage: cellnet.sh up PREFIX [--no-multicast] [NETEM...]" 2; shift; up "$@" ;;
   down) [ $# -eq 2 ] || die "usage: cellnet.sh down PREFIX" 2; down "$2" ;;
   link) [ $# -eq 4 ] || die "usage: cellnet.sh link PREFIX HOST up|down" 2; link "$2" "$3" "$4" ;;
   check) check; exit $? ;;
-  *) die "usage: cellnet.sh up PREFIX [NETEM...] | down PREFIX | link PREFIX HOST up|down | check" 2 ;;
+  *) die "usage: cellnet.sh up PREFIX [--no-multicast] [NETEM...] | down PREFIX | link PREFIX HOST up|down | check" 2 ;;
 esac

@@ -161,6 +161,7 @@ msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r,
   d.tracker_readings_received(c.tracker_readings);
   d.poses_paired(c.paired);
   d.last_rejection(c.last_rejection.substr(0, 255));
+  d.clock_warning(r.engine->clockWarning().substr(0, 255));
   return d;
 }
 

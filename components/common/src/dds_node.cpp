@@ -4,7 +4,9 @@
 #include "cellcal/components/host_limits.hpp"
 
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/rtps/attributes/ServerAttributes.h>
 #include <fastdds/rtps/transport/UDPTransportDescriptor.h>
+#include <fastrtps/utils/IPLocator.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -14,6 +16,44 @@
 namespace cellcal::components {
 
 namespace {
+
+// Discovery without multicast (cell file dds.discovery): static peers, or a client of a Fast DDS Discovery Server.
+// Returns what it set, for the start banner ("" when the profile's discovery stays).
+std::string setDiscovery(fdds::DomainParticipantQos& qos, const DdsSettings& dds) {
+  namespace rtps = eprosima::fastrtps::rtps;
+  auto& b = qos.wire_protocol().builtin;
+  if (!dds.discovery_peers.empty()) {
+    b.initialPeersList.clear();
+    for (const auto& ip : dds.discovery_peers) {
+      rtps::Locator_t l;  // port 0: the well-known discovery ports of participants 0..maxInitialPeersRange
+      rtps::IPLocator::setIPv4(l, ip);
+      b.initialPeersList.push_back(l);
+    }
+    b.avoid_builtin_multicast = true;
+    b.metatrafficMulticastLocatorList.clear();
+    std::string s = "static peers";
+    for (const auto& ip : dds.discovery_peers) s += " " + ip;
+    return s;
+  }
+  if (dds.discovery_server_port > 0) {
+    b.discovery_config.discoveryProtocol = rtps::DiscoveryProtocol_t::CLIENT;
+    rtps::RemoteServerAttributes server;
+    if (!eprosima::fastdds::rtps::get_server_client_default_guidPrefix(dds.discovery_server_id, server.guidPrefix))
+      throw std::runtime_error("dds.discovery.server_id " + std::to_string(dds.discovery_server_id) +
+                               ": no Discovery Server prefix for it");
+    rtps::Locator_t l;
+    rtps::IPLocator::setIPv4(l, dds.discovery_server_address);
+    l.port = static_cast<std::uint32_t>(dds.discovery_server_port);
+    server.metatrafficUnicastLocatorList.push_back(l);
+    b.discovery_config.m_DiscoveryServers.clear();
+    b.discovery_config.m_DiscoveryServers.push_back(server);
+    b.avoid_builtin_multicast = true;
+    b.metatrafficMulticastLocatorList.clear();
+    return "Discovery Server " + dds.discovery_server_address + ":" + std::to_string(dds.discovery_server_port) +
+           " (id " + std::to_string(dds.discovery_server_id) + ")";
+  }
+  return "";
+}
 
 // The DDS Security properties of `identity` from the folder make_pki.sh filled; every file must exist.
 void addSecurity(fdds::DomainParticipantQos& qos, const std::string& dir, const std::string& identity) {
@@ -78,6 +118,7 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
   qos.name(node_name);
   udp_receive_buffer_bytes_ = warnOfCappedSocketBuffers(qos, node_name, cell.dds.participant_profile);
   if (!cell.dds.security_dir.empty()) addSecurity(qos, cell.dds.security_dir, identity);
+  const std::string discovery = setDiscovery(qos, cell.dds);
   participant_ = factory->create_participant(domain_id_, qos);
   if (!participant_) {
     std::string why;
@@ -96,7 +137,8 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
   if (!publisher_ || !subscriber_) throw std::runtime_error("cannot create the DDS publisher/subscriber");
   // Where it joined: what a second tool must match to see it (`cellcal cell` runs on cellcal_loopback).
   std::cerr << node_name << ": DDS domain " << domain_id_ << ", participant profile " << cell.dds.participant_profile
-            << ", DDS Security " << (secure_ ? "on (identity " + identity + ")" : std::string("off")) << "\n";
+            << ", DDS Security " << (secure_ ? "on (identity " + identity + ")" : std::string("off"))
+            << (discovery.empty() ? "" : ", discovery by " + discovery) << "\n";
 }
 
 DdsNode::~DdsNode() { shutdown(); }

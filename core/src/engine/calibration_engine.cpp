@@ -285,6 +285,26 @@ bool CalibrationEngine::samePose(const PairedReading& p, const Eigen::VectorXd& 
   return true;
 }
 
+std::string CalibrationEngine::clockWarning() const {
+  const auto h = pairing_.clockOffsetHint();
+  if (!h) return "";
+  std::ostringstream m;
+  m << std::fixed << std::setprecision(1);
+  auto lead = [&](double ahead_s, double lo_s, double hi_s) {
+    m << std::abs(ahead_s) * 1e3 << " ms " << (ahead_s > 0 ? "ahead of" : "behind") << " (a lead of " << lo_s * 1e3
+      << " to " << hi_s * 1e3 << " ms fits)";
+  };
+  m << "tracker stamps ";
+  lead(h->tracker_ahead_s, h->tracker_ahead_min_s, h->tracker_ahead_max_s);
+  if (h->other_ahead_s) {
+    m << " or ";
+    lead(*h->other_ahead_s, h->other_ahead_min_s, h->other_ahead_max_s);
+  }
+  m << " the joint states: " << h->fit_with_shift << " of the last " << h->readings << " readings fit a stand-still "
+    << "shifted so, " << h->fit_without_shift << " as stamped; synchronize the hosts' clocks (NTP/PTP)";
+  return m.str();
+}
+
 std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const {
   const auto limit = static_cast<std::int64_t>(settings_->stale_input_s * 1e9);
   std::string out;

@@ -1,6 +1,7 @@
 #include "cellcal/core/engine/pairing.hpp"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -165,6 +166,7 @@ std::optional<Rejection> PairingBuffer::addTrackerSample(const TrackerSample& s,
 
 PairingOutcome PairingBuffer::poll(std::int64_t now_ns) {
   PairingOutcome out;
+  judgeFits();
   const std::int64_t skew = toNs(opt_.max_skew_s);
   while (!pending_.empty()) {
     const auto& [s, received] = pending_.front();
@@ -202,6 +204,7 @@ PairingOutcome PairingBuffer::poll(std::int64_t now_ns) {
         << " deg across it while reported settled";
       detail = m.str();
     }
+    fits_to_judge_.push_back(t);
     if (why) {
       out.rejected.emplace_back(*why, detail);
     } else {
@@ -215,6 +218,98 @@ PairingOutcome PairingBuffer::poll(std::int64_t now_ns) {
     pending_.pop_front();
   }
   return out;
+}
+
+namespace {
+constexpr size_t kFitWindow = 12;
+constexpr std::int64_t kFitReach_ns = 500000000;  // stand-stills within 0.5 s of a reading
+}  // namespace
+
+void PairingBuffer::judgeFits() {
+  while (!fits_to_judge_.empty() && !joints_.empty() && joints_.back().stamp_ns >= fits_to_judge_.front() + kFitReach_ns) {
+    recordFit(fits_to_judge_.front());
+    fits_to_judge_.pop_front();
+  }
+  while (fits_to_judge_.size() > 4 * kFitWindow) fits_to_judge_.pop_front();  // no joint states: nothing to judge by
+}
+
+void PairingBuffer::recordFit(std::int64_t t) {
+  // Stand-stills of the joint history within 0.5 s of t: runs of settled states whose joints stay within the settle
+  // tolerance of the run's first.
+  const std::int64_t reach = kFitReach_ns;
+  std::vector<std::pair<std::int64_t, std::int64_t>> fits;
+  const JointSample* first = nullptr;
+  const JointSample* last = nullptr;
+  auto close = [&] {
+    if (first && last->stamp_ns >= t - reach && first->stamp_ns <= t + reach)
+      fits.emplace_back(first->stamp_ns - t, last->stamp_ns - t);
+    first = last = nullptr;
+  };
+  for (const auto& j : joints_) {
+    if (first && (!j.settled || (j.q_rad - first->q_rad).cwiseAbs().maxCoeff() > opt_.settle_tolerance_rad)) close();
+    if (j.settled) {
+      if (!first) first = &j;
+      last = &j;
+    }
+  }
+  close();
+  if (fits.empty()) return;
+  recent_fits_.push_back(std::move(fits));
+  if (recent_fits_.size() > kFitWindow) recent_fits_.pop_front();
+}
+
+std::optional<ClockOffsetHint> PairingBuffer::clockOffsetHint() const {
+  const int n = static_cast<int>(recent_fits_.size());
+  if (n < 8) return std::nullopt;
+  // Sweep over the shifts: +1 where a reading's interval opens, -1 after it closes (a reading's intervals are
+  // disjoint, so the coverage counts readings).
+  std::vector<std::pair<std::int64_t, int>> events;
+  int at_zero = 0;
+  for (const auto& fits : recent_fits_)
+    for (const auto& [a, b] : fits) {
+      events.emplace_back(a, +1);
+      events.emplace_back(b + 1, -1);
+      if (a <= 0 && 0 <= b) ++at_zero;
+    }
+  std::sort(events.begin(), events.end());
+  // The coverage on each stretch between events; the stretches of the largest coverage, the one nearest zero first.
+  struct Stretch {
+    std::int64_t lo, hi;
+    int cover;
+  };
+  std::vector<Stretch> stretches;
+  int cover = 0, best = 0;
+  for (size_t i = 0; i + 1 < events.size(); ++i) {
+    cover += events[i].second;
+    if (events[i + 1].first == events[i].first) continue;
+    stretches.push_back({events[i].first, events[i + 1].first - 1, cover});
+    best = std::max(best, cover);
+  }
+  auto nearest = [](const Stretch& s) { return s.lo <= 0 && 0 <= s.hi ? std::int64_t{0} : s.lo + (s.hi - s.lo) / 2; };
+  std::vector<Stretch> top;
+  for (const auto& st : stretches)
+    if (st.cover == best) {
+      if (!top.empty() && top.back().hi + 1 == st.lo) top.back().hi = st.hi;  // contiguous: one stretch
+      else top.push_back(st);
+    }
+  if (top.empty()) return std::nullopt;
+  std::sort(top.begin(), top.end(),
+            [&](const Stretch& x, const Stretch& y) { return std::llabs(nearest(x)) < std::llabs(nearest(y)); });
+  if (best < 9 || best - at_zero < 4 || std::llabs(nearest(top[0])) < 2000000) return std::nullopt;
+  ClockOffsetHint h;
+  // A reading fits when moved back by the lead: lead = -shift.
+  h.tracker_ahead_s = -static_cast<double>(nearest(top[0])) * 1e-9;
+  h.tracker_ahead_min_s = -static_cast<double>(top[0].hi) * 1e-9;
+  h.tracker_ahead_max_s = -static_cast<double>(top[0].lo) * 1e-9;
+  if (top.size() > 1) {
+    h.other_ahead_s = -static_cast<double>(nearest(top[1])) * 1e-9;
+    h.other_ahead_min_s = -static_cast<double>(top[1].hi) * 1e-9;
+    h.other_ahead_max_s = -static_cast<double>(top[1].lo) * 1e-9;
+  }
+  h.fit_with_shift = best;
+  h.fit_without_shift = at_zero;
+  h.readings = n;
+  return h;
 }
 
 Observation toObservation(const TrackerSample& s, const Eigen::VectorXd& q_rad, const PairingOptions& options) {

@@ -77,7 +77,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
   const Section dds = section(r, root, "dds", {"domain_id", "profiles_file", "participant_profile", "security_dir",
-                                                      "type_information"});
+                                                      "type_information", "discovery"});
   dds.integer("domain_id", c.dds.domain_id, 0, 232);
   c.dds.profiles_file = resolve(base_dir, "dds/cellcal_qos.xml");
   if (dds.has("profiles_file")) c.dds.profiles_file = resolve(base_dir, r.string(dds.node["profiles_file"], dds.f("profiles_file")));
@@ -85,6 +85,55 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     c.dds.participant_profile = r.string(dds.node["participant_profile"], dds.f("participant_profile"));
   if (dds.has("type_information")) c.dds.type_information = r.boolean(dds.node["type_information"], dds.f("type_information"));
   if (dds.has("security_dir")) c.dds.security_dir = resolve(base_dir, r.string(dds.node["security_dir"], dds.f("security_dir")));
+  if (dds.has("discovery")) {
+    const YAML::Node d = dds.node["discovery"];
+    const std::string fd = "dds.discovery";
+    r.requireMap(d, fd);
+    r.checkKeys(d, fd, {"peers", "server", "server_id"});
+    auto ipv4 = [&](const YAML::Node& n, const std::string& f, const std::string& text) {
+      int parts = 0;
+      std::stringstream ss(text);
+      std::string part;
+      bool ok = true;
+      while (std::getline(ss, part, '.')) {
+        ++parts;
+        ok = ok && !part.empty() && part.size() <= 3 && part.find_first_not_of("0123456789") == std::string::npos &&
+             std::stoi(part) <= 255;
+      }
+      if (!ok || parts != 4 || text.back() == '.') r.fail(n, f, "expected an IPv4 address (a.b.c.d), got '" + text + "'");
+    };
+    if (d["peers"].IsDefined()) {
+      const YAML::Node p = d["peers"];
+      if (!p.IsSequence() || p.size() == 0) r.fail(p, fd + ".peers", "expected a non-empty list of IPv4 addresses");
+      for (size_t k = 0; k < p.size(); ++k) {
+        const std::string fk = fd + ".peers[" + std::to_string(k) + "]";
+        const std::string ip = r.string(p[k], fk);
+        ipv4(p[k], fk, ip);
+        c.dds.discovery_peers.push_back(ip);
+      }
+    }
+    if (d["server"].IsDefined()) {
+      const std::string fs_ = fd + ".server";
+      if (!c.dds.discovery_peers.empty()) r.fail(d["server"], fs_, "give peers or a server, not both");
+      const std::string text = r.string(d["server"], fs_);
+      const auto colon = text.rfind(':');
+      if (colon == std::string::npos) r.fail(d["server"], fs_, "expected address:port, e.g. 10.0.0.3:11811");
+      ipv4(d["server"], fs_, text.substr(0, colon));
+      const std::string port = text.substr(colon + 1);
+      if (port.empty() || port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoi(port) < 1 || std::stoi(port) > 65535)
+        r.fail(d["server"], fs_, "port '" + port + "' not in 1..65535");
+      c.dds.discovery_server_address = text.substr(0, colon);
+      c.dds.discovery_server_port = std::stoi(port);
+    }
+    if (d["server_id"].IsDefined()) {
+      if (c.dds.discovery_server_port == 0) r.fail(d["server_id"], fd + ".server_id", "only with server");
+      const Section ds{r, d, fd};
+      ds.integer("server_id", c.dds.discovery_server_id, 0, 255);
+    }
+    if (c.dds.discovery_peers.empty() && c.dds.discovery_server_port == 0)
+      r.fail(d, fd, "expected peers or server");
+  }
 
   if (root["time_compression"].IsDefined()) {
     c.time_compression = r.number(root["time_compression"], "time_compression");
@@ -259,7 +308,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   const Section s = section(r, root, "simulation",
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
-                             "hidden_effect"});
+                             "hidden_effect", "tracker_clock_offset_ms"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -275,6 +324,9 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   s.num("tracker_delay_fraction", c.simulation.tracker_delay_fraction, 1, 0);
   if (c.simulation.tracker_delay_fraction >= 1)
     r.fail(s.node["tracker_delay_fraction"], s.f("tracker_delay_fraction"), "must be < 1");
+  s.num("tracker_clock_offset_ms", c.simulation.tracker_clock_offset_s, 1e-3);
+  if (std::abs(c.simulation.tracker_clock_offset_s) > 10)
+    r.fail(s.node["tracker_clock_offset_ms"], s.f("tracker_clock_offset_ms"), "must be within +-10000 ms");
   if (s.has("hidden_effect")) {
     const YAML::Node h = s.node["hidden_effect"];
     const std::string fh = "simulation.hidden_effect";

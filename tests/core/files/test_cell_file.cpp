@@ -136,6 +136,34 @@ TEST(CellFile, Ros2JointNamesAreOnePerJoint) {
   EXPECT_NE(errorOf(cell("elbow_joint")).find("robots[0].ros2_joint_names"), std::string::npos);
 }
 
+// dds.discovery: static peers or a Discovery Server, each fault named with its field.
+TEST(CellFile, DiscoveryWithoutMulticastIsChecked) {
+  const std::string robot = "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml }\n";
+  auto cell = [&](const std::string& d) { return "dds: { discovery: " + d + " }\n" + robot; };
+  const CellConfig peers = parseCellConfig(cell("{ peers: [10.0.0.1, 192.168.1.20] }"), "cell.yaml", CELLCAL_CONFIG_DIR);
+  EXPECT_EQ(peers.dds.discovery_peers, (std::vector<std::string>{"10.0.0.1", "192.168.1.20"}));
+  EXPECT_EQ(peers.dds.discovery_server_port, 0);
+  const CellConfig server =
+      parseCellConfig(cell("{ server: \"10.0.0.3:11811\", server_id: 2 }"), "cell.yaml", CELLCAL_CONFIG_DIR);
+  EXPECT_EQ(server.dds.discovery_server_address, "10.0.0.3");
+  EXPECT_EQ(server.dds.discovery_server_port, 11811);
+  EXPECT_EQ(server.dds.discovery_server_id, 2);
+  EXPECT_TRUE(parseCellConfig(robot, "cell.yaml", CELLCAL_CONFIG_DIR).dds.discovery_peers.empty());
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"{ peers: [10.0.0] }", "dds.discovery.peers[0]: expected an IPv4 address"},
+      {"{ peers: [10.0.0.256] }", "dds.discovery.peers[0]: expected an IPv4 address"},
+      {"{ peers: [] }", "dds.discovery.peers: expected a non-empty list"},
+      {"{ server: 10.0.0.3 }", "dds.discovery.server: expected address:port"},
+      {"{ server: \"10.0.0.3:0\" }", "dds.discovery.server: port '0' not in 1..65535"},
+      {"{ server: \"10.0.0.3:11811\", server_id: 300 }", "dds.discovery.server_id: "},
+      {"{ server_id: 1 }", "dds.discovery.server_id: only with server"},
+      {"{ peers: [10.0.0.1], server: \"10.0.0.3:11811\" }", "give peers or a server, not both"},
+      {"{ multicast: false }", "dds.discovery.multicast: unknown key"},
+  };
+  for (const auto& [text, expect] : bad)
+    EXPECT_NE(errorOf(cell(text)).find(expect), std::string::npos) << text << ": " << errorOf(cell(text));
+}
+
 TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
   auto cell = [](const std::string& ext, const std::string& sim = "") {
     return "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml, extensions: " + ext + " }\n" + sim;

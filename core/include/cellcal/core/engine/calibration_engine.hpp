@@ -122,6 +122,9 @@ class CalibrationEngine {
   // after stale_stand_stills stand-stills of the robot in a row without one (a robot that works between campaigns,
   // moving or standing, is not a stale tracker), or after tracker_silence_s without one when that is set.
   std::string staleInputs(std::int64_t now_ns) const;
+  // Said when the recent tracker readings fit the robot's stand-stills only once shifted in time
+  // (PairingBuffer::clockOffsetHint): how far, how many, what to check. Empty: no sign of a clock offset.
+  std::string clockWarning() const;
   // Wall time of the last update (linearization + RLS), ns.
   std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
 

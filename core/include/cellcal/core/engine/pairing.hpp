@@ -82,6 +82,22 @@ struct PairedReading {
   std::int64_t joint_stamp_ns = 0;
 };
 
+// Tracker stamps that miss the robot's stand-stills by a consistent shift: what two hosts' clocks that disagree look
+// like (each reading is taken while the robot stands still, but its stamp lands beside the stand-still). Over the
+// recent readings, the shift of the tracker's stamps that puts the most of them inside a stand-still of the joint
+// history (the one nearest zero among equals) against how many are inside without a shift.
+struct ClockOffsetHint {
+  double tracker_ahead_s = 0;   // the tracker's stamps are this much later than the robot's for the same instant
+  double tracker_ahead_min_s = 0, tracker_ahead_max_s = 0;  // every lead in this range fits as many (the middle above)
+  // A robot program of equal stand-stills and moves fits as well with another lead (the next stand-still): the
+  // second one nearest zero, when there is one.
+  std::optional<double> other_ahead_s;
+  double other_ahead_min_s = 0, other_ahead_max_s = 0;
+  int fit_with_shift = 0;       // readings inside a stand-still once shifted
+  int fit_without_shift = 0;    // ... as stamped
+  int readings = 0;             // recent readings judged (those with a stand-still within 0.5 s)
+};
+
 struct PairingOutcome {
   std::vector<PairedReading> paired;
   std::vector<std::pair<Rejection, std::string>> rejected;  // reason and detail (stream, sequence, values)
@@ -102,6 +118,9 @@ class PairingBuffer {
   // Readings at or before this stamp are rejected as already applied (set from the persisted engine state).
   void setAppliedUntil(std::int64_t stamp_ns) { applied_until_ns_ = stamp_ns; }
   std::size_t pending() const { return pending_.size(); }
+  // A consistent clock offset over the last 12 readings with a stand-still nearby: at least 9 fit with one shift
+  // (of at least 2 ms), at least 4 more than fit as stamped. nullopt: no sign of one (or fewer than 8 readings judged).
+  std::optional<ClockOffsetHint> clockOffsetHint() const;
   std::size_t jointHistory() const { return joints_.size(); }
 
  private:
@@ -112,6 +131,12 @@ class PairingBuffer {
   std::optional<JointSample> last_joint_;
   std::optional<TrackerSample> last_tracker_;
   std::int64_t applied_until_ns_ = INT64_MIN;
+  // Per recent reading: the shifts (ns, relative to its stamp) that would put it inside each stand-still near it,
+  // judged once the joint history reaches 0.5 s past the reading (a stand-still after it counts too).
+  std::deque<std::vector<std::pair<std::int64_t, std::int64_t>>> recent_fits_;
+  std::deque<std::int64_t> fits_to_judge_;
+  void recordFit(std::int64_t t);
+  void judgeFits();
 };
 
 // Observation of a reading (orientation used only for 6D robots with an oriented reading).

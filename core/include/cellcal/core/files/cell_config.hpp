@@ -31,6 +31,14 @@ struct DdsSettings {
   // refuses Fast DDS 2.9's TypeInformation and drops the endpoint: false for a cell with Cyclone DDS peers
   // (docs/interop.md).
   bool type_information = true;
+  // Discovery without multicast (key discovery), for networks that block it; empty: the profile's (multicast).
+  //   peers: [10.0.0.1, ...]  static peers: discovery by unicast to these hosts (their participants 0..31)
+  //   server: "10.0.0.3:11811", server_id: 0   a Fast DDS Discovery Server (`fastdds discovery -i 0 -l 10.0.0.3
+  //                                             -p 11811`, Debian's fastdds-tools); every process is its client
+  std::vector<std::string> discovery_peers;       // IPv4 addresses
+  std::string discovery_server_address;           // IPv4
+  int discovery_server_port = 0;                  // 0: no server
+  int discovery_server_id = 0;
 };
 
 struct CellRobot {
@@ -119,6 +127,9 @@ struct SimulationSettings {
   double joint_rate_hz = 500.0;                // JointState rate (wall clock)
   int tracker_readings_per_pose = 1;
   double tracker_delay_fraction = 0.3;         // tracker reads this far into the settled part
+  // The simulated tracker's host clock runs this far ahead of the robot's (key tracker_clock_offset_ms): its stamps
+  // are that much late. A drill for the engine's clock warning (pairing.hpp ClockOffsetHint); 0 in a healthy cell.
+  double tracker_clock_offset_s = 0;
   // An effect the geometric model lacks, hidden in every simulated robot (to demonstrate extensions):
   // joint_compliance, cyclic_transmission or joint_scale on `effect_joint`, making an RMS joint error of
   // `effect_size_rad` over the workspace (negative: the opposite sign). kNone: none.
