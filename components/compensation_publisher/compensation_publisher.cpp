@@ -125,6 +125,10 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
       note = "holding v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
              " has health " + std::to_string(static_cast<int>(r.calibration->health));
     if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
+    // The engine gone (killed, its host down): its participant's lease expired, no CalibrationState writer is left.
+    if (node_.matchedWriters<msg::CalibrationState>() == 0)
+      note += (note.empty() ? "" : "; ") + std::string("engine not seen (no CalibrationState writer): applying v") +
+              std::to_string(use.version) + ", the last ok calibration it published";
     Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
                                                              static_cast<Eigen::Index>(t.seed_position_rad().size()));
     if (seed.size() == 0 && !r.path.empty()) seed = r.path.back();

@@ -3,7 +3,8 @@
 // nominal model's pose of those joints), the joints, the correction and the calibration version used.
 // Uses the latest calibration whose health is ok. When the engine's latest is not ok (degraded: drift alarm;
 // hold_last_good; uncalibrated after a reset) it keeps applying the last ok one it had and says so in `reason`; it
-// also says when the engine reports stale inputs (the tracker or the controller stopped). Refuses (applied = false,
+// also says when the engine reports stale inputs (the tracker or the controller stopped), and when the engine is gone
+// (no CalibrationState writer left: killed, or its host down), while it applies the last ok calibration. Refuses (applied = false,
 // with the reason) when it never had an ok calibration, the identified model cannot reach the target, or the
 // correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
 // A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).

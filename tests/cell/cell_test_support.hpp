@@ -16,6 +16,9 @@
 #include <vector>
 
 #include "cellcal/components/child_process.hpp"
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 #include "test_support.hpp"
 
 namespace cellcal::test {
@@ -127,6 +130,48 @@ inline void expectEveryTopicFlowed(const nlohmann::json& summary) {
     EXPECT_GT(summary["topics"][t]["published"].get<int>(), 0) << t;
     EXPECT_GT(summary["topics"][t]["received"].get<int>(), 0) << t;
   }
+}
+
+// The test's own participant: every CalibrationState, CompensatedTarget and CalibrationDiagnostics it receives.
+struct Probe {
+  explicit Probe(const CellConfig& cell) : node(cell, "cellcal_test_probe", components::identity::kObserver) {
+    node.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const components::fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> l(mutex);
+      states.push_back(m);
+    });
+    node.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const components::fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> l(mutex);
+      compensated.push_back(m);
+    });
+    node.reader<msg::CalibrationDiagnostics>([this](const msg::CalibrationDiagnostics& m, const components::fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> l(mutex);
+      diagnostics.push_back(m);
+    });
+  }
+  std::uint64_t latestVersion(const std::string& robot) {
+    std::lock_guard<std::mutex> l(mutex);
+    std::uint64_t v = 0;
+    for (const auto& s : states)
+      if (s.robot_id().to_string() == robot) v = std::max<std::uint64_t>(v, s.version());
+    return v;
+  }
+  components::DdsNode node;
+  std::mutex mutex;
+  std::vector<msg::CalibrationState> states;
+  std::vector<msg::CompensatedTarget> compensated;
+  std::vector<msg::CalibrationDiagnostics> diagnostics;
+};
+
+// A target of the first robot its nominal model reaches at joints 0.3 rad, with those joints as the seed.
+inline msg::TargetPose reachableTarget(const CellConfig& cell) {
+  const RobotModel& m = cell.robots[0].model;
+  KinematicsData d(m);
+  const Eigen::VectorXd q = Eigen::VectorXd::Constant(m.numJoints(), 0.3);
+  msg::TargetPose t;
+  t.robot_id(cell.robots[0].robot_id);
+  components::fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
+  t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+  return t;
 }
 
 }  // namespace cellcal::test

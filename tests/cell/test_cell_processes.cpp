@@ -27,48 +27,6 @@ using namespace cellcal::components;
 
 const char* kShortProgram = "  initial_poses: 50\n  poses_per_group: 15\n  groups: 2\n  hours_between_groups: 1\n";
 
-// A test participant on the cell's domain that records CalibrationState and CompensatedTarget.
-struct Probe {
-  explicit Probe(const CellConfig& cell) : node(cell, "cellcal_test_probe", identity::kObserver) {
-    node.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) {
-      std::lock_guard<std::mutex> l(mutex);
-      states.push_back(m);
-    });
-    node.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
-      std::lock_guard<std::mutex> l(mutex);
-      compensated.push_back(m);
-    });
-    node.reader<msg::CalibrationDiagnostics>([this](const msg::CalibrationDiagnostics& m, const fdds::SampleInfo&) {
-      std::lock_guard<std::mutex> l(mutex);
-      diagnostics.push_back(m);
-    });
-  }
-  std::uint64_t latestVersion(const std::string& robot) {
-    std::lock_guard<std::mutex> l(mutex);
-    std::uint64_t v = 0;
-    for (const auto& s : states)
-      if (s.robot_id().to_string() == robot) v = std::max<std::uint64_t>(v, s.version());
-    return v;
-  }
-  DdsNode node;
-  std::mutex mutex;
-  std::vector<msg::CalibrationState> states;
-  std::vector<msg::CompensatedTarget> compensated;
-  std::vector<msg::CalibrationDiagnostics> diagnostics;
-};
-
-// A target of the first robot its nominal model reaches at joints 0.3 rad, with those joints as the seed.
-msg::TargetPose reachableTarget(const CellConfig& cell) {
-  const RobotModel& m = cell.robots[0].model;
-  KinematicsData d(m);
-  const Eigen::VectorXd q = Eigen::VectorXd::Constant(m.numJoints(), 0.3);
-  msg::TargetPose t;
-  t.robot_id(cell.robots[0].robot_id);
-  fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
-  t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
-  return t;
-}
-
 TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();

@@ -5,6 +5,9 @@
 // where the machine refuses namespaces (not root, no veth or bridge) the tests skip and say why. docs/deployment.md.
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
+#include <sched.h>
+
 #include <cstdio>
 #include <regex>
 #include <sstream>
@@ -138,6 +141,105 @@ TEST_F(NetnsNoMulticast, ADiscoveryServerJoinsTheCell) {
   const auto s = runAcross(dir, "{ server: \"10.231.0.3:11811\", server_id: 0 }", "12", 60);
   server.stopOrKill(SIGINT, 5);
   expectTheCellRan(s, dir, "Discovery Server 10.231.0.3:11811", "Discovery Server");
+}
+
+// The test's own DDS participants on a host: this thread joins the namespace (Fast DDS's threads, created after,
+// inherit it); the destructor returns it to where it was.
+class OnHost {
+ public:
+  explicit OnHost(const std::string& ns) : home_(::open("/proc/self/ns/net", O_RDONLY)) {
+    const int fd = ::open(("/var/run/netns/" + ns).c_str(), O_RDONLY);
+    ok_ = home_ >= 0 && fd >= 0 && ::setns(fd, CLONE_NEWNET) == 0;
+    if (fd >= 0) ::close(fd);
+  }
+  ~OnHost() {
+    if (home_ < 0) return;
+    ::setns(home_, CLONE_NEWNET);
+    ::close(home_);
+  }
+  bool ok() const { return ok_; }
+
+ private:
+  int home_;
+  bool ok_ = false;
+};
+
+// The cell server's engine SIGKILLed mid-campaign and started again from its state file: it resumes the version
+// count (no pose applied twice), and in between the compensation publisher on the same host keeps applying the last
+// ok calibration and says the engine is gone. The adapters run on their hosts, the test's probe on the cell server.
+TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
+  const std::string dir = testDir();
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
+                                    "  initial_poses: 400\n  groups: 1\n");  // 17 s of poses: the robot works on
+  CellConfig cell = loadCellConfig(cfg);
+  cell.dds.participant_profile = "cellcal_udp";  // the probe as the processes: UDP across the hosts
+  auto on = [&](const std::string& host, std::vector<std::string> args) {
+    args.insert(args.begin(), {"netns", "exec", ns(host), std::string(CELLCAL_BIN_DIR) + "/" + args[0]});
+    args.erase(args.begin() + 4);
+    args.insert(args.end(), {"--config", cfg, "--dds-profile", "cellcal_udp"});
+    return args;
+  };
+  using components::ChildProcess;
+  const OnHost server(ns("cell-server"));
+  ASSERT_TRUE(server.ok()) << "cannot enter " << ns("cell-server");
+  Probe probe(cell);
+  auto targets = probe.node.writer<msg::TargetPose>();
+  auto engine = std::make_unique<ChildProcess>(ipCommand(), on("cell-server", {"cellcal_calibration_engine", "--quiet"}),
+                                               dir + "/engine.log");
+  ChildProcess compensation(ipCommand(), on("cell-server", {"cellcal_compensation_publisher"}), dir + "/compensation.log");
+  ChildProcess tracker(ipCommand(), on("tracker-pc", {"cellcal_tracker_adapter"}), dir + "/tracker.log");
+  ChildProcess joints(ipCommand(), on("robot-pc", {"cellcal_joint_state_adapter", "--wait-for-readers", "1"}),
+                      dir + "/joints.log");
+  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 20; }, 30)) << readTextFile(dir + "/engine.log");
+  ASSERT_EQ(engine->stop(SIGKILL), 128 + SIGKILL);
+  const auto state = readJson(dir + "/state/tx60.state.json");
+  ASSERT_FALSE(state.is_discarded());
+  const std::uint64_t persisted = state["version"];
+  EXPECT_GE(persisted, probe.latestVersion("tx60"));
+  // While the engine is down (its lease of 3 s expired): targets answered with the last ok calibration, said so.
+  std::this_thread::sleep_for(std::chrono::milliseconds(3500));
+  msg::TargetPose t = reachableTarget(cell);
+  size_t before;
+  {
+    std::lock_guard<std::mutex> l(probe.mutex);
+    before = probe.compensated.size();
+  }
+  for (int k = 0; k < 5; ++k) {
+    t.sequence_number(static_cast<std::uint64_t>(k + 1));
+    targets.write(t);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_TRUE(waitUntil([&] { std::lock_guard<std::mutex> l(probe.mutex); return probe.compensated.size() >= before + 5; }, 10))
+      << readTextFile(dir + "/compensation.log");
+  {
+    std::lock_guard<std::mutex> l(probe.mutex);
+    for (size_t k = before; k < probe.compensated.size(); ++k) {
+      const auto& c = probe.compensated[k];
+      EXPECT_TRUE(c.applied()) << c.reason().to_string();
+      EXPECT_GE(c.calibration_version(), 1u);
+      EXPECT_NE(c.reason().to_string().find("engine not seen (no CalibrationState writer): applying v"), std::string::npos)
+          << c.reason().to_string();
+    }
+  }
+  engine = std::make_unique<ChildProcess>(ipCommand(), on("cell-server", {"cellcal_calibration_engine", "--quiet"}),
+                                          dir + "/engine2.log");
+  ASSERT_TRUE(waitUntil([&] {
+    return readTextFile(dir + "/engine2.log").find("resumed version " + std::to_string(persisted)) != std::string::npos;
+  }, 10)) << readTextFile(dir + "/engine2.log");
+  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") > persisted + 5; }, 30)) << readTextFile(dir + "/engine2.log");
+  joints.stop();
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_EQ(engine->stop(), 0);
+  const auto final_state = readJson(dir + "/state/tx60.state.json");
+  EXPECT_EQ(final_state["version"], final_state["poses_used"]) << "a pose applied twice (or lost) across the restart";
+  EXPECT_GT(final_state["version"].get<std::uint64_t>(), persisted);
+  std::printf("  engine SIGKILLed on the cell server after v%llu (persisted), restarted, resumed from it: v%llu at the "
+              "end with %llu poses; 5 of 5 targets answered in between with the last ok calibration, engine named gone\n",
+              static_cast<unsigned long long>(persisted),
+              static_cast<unsigned long long>(final_state["version"].get<std::uint64_t>()),
+              static_cast<unsigned long long>(final_state["poses_used"].get<std::uint64_t>()));
+  compensation.stop();
+  tracker.stop();
 }
 
 // The same cell (same robot errors, seed and program) on one host over loopback and across the three hosts: the same

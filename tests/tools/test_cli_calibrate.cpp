@@ -69,6 +69,7 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
   sc.seed = seed;
   const std::string tx60 = std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml";
   std::vector<std::string> files;
+  std::vector<MeasurementFile> parts;
   for (int s = 0; s < 2; ++s) {
     SimulationConfig c = sc;  // the same robot with the same hidden errors
     if (s == 1) {
@@ -84,6 +85,21 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
     files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
     std::ofstream out(files.back());
     writeMeasurementCsv(out, f, 6, "simulated TX60, set-up " + std::to_string(s + 1));
+    parts.push_back(f);
+  }
+  // The same rows in one file, the two set-ups interleaved at random and named in a setup column.
+  MeasurementFile both;
+  const std::vector<std::string> labels = {"north", "after-move"};
+  size_t next[2] = {0, 0};
+  while (next[0] < parts[0].rows.size() || next[1] < parts[1].rows.size()) {
+    const int s = next[0] == parts[0].rows.size() ? 1 : next[1] == parts[1].rows.size() ? 0 : static_cast<int>(rng() % 2);
+    MeasurementRow r = parts[s].rows[next[s]++];
+    r.setup = labels[s];
+    both.rows.push_back(r);
+  }
+  {
+    std::ofstream out(dir + "/both.csv");
+    writeMeasurementCsv(out, both, 6, "simulated TX60, two set-ups in one file");
   }
   Process joint(dir, "joint", {"cellcal", "calibrate", "--robot", tx60, "--data", files[0], "--data", files[1], "--json",
                                dir + "/joint.json", "--save-robot", dir + "/joint.yaml"});
@@ -106,6 +122,36 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
   Process diag(dir, "diagnose", {"cellcal", "diagnose", "--robot", tx60, "--data", files[0], "--data", files[1]});
   EXPECT_EQ(diag.wait(60), 2);
   EXPECT_NE(diag.log().find("only `cellcal calibrate` takes several set-ups"), std::string::npos) << diag.log();
+
+  // The setup column: the same calibration as the two files (the reference), each set-up named by its label.
+  Process col(dir, "column", {"cellcal", "calibrate", "--robot", tx60, "--data", dir + "/both.csv", "--json",
+                              dir + "/both.json"});
+  ASSERT_EQ(col.wait(60), 0) << col.log();
+  const auto b = readJson(dir + "/both.json");
+  ASSERT_EQ(b["setups"].size(), 2u) << col.log();
+  EXPECT_EQ(b["setups"][0]["data"], dir + "/both.csv [setup north]");
+  EXPECT_EQ(b["setups"][1]["data"], dir + "/both.csv [setup after-move]");
+  ASSERT_EQ(b["parameters"].size(), j["parameters"].size());
+  for (size_t k = 0; k < j["parameters"].size(); ++k)
+    EXPECT_NEAR(b["parameters"][k]["value"].get<double>(), j["parameters"][k]["value"].get<double>(), 1e-9)
+        << j["parameters"][k]["name"];
+  for (int s = 0; s < 2; ++s)
+    EXPECT_NEAR(b["setups"][s]["verification"]["after"]["mean_mm"].get<double>(),
+                j["setups"][s]["verification"]["after"]["mean_mm"].get<double>(), 1e-9);
+  // Other commands take one set-up, and say so; a row without a label among labelled ones is named.
+  Process diag2(dir, "diagnose2", {"cellcal", "diagnose", "--robot", tx60, "--data", dir + "/both.csv"});
+  EXPECT_EQ(diag2.wait(60), 2);
+  EXPECT_NE(diag2.log().find("rows of 2 set-ups (column setup: north, after-move)"), std::string::npos) << diag2.log();
+  both.rows[7].setup.reset();
+  {
+    std::ofstream out(dir + "/unlabelled.csv");
+    writeMeasurementCsv(out, both, 6, "");
+  }
+  Process bad(dir, "unlabelled", {"cellcal", "calibrate", "--robot", tx60, "--data", dir + "/unlabelled.csv"});
+  EXPECT_EQ(bad.wait(60), 2);
+  EXPECT_NE(bad.log().find("line " + std::to_string(7 + 2) + ": setup: empty, while other rows name their set-up"),
+            std::string::npos)
+      << bad.log();
 }
 
 // `cellcal continuous` on a file of a simulated robot warming up over 6 h (stamps and temperatures in the file,

@@ -128,20 +128,14 @@ int failedExit(bool converged, const std::string& unusable, const std::string& s
   return 0;
 }
 
-// Several set-ups (--data given again): one kinematic model, a base and a tool frame per set-up (setups.hpp), errors
-// per set-up. The geometric model; every file registered and split on its own.
-int runCalibrateSetups(const CalibrateArgs& a) {
-  if (a.model != "geometric") throw std::runtime_error("several --data: the geometric model only (no --model)");
-  if (a.frames_only) throw std::runtime_error("--frames-only takes one --data");
-  std::vector<std::string> files = {a.input.data};
-  files.insert(files.end(), a.input.more_data.begin(), a.input.more_data.end());
-  std::vector<LoadedInput> ins;
-  for (const auto& f : files) {
-    InputArgs one = a.input;
-    one.data = f;
-    one.more_data.clear();
-    ins.push_back(loadInput(one));
-  }
+// Several set-ups (--data given again, or a file whose setup column names several): one kinematic model, a base and a
+// tool frame per set-up (setups.hpp), errors per set-up. The geometric model; every set-up registered and split on its
+// own.
+int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
+  if (a.model != "geometric") throw std::runtime_error("several set-ups: the geometric model only (no --model)");
+  if (a.frames_only) throw std::runtime_error("--frames-only takes one set-up");
+  std::vector<std::string> files;
+  for (const auto& in : ins) files.push_back(in.name);
   const RobotModel& robot = ins[0].robot;
   SetupsProblem pr;
   pr.model = &robot;
@@ -233,7 +227,7 @@ int runCalibrateSetups(const CalibrateArgs& a) {
     for (const auto& file : files) all += (all.empty() ? "" : ", ") + file;
     cal.provenance = {{"date_utc", utcNow()},          {"tool", "cellcal calibrate (several set-ups)"},
                       {"robot_file", a.input.robot},   {"data_files", all},
-                      {"data_sha256", fileSha256(files[last])}, {"frames_of", files[last]},
+                      {"data_sha256", fileSha256(files[last].substr(0, files[last].find(" [setup ")))}, {"frames_of", files[last]},
                       {"split", a.input.split},        {"model", "geometric"}};
     saveRobotFile(a.save_robot, robot.withParams(fit.params[last]), &cal,
                   "Calibrated " + robot.name + ": written by `cellcal calibrate` from " + std::to_string(files.size()) +
@@ -244,8 +238,9 @@ int runCalibrateSetups(const CalibrateArgs& a) {
 }
 
 int runCalibrate(const CalibrateArgs& a) {
-  if (!a.input.more_data.empty()) return runCalibrateSetups(a);
-  const LoadedInput in = loadInput(a.input);
+  std::vector<LoadedInput> setups = loadSetups(a.input);  // --data given again, or a file with a setup column
+  if (setups.size() > 1) return runCalibrateSetups(a, std::move(setups));
+  const LoadedInput in = std::move(setups.front());
   const RobotModel& robot = in.robot;
   const auto& ident = in.data.identification;
   const auto& verify = in.data.verification;

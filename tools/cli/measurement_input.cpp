@@ -1,5 +1,7 @@
 #include "measurement_input.hpp"
 
+#include <algorithm>
+
 #include <openssl/evp.h>
 
 #include <chrono>
@@ -25,19 +27,78 @@ OutlierOptions outlierOptions(const InputArgs& a) {
   return o;
 }
 
+namespace {
+
+// The file's rows per set-up label, in order of first appearance (one group, unlabelled, when it has no setup column).
+std::vector<std::pair<std::string, MeasurementFile>> bySetup(const MeasurementFile& file) {
+  std::vector<std::pair<std::string, MeasurementFile>> out;
+  for (const auto& r : file.rows) {
+    const std::string label = r.setup.value_or("");
+    auto it = std::find_if(out.begin(), out.end(), [&](const auto& p) { return p.first == label; });
+    if (it == out.end()) {
+      MeasurementFile part;
+      part.source = file.source;
+      out.emplace_back(label, std::move(part));
+      it = out.end() - 1;
+    }
+    it->second.rows.push_back(r);
+  }
+  return out;
+}
+
+std::pair<RobotFile, MeasurementFile> readInput(const InputArgs& a, const std::string& path) {
+  RobotFile rf = loadRobotFile(a.robot);
+  MeasurementCsvOptions mo;
+  mo.skip_bad_rows = a.skip_bad_rows;
+  MeasurementFile file = readMeasurementCsv(path, rf.model, mo);
+  for (const auto& w : file.warnings) std::fprintf(stderr, "skipped: %s\n", w.c_str());
+  for (const auto& c : file.ignored_columns) std::fprintf(stderr, "%s: column '%s' ignored\n", path.c_str(), c.c_str());
+  return {std::move(rf), std::move(file)};
+}
+
+// Splits, registers and checks the rows of one set-up; `name` (the file, and its set-up label) in messages.
+LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile rf, MeasurementFile file);
+
+}  // namespace
+
 LoadedInput loadInput(const InputArgs& a) {
   if (!a.more_data.empty())
     throw ConfigError("--data given " + std::to_string(1 + a.more_data.size()) +
                       " times: only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
+  auto [rf, file] = readInput(a, a.data);
+  const auto parts = bySetup(file);
+  if (parts.size() > 1) {
+    std::string labels;
+    for (const auto& p : parts) labels += (labels.empty() ? "" : ", ") + (p.first.empty() ? "(none)" : p.first);
+    throw ConfigError(a.data + ": rows of " + std::to_string(parts.size()) + " set-ups (column setup: " + labels +
+                      "): only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
+  }
+  return prepareInput(a, a.data, std::move(rf), std::move(file));
+}
+
+std::vector<LoadedInput> loadSetups(const InputArgs& a) {
+  std::vector<std::string> paths = {a.data};
+  paths.insert(paths.end(), a.more_data.begin(), a.more_data.end());
+  std::vector<LoadedInput> out;
+  for (const auto& path : paths) {
+    auto [rf, file] = readInput(a, path);
+    for (auto& [label, part] : bySetup(file)) {
+      if (label.empty() && file.rows.size() != part.rows.size())
+        throw ConfigError(path + ": line " + std::to_string(part.rows.front().line) +
+                          ": setup: empty, while other rows name their set-up");
+      out.push_back(prepareInput(a, label.empty() ? path : path + " [setup " + label + "]", rf, std::move(part)));
+    }
+  }
+  return out;
+}
+
+namespace {
+LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile rf, MeasurementFile file) {
   LoadedInput in;
-  RobotFile rf = loadRobotFile(a.robot);
+  in.name = name;
   in.robot = std::move(rf.model);
   in.calibration = std::move(rf.calibration);
-  MeasurementCsvOptions mo;
-  mo.skip_bad_rows = a.skip_bad_rows;
-  in.file = readMeasurementCsv(a.data, in.robot, mo);
-  for (const auto& w : in.file.warnings) std::fprintf(stderr, "skipped: %s\n", w.c_str());
-  for (const auto& c : in.file.ignored_columns) std::fprintf(stderr, "%s: column '%s' ignored\n", a.data.c_str(), c.c_str());
+  in.file = std::move(file);
   in.kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
   const auto& rows = in.file.rows;
   std::vector<Eigen::VectorXd> q;
@@ -61,7 +122,7 @@ LoadedInput loadInput(const InputArgs& a) {
   }
   if (in.oriented_rows == 0) in.kind = MeasurementKind::kPosition3D;
   if (in.data.identification.size() < 8 || in.data.verification.empty())
-    throw std::runtime_error(a.data + ": too few rows (" + std::to_string(rows.size()) + ")");
+    throw std::runtime_error(name + ": too few rows (" + std::to_string(rows.size()) + ")");
   const auto t0 = std::chrono::steady_clock::now();
   in.start = in.robot.nominal;
   in.registration_rms_mm = std::nan("");
@@ -93,6 +154,7 @@ LoadedInput loadInput(const InputArgs& a) {
   in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return in;
 }
+}  // namespace
 
 std::string LoadedInput::measurementText() const {
   if (position_rows == 0) return "6D";

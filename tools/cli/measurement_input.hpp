@@ -24,6 +24,7 @@ struct InputArgs {
 };
 
 struct LoadedInput {
+  std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column
   RobotModel robot;
   std::optional<RobotCalibration> calibration;  // the robot file's calibration section (a calibrated robot file)
   MeasurementFile file;
@@ -48,6 +49,9 @@ OutlierOptions outlierOptions(const InputArgs& a);
 // Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies.
 // Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
+// Every set-up of every --data file (a file with a setup column gives one per label, in order of appearance), each
+// split and registered on its own as loadInput does. A file whose rows name set-ups must name one on every row.
+std::vector<LoadedInput> loadSetups(const InputArgs& a);
 
 // "backlash:3,joint_compliance:2" or "thermal_drift" (lengths only) -> extensions; joints 1-based. Throws
 // std::runtime_error naming the item that is not a cause or does not apply to the robot.

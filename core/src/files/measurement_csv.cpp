@@ -119,7 +119,7 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: orientation needs all of qw, qx, qy, qz");
   std::map<std::string, bool> known = {{"x_mm", 1}, {"y_mm", 1}, {"z_mm", 1}, {"qw", 1}, {"qx", 1}, {"qy", 1},
                                        {"qz", 1}, {"stamp_s", 1}, {"group", 1}, {"temperature_c", 1}, {"payload_kg", 1},
-                                       {"sigma_position_mm", 1}, {"sigma_orientation_deg", 1}};
+                                       {"sigma_position_mm", 1}, {"sigma_orientation_deg", 1}, {"setup", 1}};
   for (int j = 1; j <= n; ++j) known["q" + std::to_string(j) + unit] = true;
   for (const auto& h : header)
     if (!known.count(h)) f.ignored_columns.push_back(h);
@@ -196,6 +196,13 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
         else if (std::string(name) == "sigma_position_mm") row.sigma_position_m = v * 1e-3;
         else row.sigma_orientation_rad = v * kPi / 180;
       }
+    if (col.count("setup") && !err && !cell(col["setup"]).empty()) {
+      const std::string label = cell(col["setup"]);
+      if (label.size() > 64) err = RowError{col["setup"] + 1, "setup", "a set-up label has at most 64 characters"};
+      else if (label.find_first_of("\"'") != std::string::npos)
+        err = RowError{col["setup"] + 1, "setup", "a set-up label may not contain quotes"};
+      else row.setup = label;
+    }
     if (col.count("group") && number(col["group"], false, &v)) {
       if (v != std::floor(v)) err = RowError{col["group"] + 1, "group", "expected an integer"};
       else row.group = static_cast<long long>(v);
@@ -237,7 +244,8 @@ Observation toObservation(const MeasurementRow& row, MeasurementKind kind, doubl
 }
 
 void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints, const std::string& comment) {
-  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false, sp = false, so = false;
+  bool oriented = false, stamped = false, grouped = false, temp = false, payload = false, sp = false, so = false,
+       setups = false;
   for (const auto& r : f.rows) {
     oriented |= r.orientation.has_value();
     stamped |= r.stamp_s.has_value();
@@ -246,6 +254,7 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
     payload |= r.payload_kg.has_value();
     sp |= r.sigma_position_m.has_value();
     so |= r.sigma_orientation_rad.has_value();
+    setups |= r.setup.has_value();
   }
   std::istringstream c(comment);
   std::string line;
@@ -259,6 +268,7 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
   if (payload) out << ",payload_kg";
   if (sp) out << ",sigma_position_mm";
   if (so) out << ",sigma_orientation_deg";
+  if (setups) out << ",setup";
   out << "\n" << std::setprecision(12);
   for (const auto& r : f.rows) {
     for (int j = 0; j < joints; ++j) out << r.q_rad[j] << ",";
@@ -280,6 +290,7 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
     opt(payload, r.payload_kg);
     opt(sp, r.sigma_position_m ? std::optional<double>(*r.sigma_position_m * 1e3) : std::nullopt);
     opt(so, r.sigma_orientation_rad ? std::optional<double>(*r.sigma_orientation_rad * 180 / kPi) : std::nullopt);
+    opt(setups, r.setup);
     out << "\n";
   }
 }

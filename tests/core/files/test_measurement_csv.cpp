@@ -62,6 +62,27 @@ TEST(MeasurementCsv, BadRowsNameFileLineAndColumn) {
 
 // A measured file (random robot, poses and count) is read as written; the same file with its positions written in
 // metres is refused, naming the file, the header line and x_mm's column.
+// The setup column: labels read, written and read back; an over-long label named with its line and column.
+TEST(MeasurementCsv, SetupLabelsRoundTrip) {
+  const std::string text = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,setup\n"
+                           "10,20,30,40,50,60,1000,2000,300,north\n"
+                           "11,21,31,41,51,61,1010,2010,310,after-move\n"
+                           "12,22,32,42,52,62,1020,2020,320, north \n";
+  const auto f = parseMeasurementCsv(text, "m.csv", test::robot("staubli_tx60"));
+  ASSERT_EQ(f.rows.size(), 3u);
+  EXPECT_EQ(f.rows[0].setup.value_or("?"), "north");
+  EXPECT_EQ(f.rows[1].setup.value_or("?"), "after-move");
+  EXPECT_EQ(f.rows[2].setup.value_or("?"), "north");
+  std::ostringstream out;
+  writeMeasurementCsv(out, f, 6, "");
+  const auto back = parseMeasurementCsv(out.str(), "back.csv", test::robot("staubli_tx60"));
+  for (size_t i = 0; i < 3; ++i) EXPECT_EQ(back.rows[i].setup, f.rows[i].setup);
+  EXPECT_NE(errorOf("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,setup\n10,20,30,40,50,60,1,2,3," +
+                    std::string(65, 'a') + "\n")
+                .find("m.csv:2:10: setup: a set-up label has at most 64 characters"),
+            std::string::npos);
+}
+
 TEST(MeasurementCsv, MetresInMillimetreColumnsAreCalledOut) {
   std::mt19937_64 rng(test::testSeed());
   for (int trial = 0; trial < 20; ++trial) {

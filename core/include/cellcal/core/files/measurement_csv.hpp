@@ -34,6 +34,9 @@ struct MeasurementRow {
   std::optional<double> stamp_s, temperature_c, payload_kg;
   std::optional<double> sigma_position_m, sigma_orientation_rad;  // the reading's own 1 sigma per axis (> 0)
   std::optional<long long> group;
+  // The tracker (or target) placement the row was measured in (column `setup`, any label up to 64 characters:
+  // "A", "tracker-north"); rows of one label share a base and a tool frame (`cellcal calibrate`, setups.hpp).
+  std::optional<std::string> setup;
 };
 
 struct MeasurementFile {
