@@ -87,12 +87,16 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
     writeMeasurementCsv(out, f, 6, "simulated TX60, set-up " + std::to_string(s + 1));
     parts.push_back(f);
   }
-  // The same rows in one file, the two set-ups interleaved at random and named in a setup column.
+  // The same rows in one file, the two set-ups interleaved at random and named in a setup column (set-up 1 first:
+  // set-ups are numbered in order of first appearance, as the files are in order of --data).
   MeasurementFile both;
   const std::vector<std::string> labels = {"north", "after-move"};
   size_t next[2] = {0, 0};
   while (next[0] < parts[0].rows.size() || next[1] < parts[1].rows.size()) {
-    const int s = next[0] == parts[0].rows.size() ? 1 : next[1] == parts[1].rows.size() ? 0 : static_cast<int>(rng() % 2);
+    const int s = next[0] == 0 ? 0
+                  : next[0] == parts[0].rows.size() ? 1
+                  : next[1] == parts[1].rows.size() ? 0
+                                                    : static_cast<int>(rng() % 2);
     MeasurementRow r = parts[s].rows[next[s]++];
     r.setup = labels[s];
     both.rows.push_back(r);
