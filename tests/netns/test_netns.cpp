@@ -62,11 +62,7 @@ class NetnsCell : public ::testing::Test {
     if (quiet) a.push_back("--quiet");
     return a;
   }
-  static std::string ipCommand() {
-    for (const char* p : {"/usr/sbin/ip", "/usr/bin/ip", "/sbin/ip", "/bin/ip"})
-      if (::access(p, X_OK) == 0) return p;
-    return "ip";
-  }
+  static std::string ipCommand() { return components::ipProgram(); }
 
   std::string prefix_;
   std::string up_options_;  // more arguments of `cellnet.sh up`

@@ -69,9 +69,7 @@ Child spawn(const std::string& name, std::vector<std::string> args, const std::s
   args.insert(args.end(), {"--stats-json", stats});
   const std::string log = (fs::path(work_dir) / (name + ".log")).string();
   if (netns.empty()) return Child{name, stats, ChildProcess(exe.string(), args, log)};
-  std::string ip;
-  for (const char* p : {"/usr/sbin/ip", "/usr/bin/ip", "/sbin/ip", "/bin/ip"})
-    if (ip.empty() && ::access(p, X_OK) == 0) ip = p;
+  const std::string ip = ipProgram();
   if (ip.empty()) throw std::runtime_error("--host: no ip command (Debian package iproute2)");
   args.insert(args.begin(), {"netns", "exec", netns, exe.string()});
   return Child{name, stats, ChildProcess(ip, args, log)};

@@ -95,4 +95,10 @@ void stopAll(const std::vector<ChildProcess*>& children, int sig, double timeout
   }
 }
 
+std::string ipProgram() {
+  for (const char* p : {"/usr/sbin/ip", "/usr/bin/ip", "/sbin/ip", "/bin/ip"})
+    if (::access(p, X_OK) == 0) return p;
+  return "";
+}
+
 }  // namespace cellcal::components

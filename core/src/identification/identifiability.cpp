@@ -92,6 +92,46 @@ std::vector<Observation> structuralObservations(const RobotModel& model, const E
   }
   return obs;
 }
+
+// The kept columns of J scaled to unit norm and factored once: what another column is, to first order, in their terms
+// (the dropped parameters' merge coefficients and the absorption map both solve against it).
+struct KeptSpan {
+  KeptSpan(const Eigen::MatrixXd& J, const std::vector<int>& kept) : kept(kept), scale(kept.size()), Js(J.rows(), kept.size()) {
+    for (size_t i = 0; i < kept.size(); ++i) {
+      const auto ii = static_cast<Eigen::Index>(i);
+      scale[ii] = J.col(kept[i]).norm();
+      Js.col(ii) = J.col(kept[i]) / scale[ii];
+    }
+    qr.compute(Js);
+  }
+  const std::vector<int>& kept;
+  Eigen::VectorXd scale;
+  Eigen::MatrixXd Js;
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr;
+};
+
+// absorptionMap over a factored span (its contract in identifiability.hpp).
+Eigen::MatrixXd absorption(const RobotModel& model, const Eigen::MatrixXd& J, const KeptSpan& span, double absorb_sine) {
+  const auto k = static_cast<Eigen::Index>(span.kept.size());
+  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(k, model.numParams());
+  for (Eigen::Index i = 0; i < k; ++i) T(i, span.kept[static_cast<size_t>(i)]) = 1.0;
+  if (k == 0) return T;
+  for (Eigen::Index i = 0; i < k; ++i)
+    if (!(span.scale[i] > 0)) throw std::invalid_argument("absorptionMap: a kept column is zero");
+  double max_norm = 0;
+  for (int c = 0; c < model.numParams(); ++c) max_norm = std::max(max_norm, J.col(c).norm());
+  for (int c : model.canonicalParams()) {
+    if (std::find(span.kept.begin(), span.kept.end(), c) != span.kept.end()) continue;
+    const double norm = J.col(c).norm();
+    if (!(norm > 1e-10 * max_norm)) continue;  // not excited: nothing to stand for
+    const Eigen::VectorXd u = J.col(c) / norm;
+    const Eigen::VectorXd coef = span.qr.solve(u);
+    if ((span.Js * coef - u).norm() > absorb_sine) continue;  // the kept columns do not span it
+    // J_c = norm * Js coef = J_kept diag(1/scale) coef * norm.
+    T.col(c) = coef.cwiseQuotient(span.scale) * norm;
+  }
+  return T;
+}
 }  // namespace
 
 IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eigen::MatrixXd& J,
@@ -107,7 +147,6 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
 
   IdentifiabilityReport rep;
   rep.num_candidates = static_cast<int>(cand.size());
-  const Eigen::Index m = J.rows();
   rep.identifiable = independentColumns(J, cand, options);
   const int k = static_cast<int>(rep.identifiable.size());
   std::vector<int> dropped;
@@ -119,21 +158,19 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   rep.rank = k;
 
   // Scaled Jacobian of the kept columns: condition number, and what each dropped column merges into.
-  Eigen::MatrixXd Js(m, k);
-  for (int i = 0; i < k; ++i) Js.col(i) = J.col(rep.identifiable[i]) / J.col(rep.identifiable[i]).norm();
+  const KeptSpan span(J, rep.identifiable);
   if (k > 0) {
-    Eigen::JacobiSVD<Eigen::MatrixXd> svd(Js);
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(span.Js);
     const auto& s = svd.singularValues();
     rep.condition_number = s(s.size() - 1) > 0 ? s(0) / s(s.size() - 1) : INFINITY;
   }
-  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(Js);
   for (int c : dropped) {
     DroppedParameter d;
     d.index = c;
     d.name = model.paramName(c);
     const double norm = J.col(c).norm();
     if (norm > min_norm && k > 0) {
-      const Eigen::VectorXd coef = qr.solve(J.col(c) / norm);
+      const Eigen::VectorXd coef = span.qr.solve(J.col(c) / norm);
       for (int i = 0; i < k; ++i)
         if (std::abs(coef[i]) >= 0.05) d.merged_into.emplace_back(rep.identifiable[i], coef[i]);
       std::sort(d.merged_into.begin(), d.merged_into.end(),
@@ -141,38 +178,14 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
     }
     rep.dropped.push_back(std::move(d));
   }
-  rep.absorption = absorptionMap(model, J, rep.identifiable);
+  rep.absorption = absorption(model, J, span, kDefaultAbsorbSine);
   return rep;
 }
 
 Eigen::MatrixXd absorptionMap(const RobotModel& model, const Eigen::MatrixXd& J, const std::vector<int>& kept,
                               double absorb_sine) {
   if (J.cols() != model.numParams()) throw std::invalid_argument("absorptionMap: J has the wrong column count");
-  const auto k = static_cast<Eigen::Index>(kept.size());
-  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(k, model.numParams());
-  for (Eigen::Index i = 0; i < k; ++i) T(i, kept[static_cast<size_t>(i)]) = 1.0;
-  if (k == 0) return T;
-  double max_norm = 0;
-  for (int c = 0; c < model.numParams(); ++c) max_norm = std::max(max_norm, J.col(c).norm());
-  Eigen::VectorXd scale(k);
-  Eigen::MatrixXd Js(J.rows(), k);
-  for (Eigen::Index i = 0; i < k; ++i) {
-    scale[i] = J.col(kept[static_cast<size_t>(i)]).norm();
-    if (!(scale[i] > 0)) throw std::invalid_argument("absorptionMap: a kept column is zero");
-    Js.col(i) = J.col(kept[static_cast<size_t>(i)]) / scale[i];
-  }
-  const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(Js);
-  for (int c : model.canonicalParams()) {
-    if (std::find(kept.begin(), kept.end(), c) != kept.end()) continue;
-    const double norm = J.col(c).norm();
-    if (!(norm > 1e-10 * max_norm)) continue;  // not excited: nothing to stand for
-    const Eigen::VectorXd u = J.col(c) / norm;
-    const Eigen::VectorXd coef = qr.solve(u);
-    if ((Js * coef - u).norm() > absorb_sine) continue;  // the kept columns do not span it
-    // J_c = norm * Js coef = J_kept diag(1/scale) coef * norm.
-    T.col(c) = coef.cwiseQuotient(scale) * norm;
-  }
-  return T;
+  return absorption(model, J, KeptSpan(J, kept), absorb_sine);
 }
 
 Eigen::MatrixXd structuralAbsorption(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,

@@ -84,11 +84,11 @@ Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx)
 
 RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const GaussianPrior& prior,
                              MeasurementKind kind, RlsCalibratorOptions options)
-    : RlsCalibrator(model, params, structuralIdentifiability(model, params, kind, options.identifiability), prior, kind,
+    : RlsCalibrator(model, params, structuralIdentifiability(model, params, kind, options.identifiability), prior,
                     options) {}
 
 RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params,
-                             const IdentifiabilityReport& structural, const GaussianPrior& prior, MeasurementKind kind,
+                             const IdentifiabilityReport& structural, const GaussianPrior& prior,
                              const RlsCalibratorOptions& options)
     : model_(&model),
       params_(params),

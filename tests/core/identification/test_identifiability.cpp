@@ -120,8 +120,11 @@ TEST_P(Identifiability, AbsorptionMapStandsForEveryCanonicalChange) {
     ASSERT_EQ(T.cols(), m.numParams());
     Eigen::MatrixXd Jk(J.rows(), rep.rank);
     for (int i = 0; i < rep.rank; ++i) Jk.col(i) = J.col(rep.identifiable[static_cast<size_t>(i)]);
-    for (const auto& d : rep.dropped)
-      if (!d.merged_into.empty()) EXPECT_GT(T.col(d.index).norm(), 0) << d.name << " merges but is not absorbed";
+    for (const auto& d : rep.dropped) {
+      if (!d.merged_into.empty()) {
+        EXPECT_GT(T.col(d.index).norm(), 0) << d.name << " merges but is not absorbed";
+      }
+    }
     for (int draw = 0; draw < 5; ++draw) {
       Eigen::VectorXd dp = Eigen::VectorXd::Zero(m.numParams());
       for (int c : m.canonicalParams()) dp[c] = (m.isLength(c) ? 1e-4 : 2e-4) * g(rng);

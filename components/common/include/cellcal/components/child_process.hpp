@@ -46,4 +46,8 @@ class ChildProcess {
 // Sends `sig` to every running child, then waits for them all (at most timeout_s in all), SIGKILLing those left.
 void stopAll(const std::vector<ChildProcess*>& children, int sig = SIGINT, double timeout_s = 15);
 
+// The iproute2 `ip` program, for a child run in a network namespace (`ip netns exec NS PROGRAM ...` execs the program
+// in place: same pid, same death signal); empty when it is not installed.
+std::string ipProgram();
+
 }  // namespace cellcal::components

@@ -70,8 +70,9 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
 // excitation). A change dp of the whole parameter vector moves the measurements as the change T dp of the kept
 // parameters would, so a drift or an uncertainty of a left-out parameter is carried by the ones that stand for it
 // (covariance T P T^T) instead of being lost: a joint 6 zero that drifts makes the tool yaw drift.
+constexpr double kDefaultAbsorbSine = 1e-3;
 Eigen::MatrixXd absorptionMap(const RobotModel& model, const Eigen::MatrixXd& J, const std::vector<int>& kept,
-                              double absorb_sine = 1e-3);
+                              double absorb_sine = kDefaultAbsorbSine);
 // absorptionMap on the structural pose set (structuralIdentifiability's).
 Eigen::MatrixXd structuralAbsorption(const RobotModel& model, const Eigen::VectorXd& params, MeasurementKind kind,
                                      const std::vector<int>& kept);

@@ -123,7 +123,7 @@ class RlsCalibrator {
 
  private:
   RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const IdentifiabilityReport& structural,
-                const GaussianPrior& prior, MeasurementKind kind, const RlsCalibratorOptions& options);
+                const GaussianPrior& prior, const RlsCalibratorOptions& options);
   // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows.
   int linearize(const Observation& obs, const Drivers* drivers);
   Eigen::VectorXd rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers);
