@@ -9,6 +9,7 @@ PACKAGES=(
   libeigen3-dev libceres-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev
+  libwebsocketpp-dev libasio-dev    # cellcal foxglove (the Foxglove WebSocket protocol, recording/foxglove)
   libfastrtps-dev fastddsgen
   openssl                           # config/security/make_pki.sh (DDS Security test CA and certificates)
   cyclonedds-dev cyclonedds-tools   # tests/interop (a Cyclone DDS peer from cellcal's IDL)

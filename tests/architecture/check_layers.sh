@@ -18,8 +18,9 @@ rules=(
   "core/|core/|no"
   "lab/|core/ lab/|no"
   "recording/mcap/|mcap/|no"
+  "recording/foxglove/|foxglove/|no"
   "components/|core/ lab/ components/|yes"
-  "recording/|core/ lab/ components/ mcap/ recording/|yes"
+  "recording/|core/ lab/ components/ mcap/ foxglove/ recording/|yes"
 )
 
 violations=0

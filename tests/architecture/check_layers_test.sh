@@ -17,12 +17,13 @@ plant core/src/identification/planted_c.cpp '"cellcal/core/files/robot_yaml.hpp"
 plant lab/src/planted_d.cpp '"cellcal/components/dds_node.hpp"'
 plant components/common/src/planted_e.cpp '"cellcal/recording/recording.hpp"'
 plant recording/mcap/src/planted_f.cpp '"cellcal_msgs.h"'
+plant recording/foxglove/src/planted_g.cpp '"cellcal/components/dds_node.hpp"'
 out=$(bash "$here/check_layers.sh" "$tmp")
 rc=$?
 [ $rc -eq 1 ] || { echo "FAIL: exit $rc with planted violations (want 1)"; echo "$out"; exit 1; }
-for f in planted_a planted_b planted_c planted_d planted_e planted_f; do
+for f in planted_a planted_b planted_c planted_d planted_e planted_f planted_g; do
   grep -q "$f.cpp:2:" <<<"$out" || { echo "FAIL: $f not reported"; echo "$out"; exit 1; }
 done
 n=$(grep -c ':2: ' <<<"$out")
-[ "$n" -eq 6 ] || { echo "FAIL: $n violations reported, 6 planted"; echo "$out"; exit 1; }
-echo "check_layers catches all 6 planted violations and passes the real tree"
+[ "$n" -eq 7 ] || { echo "FAIL: $n violations reported, 7 planted"; echo "$out"; exit 1; }
+echo "check_layers catches all 7 planted violations and passes the real tree"

@@ -127,6 +127,55 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   std::printf("%s", printed.c_str());
 }
 
+// A tool that joins with another participant profile than the cell's sees nothing there: `status` and `record` say
+// so, look on the profile file's other profiles and name the one the cell is on. The tools' profile here is shared
+// memory only, which cannot reach a cell on UDP loopback on any machine.
+TEST(CellProcesses, ToolsOnAnotherProfileNameTheProfileTheCellIsOn) {
+  const std::string dir = testDir();
+  std::string xml = readTextFile(std::string(CELLCAL_CONFIG_DIR) + "/dds/cellcal_qos.xml");
+  const auto put = [&](const std::string& before, const std::string& text) {
+    const auto at = xml.find(before);
+    ASSERT_NE(at, std::string::npos) << before;
+    xml.insert(at, text);
+  };
+  put("</transport_descriptors>",
+      "<transport_descriptor><transport_id>test_shm_only</transport_id><type>SHM</type></transport_descriptor>\n");
+  put("<participant profile_name=\"cellcal\">",
+      "<participant profile_name=\"test_elsewhere\"><rtps><userTransports><transport_id>test_shm_only</transport_id>"
+      "</userTransports><useBuiltinTransports>false</useBuiltinTransports></rtps></participant>\n");
+  std::ofstream(dir + "/profiles.xml") << xml;
+  std::string cell_text = readTextFile(writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
+                                                 "  initial_poses: 40\n  groups: 1\n"));
+  const std::string shipped = std::string(CELLCAL_CONFIG_DIR) + "/dds/cellcal_qos.xml";
+  cell_text.replace(cell_text.find(shipped), shipped.size(), dir + "/profiles.xml");
+  const std::string cfg = dir + "/cell_profiles.yaml";
+  std::ofstream(cfg) << cell_text;
+
+  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "12", "--work-dir", dir + "/run", "--quiet"});
+  Probe probe(loadCellConfig(cfg));
+  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 3; }, 30)) << cell.log();
+  Process status(dir, "status", {"cellcal", "status", "--config", cfg, "--dds-profile", "test_elsewhere", "--wait-s", "2",
+                                 "--json", dir + "/status.json"});
+  Process record(dir, "record", {"cellcal", "record", "--config", cfg, "--dds-profile", "test_elsewhere",
+                                 "--duration-s", "2", "--out", dir + "/nothing.mcap"});
+  ASSERT_EQ(status.wait(40), 0) << status.log();
+  EXPECT_EQ(record.wait(40), 3) << record.log();  // nothing recorded
+  ASSERT_EQ(cell.wait(60), 0) << cell.log();
+  const auto j = readJson(dir + "/status.json");
+  ASSERT_FALSE(j.is_discarded()) << status.log();
+  EXPECT_FALSE(j["engine_seen"].get<bool>()) << j.dump(1);
+  EXPECT_EQ(j["participant_profile"], "test_elsewhere");
+  bool loopback_seen = false;
+  for (const auto& o : j["other_profiles"])
+    if (o["profile"] == "cellcal_loopback") loopback_seen = o["engine_seen"].get<bool>();
+  EXPECT_TRUE(loopback_seen) << j.dump(1);
+  for (const std::string& log : {status.log(), record.log()}) {
+    EXPECT_NE(log.find("cellcal_loopback: engine seen, compensation seen"), std::string::npos) << log;
+    EXPECT_NE(log.find("add --dds-profile "), std::string::npos) << log;
+  }
+  std::printf("%s", status.log().c_str());
+}
+
 TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   const std::string dir = testDir();
   const int domain = domainForTest();

@@ -23,6 +23,7 @@ while IFS= read -r line; do
     *"&") why="starts a long-running process" ;;
     build/bin/cellcal_*) why="a component process: runs until stopped" ;;
     "build/bin/cellcal record "* | "build/bin/cellcal replay "*) why="needs a running cell" ;;
+    "build/bin/cellcal foxglove"*) why="serves until stopped (ctest -R Foxglove runs it beside a cell)" ;;
   esac
   if [ -z "$why" ] && grep -q "\.\./shared" <<<"$cmd" && [ ! -d ../shared/datasets ]; then why="../shared/datasets missing"; fi
   if [ -n "$why" ]; then

@@ -14,6 +14,7 @@
 
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/components/profile_probe.hpp"
 #include "cellcal/recording/recording.hpp"
 #include "commands.hpp"
 
@@ -153,11 +154,10 @@ int runRecord(const RecordArgs& a) {
   writeJsonFile(a.json, counts);
   writeJsonFile(a.common.stats_json, {{"name", "recorder"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"extra", counts}});
   if (rec.file().messagesWritten() == 0) {
-    std::fprintf(stderr,
-                 "record: WARNING: nothing received in %.1f s on domain %d with participant profile %s: is the cell "
-                 "running, on this domain and profile? (--domain-id, --dds-profile; `cellcal cell` runs on "
-                 "cellcal_loopback) (exit 3)\n",
+    std::fprintf(stderr, "record: WARNING: nothing received in %.1f s on domain %d with participant profile %s (exit 3); "
+                 "looking on the other profiles...\n",
                  wall_s, cell.dds.domain_id, cell.dds.participant_profile.c_str());
+    std::fprintf(stderr, "%s", describeSightings(cell, probeOtherProfiles(cell), "record: ").c_str());
     return 3;
   }
   return 0;

@@ -12,6 +12,7 @@
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/components/profile_probe.hpp"
 #include "commands.hpp"
 
 namespace cellcal::cli {
@@ -77,15 +78,19 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
   return j;
 }
 
+// `elsewhere`: what the other participant profiles saw (describeSightings), when looked at; else a hint.
 void render(std::ostream& out, const CellConfig& cell, const std::map<std::string, RobotView>& robots, int engine_writers,
-            int compensation_writers) {
+            int compensation_writers, const std::string& elsewhere = "") {
   const std::time_t now = std::time(nullptr);
   char when[32];
   std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", std::localtime(&now));
   out << "cellcal status  " << when << "  domain " << cell.dds.domain_id << " (" << cell.dds.participant_profile
       << ")  engine " << (engine_writers > 0 ? "seen" : "NOT SEEN") << ", compensation "
       << (compensation_writers > 0 ? "seen" : "not seen") << "\n";
-  if (engine_writers == 0)  // the usual reason on one host: `cellcal cell` joins on another profile
+  if (engine_writers == 0 && !elsewhere.empty())
+    out << "  no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile << "; "
+        << elsewhere.substr(2);
+  else if (engine_writers == 0)  // the usual reason on one host: `cellcal cell` joins on another profile
     out << "  (no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile
         << ": `cellcal cell` runs on cellcal_loopback, try --dds-profile cellcal_loopback; or --domain-id)\n";
   out << "\n";
@@ -200,12 +205,24 @@ int runStatus(const StatusArgs& a) {
   const int compensation_writers = node.matchedWriters<msg::CompensatedTarget>();
   node.shutdown();
   writeJsonFile(a.common.stats_json, {{"name", "status"}, {"topics", node.stats()}});
+  // No engine: where is the cell? The other participant profiles of the cell's profile file, on this domain.
+  std::vector<ProfileSighting> others;
+  if (engine_writers == 0 && !stopRequested()) others = probeOtherProfiles(cell);
   std::lock_guard<std::mutex> l(mutex);
-  if (!a.watch) render(std::cout, cell, robots, engine_writers, compensation_writers);
+  if (!a.watch) render(std::cout, cell, robots, engine_writers, compensation_writers,
+                       engine_writers == 0 ? describeSightings(cell, others, "  ") : "");
+  else if (engine_writers == 0) std::cout << describeSightings(cell, others, "");
+  nlohmann::json elsewhere = nlohmann::json::array();
+  for (const auto& o : others)
+    elsewhere.push_back({{"profile", o.profile}, {"engine_seen", o.engine_writers > 0},
+                         {"compensation_seen", o.compensation_writers > 0}, {"sensor_writers", o.sensor_writers},
+                         {"error", o.error}});
   if (!a.json.empty())
     writeJsonFile(a.json, {{"domain_id", cell.dds.domain_id},
+                           {"participant_profile", cell.dds.participant_profile},
                            {"engine_seen", engine_writers > 0},
                            {"compensation_seen", compensation_writers > 0},
+                           {"other_profiles", elsewhere},
                            {"robots", toJson(robots)}});
   return 0;
 }

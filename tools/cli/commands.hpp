@@ -35,6 +35,8 @@ Runner addExportCommand(CLI::App& app);
 Runner addContinuousCommand(CLI::App& app);
 // cmd_status.cpp: the cell at a glance (--watch: live).
 Runner addStatusCommand(CLI::App& app);
+// cmd_foxglove.cpp: the live cell over the Foxglove WebSocket protocol.
+Runner addFoxgloveCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.<format> (png or svg);
 // the script sees the data file as `datafile`. Returns false with a message in *error when gnuplot is missing or fails.

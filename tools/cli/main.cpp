@@ -55,7 +55,8 @@ int main(int argc, char** argv) {
       {"import", addImportCommand(app)},         {"diagnose", addDiagnoseCommand(app)},
       {"continuous", addContinuousCommand(app)}, {"record", addRecordCommand(app)},
       {"replay", addReplayCommand(app)},         {"validate", addValidateCommand(app)},
-      {"export", addExportCommand(app)},         {"status", addStatusCommand(app)}};
+      {"export", addExportCommand(app)},         {"status", addStatusCommand(app)},
+      {"foxglove", addFoxgloveCommand(app)}};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
