@@ -20,7 +20,7 @@ void JointStateAdapter::runSim() {
   auto truth = node_.writer<sim::RobotTruth>();
   std::vector<SimulatedCell> cells;
   std::vector<SimRobotProgram> programs;
-  for (size_t i = 0; i < cell_.robots.size(); ++i) cells.push_back(makeSimulatedCell(cell_.robots[i], cell_.simulation, static_cast<int>(i)));
+  for (size_t i = 0; i < cell_.robots.size(); ++i) cells.push_back(makeSimulatedCell(cell_.robots[i], cell_.simulation, cell_.robots[i].index));
   for (const auto& c : cells) programs.emplace_back(c, cell_.simulation);
   if (options_.wait_for_readers > 0) {
     // Start the program only once someone listens: JointState matched by >= 1 reader (the engine) and

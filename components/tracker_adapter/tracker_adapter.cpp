@@ -26,7 +26,7 @@ void TrackerAdapter::runSim() {
   };
   std::map<std::string, Robot> robots;
   for (size_t i = 0; i < cell_.robots.size(); ++i) {
-    SimulatedCell sc = makeSimulatedCell(cell_.robots[i], cell_.simulation, static_cast<int>(i));
+    SimulatedCell sc = makeSimulatedCell(cell_.robots[i], cell_.simulation, cell_.robots[i].index);
     const std::uint64_t seed = sc.config().seed * 6364136223846793005ULL + 1442695040888963407ULL;
     robots.emplace(cell_.robots[i].robot_id, Robot{&cell_.robots[i], std::move(sc), std::mt19937_64(seed)});
   }

@@ -63,7 +63,8 @@ inline std::string writeCell(const std::string& dir, int domain, std::uint64_t s
       << ", tool_in_flange: { x_mm: 30, y_mm: 0, z_mm: 60, roll_deg: 0, pitch_deg: 0, yaw_deg: 0 }"
       << (r.extensions.empty() ? "" : ", extensions: " + r.extensions) << " }\n";
   y << "engine:\n  state_dir: " << dir << "/state\n" << engine_extra
-    << "simulation:\n  seed: " << seed << "\n  joint_rate_hz: 1000\n" << simulation_extra;
+    << "simulation:\n  seed: " << seed << "\n"
+    << (simulation_extra.find("joint_rate_hz") == std::string::npos ? "  joint_rate_hz: 1000\n" : "") << simulation_extra;
   const std::string path = dir + "/" + name + ".yaml";
   std::ofstream(path) << y.str();
   return path;
@@ -172,6 +173,30 @@ inline msg::TargetPose reachableTarget(const CellConfig& cell) {
   components::fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
   t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
   return t;
+}
+
+// A shard's engine (`cellcal cell --shards`: calibration_engine_<k> in run_dir) received its own shard's joint states
+// and tracker readings only: at most what that shard's adapters published (another shard's samples would add to it),
+// and at least 90 % of it. Returns "engine k: <topic> received/published; ..." for the test's printout.
+inline std::string expectOnlyItsShard(const std::string& run_dir, int k) {
+  const std::string n = std::to_string(k);
+  const auto engine = readJson(run_dir + "/calibration_engine_" + n + ".stats.json");
+  const auto joints = readJson(run_dir + "/joint_state_adapter_" + n + ".stats.json");
+  const auto tracker = readJson(run_dir + "/tracker_adapter_" + n + ".stats.json");
+  if (engine.is_discarded() || joints.is_discarded() || tracker.is_discarded()) {
+    ADD_FAILURE() << "shard " << n << ": a stats file is missing in " << run_dir;
+    return "";
+  }
+  std::string said = " engine " + n + ":";
+  for (const auto& [topic, source] : {std::pair<std::string, nlohmann::json>{"cellcal/joint_state", joints},
+                                      {"cellcal/tracker_pose", tracker}}) {
+    const double got = engine["topics"][topic]["received"].get<double>();
+    const double sent = source["topics"][topic]["published"].get<double>();
+    EXPECT_LE(got, sent) << "engine " << n << " received another shard's " << topic;
+    EXPECT_GE(got, 0.9 * sent) << "engine " << n << ", " << topic;
+    said += " " + topic + " " + std::to_string(static_cast<long>(got)) + "/" + std::to_string(static_cast<long>(sent)) + ";";
+  }
+  return said;
 }
 
 }  // namespace cellcal::test

@@ -176,6 +176,68 @@ TEST(CellProcesses, ToolsOnAnotherProfileNameTheProfileTheCellIsOn) {
   std::printf("%s", status.log().c_str());
 }
 
+// A cell in two shards (`cellcal cell --shards 2`): each engine, compensation publisher and adapter serves half the
+// robots (--robots), and its readers take only their samples (content filters). The same cell file and seed in one
+// shard and in two give each robot the same calibration, and an engine receives its own half's joint states and
+// tracker readings, not the others'.
+TEST(CellProcesses, TwoShardsServeHalfTheRobotsEach) {
+  const std::string dir = testDir();
+  std::vector<RobotEntry> robots;
+  for (int i = 1; i <= 4; ++i) robots.push_back({"r" + std::to_string(i), "t" + std::to_string(i)});
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), robots,
+                                    "  initial_poses: 30\n  groups: 1\n  joint_rate_hz: 500\n");
+  Process whole(dir, "whole", {"cellcal", "cell", "--config", cfg, "--duration-s", "12", "--work-dir", dir + "/whole",
+                               "--summary-json", dir + "/whole.json", "--quiet"});
+  ASSERT_EQ(whole.wait(90), 0) << whole.log();
+  Process cell(dir, "cell", {"cellcal", "cell", "--config", cfg, "--shards", "2", "--duration-s", "12", "--work-dir",
+                             dir + "/run", "--summary-json", dir + "/summary.json", "--quiet"});
+  ASSERT_EQ(cell.wait(90), 0) << cell.log();
+  const auto one = readJson(dir + "/whole.json");
+  const auto s = readJson(dir + "/summary.json");
+  ASSERT_FALSE(s.is_discarded() || one.is_discarded()) << cell.log();
+  ASSERT_EQ(s["robots"].size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) {
+    const auto& r = s["robots"][i];
+    const auto& w = one["robots"][i];
+    ASSERT_EQ(r["robot_id"], w["robot_id"]);
+    EXPECT_GE(r["final_version"].get<int>(), 20) << r.dump();
+    EXPECT_NEAR(r["final_version"].get<int>(), w["final_version"].get<int>(), 2) << r["robot_id"];
+    const double e_shard = r["verify_after_last_update_mm"], e_whole = w["verify_after_last_update_mm"];
+    EXPECT_NEAR(e_shard, e_whole, 0.1 * e_whole + 0.002) << r["robot_id"] << ": same inputs, different calibration";
+    EXPECT_LT(e_shard, 0.5 * r["verify_before_mm"].get<double>()) << r.dump();
+    EXPECT_GT(r["targets_applied"].get<int>(), 0) << r.dump();
+  }
+  for (int k = 1; k <= 2; ++k) {
+    const std::string n = std::to_string(k);
+    expectOnlyItsShard(dir + "/run", k);
+    const std::string log = readTextFile(dir + "/run/calibration_engine_" + n + ".log");
+    EXPECT_NE(log.find(k == 1 ? "robots r1,r2 only" : "robots r3,r4 only"), std::string::npos) << log;
+  }
+  for (int i = 1; i <= 4; ++i)
+    EXPECT_TRUE(fs::exists(dir + "/run/state/r" + std::to_string(i) + ".state.json")) << i;
+  std::printf("one engine: %d updates, hold-out after the last update %.4f mm; two shards: %d updates, %.4f mm; "
+              "engine 1 received %s joint states\n",
+              one["calibration_updates"].get<int>(), one["verify_after_last_update_mm"].get<double>(),
+              s["calibration_updates"].get<int>(), s["verify_after_last_update_mm"].get<double>(),
+              readJson(dir + "/run/calibration_engine_1.stats.json")["topics"]["cellcal/joint_state"]["received"].dump().c_str());
+}
+
+// --robots names robots of the cell file, each once; --shards at most the robots there are.
+TEST(CellProcesses, ShardOptionsAreChecked) {
+  const std::string dir = testDir();
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}});
+  Process unknown(dir, "unknown", {"cellcal_calibration_engine", "--config", cfg, "--robots", "tx60,nope"});
+  EXPECT_EQ(unknown.wait(30), 2);
+  EXPECT_NE(unknown.log().find("--robots: 'nope' is not a robot of"), std::string::npos) << unknown.log();
+  EXPECT_NE(unknown.log().find("its robots: tx60"), std::string::npos) << unknown.log();
+  Process twice(dir, "twice", {"cellcal_compensation_publisher", "--config", cfg, "--robots", "tx60,tx60"});
+  EXPECT_EQ(twice.wait(30), 2);
+  EXPECT_NE(twice.log().find("'tx60' is named twice"), std::string::npos) << twice.log();
+  Process shards(dir, "shards", {"cellcal", "cell", "--config", cfg, "--shards", "2", "--work-dir", dir + "/run"});
+  EXPECT_EQ(shards.wait(30), 2);
+  EXPECT_NE(shards.log().find("--shards 2: the cell has 1 robot(s)"), std::string::npos) << shards.log();
+}
+
 TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   const std::string dir = testDir();
   const int domain = domainForTest();

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <fcntl.h>
+#include <algorithm>
 #include <sched.h>
 
 #include <cstdio>
@@ -240,6 +241,59 @@ TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
 
 // The same cell (same robot errors, seed and program) on one host over loopback and across the three hosts: the same
 // calibration, latencies reported for both.
+// Sixteen robots on two cell servers (`cellcal cell --shards 2`): engine and compensation publisher 1 on the cell
+// server with the launcher, 2 on cell-server-2; each shard's tracker adapter on the tracker PC and joint-state adapter
+// on the robot PC. Every robot is calibrated, and each engine receives only its eight robots' streams (content
+// filters on robot_id / target_id, evaluated before the samples cross to it).
+TEST_F(NetnsCell, SixteenRobotsOnTwoCellServers) {
+  const std::string dir = testDir();
+  std::vector<RobotEntry> robots;
+  for (int i = 1; i <= 16; ++i) {
+    const std::string n = (i < 10 ? "0" : "") + std::to_string(i);
+    robots.push_back({"r" + n, "t" + n});
+  }
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), robots,
+                                    "  initial_poses: 30\n  groups: 1\n  joint_rate_hz: 250\n");
+  const std::vector<std::string> args = {
+      "netns", "exec", ns("cell-server"), std::string(CELLCAL_BIN_DIR) + "/cellcal", "cell", "--config", cfg,
+      "--dds-profile", "cellcal_udp", "--duration-s", "15", "--work-dir", dir + "/run", "--summary-json",
+      dir + "/summary.json", "--quiet", "--shards", "2",
+      "--host", "calibration_engine_2=" + ns("cell-server-2"), "--host", "compensation_publisher_2=" + ns("cell-server-2"),
+      "--host", "tracker_adapter_1=" + ns("tracker-pc"), "--host", "tracker_adapter_2=" + ns("tracker-pc"),
+      "--host", "joint_state_adapter_1=" + ns("robot-pc"), "--host", "joint_state_adapter_2=" + ns("robot-pc")};
+  // Bytes each host's link carried, from the kernel's counters.
+  auto bytes = [&](const std::string& host, const char* dir_field) {
+    std::string out;
+    shell(ipCommand() + " -n " + ns(host) + " -s -j link show eth0", &out);
+    const auto j = nlohmann::json::parse(out, nullptr, false);
+    return j.is_discarded() || j.empty() ? 0.0 : j[0]["stats64"][dir_field]["bytes"].get<double>();
+  };
+  const double server2_rx0 = bytes("cell-server-2", "rx"), robot_tx0 = bytes("robot-pc", "tx");
+  components::ChildProcess cell(ipCommand(), args, dir + "/cell.log");
+  ASSERT_EQ(cell.wait(150), 0) << readTextFile(dir + "/cell.log");
+  const double server2_rx = bytes("cell-server-2", "rx") - server2_rx0, robot_tx = bytes("robot-pc", "tx") - robot_tx0;
+  const auto s = readJson(dir + "/summary.json");
+  ASSERT_FALSE(s.is_discarded()) << readTextFile(dir + "/cell.log");
+  ASSERT_EQ(s["robots"].size(), 16u);
+  int calibrated = 0;
+  double worst_mm = 0;
+  for (const auto& r : s["robots"]) {
+    // Each robot's hold-out error right after its last update (the simulated robots drift on after it).
+    const double e = r["verify_after_last_update_mm"];
+    EXPECT_GE(r["final_version"].get<int>(), 20) << r.dump();
+    EXPECT_LT(e, 0.05) << r.dump();
+    EXPECT_LT(e, 0.5 * r["verify_before_mm"].get<double>()) << r.dump();
+    calibrated += r["final_version"].get<int>() >= 20 && e < 0.05;
+    worst_mm = std::max(worst_mm, e);
+  }
+  const std::string received = expectOnlyItsShard(dir + "/run", 1) + expectOnlyItsShard(dir + "/run", 2);
+  std::printf("  16 robots, 2 shards on 2 cell servers: %d of 16 calibrated (%d updates), worst hold-out after the last update %.4f mm, "
+              "tracker->state p50 %.0f us p99 %.0f us;%s cell-server-2 received %.1f MB, robot-pc sent %.1f MB\n",
+              calibrated, s["calibration_updates"].get<int>(), worst_mm,
+              s["latency_us"]["tracker_to_state_p50"].get<double>(), s["latency_us"]["tracker_to_state_p99"].get<double>(),
+              received.c_str(), server2_rx / 1e6, robot_tx / 1e6);
+}
+
 TEST_F(NetnsCell, ConvergesAcrossThreeHostsAsOnOneHost) {
   const std::string dir = testDir();
   const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}});

@@ -51,6 +51,9 @@ struct CellArgs {
   // (tools/netns/cellnet.sh makes them); the others run where the launcher does.
   std::vector<std::string> host_specs;
   std::map<std::string, std::string> hosts;  // from host_specs
+  // --shards N: the robots split into N consecutive groups, each served by its own engine, compensation publisher
+  // and adapters (each with --robots: content-filtered readers), named <process>_<k>.
+  int shards = 1;
 };
 
 // A process of the cell: its name, the file it writes its counts to at exit, and the process.
@@ -61,10 +64,11 @@ struct Child {
 
 // Starts bin/cellcal_<name> (or `cellcal <args>` when `self`) with its output in <work_dir>/<name>.log; with `netns`,
 // in that network namespace (`ip netns exec` execs the program in place: same pid, same death signal).
+// `role`: the program when the name is a shard's (calibration_engine_2 runs cellcal_calibration_engine).
 Child spawn(const std::string& name, std::vector<std::string> args, const std::string& work_dir, bool self = false,
-            const std::string& netns = "") {
+            const std::string& netns = "", const std::string& role = "") {
   const fs::path exe = self ? fs::read_symlink("/proc/self/exe")
-                            : fs::read_symlink("/proc/self/exe").parent_path() / ("cellcal_" + name);
+                            : fs::read_symlink("/proc/self/exe").parent_path() / ("cellcal_" + (role.empty() ? name : role));
   const std::string stats = (fs::path(work_dir) / (name + ".stats.json")).string();
   args.insert(args.end(), {"--stats-json", stats});
   const std::string log = (fs::path(work_dir) / (name + ".log")).string();
@@ -388,14 +392,33 @@ std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, con
   if (!a.record.empty())
     children.push_back(spawn("recorder", with({"record"}, {"--out", fs::absolute(a.record).string(), "--quiet"}),
                              a.work_dir, true, host("recorder")));
-  children.push_back(spawn("calibration_engine", with({}, {"--state-dir", state_dir, "--quiet"}), a.work_dir, false,
-                           host("calibration_engine")));
-  children.push_back(spawn("compensation_publisher", common, a.work_dir, false, host("compensation_publisher")));
-  children.push_back(spawn("tracker_adapter", with({}, {"--source", "sim"}), a.work_dir, false, host("tracker_adapter")));
-  // The robot starts its program once the engine and the tracker listen (discovery on loopback takes a moment).
-  children.push_back(spawn("joint_state_adapter",
-                           with({}, {"--source", "sim", "--wait-for-readers", a.record.empty() ? "2" : "3"}), a.work_dir,
-                           false, host("joint_state_adapter")));
+  // One group of robots per shard (all of them without --shards): its name suffix and --robots.
+  const std::size_t n = static_cast<std::size_t>(a.shards), robots = cell.robots.size();
+  std::vector<std::pair<std::string, std::vector<std::string>>> shards;
+  for (std::size_t k = 0; k < n; ++k) {
+    std::vector<std::string> only;
+    if (n > 1) {
+      std::string ids;
+      for (std::size_t i = k * robots / n; i < (k + 1) * robots / n; ++i)
+        ids += (ids.empty() ? "" : ",") + cell.robots[i].robot_id;
+      only = {"--robots", ids};
+    }
+    shards.emplace_back(n > 1 ? "_" + std::to_string(k + 1) : "", only);
+  }
+  auto each = [&](const std::string& role, std::vector<std::string> args) {
+    for (const auto& [suffix, only] : shards) {
+      std::vector<std::string> shard_args = with({}, args);
+      shard_args.insert(shard_args.end(), only.begin(), only.end());
+      children.push_back(spawn(role + suffix, shard_args, a.work_dir, false, host(role + suffix), role));
+    }
+  };
+  each("calibration_engine", {"--state-dir", state_dir, "--quiet"});
+  each("compensation_publisher", {});
+  each("tracker_adapter", {"--source", "sim"});
+  // The robot starts its program once the engine and the tracker listen (discovery on loopback takes a moment):
+  // RobotTruth's readers are every tracker adapter, this launcher and the recorder.
+  each("joint_state_adapter",
+       {"--source", "sim", "--wait-for-readers", std::to_string(n + 1 + (a.record.empty() ? 0 : 1))});
   return children;
 }
 
@@ -423,11 +446,16 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
       t["published"] = t["published"].get<std::uint64_t>() + counts.value("published", 0ULL);
       t["received"] = t["received"].get<std::uint64_t>() + counts.value("received", 0ULL);
     }
-    if (c.name == "calibration_engine") {
-      calibration_updates = p["extra"].value("updates", 0ULL);
+    // Shards (calibration_engine_2, ...): updates summed, each one's counts kept.
+    if (c.name.rfind("calibration_engine", 0) == 0) {
+      calibration_updates += p["extra"].value("updates", 0ULL);
       s["engine"] = p["extra"];
+      s["engines"][c.name] = p["extra"];
     }
-    if (c.name == "compensation_publisher") s["compensation"] = p["extra"];
+    if (c.name.rfind("compensation_publisher", 0) == 0) {
+      s["compensation"] = p["extra"];
+      s["compensation_publishers"][c.name] = p["extra"];
+    }
     if (c.name == "recorder") s["recorder"] = p["extra"];
   }
   s["topics"] = topics;
@@ -437,6 +465,9 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
 
 int runCell(const CellArgs& a) {
   const CellConfig cell = loadCell(a.common);
+  if (static_cast<std::size_t>(a.shards) > cell.robots.size())
+    throw ConfigError("--shards " + std::to_string(a.shards) + ": the cell has " + std::to_string(cell.robots.size()) +
+                      " robot(s)");
   fs::create_directories(a.work_dir);
   const std::string state_dir = (fs::path(a.work_dir) / "state").string();
   if (!a.resume) fs::remove_all(state_dir);
@@ -499,6 +530,12 @@ Runner addCellCommand(CLI::App& app) {
   cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses published per second and robot")->capture_default_str();
   cmd->add_flag("--quiet", a->quiet, "no line per update");
   cmd->add_option("--record", a->record, "also run `cellcal record` on every topic into this MCAP file");
+  cmd->add_option("--shards", a->shards,
+                  "split the robots into this many groups, each with its own engine, compensation publisher and "
+                  "adapters (--robots; named calibration_engine_1, ...): a cell too large for one engine, or one "
+                  "cell server per group")
+      ->check(CLI::Range(1, 16))
+      ->capture_default_str();
   cmd->add_option("--host", a->host_specs,
                   "PROCESS=NETNS: run that process (tracker_adapter, joint_state_adapter, calibration_engine, "
                   "compensation_publisher, recorder) in that network namespace, as on another host "
@@ -508,9 +545,14 @@ Runner addCellCommand(CLI::App& app) {
         const auto eq = v.find('=');
         static const std::set<std::string> names = {"tracker_adapter", "joint_state_adapter", "calibration_engine",
                                                     "compensation_publisher", "recorder"};
-        if (eq == std::string::npos || eq + 1 == v.size() || !names.count(v.substr(0, eq)))
+        std::string process = eq == std::string::npos ? v : v.substr(0, eq);
+        const auto us = process.find_last_of('_');  // a shard's: calibration_engine_2
+        if (us != std::string::npos && us + 1 < process.size() &&
+            process.find_first_not_of("0123456789", us + 1) == std::string::npos)
+          process = process.substr(0, us);
+        if (eq == std::string::npos || eq + 1 == v.size() || !names.count(process))
           return "expected PROCESS=NETNS with PROCESS one of tracker_adapter, joint_state_adapter, calibration_engine, "
-                 "compensation_publisher, recorder; got '" + v + "'";
+                 "compensation_publisher, recorder (with --shards: calibration_engine_2, ...); got '" + v + "'";
         return std::string();
       });
   return [a] {

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# A cell's hosts on one machine: three network namespaces, <prefix>-tracker-pc, <prefix>-robot-pc and
-# <prefix>-cell-server, each with one veth link to a bridge in <prefix>-switch (10.231.0.0/24: .1 tracker-pc, .2
-# robot-pc, .3 cell-server). Nothing is added to the machine's own network namespace; traffic stays between these.
+# A cell's hosts on one machine: four network namespaces, <prefix>-tracker-pc, <prefix>-robot-pc,
+# <prefix>-cell-server and <prefix>-cell-server-2 (a second cell server, for a cell whose robots are shared by two
+# engines), each with one veth link to a bridge in <prefix>-switch (10.231.0.0/24: .1 tracker-pc, .2 robot-pc, .3
+# cell-server, .4 cell-server-2). Nothing is added to the machine's own network namespace; traffic stays between these.
 # Run as root (ip netns needs CAP_SYS_ADMIN). docs/deployment.md#several-hosts-on-one-machine.
 #
 #   cellnet.sh up PREFIX [--no-multicast] [NETEM...]
@@ -11,12 +12,12 @@
 #                                     the namespaces are then removed)
 #   cellnet.sh down PREFIX            remove them (what exists of them; no error when already gone)
 #   cellnet.sh link PREFIX HOST up|down   cut or heal one host's link at the switch (HOST: tracker-pc, robot-pc,
-#                                     cell-server)
+#                                     cell-server, cell-server-2)
 #   cellnet.sh check                  exit 0 when namespaces can be made here, else 77 with the reason
 #
 # Run a process on a host: ip netns exec PREFIX-HOST COMMAND (cellcal cell --host PROCESS=PREFIX-HOST does it).
 set -u
-hosts=(tracker-pc robot-pc cell-server)
+hosts=(tracker-pc robot-pc cell-server cell-server-2)
 
 die() { echo "cellnet: $1" >&2; exit "${2:-1}"; }
 
@@ -78,7 +79,7 @@ up() {
       }
     fi
   done
-  echo "cellnet: $p-tracker-pc 10.231.0.1, $p-robot-pc 10.231.0.2, $p-cell-server 10.231.0.3$([ $multicast = 0 ] && echo ', no multicast')${1:+ (netem $*)}"
+  echo "cellnet: $p-tracker-pc 10.231.0.1, $p-robot-pc 10.231.0.2, $p-cell-server 10.231.0.3, $p-cell-server-2 10.231.0.4$([ $multicast = 0 ] && echo ', no multicast')${1:+ (netem $*)}"
 }
 
 # The switch's port of that host: the host keeps its interface, address and routes (as a PC whose cable is pulled
@@ -86,7 +87,7 @@ up() {
 link() {
   local p=$1 h=$2 state=$3 i=0 k=0
   for x in "${hosts[@]}"; do k=$((k + 1)); [ "$x" = "$h" ] && i=$k; done
-  [ $i -gt 0 ] || die "no host '$h' (tracker-pc, robot-pc, cell-server)" 2
+  [ $i -gt 0 ] || die "no host '$h' (tracker-pc, robot-pc, cell-server, cell-server-2)" 2
   [ "$state" = up ] || [ "$state" = down ] || die "link state '$state': up or down" 2
   ip -n "$p-switch" link set "${p}s$i" "$state"
 }

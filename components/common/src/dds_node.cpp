@@ -106,6 +106,8 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
     : domain_id_(cell.dds.domain_id),
       secure_(!cell.dds.security_dir.empty()),
       type_information_(cell.dds.type_information) {
+  shard_robot_ids_ = cell.dds.shard_robot_ids;
+  shard_target_ids_ = cell.dds.shard_target_ids;
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   if (!std::filesystem::exists(cell.dds.profiles_file))
     throw std::runtime_error(cell.source + ": dds.profiles_file: " + cell.dds.profiles_file + " does not exist");
@@ -132,13 +134,22 @@ DdsNode::DdsNode(const CellConfig& cell, const std::string& node_name, const std
     throw std::runtime_error("cannot create the DDS participant on domain " + std::to_string(domain_id_) +
                              " with profile " + cell.dds.participant_profile + why);
   }
+  if (participant_->register_content_filter_factory(kKeyFilterClass, &KeyFilterFactory::instance()) !=
+      ReturnCode_t::RETCODE_OK)
+    throw std::runtime_error(std::string("cannot register the content filter ") + kKeyFilterClass);
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
   if (!publisher_ || !subscriber_) throw std::runtime_error("cannot create the DDS publisher/subscriber");
   // Where it joined: what a second tool must match to see it (`cellcal cell` runs on cellcal_loopback).
   std::cerr << node_name << ": DDS domain " << domain_id_ << ", participant profile " << cell.dds.participant_profile
             << ", DDS Security " << (secure_ ? "on (identity " + identity + ")" : std::string("off"))
-            << (discovery.empty() ? "" : ", discovery by " + discovery) << "\n";
+            << (discovery.empty() ? "" : ", discovery by " + discovery);
+  if (!shard_robot_ids_.empty()) {
+    std::cerr << ", robots";
+    for (const auto& id : shard_robot_ids_) std::cerr << (&id == &shard_robot_ids_.front() ? " " : ",") << id;
+    std::cerr << " only (--robots: content-filtered readers)";
+  }
+  std::cerr << "\n";
 }
 
 DdsNode::~DdsNode() { shutdown(); }
@@ -146,6 +157,7 @@ DdsNode::~DdsNode() { shutdown(); }
 void DdsNode::shutdown() {
   if (!participant_) return;
   participant_->delete_contained_entities();
+  participant_->unregister_content_filter_factory(kKeyFilterClass);
   fdds::DomainParticipantFactory::get_instance()->delete_participant(participant_);
   participant_ = nullptr;
   publisher_ = nullptr;

@@ -1,5 +1,6 @@
 #include "cellcal/components/process.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <atomic>
 #include <csignal>
@@ -34,6 +35,10 @@ void addCommonOptions(CLI::App& app, ProcessOptions& o) {
                  "participant profile of the profiles file: cellcal, cellcal_udp, cellcal_loopback "
                  "(overrides the cell file and CELLCAL_DDS_PROFILE)");
   app.add_option("--stats-json", o.stats_json, "write what this process published and received to this file at exit");
+  app.add_option("--robots", o.robots,
+                 "serve only these robots of the cell file, comma-separated (a shard of a large cell: other processes "
+                 "serve the others; this one's readers take only these robots' samples)")
+      ->delimiter(',');
 }
 
 std::string manFooter(const std::string& reads, const std::string& writes, const std::string& examples,
@@ -70,6 +75,23 @@ CellConfig loadCell(const ProcessOptions& o) {
   if (o.domain_id) c.dds.domain_id = *o.domain_id;
   if (!o.participant_profile.empty()) c.dds.participant_profile = o.participant_profile;
   if (!o.state_dir.empty()) c.engine.state_dir = std::filesystem::absolute(o.state_dir).string();
+  if (!o.robots.empty()) {
+    std::vector<CellRobot> kept;
+    for (const auto& id : o.robots) {
+      auto it = std::find_if(c.robots.begin(), c.robots.end(), [&](const CellRobot& r) { return r.robot_id == id; });
+      if (it == c.robots.end()) {
+        std::string known;
+        for (const auto& r : c.robots) known += (known.empty() ? "" : ", ") + r.robot_id;
+        throw ConfigError("--robots: '" + id + "' is not a robot of " + c.source + " (its robots: " + known + ")");
+      }
+      if (std::any_of(kept.begin(), kept.end(), [&](const CellRobot& r) { return r.robot_id == id; }))
+        throw ConfigError("--robots: '" + id + "' is named twice");
+      kept.push_back(*it);
+      c.dds.shard_robot_ids.push_back(it->robot_id);
+      c.dds.shard_target_ids.push_back(it->target_id);
+    }
+    c.robots = std::move(kept);
+  }
   return c;
 }
 
@@ -123,6 +145,9 @@ int runMain(const char* program, int argc, char** argv, CLI::App& app, const std
   try {
     installStopHandlers();
     return body();
+  } catch (const ConfigError& e) {  // a bad cell or robot file, or an option naming what is not in it
+    std::cerr << program << ": error: " << e.what() << "\n";
+    return 2;
   } catch (const std::exception& e) {
     std::cerr << program << ": error: " << e.what() << "\n";
     return 1;

@@ -142,6 +142,8 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
 
   const YAML::Node robots = r.required(root, "robots", "robots");
   if (!robots.IsSequence() || robots.size() == 0) r.fail(robots, "robots", "expected a non-empty list of robots");
+  if (robots.size() > 256)  // the DDS profiles keep 256 instances (robots) per topic (config/dds/cellcal_qos.xml)
+    r.fail(robots, "robots", std::to_string(robots.size()) + " robots: at most 256 in one cell (one DDS domain)");
   std::set<std::string> ids, targets;
   for (size_t i = 0; i < robots.size(); ++i) {
     const std::string f = "robots[" + std::to_string(i) + "]";
@@ -248,6 +250,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
         }
       }
     }
+    rb.index = static_cast<int>(c.robots.size());
     c.robots.push_back(std::move(rb));
   }
 

@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/components/key_filter.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal_msgsPubSubTypes.h"
 #include "ros2_msgsPubSubTypes.h"
@@ -116,7 +117,7 @@ class DdsNode {
   fdds::DataReader* reader(std::function<void(const M&, const fdds::SampleInfo&)> on_sample,
                            const std::string& topic_name = "") {
     const std::string name = topicName<M>(topic_name);
-    fdds::Topic* t = topic<M>(name);
+    fdds::TopicDescription* t = shardFilter<M>(topic<M>(name), name);
     auto l = std::make_unique<Listener<M>>(std::move(on_sample), counters(name));
     fdds::DataReader* r = subscriber_->create_datareader_with_profile(t, TopicOf<M>::profile, l.get());
     if (!r)
@@ -188,6 +189,9 @@ class DdsNode {
     std::lock_guard<std::mutex> lock(mutex_);
     auto it = topics_.find(name);
     if (it != topics_.end()) return it->second;
+    // A DDS-SQL content filter of another tool's reader, evaluated by our writers, reads the type's TypeObject from
+    // the factory, where fastddsgen's message constructors put it: one construction registers them.
+    { const M registers_the_type_objects{}; }
     fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
     // Discovery carries the TypeInformation (hashes; a recorder fetches the TypeObject through the TypeLookup service)
     // but not the TypeObject itself: on receiving one, Fast DDS 2.9 builds a DynamicType from the TypeObjectFactory in
@@ -203,6 +207,41 @@ class DdsNode {
   }
   std::shared_ptr<TopicCounters> counters(const std::string& topic);
 
+  template <class T, class = void>
+  struct HasRobotId : std::false_type {};
+  template <class T>
+  struct HasRobotId<T, std::void_t<decltype(std::declval<const T&>().robot_id())>> : std::true_type {};
+
+  // A shard (dds.shard_robot_ids): the topic seen through a content filter on the shard's robots (target_id for
+  // TrackerPose, robot_id for the other cell types; the ROS 2 types carry no key and are not filtered): cellcal's
+  // key filter (key_filter.hpp), which the writers of every cellcal process evaluate before sending.
+  template <class M>
+  fdds::TopicDescription* shardFilter(fdds::Topic* t, const std::string& name) {
+    const std::vector<std::string>* keys = nullptr;
+    std::string field;
+    if constexpr (std::is_same_v<M, msg::TrackerPose>) {
+      keys = &shard_target_ids_;
+      field = "target_id";
+    } else if constexpr (HasRobotId<M>::value) {
+      keys = &shard_robot_ids_;
+      field = "robot_id";
+    }
+    if (!keys || keys->empty()) return t;
+    std::string expression;
+    std::vector<std::string> parameters;
+    for (std::size_t i = 0; i < keys->size(); ++i) {
+      expression += (i ? " OR " : "") + field + " = %" + std::to_string(i);
+      parameters.push_back("'" + (*keys)[i] + "'");
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    fdds::ContentFilteredTopic* f = participant_->create_contentfilteredtopic(
+        name + "/shard" + std::to_string(filters_++), t, expression, parameters, kKeyFilterClass);
+    if (!f) throw std::runtime_error("cannot filter " + name + " by " + expression + " (--robots)");
+    return f;
+  }
+
+  std::vector<std::string> shard_robot_ids_, shard_target_ids_;
+  int filters_ = 0;
   int domain_id_ = 0;
   bool secure_ = false;
   std::uint32_t udp_receive_buffer_bytes_ = 0;

@@ -22,6 +22,7 @@ struct ProcessOptions {
   std::string participant_profile;
   std::string stats_json;     // written at exit: what this process published/received, its own counters
   std::string state_dir;      // engine only
+  std::vector<std::string> robots;  // --robots: serve only these robots of the cell file (a shard); empty: all
 };
 
 // The shipped configuration (cell.yaml, robots/, dds/, security/): <prefix>/share/cellcal/config next to an

@@ -39,6 +39,10 @@ struct DdsSettings {
   std::string discovery_server_address;           // IPv4
   int discovery_server_port = 0;                  // 0: no server
   int discovery_server_id = 0;
+  // A shard of the cell (a process's --robots; not a key of the file): the robots this process serves, and their
+  // targets. Its readers then take only their samples (DDS content filters on robot_id, target_id), so an engine
+  // serving half the robots does not receive the other half's streams. Empty: every robot, no filter.
+  std::vector<std::string> shard_robot_ids, shard_target_ids;
 };
 
 struct CellRobot {
@@ -54,6 +58,9 @@ struct CellRobot {
   // The nominal model of this robot in this cell (robot file + registration); filled by loadCellConfig. It stays the
   // controller's model (what compensation corrects) whatever the engine starts from.
   RobotModel model;
+  // Its place in the cell file's robots (0-based), filled by loadCellConfig: what the simulation seeds the robot by,
+  // so a process serving a shard of the robots (--robots) simulates each one as the whole cell does.
+  int index = 0;
   // Where the engine starts when it has no state file yet (key calibration_file): a calibrated robot file of this
   // robot (`cellcal calibrate --save-robot`). Its kinematics, frames and extension values are the RLS start, its
   // covariance widened by the drift since its date the prior (calibration_engine.hpp). Empty / nullopt: start from
