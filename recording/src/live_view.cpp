@@ -40,7 +40,8 @@ LiveView::LiveView(const CellConfig& cell, const LiveViewOptions& options)
         const double latency_ms = static_cast<double>(now - info.source_timestamp.to_ns()) * 1e-6;
         std::lock_guard<std::mutex> lock(mutex_);
         ++st->received;
-        if (st->dds_latency_ms.size() < kMaxLatencySamples) st->dds_latency_ms.push_back(latency_ms);
+        if (st->dds_latency_ms.size() < kLatencySamples) st->dds_latency_ms.push_back(latency_ms);
+        else st->dds_latency_ms[st->next++ % kLatencySamples] = latency_ms;
       });
     });
   }

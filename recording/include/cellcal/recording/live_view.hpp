@@ -36,15 +36,17 @@ class LiveView {
   std::uint16_t port() const { return server_.port(); }
   foxglove::ServerStats serverStats() const { return server_.stats(); }
   std::uint64_t samplesReceived() const;
-  // Per topic: samples received, DDS latency (source timestamp -> received here) p50/p99 in ms; the server's counts.
+  // Per topic: samples received, DDS latency (source timestamp -> received here) p50/p99 in ms over the last
+  // kLatencySamples samples; the server's counts.
   nlohmann::json summary() const;
 
  private:
   struct TopicStats {
     std::uint64_t received = 0;
-    std::vector<double> dds_latency_ms;  // the first kMaxLatencySamples
+    std::vector<double> dds_latency_ms;  // the last kLatencySamples (a ring: a live view runs for days)
+    std::size_t next = 0;
   };
-  static constexpr std::size_t kMaxLatencySamples = 1u << 20;
+  static constexpr std::size_t kLatencySamples = 1u << 16;
   foxglove::Server server_;  // before node_: destroyed after it
   mutable std::mutex mutex_;
   std::vector<std::string> topics_;
