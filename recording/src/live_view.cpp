@@ -1,7 +1,5 @@
 #include "cellcal/recording/live_view.hpp"
 
-#include <algorithm>
-
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/recording/recording.hpp"
@@ -9,25 +7,20 @@
 namespace cellcal::recording {
 namespace {
 
-std::vector<std::string> servedTopics(const LiveViewOptions& o) {
-  return o.topics.empty() ? parseTopicList("all") : o.topics;
-}
-
-// One channel per served topic, numbered from 1 in cellTopics() order, exactly as RecordingWriter describes them.
+// One channel per served topic, numbered from 1, described exactly as RecordingWriter describes it.
 std::vector<foxglove::Channel> channelsOf(const std::vector<std::string>& topics) {
   std::vector<foxglove::Channel> out;
-  for (const auto& t : topics) {
-    auto info = std::find_if(cellTopics().begin(), cellTopics().end(), [&](const TopicInfo& i) { return i.topic == t; });
-    if (info == cellTopics().end()) throw std::runtime_error("not a cellcal topic: " + t);
-    out.push_back({static_cast<std::uint32_t>(out.size() + 1), t, "cdr", info->type_name, msgsIdlText(), "omgidl"});
-  }
+  for (const auto& t : topics)
+    out.push_back({static_cast<std::uint32_t>(out.size() + 1), t, "cdr", topicInfo(t).type_name, msgsIdlText(), "omgidl"});
   return out;
 }
 
 }  // namespace
 
 LiveView::LiveView(const CellConfig& cell, const LiveViewOptions& options)
-    : server_(options.server, channelsOf(servedTopics(options))), topics_(servedTopics(options)), stats_(topics_.size()) {
+    : topics_(options.topics.empty() ? parseTopicList("all") : options.topics),
+      stats_(topics_.size()),
+      server_(options.server, channelsOf(topics_)) {
   node_ = std::make_unique<components::DdsNode>(cell, "cellcal_foxglove", components::identity::kObserver);
   for (std::size_t i = 0; i < topics_.size(); ++i) {
     visitTopic(topics_[i], [&](auto tag) {

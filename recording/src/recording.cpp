@@ -20,6 +20,12 @@ const std::vector<TopicInfo>& cellTopics() {
   return topics;
 }
 
+const TopicInfo& topicInfo(const std::string& topic) {
+  auto info = std::find_if(cellTopics().begin(), cellTopics().end(), [&](const auto& t) { return t.topic == topic; });
+  if (info == cellTopics().end()) throw std::runtime_error("not a cellcal topic: " + topic);
+  return *info;
+}
+
 std::vector<std::string> parseTopicList(const std::string& list) {
   std::vector<std::string> out;
   if (list == "all" || list == "inputs" || list.empty()) {
@@ -53,13 +59,12 @@ RecordingWriter::RecordingWriter(const std::string& path, std::size_t chunk_size
 std::uint16_t RecordingWriter::channel(const std::string& topic, const std::map<std::string, std::string>& metadata) {
   auto it = channels_.find(topic);
   if (it != channels_.end()) return it->second;
-  auto info = std::find_if(cellTopics().begin(), cellTopics().end(), [&](const auto& t) { return t.topic == topic; });
-  if (info == cellTopics().end()) throw std::runtime_error("not a cellcal topic: " + topic);
-  auto s = schemas_.find(info->type_name);
-  if (s == schemas_.end()) s = schemas_.emplace(info->type_name, writer_.addSchema(info->type_name, "omgidl", msgsIdlText())).first;
+  const TopicInfo& info = topicInfo(topic);
+  auto s = schemas_.find(info.type_name);
+  if (s == schemas_.end()) s = schemas_.emplace(info.type_name, writer_.addSchema(info.type_name, "omgidl", msgsIdlText())).first;
   std::map<std::string, std::string> md = metadata;
-  md.emplace("dds_type", info->type_name);
-  md.emplace("qos_profile", info->qos_profile);
+  md.emplace("dds_type", info.type_name);
+  md.emplace("qos_profile", info.qos_profile);
   const std::uint16_t id = writer_.addChannel(s->second, topic, "cdr", md);
   channels_[topic] = id;
   return id;

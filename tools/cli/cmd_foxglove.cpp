@@ -1,6 +1,5 @@
 // `cellcal foxglove`: the live cell in Foxglove (recording/live_view.hpp over the Foxglove WebSocket protocol).
 #include <sys/resource.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <cstdio>

@@ -88,8 +88,8 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
       << ")  engine " << (engine_writers > 0 ? "seen" : "NOT SEEN") << ", compensation "
       << (compensation_writers > 0 ? "seen" : "not seen") << "\n";
   if (engine_writers == 0 && !elsewhere.empty())
-    out << "  no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile << "; "
-        << elsewhere.substr(2);
+    out << "  no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile << "\n"
+        << elsewhere;
   else if (engine_writers == 0)  // the usual reason on one host: `cellcal cell` joins on another profile
     out << "  (no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile
         << ": `cellcal cell` runs on cellcal_loopback, try --dds-profile cellcal_loopback; or --domain-id)\n";

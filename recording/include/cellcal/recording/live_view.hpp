@@ -47,10 +47,10 @@ class LiveView {
     std::size_t next = 0;
   };
   static constexpr std::size_t kLatencySamples = 1u << 16;
-  foxglove::Server server_;  // before node_: destroyed after it
   mutable std::mutex mutex_;
   std::vector<std::string> topics_;
   std::vector<TopicStats> stats_;  // same order as topics_
+  foxglove::Server server_;        // before node_: destroyed after it (the readers publish into it)
   std::unique_ptr<components::DdsNode> node_;
 };
 

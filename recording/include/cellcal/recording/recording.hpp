@@ -69,6 +69,8 @@ struct TopicInfo {
   bool cell_input = false;
 };
 const std::vector<TopicInfo>& cellTopics();
+// The cell topic named `topic`; throws std::runtime_error naming it when it is not one.
+const TopicInfo& topicInfo(const std::string& topic);
 // "all" -> every topic; "inputs" or "" -> the cell inputs; otherwise a comma-separated list of topic names.
 // Throws std::runtime_error naming an unknown topic.
 std::vector<std::string> parseTopicList(const std::string& list);

@@ -189,9 +189,6 @@ class DdsNode {
     std::lock_guard<std::mutex> lock(mutex_);
     auto it = topics_.find(name);
     if (it != topics_.end()) return it->second;
-    // A DDS-SQL content filter of another tool's reader, evaluated by our writers, reads the type's TypeObject from
-    // the factory, where fastddsgen's message constructors put it: one construction registers them.
-    { const M registers_the_type_objects{}; }
     fdds::TypeSupport type(new typename TopicOf<M>::PubSub());
     // Discovery carries the TypeInformation (hashes; a recorder fetches the TypeObject through the TypeLookup service)
     // but not the TypeObject itself: on receiving one, Fast DDS 2.9 builds a DynamicType from the TypeObjectFactory in

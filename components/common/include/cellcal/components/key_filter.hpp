@@ -23,7 +23,6 @@ class KeyFilter final : public eprosima::fastdds::dds::IContentFilter {
   // True when the payload's first member (a CDR string, after the 4-byte encapsulation header) is one of the keys;
   // true as well for a payload it cannot read (the reader's deserializer then says what is wrong with it).
   bool evaluate(const SerializedPayload& payload, const FilterSampleInfo& info, const GUID_t& reader) const override;
-  const std::set<std::string>& keys() const { return keys_; }
 
  private:
   std::set<std::string> keys_;
