@@ -44,6 +44,7 @@ bench: build
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
 	bash tools/bench/foxglove_bench.sh $(BUILD_DIR) 20
 	bash tools/bench/engine_saturation.sh $(BUILD_DIR) 10
+	bash tools/bench/durability_bench.sh $(BUILD_DIR) 40 2
 
 # Installs into PREFIX (default /usr/local) with the same script docker/Dockerfile runs (tools/build_install.sh).
 PREFIX ?= /usr/local

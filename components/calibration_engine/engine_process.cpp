@@ -167,6 +167,7 @@ void EngineProcess::stopAndReport() {
   inputs_->stop();  // the worker handles what is queued (and may still publish), then stops
   node_.shutdown();
   host_.syncAll();
+  host_.close();  // each robot's snapshot current, its journal emptied
   nlohmann::json robots = nlohmann::json::object();
   for (auto& [id, r] : host_.robots()) {
     const auto& snap = r.engine->snapshot();

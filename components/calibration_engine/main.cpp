@@ -16,8 +16,9 @@ int main(int argc, char** argv) {
       "cellcal/calibration_state, cellcal/calibration_diagnostics (reliable, transient local: a late joiner gets the latest)",
       "  cellcal_calibration_engine --state-dir /var/lib/cellcal          run for good; state survives restarts\n"
       "  cellcal_calibration_engine --config cell.yaml --duration-s 60    a one-minute run\n",
-      "  <state-dir>/<robot_id>.state.json: the estimate, replaced atomically after every pose; the engine resumes\n"
-      "    from it after a restart (no accepted update lost or applied twice)\n"));
+      "  <state-dir>/<robot_id>.state.journal: a record appended per change before it is published;\n"
+      "  <state-dir>/<robot_id>.state.json: the snapshot, current after a clean stop. The engine resumes from them\n"
+      "    after a restart, a SIGKILL included (no published update lost, none applied twice)\n"));
   EngineProcess::Options o;
   addCommonOptions(app, o.process);
   app.add_option("--state-dir", o.process.state_dir, "where each robot's state is persisted (overrides engine.state_dir)");

@@ -17,7 +17,7 @@ rules=(
   "core/include/cellcal/core/engine core/src/engine|core/model core/identification core/files core/engine|no"
   "core/|core/|no"
   "lab/|core/ lab/|no"
-  "recording/mcap/|mcap/|no"
+  "recording/mcap/|mcap/ core/files/crc32.hpp|no"
   "recording/foxglove/|foxglove/|no"
   "components/|core/ lab/ components/|yes"
   "recording/|core/ lab/ components/ mcap/ foxglove/ recording/|yes"

@@ -18,6 +18,8 @@
 #include "cellcal/components/child_process.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
+#include "cellcal/core/engine/state_file.hpp"
+#include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "test_support.hpp"
 
@@ -102,6 +104,14 @@ inline nlohmann::json readJson(const std::string& path) {
   return nlohmann::json::parse(in, nullptr, false);
 }
 
+// A robot's saved engine state as a running engine, or one killed, left it (the snapshot <robot_id>.state.json and
+// the journal beside it, read as the engine would on restart), in the snapshot's JSON form; null when there is none.
+inline nlohmann::json readEngineState(const std::string& state_dir, const std::string& robot_id) {
+  const auto loaded = cellcal::loadDurableState(cellcal::stateFilePath(state_dir, robot_id));
+  if (!loaded.state) return nlohmann::json();
+  return nlohmann::json::parse(cellcal::engineStateToJson(*loaded.state));
+}
+
 // `cellcal cell` over `cfg` for `duration_s` (args: more of its options), run to its end. Returns the summary with every
 // process's exit code checked, or a discarded value (the failure reported with the launcher's log).
 inline nlohmann::json runCell(const std::string& dir, const std::string& cfg, const std::string& duration_s,
@@ -156,11 +166,12 @@ struct Probe {
       if (s.robot_id().to_string() == robot) v = std::max<std::uint64_t>(v, s.version());
     return v;
   }
-  components::DdsNode node;
+  // The state the callbacks use comes first: members are destroyed in reverse, the node (and its callbacks) first.
   std::mutex mutex;
   std::vector<msg::CalibrationState> states;
   std::vector<msg::CompensatedTarget> compensated;
   std::vector<msg::CalibrationDiagnostics> diagnostics;
+  components::DdsNode node;
 };
 
 // A target of the first robot its nominal model reaches at joints 0.3 rad, with those joints as the seed.

@@ -77,11 +77,11 @@ struct SecureCommandPath {
   std::string dir;
   CellConfig cell;
   Process compensation, recorder;
-  DdsNode app, observer;
-  std::unique_ptr<Writer<msg::TargetPose>> targets;
-  std::mutex mutex;
+  std::mutex mutex;  // before the nodes whose callbacks use it: destroyed after them
   std::map<std::string, int> answers;
   std::uint64_t sent = 0;
+  DdsNode app, observer;
+  std::unique_ptr<Writer<msg::TargetPose>> targets;
 };
 
 // A CompensatedTarget as a rogue would send it: for the cell's robot, marked by `reason`.
@@ -135,14 +135,15 @@ TEST(DdsSecurity, AParticipantWithoutAValidCertificateCannotJoin) {
   ASSERT_TRUE(waitUntil([&] { path.askOnce(); return path.count(kLegit) > 0; }, 30))
       << "the secure command path never answered\n" << path.compensation.log() << path.recorder.log();
 
+  // What the outsiders hear, by reason: each other's forgeries at most (their transport works), never the cell's.
+  // (Declared before the nodes whose callbacks write them: destroyed after them.)
+  std::mutex heard_mutex;
+  std::map<std::string, int> plain_heard, rogue_heard;
   DdsNode rogue(rogue_cell, "rogue_ca_participant", identity::kCompensationPublisher);
   DdsNode rogue_listener(rogue_cell, "rogue_ca_listener", identity::kObserver);
   DdsNode plain(plain_cell, "plain_participant", identity::kCompensationPublisher);
   auto rogue_writer = rogue.writer<msg::CompensatedTarget>();
   auto plain_writer = plain.writer<msg::CompensatedTarget>();
-  // What the outsiders hear, by reason: each other's forgeries at most (their transport works), never the cell's.
-  std::mutex heard_mutex;
-  std::map<std::string, int> plain_heard, rogue_heard;
   plain.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> l(heard_mutex);
     ++plain_heard[m.reason().to_string()];

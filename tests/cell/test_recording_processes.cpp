@@ -19,9 +19,9 @@ using namespace cellcal::recording;
 
 const char* kProgram = "  initial_poses: 40\n  poses_per_group: 15\n  groups: 2\n  hours_between_groups: 1\n";
 
-std::vector<double> stateParams(const std::string& state_file) {
-  const auto j = readJson(state_file);
-  if (j.is_discarded() || !j.contains("params")) return {};
+std::vector<double> stateParams(const std::string& state_dir) {
+  const auto j = readEngineState(state_dir, "tx60");
+  if (j.is_null() || !j.contains("params")) return {};
   return j["params"].get<std::vector<double>>();
 }
 
@@ -53,8 +53,8 @@ TEST(CellRecording, ARecordedCellIsReproducedByValidateAndByReplays) {
   const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}}, kProgram, "  max_sample_age_s: 0\n");
   const std::string rec = dir + "/cell.mcap";
   ASSERT_FALSE(runCell(dir, cfg, "8", {"--record", rec}, 90).is_discarded());
-  const std::vector<double> live = stateParams(dir + "/run/state/tx60.state.json");
-  const auto live_version = readJson(dir + "/run/state/tx60.state.json")["version"].get<std::uint64_t>();
+  const std::vector<double> live = stateParams(dir + "/run/state");
+  const auto live_version = readEngineState(dir + "/run/state", "tx60")["version"].get<std::uint64_t>();
   ASSERT_FALSE(live.empty());
   ASSERT_GE(live_version, 20u) << readTextFile(dir + "/cell.log");
 
@@ -103,11 +103,11 @@ TEST(CellRecording, ARecordedCellIsReproducedByValidateAndByReplays) {
                                                        "cellcal/joint_state,cellcal/tracker_pose", "--json",
                                                        dir + "/replay" + std::to_string(k) + ".json"});
     ASSERT_EQ(replay.wait(60), 0) << replay.log();
-    ASSERT_TRUE(waitUntil([&] { return stateParams(state_dir + "/tx60.state.json").size() == live.size() &&
-                                       readJson(state_dir + "/tx60.state.json")["version"] == live_version; }, 5))
+    ASSERT_TRUE(waitUntil([&] { return stateParams(state_dir).size() == live.size() &&
+                                       readEngineState(state_dir, "tx60")["version"] == live_version; }, 5))
         << engine.log() << replay.log();
     EXPECT_EQ(engine.stop(), 0);
-    const auto p = stateParams(state_dir + "/tx60.state.json");
+    const auto p = stateParams(state_dir);
     double max_diff = 0;
     for (size_t i = 0; i < p.size(); ++i) max_diff = std::max(max_diff, std::abs(p[i] - live[i]));
     EXPECT_LT(max_diff, 1e-12) << "replay " << k;

@@ -2,7 +2,10 @@
 // exactly where the engine stopped, a state file another model made refused with the file named, a full disk that
 // keeps the old file and loses nothing. The simulated cell's streams, random seeds; the host only sees samples.
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <filesystem>
 #include <fstream>
@@ -10,6 +13,7 @@
 
 #include "cellcal/components/engine_host.hpp"
 #include "cellcal/core/engine/state_file.hpp"
+#include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/lab/sim_program.hpp"
 #include "core/engine/engine_feed.hpp"
@@ -43,7 +47,10 @@ struct HostFixture : ::testing::Test {
     config.simulation.groups = 3;
     config.engine.state_dir = test::tempDir(::testing::UnitTest::GetInstance()->current_test_info()->name());
   }
-  void TearDown() override { fs::remove_all(config.engine.state_dir); }
+  void TearDown() override {
+    fs::remove_all(config.engine.state_dir);
+    fs::remove_all(config.engine.state_dir + "_killed");
+  }
   // The cell with its one robot replaced.
   CellConfig withRobot(const CellRobot& robot) const {
     CellConfig c = config;
@@ -64,20 +71,29 @@ TEST_F(HostFixture, RestartFromPersistedStateContinuesExactlyWhereItStopped) {
 
   Feed f2{cell, program, std::mt19937_64(seed), 1'700'000'000'000'000'000, config.time_compression};
   std::uint64_t version_at_stop = 0;
+  const std::string killed = config.engine.state_dir + "_killed";
   {
     HostedRobot first(config);
     EXPECT_FALSE(first.r.restored);
     f2.run(first, 0, 2, dt, pt, sf);
     version_at_stop = first.snapshot().version;
-  }  // "killed": nothing but the state file survives
-  ASSERT_TRUE(fs::exists(fs::path(config.engine.state_dir) / "tx60.state.json"));
-  HostedRobot second(config);
+    // "Killed": what a SIGKILL leaves is the state folder as it is now (no clean close); the restart reads a copy.
+    fs::remove_all(killed);
+    fs::copy(config.engine.state_dir, killed, fs::copy_options::recursive);
+  }
+  ASSERT_GT(fs::file_size(fs::path(killed) / "tx60.state.journal"), 0u) << "the journal holds the changes";
+  CellConfig restarted = config;
+  restarted.engine.state_dir = killed;
+  HostedRobot second(restarted);
   ASSERT_TRUE(second.r.restored);
   EXPECT_EQ(second.snapshot().version, version_at_stop);
   f2.run(second, 2, 3, dt, pt, sf);
   EXPECT_EQ(second.snapshot().version, straight.snapshot().version);
   EXPECT_EQ(second.snapshot().poses_used, straight.snapshot().poses_used);
   EXPECT_LT((second.snapshot().params - straight.snapshot().params).cwiseAbs().maxCoeff(), 1e-12);
+  // A clean close of the first host made its own snapshot current and emptied its journal.
+  EXPECT_EQ(fs::file_size(fs::path(config.engine.state_dir) / "tx60.state.journal"), 0u);
+  EXPECT_EQ(loadEngineState(stateFilePath(config.engine.state_dir, "tx60"))->version, version_at_stop);
   // A reading from before the stop is never applied twice.
   TrackerSample old;
   old.stamp_ns = second.snapshot().last_measurement_stamp_ns;
@@ -159,10 +175,10 @@ TEST_F(HostFixture, StateOfAnotherModelIsRefusedWithTheFileNamed) {
   saveEngineState(file, changed);
   refused("the nominal model changed since (joint2.a_m)");
 }
-
-// The disk fills while the engine runs: the write fails with a clear error, the previous state file stays whole, the
-// host keeps the updates in memory and writes them all with the first update after space is back; a restart then
-// resumes the latest version. /dev/full stands in for the full disk (the temporary file written first).
+// The disk fills while the engine runs: the write fails with a clear error, what was saved before stays readable, the
+// host keeps the updates in memory and saves them all with the first update after space is back; a restart then
+// resumes the latest version. In both durability modes: the snapshot's temporary file is /dev/full; the journal
+// cannot grow past the process's file size limit (RLIMIT_FSIZE, SIGXFSZ ignored) while the disk is "full".
 TEST_F(HostFixture, ADiskFullWhilePersistingKeepsTheOldStateAndLosesNothing) {
   if (!fs::exists("/dev/full")) GTEST_SKIP() << "no /dev/full";
   const CellRobot& robot = config.robots[0];
@@ -171,37 +187,58 @@ TEST_F(HostFixture, ADiskFullWhilePersistingKeepsTheOldStateAndLosesNothing) {
   const auto qs = sim.randomConfigurations(60, rng);
   const int full_from = std::uniform_int_distribution<int>(10, 30)(rng);
   const int full_for = std::uniform_int_distribution<int>(1, 15)(rng);
-  HostedRobot engine(config);
-  Stream st{sim, rng};
-  const std::string file = engine.r.state_file;
-  const std::string tmp = file + ".tmp." + std::to_string(::getpid());
-  std::string saved;
-  std::uint64_t saved_version = 0;
-  for (int k = 0; k < static_cast<int>(qs.size()); ++k) {
-    const bool full = k >= full_from && k < full_from + full_for;
-    if (k == full_from) {
-      saved = test::readTextFile(file);
-      saved_version = engine.snapshot().version;
+  struct rlimit unlimited {};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &unlimited), 0);
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+  for (const Durability durability : {Durability::kSnapshot, Durability::kJournal}) {
+    SCOPED_TRACE(durabilityName(durability));
+    fs::remove_all(config.engine.state_dir);
+    config.engine.durability = durability;
+    HostedRobot engine(config);
+    Stream st{sim, rng};
+    const std::string file = engine.r.state_file;
+    const std::string tmp = file + ".tmp." + std::to_string(::getpid());
+    const std::string failing = durability == Durability::kSnapshot ? tmp : stateJournalPath(file);
+    std::string saved;
+    std::uint64_t saved_version = 0;
+    auto savedNow = [&] { return engineStateToJson(*loadDurableState(file).state); };
+    for (int k = 0; k < static_cast<int>(qs.size()); ++k) {
+      const bool full = k >= full_from && k < full_from + full_for;
+      if (k == full_from) {
+        saved = savedNow();
+        saved_version = engine.snapshot().version;
+      }
+      // The host removes its failed temporary file; the disk stays full until k = full_from + full_for.
+      if (durability == Durability::kSnapshot) {
+        if (full && !fs::is_symlink(tmp)) fs::create_symlink("/dev/full", tmp);
+        if (!full && fs::is_symlink(tmp)) fs::remove(tmp);
+      } else {
+        struct rlimit l = unlimited;
+        if (full) l.rlim_cur = fs::file_size(failing);
+        ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &l), 0);
+      }
+      st.advance(60);
+      st.feed(engine, qs[k], st.reading(qs[k]));
+      if (full) {
+        EXPECT_NE(engine.r.persist_error.find(durability == Durability::kSnapshot ? "No space left on device"
+                                                                                  : "File too large"),
+                  std::string::npos)
+            << engine.r.persist_error;
+        EXPECT_NE(engine.r.persist_error.find(failing), std::string::npos) << engine.r.persist_error;
+        EXPECT_TRUE(savedNow() == saved) << "what was saved before must stay readable";
+        EXPECT_GT(engine.snapshot().version, saved_version);
+      }
     }
-    // The host removes its failed temporary file; the disk stays full until k = full_from + full_for.
-    if (full && !fs::is_symlink(tmp)) fs::create_symlink("/dev/full", tmp);
-    if (!full && fs::is_symlink(tmp)) fs::remove(tmp);
-    st.advance(60);
-    st.feed(engine, qs[k], st.reading(qs[k]));
-    if (full) {
-      EXPECT_NE(engine.r.persist_error.find("No space left on device"), std::string::npos) << engine.r.persist_error;
-      EXPECT_NE(engine.r.persist_error.find(tmp), std::string::npos) << engine.r.persist_error;
-      EXPECT_TRUE(test::readTextFile(file) == saved) << "the old state must stay whole";
-      EXPECT_GT(engine.snapshot().version, saved_version);
-    }
+    ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &unlimited), 0);
+    EXPECT_EQ(engine.r.persist_failures, static_cast<std::uint64_t>(full_for));
+    EXPECT_TRUE(engine.r.persist_error.empty());
+    HostedRobot restarted(config);
+    ASSERT_TRUE(restarted.r.restored);
+    EXPECT_EQ(restarted.snapshot().version, engine.snapshot().version);
+    EXPECT_EQ(restarted.snapshot().poses_used, engine.snapshot().poses_used);
+    EXPECT_EQ((restarted.snapshot().params - engine.snapshot().params).cwiseAbs().maxCoeff(), 0.0);
   }
-  EXPECT_EQ(engine.r.persist_failures, static_cast<std::uint64_t>(full_for));
-  EXPECT_TRUE(engine.r.persist_error.empty());
-  HostedRobot restarted(config);
-  ASSERT_TRUE(restarted.r.restored);
-  EXPECT_EQ(restarted.snapshot().version, engine.snapshot().version);
-  EXPECT_EQ(restarted.snapshot().poses_used, engine.snapshot().poses_used);
-  EXPECT_EQ((restarted.snapshot().params - engine.snapshot().params).cwiseAbs().maxCoeff(), 0.0);
+  std::signal(SIGXFSZ, old_handler);
 }
 
 // Without persistence (`cellcal validate`) no file is touched; unknown robots and targets are counted; a new version

@@ -189,8 +189,8 @@ TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
                       dir + "/joints.log");
   ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 20; }, 30)) << readTextFile(dir + "/engine.log");
   ASSERT_EQ(engine->stop(SIGKILL), 128 + SIGKILL);
-  const auto state = readJson(dir + "/state/tx60.state.json");
-  ASSERT_FALSE(state.is_discarded());
+  const auto state = readEngineState(dir + "/state", "tx60");
+  ASSERT_FALSE(state.is_null());
   const std::uint64_t persisted = state["version"];
   EXPECT_GE(persisted, probe.latestVersion("tx60"));
   // While the engine is down (its lease of 3 s expired): targets answered with the last ok calibration, said so.
@@ -227,7 +227,7 @@ TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
   joints.stop();
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   EXPECT_EQ(engine->stop(), 0);
-  const auto final_state = readJson(dir + "/state/tx60.state.json");
+  const auto final_state = readEngineState(dir + "/state", "tx60");
   EXPECT_EQ(final_state["version"], final_state["poses_used"]) << "a pose applied twice (or lost) across the restart";
   EXPECT_GT(final_state["version"].get<std::uint64_t>(), persisted);
   std::printf("  engine SIGKILLed on the cell server after v%llu (persisted), restarted, resumed from it: v%llu at the "

@@ -495,9 +495,12 @@ int runCell(const CellArgs& a) {
     judge.score();
     judge.sendTargets();
   }
-  std::vector<ChildProcess*> all;
-  for (auto& c : children) all.push_back(&c.process);
-  stopAll(all);
+  // Stopped in the reverse of their start: the cell's processes, which flush what they published last (a reliable
+  // writer waits for its acknowledgements on a clean exit), then the recorder, so the recording holds it.
+  std::vector<ChildProcess*> cell_processes, recorder;
+  for (auto& c : children) (c.name == "recorder" ? recorder : cell_processes).push_back(&c.process);
+  stopAll(cell_processes);
+  stopAll(recorder);
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
   judge.finish();
 

@@ -9,6 +9,7 @@
 #include <fastrtps/utils/IPLocator.h>
 
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <vector>
@@ -156,6 +157,20 @@ DdsNode::~DdsNode() { shutdown(); }
 
 void DdsNode::shutdown() {
   if (!participant_) return;
+  // The readers first: no callback runs once shutdown() has begun.
+  if (subscriber_) subscriber_->delete_contained_entities();
+  // Then a clean exit flushes: a reliable writer's last samples (the engine's final CalibrationState, say) may still
+  // be unacknowledged, and deleting the writer would drop them. Bounded: a reader that died is not waited for long.
+  std::vector<fdds::DataWriter*> writers;
+  if (publisher_) publisher_->get_datawriters(writers);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(1000);
+  for (fdds::DataWriter* w : writers) {
+    if (w->get_qos().reliability().kind != fdds::RELIABLE_RELIABILITY_QOS) continue;
+    const auto left_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(deadline - std::chrono::steady_clock::now()).count();
+    if (left_ns <= 0) break;
+    w->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(static_cast<std::int32_t>(left_ns / 1000000000),
+                                                               static_cast<std::uint32_t>(left_ns % 1000000000)));
+  }
   participant_->delete_contained_entities();
   participant_->unregister_content_filter_factory(kKeyFilterClass);
   fdds::DomainParticipantFactory::get_instance()->delete_participant(participant_);

@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "cellcal/core/engine/state_file.hpp"
+#include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/identification/statistics.hpp"
 
 namespace cellcal::components {
@@ -37,7 +38,8 @@ EngineHost::EngineHost(const CellConfig& cell, Options options, OnUpdate on_upda
     slot.engine = std::make_unique<CalibrationEngine>(r, cell.engine, cell.time_compression);
     if (options_.persist) {
       slot.state_file = stateFilePath(cell.engine.state_dir, r.robot_id);
-      if (const auto state = loadEngineState(slot.state_file)) {
+      slot.store = std::make_unique<DurableState>(slot.state_file, DurableState::Options{cell.engine.durability});
+      if (const auto state = slot.store->load()) {
         try {
           slot.engine->importState(*state);
         } catch (const std::runtime_error& e) {
@@ -91,24 +93,34 @@ void EngineHost::step(Robot& r, std::int64_t now_ns) {
     push(r.pairing_ns, options_.clock() - r.engine->snapshot().last_measurement_stamp_ns);
     push(r.update_ns, r.engine->lastUpdateDurationNs());
   }
-  if (options_.persist && r.engine->stateRevision() != r.saved_revision) persist(r);
-  if (!changed) return;
-  ++updates_;
-  if (on_update_) on_update_(r);
+  if (r.store && r.engine->stateRevision() != r.saved_revision) persist(r);
+  if (changed) {
+    ++updates_;
+    if (on_update_) on_update_(r);
+  }
+  // After publishing: the snapshot rewritten once the journal has grown (off the latency path of this version).
+  if (r.store && r.store->compactionDue()) {
+    try {
+      r.store->compact(r.engine->exportState());
+    } catch (const std::exception& e) {
+      ++r.persist_failures;
+      r.persist_error = std::string("state snapshot not rewritten (the journal keeps every change): ") + e.what();
+    }
+  }
 }
 
-// A failed write (disk full, read-only, permissions) leaves the previous file whole: the update stays in memory, the
-// error is reported, and the next change writes the whole state again.
+// A failed write (disk full, read-only, permissions) leaves what was saved before readable: the update stays in
+// memory, the error is reported, and the next change saves the whole state again.
 void EngineHost::persist(Robot& r) {
   r.saved_revision = r.engine->stateRevision();
   try {
-    saveEngineState(r.state_file, r.engine->exportState());
+    r.store->save(r.engine->exportState());
     r.persist_error.clear();
     r.unsynced = true;
   } catch (const std::exception& e) {
     ++r.persist_failures;
     r.persist_error =
-        std::string("state not saved (the previous file is intact; retried with the next update): ") + e.what();
+        std::string("state not saved (what was saved before is intact; retried with the next update): ") + e.what();
   }
 }
 
@@ -117,7 +129,7 @@ std::vector<std::string> EngineHost::takeUnsynced() {
   for (auto& [id, r] : robots_)
     if (r.unsynced) {
       r.unsynced = false;
-      out.push_back(r.state_file);
+      out.push_back(r.store->savedPath());
     }
   return out;
 }
@@ -125,5 +137,21 @@ std::vector<std::string> EngineHost::takeUnsynced() {
 void EngineHost::syncAll() {
   for (const auto& f : takeUnsynced()) syncStateFile(f);
 }
+
+void EngineHost::close() {
+  for (auto& [id, r] : robots_) {
+    if (!r.store) continue;
+    try {
+      if (r.engine->stateRevision() != r.saved_revision) persist(r);
+      r.store->close(r.engine->exportState());
+    } catch (const std::exception& e) {
+      ++r.persist_failures;
+      r.persist_error = std::string("state snapshot not rewritten at stop (the journal keeps every change): ") + e.what();
+    }
+    r.store.reset();
+  }
+}
+
+EngineHost::~EngineHost() { close(); }
 
 }  // namespace cellcal::components

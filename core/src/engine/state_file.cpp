@@ -1,5 +1,7 @@
 #include "cellcal/core/engine/state_file.hpp"
 
+#include "write_all.hpp"
+
 #include <fcntl.h>
 #include <unistd.h>
 
@@ -22,25 +24,13 @@ using nlohmann::json;
 
 constexpr const char* kStateFormat = "cellcal-engine-state/1";
 
-void writeAll(int fd, const std::string& data, const std::string& path) {
-  size_t off = 0;
-  while (off < data.size()) {
-    const ssize_t n = ::write(fd, data.data() + off, data.size() - off);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      throw std::runtime_error(path + ": write failed: " + std::strerror(errno));
-    }
-    off += static_cast<size_t>(n);
-  }
-}
-
 // Atomic replace: a reader (or a restart after SIGKILL) sees the old file or the new one, never a mix.
 void atomicWrite(const std::string& path, const std::string& data) {
   const std::string tmp = path + ".tmp." + std::to_string(::getpid());
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw std::runtime_error(tmp + ": cannot create: " + std::strerror(errno));
   try {
-    writeAll(fd, data, tmp);
+    detail::writeAll(fd, data.data(), data.size(), tmp);
   } catch (...) {
     ::close(fd);
     ::unlink(tmp.c_str());

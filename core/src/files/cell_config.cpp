@@ -12,6 +12,8 @@
 #include "yaml_reader.hpp"
 
 namespace cellcal {
+
+const char* durabilityName(Durability d) { return d == Durability::kJournal ? "journal" : "snapshot"; }
 namespace {
 
 namespace fs = std::filesystem;
@@ -255,7 +257,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   }
 
   const Section e = section(r, root, "engine",
-                            {"mode", "batch_poses", "state_dir", "max_pairing_skew_ms", "settle_tolerance_deg",
+                            {"mode", "batch_poses", "state_dir", "durability", "max_pairing_skew_ms", "settle_tolerance_deg",
                              "max_sample_age_s", "stale_input_s", "stale_stand_stills", "tracker_silence_s", "republish_period_s", "outlier_gate_nis_per_row", "outlier_hold_after",
                              "hold_prediction_sigma_mm", "drift_alarm_nis_per_row",
                              "prior_length_mm", "prior_angle_deg", "drift"});
@@ -264,6 +266,12 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     if (m == "continuous") c.engine.mode = EngineMode::kContinuous;
     else if (m == "periodic") c.engine.mode = EngineMode::kPeriodic;
     else r.fail(e.node["mode"], e.f("mode"), "expected continuous or periodic, got '" + m + "'");
+  }
+  if (e.has("durability")) {
+    const std::string m = r.string(e.node["durability"], e.f("durability"));
+    if (m == "journal") c.engine.durability = Durability::kJournal;
+    else if (m == "snapshot") c.engine.durability = Durability::kSnapshot;
+    else r.fail(e.node["durability"], e.f("durability"), "expected journal or snapshot, got '" + m + "'");
   }
   e.integer("batch_poses", c.engine.batch_poses, 1, 100000);
   c.engine.state_dir = resolve(base_dir, c.engine.state_dir);

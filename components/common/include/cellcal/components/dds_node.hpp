@@ -136,8 +136,10 @@ class DdsNode {
     return q;
   }
 
-  // Deletes every reader/writer and the participant: no callback runs after it returns (call it before the state
-  // the callbacks use goes away). stats() stays valid. Idempotent; the destructor calls it.
+  // Deletes the readers (no callback runs after that: call it before the state the callbacks use goes away), waits
+  // up to 1 s in all for the reliable writers' samples to be acknowledged (what a process published last reaches its
+  // readers on a clean exit), then deletes the writers and the participant. stats() stays valid. Idempotent; the
+  // destructor calls it.
   void shutdown();
 
   // {"<topic>": {"published": n, "received": n}}

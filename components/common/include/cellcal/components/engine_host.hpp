@@ -1,8 +1,8 @@
 // The calibration engines of a cell and what runs them, without DDS and without threads: one CalibrationEngine per
 // robot of the cell file, joint states dispatched by robot_id and tracker readings by target_id, every robot polled
-// at least every kTickPeriod (a reading whose joint state never comes times out), each robot's state file replaced
-// after every change before the new version is handed on (EngineHost::OnUpdate: publish it), fsyncs left to the
-// caller's own thread, and the latencies of pairing and update.
+// at least every kTickPeriod (a reading whose joint state never comes times out), each robot's state saved after every
+// change before the new version is handed on (EngineHost::OnUpdate: publish it; a journal record by default,
+// core/engine/state_journal.hpp), fsyncs left to the caller's own thread, and the latencies of pairing and update.
 //
 // The engine process drives it from its worker thread (components/calibration_engine); `cellcal validate` drives it
 // over a recording in log order: one piece of code decides what both publish.
@@ -11,6 +11,7 @@
 //   host.onJointState(robot_id, sample, now_ns);       // pairs, updates, persists, calls OnUpdate on a new version
 //   host.tick(now_ns);                                  // with nothing arriving for kTickPeriod
 //   for (const auto& f : host.takeUnsynced()) syncStateFile(f);   // off the latency path
+//   host.close();                                       // a clean stop: each snapshot current, journals emptied
 #pragma once
 
 #include <chrono>
@@ -23,6 +24,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 
 namespace cellcal::components {
@@ -34,16 +36,17 @@ class EngineHost {
   struct Robot {
     const CellRobot* robot = nullptr;
     std::unique_ptr<CalibrationEngine> engine;
-    std::string state_file;            // empty without persistence
+    std::string state_file;            // the snapshot, <robot_id>.state.json; empty without persistence
+    std::unique_ptr<DurableState> store;  // null without persistence
     bool restored = false;             // resumed from its state file
     std::string persist_error;         // the last failed write of the state file; empty once one succeeds again
     std::uint64_t persist_failures = 0;
     std::deque<std::int64_t> pairing_ns, update_ns;  // recent latencies: reading stamp -> paired, update duration
     std::uint64_t saved_revision = 0;  // the engine's state revision last written (or tried: retried on the next change)
-    bool unsynced = false;             // replaced since the last takeUnsynced()
+    bool unsynced = false;             // saved since the last takeUnsynced()
   };
   struct Options {
-    bool persist = true;                   // state files in the cell file's engine.state_dir
+    bool persist = true;                   // state in the cell file's engine.state_dir, kept as engine.durability says
     std::function<std::int64_t()> clock;   // for the pairing latency; empty: the wall clock
   };
   using OnUpdate = std::function<void(Robot&)>;
@@ -60,10 +63,14 @@ class EngineHost {
   // tick() when kTickPeriod has passed since the last one, by the clock of `now_ns` (a recording's log time).
   void tickIfDue(std::int64_t now_ns);
 
-  // The state files replaced since the last call, for syncStateFile() on any thread.
+  // The state files written since the last call, for syncStateFile() on any thread.
   std::vector<std::string> takeUnsynced();
   // fsync of every state file written and not synced yet.
   void syncAll();
+  // A clean stop: each robot's snapshot made current and its journal emptied (errors reported, not thrown). The
+  // destructor calls it; after it, no input may come.
+  void close();
+  ~EngineHost();
 
   std::map<std::string, Robot>& robots() { return robots_; }
   const std::map<std::string, Robot>& robots() const { return robots_; }

@@ -20,6 +20,13 @@ namespace cellcal {
 
 enum class EngineMode { kContinuous, kPeriodic };
 
+// How an engine keeps each robot's state between runs (cell file engine.durability; core/engine/state_journal.hpp).
+enum class Durability {
+  kJournal,   // one journal record per change; the JSON snapshot on start, every few MiB of journal and on a clean stop
+  kSnapshot,  // the whole JSON snapshot replaced per change (cellcal before the journal; for comparison)
+};
+const char* durabilityName(Durability d);  // "journal" / "snapshot"
+
 struct DdsSettings {
   int domain_id = 0;                           // 0..232; CELLCAL_DOMAIN_ID or --domain-id override it
   std::string profiles_file;                   // absolute path (resolved against the cell file's folder)
@@ -77,6 +84,8 @@ struct EngineSettings {
   EngineMode mode = EngineMode::kContinuous;
   int batch_poses = 15;                        // periodic mode: poses per update
   std::string state_dir = "state";             // absolute path after loading; one JSON file per robot
+  // <robot_id>.state.json (snapshot) and <robot_id>.state.journal (records since it), core/engine/state_journal.hpp.
+  Durability durability = Durability::kJournal;
   double max_pairing_skew_s = 0.05;            // joint state used for a tracker reading: at most this far in time
   double settle_tolerance_rad = 1e-5;          // joints of the bracketing states may differ by at most this
   double max_sample_age_s = 5.0;               // source stamp vs receive time: older (or newer) = clock problem; 0 = off

@@ -17,6 +17,8 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/core/files/crc32.hpp"
+
 namespace cellcal::mcap {
 
 struct Schema {
@@ -134,6 +136,6 @@ ReadResult readFile(const std::string& path, const ReadOptions& options = {});
 // Returns the number of messages written.
 std::uint64_t recover(const std::string& in_path, const std::string& out_path);
 
-std::uint32_t crc32(const void* data, std::size_t size, std::uint32_t crc = 0);
+using cellcal::crc32;  // cellcal/core/files/crc32.hpp: MCAP's CRC-32 is the IEEE one
 
 }  // namespace cellcal::mcap
