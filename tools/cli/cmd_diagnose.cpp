@@ -176,6 +176,7 @@ int runDiagnose(const DiagnoseArgs& a) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
   };
   if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
   const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
   bar.done();
   const CandidateResult& g = d.geometric;
@@ -271,7 +272,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                                                 : nlohmann::json(nullptr)}});
     const DriverStructure* left = d.structureLeft();
     nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
-                        {"split", a.input.split}, {"measurement", in.measurementJson()},
+                        {"split", a.input.split}, {"measurement", in.measurementJson()}, {"model_error_sigma", in.modelErrorJson()},
                         {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
                         {"verdict", verdictName(d.verdict)}, {"verdict_text", d.verdict_text},
                         {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},

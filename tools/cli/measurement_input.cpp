@@ -12,6 +12,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
@@ -58,6 +59,7 @@ std::pair<RobotFile, MeasurementFile> readInput(const InputArgs& a, const std::s
 
 // Splits, registers and checks the rows of one set-up; `name` (the file, and its set-up label) in messages.
 LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile rf, MeasurementFile file);
+void addModelErrorComponent(LoadedInput& in, const InputArgs& a);
 
 }  // namespace
 
@@ -89,6 +91,12 @@ std::vector<LoadedInput> loadSetups(const InputArgs& a) {
       out.push_back(prepareInput(a, label.empty() ? path : path + " [setup " + label + "]", rf, std::move(part)));
     }
   }
+  // Set-ups weigh against each other by their sigmas: when one carries the tracker's own (and so the model error
+  // beside them), the others get their model error too.
+  bool any = false;
+  for (const auto& in : out) any = any || in.own_sigmas;
+  for (auto& in : out)
+    if (any && !in.model_error_added) addModelErrorComponent(in, a);
   return out;
 }
 
@@ -152,9 +160,39 @@ LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile 
     }
   }
   in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  // The tracker's own sigmas weight the rows only as far as they matter: beside them, the error a geometric fit
+  // leaves (its gross errors screened out) as a variance component of every row (model_error.hpp).
+  for (const auto& r : rows) in.own_sigmas = in.own_sigmas || r.sigma_position_m || r.sigma_orientation_rad;
+  if (in.own_sigmas) addModelErrorComponent(in, a);
   return in;
 }
+
+void addModelErrorComponent(LoadedInput& in, const InputArgs& a) {
+  CalibrationProblem p{&in.robot, in.start, in.data.identification, std::nullopt, {}, {}};
+  p.outliers = outlierOptions(a);
+  const CalibrationResult r = solveGaussNewton(p);
+  in.model_error = modelErrorSigma(in.robot, r.params, in.data.identification, r.outliers.rows);
+  in.model_error_added = true;
+  addModelError(in.data.identification, in.model_error);
+  addModelError(in.data.verification, in.model_error);
+}
 }  // namespace
+
+std::string LoadedInput::modelErrorText() const {
+  if (!model_error_added) return "";
+  char b[400];
+  std::snprintf(b, sizeof b,
+                "reading sigmas: %s; a geometric fit leaves %.4f mm and %.4f deg per axis beyond them, added to every "
+                "row's sigmas (model_error.hpp)",
+                own_sigmas ? "the file's own" : "the defaults, beside set-ups with their own", model_error.position_m * 1e3,
+                model_error.orientation_rad * 180 / kPi);
+  return b;
+}
+
+nlohmann::json LoadedInput::modelErrorJson() const {
+  if (!model_error_added) return nullptr;
+  return {{"position_mm", model_error.position_m * 1e3}, {"orientation_deg", model_error.orientation_rad * 180 / kPi}};
+}
 
 std::string LoadedInput::measurementText() const {
   if (position_rows == 0) return "6D";

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/model_error.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/model/robot_model.hpp"
@@ -41,6 +42,13 @@ struct LoadedInput {
   std::string setup_hint;
   int setup_change_line = -1;         // file line of the first row of the second set-up
   double registration_s = 0;
+  // Rows with the tracker's own sigmas (sigma_position_mm / sigma_orientation_deg columns): the error a geometric
+  // fit leaves beyond them (model_error.hpp), added to every row's sigmas before any fit; zero without such rows.
+  // Set-ups beside one with own sigmas get theirs too (model_error_added), so that they weigh alike.
+  bool own_sigmas = false, model_error_added = false;
+  ModelErrorSigma model_error;
+  std::string modelErrorText() const;  // "" when none was added
+  nlohmann::json modelErrorJson() const;
 };
 
 // --outlier-threshold as options (0: screening off); throws std::runtime_error on a bad value.

@@ -23,15 +23,33 @@ bool SetupsProblem::IsValid(std::string* error) const {
       return fail("set-up " + std::to_string(s + 1) + ": its start has other kinematics than set-up 1's");
     if (observations[s].size() < 4) return fail("set-up " + std::to_string(s + 1) + ": fewer than 4 observations");
   }
+  if (!extensions.empty()) {
+    if (drivers.size() != observations.size()) return fail("with extensions: one driver list per set-up");
+    for (size_t s = 0; s < drivers.size(); ++s)
+      if (drivers[s].size() != observations[s].size())
+        return fail("set-up " + std::to_string(s + 1) + ": one driver per observation");
+    for (const Extension& e : extensions) {
+      if (e.cause == Cause::kBacklash)
+        return fail(extensionSpec(e) + ": several set-ups take extensions linear in their parameters; a backlash's "
+                    "basis depends on its width (calibrate each set-up with it, or carry its file with --frames-only)");
+      if (e.cause == Cause::kThermalDrift && e.time_constant_h == 0)
+        for (const auto& d : drivers)
+          for (const auto& x : d)
+            if (x.thermal_is_time)
+              return fail(extensionSpec(e) + ": on a time driver its warm-up time constant is searched per fit; "
+                          "several set-ups take it only with a temperature column");
+    }
+  }
   return identifiability.IsValid(error);
 }
 
 namespace {
 
-// The state (common parameter vector, then 12 frame parameters per further set-up) from per-set-up vectors, and back.
-Eigen::VectorXd stateOf(const RobotModel& m, const std::vector<Eigen::VectorXd>& p) {
+// The state (common parameter vector, then 12 frame parameters per further set-up, then the extension parameters,
+// starting at 0) from per-set-up vectors, and back.
+Eigen::VectorXd stateOf(const RobotModel& m, const std::vector<Eigen::VectorXd>& p, int n_ext) {
   const int np = m.numParams(), f = m.baseParam(FrameParam::kX);
-  Eigen::VectorXd x(np + 12 * static_cast<int>(p.size() - 1));
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(np + 12 * static_cast<int>(p.size() - 1) + n_ext);
   x.head(np) = p[0];
   for (size_t s = 1; s < p.size(); ++s) x.segment(np + 12 * static_cast<int>(s - 1), 12) = p[s].segment(f, 12);
   return x;
@@ -44,9 +62,13 @@ Eigen::VectorXd setupParams(const RobotModel& m, const Eigen::VectorXd& x, size_
 }
 
 // Stacked whitened residual and state Jacobian over every set-up's rows.
-void stack(const RobotModel& m, const Eigen::VectorXd& x, const std::vector<std::vector<Observation>>& obs,
-           Eigen::VectorXd& r, Eigen::MatrixXd* J) {
+void stack(const SetupsProblem& pr, const Eigen::VectorXd& x, Eigen::VectorXd& r, Eigen::MatrixXd* J) {
+  const RobotModel& m = *pr.model;
+  const auto& obs = pr.observations;
   const int np = m.numParams(), f = m.baseParam(FrameParam::kX);
+  const int n_ext = numExtensionParams(m, pr.extensions);
+  const int ext0 = static_cast<int>(x.size()) - n_ext;
+  const Eigen::VectorXd e = x.tail(n_ext);
   int rows = 0;
   for (const auto& o : obs) rows += totalRows(o);
   r.resize(rows);
@@ -57,13 +79,19 @@ void stack(const RobotModel& m, const Eigen::VectorXd& x, const std::vector<std:
   int row = 0;
   for (size_t s = 0; s < obs.size(); ++s) {
     const Eigen::VectorXd p = setupParams(m, x, s);
-    for (const auto& o : obs[s]) {
-      const int k = whitenedResidual(m, data, p, o, ri, J ? &Ji : nullptr);
+    for (size_t i = 0; i < obs[s].size(); ++i) {
+      const Observation& o = obs[s][i];
+      const Drivers* d = n_ext ? &pr.drivers[s][i] : nullptr;
+      // The extension's basis with the geometry of the set-up's start, as fitExtended takes it (fixed during the fit).
+      Eigen::MatrixXd B;
+      if (d) B = extensionBasis(m, pr.starts[s], pr.extensions, o.q_rad, *d, Eigen::VectorXd());
+      const int k = whitenedResidual(m, data, d ? Eigen::VectorXd(p + B * e) : p, o, ri, J ? &Ji : nullptr);
       r.segment(row, k) = ri.head(k);
       if (J) {
         J->block(row, 0, k, f) = Ji.topLeftCorner(k, f);
         const int fc = s == 0 ? f : np + 12 * static_cast<int>(s - 1);
         J->block(row, fc, k, 12) = Ji.block(0, f, k, 12);
+        if (d) J->block(row, ext0, k, n_ext) = Ji * B;
       }
       row += k;
     }
@@ -76,37 +104,43 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   std::string err;
   if (!pr.IsValid(&err)) throw std::invalid_argument("fitSetups: " + err);
   const RobotModel& m = *pr.model;
-  const int np = m.numParams();
-  Eigen::VectorXd x = stateOf(m, pr.starts);
+  const int np = m.numParams(), n_ext = numExtensionParams(m, pr.extensions);
+  Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
   const auto n = x.size();
+  const Eigen::Index ext0 = n - n_ext;
   // Identifiable columns of the stacked Jacobian at the start, in the model's priority (frames of further set-ups
   // last: a base of set-up 2 never replaces a kinematic parameter).
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
-  stack(m, x, pr.observations, r, &J);
+  stack(pr, x, r, &J);
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
   for (int c : identificationPriority(m))
     if (std::count(cand.begin(), cand.end(), c)) order.push_back(c);
   const int f = m.baseParam(FrameParam::kX);
-  for (Eigen::Index c = np; c < n; ++c) {
+  for (Eigen::Index c = np; c < ext0; ++c) {
     // A further set-up's frame parameter is a candidate when the same parameter of set-up 0 is.
     const int same = f + static_cast<int>((c - np) % 12);
     if (std::count(cand.begin(), cand.end(), same)) order.push_back(static_cast<int>(c));
   }
+  for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
   SetupsFit out;
   out.estimated = independentColumns(J, order, pr.identifiability);
-  for (int c : out.estimated)
+  for (int c : out.estimated) {
     if (c < f) out.estimated_kinematic.push_back(c);
+    if (c >= ext0) out.estimated_extension.push_back(c - static_cast<int>(ext0));
+  }
+  std::sort(out.estimated_kinematic.begin(), out.estimated_kinematic.end());
+  std::sort(out.estimated_extension.begin(), out.estimated_extension.end());
   const auto ne = static_cast<Eigen::Index>(out.estimated.size());
   auto cost = [&](const Eigen::VectorXd& state) {
     Eigen::VectorXd rr;
-    stack(m, state, pr.observations, rr, nullptr);
+    stack(pr, state, rr, nullptr);
     return rr.squaredNorm();
   };
   double c0 = r.squaredNorm(), lambda = 1e-3;
   for (out.iterations = 1; out.iterations <= options.max_iterations; ++out.iterations) {
-    stack(m, x, pr.observations, r, &J);
+    stack(pr, x, r, &J);
     Eigen::MatrixXd Js(J.rows(), ne);
     for (Eigen::Index k = 0; k < ne; ++k) Js.col(k) = J.col(out.estimated[static_cast<size_t>(k)]);
     const Eigen::VectorXd scale = Js.colwise().norm().transpose().cwiseMax(1e-300).cwiseInverse();
@@ -140,7 +174,60 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   const int rows = static_cast<int>(r.size());
   out.cost_per_row = c0 / std::max(1, rows);
   for (size_t s = 0; s < pr.starts.size(); ++s) out.params.push_back(setupParams(m, x, s));
+  out.extension_params = x.tail(n_ext);
   return out;
+}
+
+ExtendedFit setupFit(const SetupsProblem& pr, const SetupsFit& fit, size_t s) {
+  ExtendedFit f;
+  f.extensions = pr.extensions;
+  f.params = fit.params.at(s);
+  f.extension_params = fit.extension_params;
+  f.extension_names = extensionParamNames(*pr.model, pr.extensions);
+  f.converged = fit.converged;
+  f.iterations = fit.iterations;
+  return f;
+}
+
+SetupsFit fitSetupsRobust(const SetupsProblem& pr, const SolverOptions& solver, const OutlierOptions& outliers,
+                          std::vector<OutlierScreen>* screens) {
+  std::string err;
+  if (!outliers.IsValid(&err)) throw std::invalid_argument(err);
+  const size_t n_setups = pr.observations.size();
+  auto driversOf = [&](const SetupsProblem& p, size_t s) {
+    return p.drivers.size() == n_setups ? p.drivers[s] : std::vector<Drivers>(p.observations[s].size());
+  };
+  auto screen = [&](const SetupsFit& fit) {
+    std::vector<OutlierScreen> sc;
+    for (size_t s = 0; s < n_setups; ++s)
+      sc.push_back(screenRows(*pr.model, setupFit(pr, fit, s), pr.observations[s], driversOf(pr, s), outliers));
+    return sc;
+  };
+  auto flaggedOf = [](const std::vector<OutlierScreen>& sc) {
+    std::vector<std::vector<int>> f;
+    for (const auto& x : sc) f.push_back(x.rows);
+    return f;
+  };
+  SetupsFit fit = fitSetups(pr, solver);
+  std::vector<OutlierScreen> sc = screen(fit);
+  std::vector<std::vector<int>> used(n_setups);
+  for (int round = 0; outliers.enabled && round < outliers.max_rounds && flaggedOf(sc) != used; ++round) {
+    bool too_many = false;
+    for (size_t s = 0; s < n_setups; ++s)
+      too_many = too_many || 2 * sc[s].rows.size() > pr.observations[s].size();
+    if (too_many) break;
+    used = flaggedOf(sc);
+    SetupsProblem kept = pr;
+    for (size_t s = 0; s < n_setups; ++s) {
+      const std::vector<int> rows = keptRows(static_cast<int>(pr.observations[s].size()), used[s]);
+      kept.observations[s] = subset(pr.observations[s], rows);
+      if (!kept.drivers.empty()) kept.drivers[s] = subset(pr.drivers[s], rows);
+    }
+    fit = fitSetups(kept, solver);
+    sc = screen(fit);
+  }
+  if (screens) *screens = std::move(sc);
+  return fit;
 }
 
 }  // namespace cellcal
