@@ -37,14 +37,14 @@ for (const ch of mcap.channelsById.values()) {
     reader: new MessageReader(schema.name, parseIDL(new TextDecoder().decode(schema.data))) });
 }
 const recorded = {};  // topic -> [message]
-const recordedAnswers = new Map();  // robot_id -> [{logTime, message}] of cellcal/compensated_target, as recorded
+const recordedAnswers = new Map();  // robot_id -> [message] of cellcal/compensated_target, as recorded
 for await (const m of mcap.readMessages()) {
   const ch = recChannels.get(m.channelId);
   const message = plain(ch.reader.readMessage(m.data));
   (recorded[ch.topic] ??= []).push(message);
   if (ch.topic === "cellcal/compensated_target") {
     if (!recordedAnswers.has(message.robot_id)) recordedAnswers.set(message.robot_id, []);
-    recordedAnswers.get(message.robot_id).push({ logTime: m.logTime, message });
+    recordedAnswers.get(message.robot_id).push(message);
   }
 }
 
@@ -125,7 +125,7 @@ for (const r of cell.robots) {
   // prefix.
   const answers = client.received["cellcal/compensated_target"].filter((x) => x.message.robot_id === r.robot_id)
     .map((x) => x.message);
-  const rec = (recordedAnswers.get(r.robot_id) ?? []).map((x) => x.message);
+  const rec = recordedAnswers.get(r.robot_id) ?? [];
   const n = r.targets_applied + r.targets_refused;
   const allowed = Math.ceil(2 * n / cell.duration_s);
   const seqs = (list) => list.map((m) => Number(m.target_sequence)).sort((a, b) => a - b);

@@ -180,7 +180,6 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
   std::vector<OutlierScreen> ident_screens;
   const SetupsFit fit = fitSetupsRobust(pr, {}, outliers, &ident_screens);
   const std::vector<std::string> ext_names = extensionParamNames(robot, pr.extensions);
-  auto fitOf = [&](size_t s) { return setupFit(pr, fit, s); };
   const double solve_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   const int f0 = robot.baseParam(FrameParam::kX), np = robot.numParams();
   std::printf("%zu set-ups, one kinematic model (%s), a base and a tool frame per set-up: %zu kinematic, %zu frame "
@@ -217,7 +216,7 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
   for (size_t s = 0; s < ins.size(); ++s) {
     const LoadedInput& in = ins[s];
     const auto& d = in.data;
-    const ExtendedFit before = asFit(in.start), after = fitOf(s);
+    const ExtendedFit before = asFit(in.start), after = setupFit(pr, fit, s);
     const ErrorStats ib = errorStats(robot, before, d.identification, d.identification_drivers),
                      ia = errorStats(robot, after, d.identification, d.identification_drivers),
                      vb = errorStats(robot, before, d.verification, d.verification_drivers),
@@ -276,7 +275,7 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
     // The kinematics with the frames of the set-up given last (the newest placement). Its covariance is that of a
     // fit on that set-up's rows alone (the other set-ups pin the kinematics further: conservative).
     const size_t last = ins.size() - 1;
-    ExtendedFit f = fitOf(last);
+    ExtendedFit f = setupFit(pr, fit, last);
     f.estimated = fit.estimated_kinematic;
     f.estimated_extension = fit.estimated_extension;
     for (int c : fit.estimated) {

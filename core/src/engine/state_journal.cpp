@@ -153,14 +153,13 @@ PairedReading readReading(Reader& r) {
   return p;
 }
 
-std::string readWholeFile(const std::string& path, bool* exists) {
-  *exists = false;
+// The whole file; "" when there is none.
+std::string readWholeFile(const std::string& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) {
     if (errno == ENOENT) return "";
     throw std::runtime_error(path + ": cannot open: " + std::strerror(errno));
   }
-  *exists = true;
   std::string data;
   char buf[1 << 16];
   for (;;) {
@@ -181,10 +180,7 @@ std::string readWholeFile(const std::string& path, bool* exists) {
 }  // namespace
 
 std::string stateJournalPath(const std::string& state_file) {
-  const std::string suffix = ".json";
-  const bool json = state_file.size() > suffix.size() &&
-                    state_file.compare(state_file.size() - suffix.size(), suffix.size(), suffix) == 0;
-  return (json ? state_file.substr(0, state_file.size() - suffix.size()) : state_file) + ".journal";
+  return fs::path(state_file).replace_extension(".journal").string();
 }
 
 std::string engineStateToBinary(const EngineState& s) {
@@ -333,8 +329,7 @@ LoadedState loadDurableState(const std::string& state_file) {
   LoadedState out;
   out.state = loadEngineState(state_file);
   const std::string journal = stateJournalPath(state_file);
-  bool exists = false;
-  const std::string data = readWholeFile(journal, &exists);
+  const std::string data = readWholeFile(journal);
   std::size_t at = 0;
   while (at < data.size()) {
     std::string why;

@@ -61,8 +61,22 @@ Eigen::VectorXd setupParams(const RobotModel& m, const Eigen::VectorXd& x, size_
   return p;
 }
 
+// The extension basis of every row, with the geometry of its set-up's start, as fitExtended takes it: fixed during the
+// fit, so computed once (empty without extensions).
+using Bases = std::vector<std::vector<Eigen::MatrixXd>>;
+Bases basesAtStart(const SetupsProblem& pr) {
+  Bases b(pr.observations.size());
+  if (pr.extensions.empty()) return b;
+  for (size_t s = 0; s < pr.observations.size(); ++s)
+    for (size_t i = 0; i < pr.observations[s].size(); ++i)
+      b[s].push_back(extensionBasis(*pr.model, pr.starts[s], pr.extensions, pr.observations[s][i].q_rad,
+                                    pr.drivers[s][i], Eigen::VectorXd()));
+  return b;
+}
+
 // Stacked whitened residual and state Jacobian over every set-up's rows.
-void stack(const SetupsProblem& pr, const Eigen::VectorXd& x, Eigen::VectorXd& r, Eigen::MatrixXd* J) {
+void stack(const SetupsProblem& pr, const Bases& bases, const Eigen::VectorXd& x, Eigen::VectorXd& r,
+           Eigen::MatrixXd* J) {
   const RobotModel& m = *pr.model;
   const auto& obs = pr.observations;
   const int np = m.numParams(), f = m.baseParam(FrameParam::kX);
@@ -81,17 +95,14 @@ void stack(const SetupsProblem& pr, const Eigen::VectorXd& x, Eigen::VectorXd& r
     const Eigen::VectorXd p = setupParams(m, x, s);
     for (size_t i = 0; i < obs[s].size(); ++i) {
       const Observation& o = obs[s][i];
-      const Drivers* d = n_ext ? &pr.drivers[s][i] : nullptr;
-      // The extension's basis with the geometry of the set-up's start, as fitExtended takes it (fixed during the fit).
-      Eigen::MatrixXd B;
-      if (d) B = extensionBasis(m, pr.starts[s], pr.extensions, o.q_rad, *d, Eigen::VectorXd());
-      const int k = whitenedResidual(m, data, d ? Eigen::VectorXd(p + B * e) : p, o, ri, J ? &Ji : nullptr);
+      const Eigen::MatrixXd* B = n_ext ? &bases[s][i] : nullptr;
+      const int k = whitenedResidual(m, data, B ? Eigen::VectorXd(p + *B * e) : p, o, ri, J ? &Ji : nullptr);
       r.segment(row, k) = ri.head(k);
       if (J) {
         J->block(row, 0, k, f) = Ji.topLeftCorner(k, f);
         const int fc = s == 0 ? f : np + 12 * static_cast<int>(s - 1);
         J->block(row, fc, k, 12) = Ji.block(0, f, k, 12);
-        if (d) J->block(row, ext0, k, n_ext) = Ji * B;
+        if (B) J->block(row, ext0, k, n_ext) = Ji * *B;
       }
       row += k;
     }
@@ -112,7 +123,8 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   // last: a base of set-up 2 never replaces a kinematic parameter).
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
-  stack(pr, x, r, &J);
+  const Bases bases = basesAtStart(pr);
+  stack(pr, bases, x, r, &J);
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
   for (int c : identificationPriority(m))
@@ -135,12 +147,12 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   const auto ne = static_cast<Eigen::Index>(out.estimated.size());
   auto cost = [&](const Eigen::VectorXd& state) {
     Eigen::VectorXd rr;
-    stack(pr, state, rr, nullptr);
+    stack(pr, bases, state, rr, nullptr);
     return rr.squaredNorm();
   };
   double c0 = r.squaredNorm(), lambda = 1e-3;
   for (out.iterations = 1; out.iterations <= options.max_iterations; ++out.iterations) {
-    stack(pr, x, r, &J);
+    stack(pr, bases, x, r, &J);
     Eigen::MatrixXd Js(J.rows(), ne);
     for (Eigen::Index k = 0; k < ne; ++k) Js.col(k) = J.col(out.estimated[static_cast<size_t>(k)]);
     const Eigen::VectorXd scale = Js.colwise().norm().transpose().cwiseMax(1e-300).cwiseInverse();

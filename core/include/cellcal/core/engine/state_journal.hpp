@@ -31,7 +31,7 @@
 
 namespace cellcal {
 
-// <robot_id>.state.journal beside `state_file` (<robot_id>.state.json).
+// <robot_id>.state.journal beside `state_file` (<robot_id>.state.json: its extension replaced).
 std::string stateJournalPath(const std::string& state_file);
 
 // A journal record's payload: everything engineStateToJson() keeps, bit for bit (poses too, where the snapshot keeps
