@@ -10,15 +10,8 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app{"cellcal calibration engine: continuous kinematic calibration from tracker poses and joint states"};
-  app.footer(manFooter(
-      "cellcal/joint_state, cellcal/tracker_pose",
-      "cellcal/calibration_state, cellcal/calibration_diagnostics (reliable, transient local: a late joiner gets the latest)",
-      "  cellcal_calibration_engine --state-dir /var/lib/cellcal          run for good; state survives restarts\n"
-      "  cellcal_calibration_engine --config cell.yaml --duration-s 60    a one-minute run\n",
-      "  <state-dir>/<robot_id>.state.journal: a record appended per change before it is published;\n"
-      "  <state-dir>/<robot_id>.state.json: the snapshot, current after a clean stop. The engine resumes from them\n"
-      "    after a restart, a SIGKILL included (no published update lost, none applied twice)\n"));
+  CLI::App app;
+  applyManPage(app, "cellcal_calibration_engine");  // docs/man/cellcal_calibration_engine.txt
   EngineProcess::Options o;
   addCommonOptions(app, o.process);
   app.add_option("--state-dir", o.process.state_dir, "where each robot's state is persisted (overrides engine.state_dir)");

@@ -5,15 +5,8 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app{"cellcal compensation publisher: corrected targets for the unmodified robot controller"};
-  app.footer(manFooter(
-      "cellcal/target_pose, cellcal/calibration_state, cellcal/calibration_diagnostics",
-      "cellcal/compensated_target (never a correction beyond compensation.max_correction_mm / _deg); with\n"
-      "  --ros-pose-topic also the applied corrections as ROS 2 geometry_msgs/PoseStamped",
-      "  cellcal_compensation_publisher                                   answer targets with the latest ok calibration\n"
-      "  cellcal_compensation_publisher --wait-for-calibration-s 30      wait for the engine before answering\n"
-      "  cellcal_compensation_publisher --ros-pose-topic /cellcal/corrected_pose   corrections for a ROS 2 node\n",
-      ""));
+  CLI::App app;
+  applyManPage(app, "cellcal_compensation_publisher");  // docs/man/cellcal_compensation_publisher.txt
   CompensationPublisher::Options o;
   addCommonOptions(app, o.process);
   app.add_option("--wait-for-calibration-s", o.wait_for_calibration_s,

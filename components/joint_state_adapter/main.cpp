@@ -5,14 +5,8 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app{"cellcal joint-state adapter: publishes the robot's joint angles on cellcal/joint_state"};
-  app.footer(manFooter(
-      "nothing (--source ros2: a ROS 2 topic of sensor_msgs/JointState, rt/<topic>)",
-      "cellcal/joint_state (and cellcal/sim/robot_truth with --source sim)",
-      "  cellcal_joint_state_adapter --source udp --udp-port 5610         a controller bridge sends one line per reading\n"
-      "  cellcal_joint_state_adapter --source sim                         the simulated robot of the cell file\n"
-      "  cellcal_joint_state_adapter --source ros2 --ros-topic /joint_states   a ROS 2 driver's JointState\n",
-      "  --csv: a measurement file (docs/measurement-csv.md); --source udp: the line format in docs/udp-sources.md\n"));
+  CLI::App app;
+  applyManPage(app, "cellcal_joint_state_adapter");  // docs/man/cellcal_joint_state_adapter.txt
   JointStateAdapter::Options o;
   addSourceOptions(app, o.input, {"ros2"});
   app.add_option("--start-cell-time-s", o.start_cell_time_s, "sim: start the robot program at this cell time");

@@ -5,13 +5,8 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app{"cellcal tracker adapter: publishes target poses measured by the laser tracker on cellcal/tracker_pose"};
-  app.footer(manFooter(
-      "cellcal/sim/robot_truth (--source sim only)",
-      "cellcal/tracker_pose",
-      "  cellcal_tracker_adapter --source udp --udp-port 5611             a tracker bridge sends one line per reading\n"
-      "  cellcal_tracker_adapter --source csv --csv m.csv --start-unix-ns $START   replay a measurement file\n",
-      "  --csv: a measurement file (docs/measurement-csv.md); --source udp: the line format in docs/udp-sources.md\n"));
+  CLI::App app;
+  applyManPage(app, "cellcal_tracker_adapter");  // docs/man/cellcal_tracker_adapter.txt
   TrackerAdapter::Options o;
   addSourceOptions(app, o.input);
   app.add_option("--sigma-position-mm", o.sigma_position_mm, "csv: 1-sigma position noise of the tracker")->capture_default_str();

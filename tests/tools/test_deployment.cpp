@@ -197,15 +197,27 @@ namespace cellcal {
 namespace {
 
 // Every command's --help reads like a man page (EXAMPLES, EXIT STATUS; the components also TOPICS, ENVIRONMENT,
-// SIGNALS), and every option its examples use is one the command has: examples cannot rot.
+// SIGNALS), and every option its examples use is one the command has: examples cannot rot. Its text is its page in
+// docs/man, and every page there is a command's.
 TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
   const std::vector<std::string> commands = {
       "cellcal experiment paper", "cellcal cell", "cellcal bench-cell", "cellcal calibrate", "cellcal import ipa",
       "cellcal import csv", "cellcal diagnose", "cellcal continuous", "cellcal record", "cellcal replay",
-      "cellcal validate", "cellcal export", "cellcal status", "cellcal_tracker_adapter", "cellcal_joint_state_adapter",
-      "cellcal_calibration_engine", "cellcal_compensation_publisher"};
+      "cellcal validate", "cellcal export", "cellcal status", "cellcal foxglove", "cellcal_tracker_adapter",
+      "cellcal_joint_state_adapter", "cellcal_calibration_engine", "cellcal_compensation_publisher"};
+  std::set<std::string> pages;
+  for (const auto& e : fs::directory_iterator(kRepo / "docs" / "man")) pages.insert(e.path().stem().string());
   for (const auto& c : commands) {
+    const std::string page = std::regex_replace(c, std::regex(" "), "-");
+    EXPECT_EQ(pages.erase(page), 1u) << c << ": no docs/man/" << page << ".txt";
     const std::string help = capture(std::string(CELLCAL_BIN_DIR) + "/" + c + " --help 2>&1");
+    // The page's EXAMPLES section stands in --help as written.
+    std::ifstream in(kRepo / "docs" / "man" / (page + ".txt"));
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto from = text.find("\nEXAMPLES\n");
+    ASSERT_NE(from, std::string::npos) << page << ": no EXAMPLES";
+    const std::string section = text.substr(from, text.find("\n\n", from + 1) - from);
+    EXPECT_NE(help.find(section), std::string::npos) << c << ": --help does not show its page's\n" << section;
     const auto examples_at = help.find("\nEXAMPLES\n");
     ASSERT_NE(examples_at, std::string::npos) << c << ":\n" << help;
     EXPECT_NE(help.find("\nEXIT STATUS\n"), std::string::npos) << c;
@@ -224,6 +236,7 @@ TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
       }
     EXPECT_GT(used, 0) << c << ": examples without options";
   }
+  EXPECT_TRUE(pages.empty()) << "docs/man has a page of no command: " << *pages.begin();
 }
 
 }  // namespace

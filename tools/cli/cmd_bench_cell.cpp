@@ -49,6 +49,21 @@ struct BenchArgs {
   std::string series_csv;  // once a second: RSS of the processes, calibration error against the truth
 };
 
+void addOptions(CLI::App& cmd, BenchArgs& a) {
+  cmd.add_option("--robots", a.robots, "robots (each with a joint-state and a tracker stream)")->check(CLI::Range(1, 64))->capture_default_str();
+  cmd.add_option("--rate-hz", a.rate_hz, "rate of each stream")->check(CLI::Range(10.0, 5000.0))->capture_default_str();
+  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses per second and robot")->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "measuring time")->capture_default_str();
+  cmd.add_option("--domain-id", a.domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
+  cmd.add_option("--seed", a.seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
+      ->capture_default_str();
+  cmd.add_option("--json", a.json, "write the figures as JSON")->check(outputFile());
+  cmd.add_option("--record", a.record, "also run `cellcal record` of every topic into this MCAP file");
+  cmd.add_option("--series-csv", a.series_csv,
+                 "write, once a second: RSS of the engine, compensation and this process, and the mean error of the "
+                 "received calibrations against the simulated truth (a soak's record)");
+}
+
 // utime + stime of a process, seconds.
 double cpuSeconds(pid_t pid) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
@@ -351,6 +366,7 @@ void reportRecorder(const fs::path& dir, const BenchArgs& a, std::uint64_t publi
 }
 
 int runBench(const BenchArgs& a) {
+  installStopHandlers();
   const fs::path dir = fs::temp_directory_path() / ("cellcal_bench_cell_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   const CellConfig cell = loadCellConfig(writeBenchCellFile(dir, a));
@@ -463,29 +479,6 @@ int runBench(const BenchArgs& a) {
 
 }  // namespace
 
-Runner addBenchCellCommand(CLI::App& app) {
-  auto a = std::make_shared<BenchArgs>();
-  CLI::App* cmd = addSubcommand(app, "bench-cell",
-      "Benchmark the engine and compensation processes on localhost: latencies, "
-      "sustained rate, CPU and RSS (this process plays the robots and trackers)",
-      "  cellcal bench-cell --duration-s 20                     latencies and load, 8 robots at 1 kHz\n  cellcal bench-cell --duration-s 300 --seed 1 --json soak.json --series-csv soak.csv   a soak\n",
-      "");
-  cmd->add_option("--robots", a->robots, "robots (each with a joint-state and a tracker stream)")->check(CLI::Range(1, 64))->capture_default_str();
-  cmd->add_option("--rate-hz", a->rate_hz, "rate of each stream")->check(CLI::Range(10.0, 5000.0))->capture_default_str();
-  cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses per second and robot")->capture_default_str();
-  cmd->add_option("--duration-s", a->duration_s, "measuring time")->capture_default_str();
-  cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
-  cmd->add_option("--seed", a->seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
-      ->capture_default_str();
-  cmd->add_option("--json", a->json, "write the figures as JSON")->check(outputFile());
-  cmd->add_option("--record", a->record, "also run `cellcal record` of every topic into this MCAP file");
-  cmd->add_option("--series-csv", a->series_csv,
-                  "write, once a second: RSS of the engine, compensation and this process, and the mean error of the "
-                  "received calibrations against the simulated truth (a soak's record)");
-  return [a] {
-    installStopHandlers();
-    return runBench(*a);
-  };
-}
+Runner addBenchCellCommand(CLI::App& app) { return addCommand(app, "bench-cell", addOptions, runBench); }
 
 }  // namespace cellcal::cli

@@ -33,6 +33,33 @@ struct CalibrateArgs {
   bool frames_only = false;
 };
 
+void addOptions(CLI::App& cmd, CalibrateArgs& a) {
+  addInputOptions(&cmd, a.input);
+  cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());
+  cmd.add_option("--model", a.model,
+                 "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
+                 "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
+      ->capture_default_str();
+  cmd.add_option("--solver", a.solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; geometric model)")
+      ->check(CLI::IsMember({"gn", "lm"}))
+      ->capture_default_str();
+  cmd.add_option("--save-robot", a.save_robot,
+                 "write the calibrated model as a robot file: identified kinematics, frames, extensions, the covariance "
+                 "and where it came from (not written when the exit status is not 0)")->check(outputFile());
+  cmd.add_flag("--frames-only", a.frames_only,
+               "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
+               "base and tool frames on the identification rows: the tracker or the target was moved");
+  cmd.add_option("--excitation-ratio", a.excitation_ratio,
+                 "hold (and name) a parameter whose excitation on the identification rows is below this fraction of "
+                 "its largest on a verification row; 0: off")
+      ->check(CLI::Range(0.0, 0.99))
+      ->capture_default_str();
+  cmd.add_option("--rank-tolerance", a.rank_tolerance,
+                 "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "
+                 "than this sine")
+      ->capture_default_str();
+}
+
 // The predicted model error on the identification and verification rows (prediction.hpp) and whether the actual
 // errors agree: RMS of actual / sqrt(predicted^2 + 3 s^2 sigma_reading^2) over the verification rows.
 struct Trust {
@@ -566,42 +593,6 @@ int runCalibrate(const CalibrateArgs& a) {
 
 }  // namespace
 
-Runner addCalibrateCommand(CLI::App& app) {
-  auto a = std::make_shared<CalibrateArgs>();
-  CLI::App* cmd = addSubcommand(app, "calibrate",
-      "Batch geometric calibration of a measurement file (CSV v1): registers the base and tool frames, identifies every "
-      "identifiable kinematic parameter (Gauss-Newton, or --solver lm) on the identification rows, and reports mean/RMS/max "
-      "position and orientation errors on identification and verification rows, before and after. Split: "
-      "'alternate' = even rows (0-based) identify, odd rows verify; 'halves' = first half identifies, second verifies",
-      "  cellcal calibrate --robot config/robots/ur10.yaml --data m.csv --json calib.json\n  cellcal calibrate --robot R.yaml --data m.csv --model auto                   the model diagnose chooses\n  cellcal calibrate --robot R.yaml --data m.csv --model joint_compliance:2     a named extension\n",
-      "  --data: a measurement file, CSV v1 (docs/measurement-csv.md); --robot: a robot file (docs/robot-file.md)\n",
-      "; 3 when the solver did not converge; 4 when the calibrated model is not usable: worse than nominal on the "
-      "verification rows, or a verification max beyond 3x the identification max (it extrapolates)");
-  addInputOptions(cmd, a->input);
-  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
-  cmd->add_option("--model", a->model,
-                  "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
-                  "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
-      ->capture_default_str();
-  cmd->add_option("--solver", a->solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; geometric model)")
-      ->check(CLI::IsMember({"gn", "lm"}))
-      ->capture_default_str();
-  cmd->add_option("--save-robot", a->save_robot,
-                  "write the calibrated model as a robot file: identified kinematics, frames, extensions, the covariance "
-                  "and where it came from (not written when the exit status is not 0)")->check(outputFile());
-  cmd->add_flag("--frames-only", a->frames_only,
-                "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
-                "base and tool frames on the identification rows: the tracker or the target was moved");
-  cmd->add_option("--excitation-ratio", a->excitation_ratio,
-                  "hold (and name) a parameter whose excitation on the identification rows is below this fraction of "
-                  "its largest on a verification row; 0: off")
-      ->check(CLI::Range(0.0, 0.99))
-      ->capture_default_str();
-  cmd->add_option("--rank-tolerance", a->rank_tolerance,
-                  "a parameter is estimated only if its scaled Jacobian column leaves the span of the others by more "
-                  "than this sine")
-      ->capture_default_str();
-  return [a] { return runCalibrate(*a); };
-}
+Runner addCalibrateCommand(CLI::App& app) { return addCommand(app, "calibrate", addOptions, runCalibrate); }
 
 }  // namespace cellcal::cli

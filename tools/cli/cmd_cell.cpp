@@ -56,6 +56,45 @@ struct CellArgs {
   int shards = 1;
 };
 
+void addOptions(CLI::App& cmd, CellArgs& a) {
+  addCommonOptions(cmd, a.common);
+  a.common.participant_profile = "cellcal_loopback";
+  cmd.add_option("--duration-s", a.duration_s, "how long the robot program runs (wall clock, from its first sample)")
+      ->capture_default_str();
+  cmd.add_option("--summary-json", a.summary_json, "write the summary (processes, topics, accuracy, latencies)");
+  cmd.add_option("--work-dir", a.work_dir, "logs, per-process stats and the engine's state")->capture_default_str();
+  cmd.add_flag("--resume", a.resume, "keep the engine state of a previous run (default: start uncalibrated)");
+  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses published per second and robot")->capture_default_str();
+  cmd.add_flag("--quiet", a.quiet, "no line per update");
+  cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
+  cmd.add_option("--shards", a.shards,
+                 "split the robots into this many groups, each with its own engine, compensation publisher and "
+                 "adapters (--robots; named calibration_engine_1, ...): a cell too large for one engine, or one "
+                 "cell server per group")
+      ->check(CLI::Range(1, 16))
+      ->capture_default_str();
+  cmd.add_option("--host", a.host_specs,
+                 "PROCESS=NETNS: run that process (tracker_adapter, joint_state_adapter, calibration_engine, "
+                 "compensation_publisher, recorder) in that network namespace, as on another host "
+                 "(tools/netns/cellnet.sh, docs/deployment.md); repeatable")
+      ->delimiter(',')
+      ->check([](const std::string& v) {
+        const auto eq = v.find('=');
+        static const std::set<std::string> names = {"tracker_adapter", "joint_state_adapter", "calibration_engine",
+                                                    "compensation_publisher", "recorder"};
+        std::string process = eq == std::string::npos ? v : v.substr(0, eq);
+        const auto us = process.find_last_of('_');  // a shard's: calibration_engine_2
+        if (us != std::string::npos && us + 1 < process.size() &&
+            process.find_first_not_of("0123456789", us + 1) == std::string::npos)
+          process = process.substr(0, us);
+        if (eq == std::string::npos || eq + 1 == v.size() || !names.count(process))
+          return "expected PROCESS=NETNS with PROCESS one of tracker_adapter, joint_state_adapter, calibration_engine, "
+                 "compensation_publisher, recorder (with --shards: calibration_engine_2, ...); got '" + v + "'";
+        return std::string();
+      })
+      ->each([&a](const std::string& h) { a.hosts[h.substr(0, h.find('='))] = h.substr(h.find('=') + 1); });
+}
+
 // A process of the cell: its name, the file it writes its counts to at exit, and the process.
 struct Child {
   std::string name, stats_file;
@@ -464,6 +503,7 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
 }
 
 int runCell(const CellArgs& a) {
+  installStopHandlers();
   const CellConfig cell = loadCell(a.common);
   if (static_cast<std::size_t>(a.shards) > cell.robots.size())
     throw ConfigError("--shards " + std::to_string(a.shards) + ": the cell has " + std::to_string(cell.robots.size()) +
@@ -516,53 +556,6 @@ int runCell(const CellArgs& a) {
 
 }  // namespace
 
-Runner addCellCommand(CLI::App& app) {
-  auto a = std::make_shared<CellArgs>();
-  CLI::App* cmd = addSubcommand(app, "cell",
-      "Run the four-process cell on localhost against the simulated robot(s) of the cell file (degrading over "
-      "time-compressed hours); print a line per calibration update and a summary",
-      "  cellcal cell --duration-s 32                             the demo (make demo)\n  cellcal cell --duration-s 32 --record demo.mcap --summary-json s.json\n  CELLCAL_SECURITY_DIR=pki cellcal cell --duration-s 12    the same under DDS Security (docs/SECURITY.md)\n",
-      "  --config: the cell file (docs/cell-file.md); --work-dir: the log and counts of each process\n");
-  addCommonOptions(*cmd, a->common);
-  a->common.participant_profile = "cellcal_loopback";
-  cmd->add_option("--duration-s", a->duration_s, "how long the robot program runs (wall clock, from its first sample)")
-      ->capture_default_str();
-  cmd->add_option("--summary-json", a->summary_json, "write the summary (processes, topics, accuracy, latencies)");
-  cmd->add_option("--work-dir", a->work_dir, "logs, per-process stats and the engine's state")->capture_default_str();
-  cmd->add_flag("--resume", a->resume, "keep the engine state of a previous run (default: start uncalibrated)");
-  cmd->add_option("--targets-hz", a->targets_hz, "TargetPoses published per second and robot")->capture_default_str();
-  cmd->add_flag("--quiet", a->quiet, "no line per update");
-  cmd->add_option("--record", a->record, "also run `cellcal record` on every topic into this MCAP file");
-  cmd->add_option("--shards", a->shards,
-                  "split the robots into this many groups, each with its own engine, compensation publisher and "
-                  "adapters (--robots; named calibration_engine_1, ...): a cell too large for one engine, or one "
-                  "cell server per group")
-      ->check(CLI::Range(1, 16))
-      ->capture_default_str();
-  cmd->add_option("--host", a->host_specs,
-                  "PROCESS=NETNS: run that process (tracker_adapter, joint_state_adapter, calibration_engine, "
-                  "compensation_publisher, recorder) in that network namespace, as on another host "
-                  "(tools/netns/cellnet.sh, docs/deployment.md); repeatable")
-      ->delimiter(',')
-      ->check([](const std::string& v) {
-        const auto eq = v.find('=');
-        static const std::set<std::string> names = {"tracker_adapter", "joint_state_adapter", "calibration_engine",
-                                                    "compensation_publisher", "recorder"};
-        std::string process = eq == std::string::npos ? v : v.substr(0, eq);
-        const auto us = process.find_last_of('_');  // a shard's: calibration_engine_2
-        if (us != std::string::npos && us + 1 < process.size() &&
-            process.find_first_not_of("0123456789", us + 1) == std::string::npos)
-          process = process.substr(0, us);
-        if (eq == std::string::npos || eq + 1 == v.size() || !names.count(process))
-          return "expected PROCESS=NETNS with PROCESS one of tracker_adapter, joint_state_adapter, calibration_engine, "
-                 "compensation_publisher, recorder (with --shards: calibration_engine_2, ...); got '" + v + "'";
-        return std::string();
-      });
-  return [a] {
-    for (const auto& h : a->host_specs) a->hosts[h.substr(0, h.find('='))] = h.substr(h.find('=') + 1);
-    installStopHandlers();
-    return runCell(*a);
-  };
-}
+Runner addCellCommand(CLI::App& app) { return addCommand(app, "cell", addOptions, runCell); }
 
 }  // namespace cellcal::cli

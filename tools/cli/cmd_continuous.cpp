@@ -23,6 +23,34 @@ struct ContinuousArgs {
   ContinuousScenarioOptions options;
 };
 
+void addOptions(CLI::App& cmd, ContinuousArgs& a) {
+  a.robot = defaultRobotFile("ur10.yaml");
+  cmd.add_option("--robot", a.robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
+  cmd.add_option("--data", a.data, "measurement file, CSV v1, with stamp_s (or --period-s)")->required()->check(CLI::ExistingFile);
+  cmd.add_option("--period-s", a.period_s,
+                 "a file without stamp_s: its rows in visiting order, this many seconds apart")
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--interval-h", a.options.update_interval_h, "hours between updates")->capture_default_str();
+  cmd.add_option("--poses-per-update", a.options.poses_per_update, "fresh poses per update")->capture_default_str();
+  cmd.add_option("--initial-h", a.options.initial_h, "the initial batch comes from the first hours")
+      ->capture_default_str();
+  cmd.add_option("--initial-poses", a.options.initial_poses, "poses of the initial batch, evenly spaced")
+      ->capture_default_str();
+  cmd.add_option("--drift-scale", a.options.drift_scale,
+                 "scale of the engine's drift model (process noise per hour between updates); 0: none (lambda = 1)")
+      ->capture_default_str();
+  cmd.add_option("--model", a.model,
+                 "extensions in the RLS state as well, e.g. joint_compliance:2 (the cause `diagnose` names)");
+  cmd.add_option("--sigma-position-mm", a.sigma_position_mm, "reading sigma (1 sigma)")->capture_default_str();
+  cmd.add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "reading sigma (1 sigma)")->capture_default_str();
+  cmd.add_flag("--position-only", a.position_only, "use positions only");
+  cmd.add_option("--block-h", a.block_h, "also print the errors pooled per block of this many hours (0: no)")
+      ->capture_default_str();
+  cmd.add_flag("--quiet", a.quiet, "no per-interval table");
+  cmd.add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
+  cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());
+}
+
 int runContinuous(const ContinuousArgs& a) {
   const RobotModel robot = loadRobotModel(a.robot);
   MeasurementCsvOptions mo;
@@ -129,40 +157,6 @@ int runContinuous(const ContinuousArgs& a) {
 
 }  // namespace
 
-Runner addContinuousCommand(CLI::App& app) {
-  auto a = std::make_shared<ContinuousArgs>();
-  a->robot = defaultRobotFile("ur10.yaml");
-  CLI::App* cmd = addSubcommand(app, "continuous",
-      "Continuous calibration over a measurement file in time order (stamp_s): an initial batch from the first "
-      "interval, then every interval a few evenly spaced fresh poses update the RLS estimate; every row is predicted "
-      "before any of its interval's poses is used. Compares a static calibration, RLS, and RLS with a model extension",
-      "  cellcal continuous --robot config/robots/ur10.yaml --data a.csv --initial-h 5 --model joint_compliance:2\n",
-      "  --data: a measurement file with stamp_s, CSV v1 (docs/measurement-csv.md)\n");
-  cmd->add_option("--robot", a->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
-  cmd->add_option("--data", a->data, "measurement file, CSV v1, with stamp_s (or --period-s)")->required()->check(CLI::ExistingFile);
-  cmd->add_option("--period-s", a->period_s,
-                  "a file without stamp_s: its rows in visiting order, this many seconds apart")
-      ->check(CLI::PositiveNumber);
-  cmd->add_option("--interval-h", a->options.update_interval_h, "hours between updates")->capture_default_str();
-  cmd->add_option("--poses-per-update", a->options.poses_per_update, "fresh poses per update")->capture_default_str();
-  cmd->add_option("--initial-h", a->options.initial_h, "the initial batch comes from the first hours")
-      ->capture_default_str();
-  cmd->add_option("--initial-poses", a->options.initial_poses, "poses of the initial batch, evenly spaced")
-      ->capture_default_str();
-  cmd->add_option("--drift-scale", a->options.drift_scale,
-                  "scale of the engine's drift model (process noise per hour between updates); 0: none (lambda = 1)")
-      ->capture_default_str();
-  cmd->add_option("--model", a->model,
-                  "extensions in the RLS state as well, e.g. joint_compliance:2 (the cause `diagnose` names)");
-  cmd->add_option("--sigma-position-mm", a->sigma_position_mm, "reading sigma (1 sigma)")->capture_default_str();
-  cmd->add_option("--sigma-orientation-deg", a->sigma_orientation_deg, "reading sigma (1 sigma)")->capture_default_str();
-  cmd->add_flag("--position-only", a->position_only, "use positions only");
-  cmd->add_option("--block-h", a->block_h, "also print the errors pooled per block of this many hours (0: no)")
-      ->capture_default_str();
-  cmd->add_flag("--quiet", a->quiet, "no per-interval table");
-  cmd->add_flag("--skip-bad-rows", a->skip_bad_rows, "skip (and count) bad rows instead of stopping");
-  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
-  return [a] { return runContinuous(*a); };
-}
+Runner addContinuousCommand(CLI::App& app) { return addCommand(app, "continuous", addOptions, runContinuous); }
 
 }  // namespace cellcal::cli

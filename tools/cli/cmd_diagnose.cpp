@@ -24,6 +24,13 @@ struct DiagnoseArgs {
   bool no_progress = false;
 };
 
+void addOptions(CLI::App& cmd, DiagnoseArgs& a) {
+  addInputOptions(&cmd, a.input);
+  cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());
+  cmd.add_flag("--no-progress", a.no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
+  cmd.add_option("--report", a.report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
+}
+
 const char* verdictName(Verdict v) {
   switch (v) {
     case Verdict::kNoise: return "noise";
@@ -313,24 +320,6 @@ int runDiagnose(const DiagnoseArgs& a) {
 
 }  // namespace
 
-Runner addDiagnoseCommand(CLI::App& app) {
-  auto a = std::make_shared<DiagnoseArgs>();
-  CLI::App* cmd = addSubcommand(app, "diagnose",
-      "What the geometric model gets wrong in a measurement file (CSV v1): fits it, measures the residual structure "
-      "against each driver (joint angles, gravity torques, temperature or time, motion direction, workspace), tries "
-      "each physical cause (joint_compliance, thermal_drift, cyclic_transmission, joint_scale, backlash, "
-      "link_deflection) on each joint or link, adds up to three by forward selection as long as each wins on the "
-      "verification rows, and says what structure is still left. Rows more than 6 robust sigmas off are listed and left "
-      "out. See docs/diagnosis.md",
-      "  cellcal diagnose --robot config/robots/ur10.yaml --data a.csv --report report --json diag.json\n",
-      "  --report DIR: report.md, signature.svg and signature.png (gnuplot; docs/figures.md)\n",
-      "; 4 when the chosen model is not usable (worse than nominal on the held-out rows, or a held-out max beyond 3x "
-      "the identification max): nothing is recommended");
-  addInputOptions(cmd, a->input);
-  cmd->add_option("--json", a->json, "write the results as JSON")->check(outputFile());
-  cmd->add_flag("--no-progress", a->no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
-  cmd->add_option("--report", a->report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
-  return [a] { return runDiagnose(*a); };
-}
+Runner addDiagnoseCommand(CLI::App& app) { return addCommand(app, "diagnose", addOptions, runDiagnose); }
 
 }  // namespace cellcal::cli

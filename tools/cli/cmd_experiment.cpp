@@ -264,11 +264,7 @@ Runner addExperimentCommand(CLI::App& app) {
   auto args = std::make_shared<ExperimentArgs>();
   CLI::App* exp = app.add_subcommand("experiment", "Reproduce published experiments on a simulated robot");
   exp->require_subcommand(1);
-  CLI::App* paper = addSubcommand(*exp, "paper",
-      "4 groups of 100 poses measured 2 h apart on a simulated Staubli TX60 whose accuracy degrades; prints the "
-      "pose-number sweep (paper Table 2) and accuracy maintenance with RLS and LM (paper Table 4)",
-      "  cellcal experiment paper --plot figs --json paper.json       one robot, figures and JSON\n  cellcal experiment paper --seeds 300 --seed 1000              how often the targets hold over 300 robots\n",
-      "  --plot DIR: maintenance.png, residuals.png, joint_drift.png, pose_sweep.png (gnuplot; docs/figures.md)\n");
+  CLI::App* paper = addSubcommand(*exp, "paper");
   paper->add_option("--robot", args->robot, "robot YAML file")->check(CLI::ExistingFile)->capture_default_str();
   paper->add_option("--seed", args->seed, "seed of the simulated robot, tracker and poses")->capture_default_str();
   paper->add_option("--json", args->json_path, "write the results as JSON to this file")->check(outputFile());

@@ -21,6 +21,13 @@ struct ExportArgs {
   std::string file, out, robot_id;
 };
 
+void addOptions(CLI::App& cmd, ExportArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_option("file", a.file, "MCAP recording")->required()->check(CLI::ExistingFile);
+  cmd.add_option("--out", a.out, "CSV v1 file to write")->required()->check(outputFile());
+  cmd.add_option("--robot-id", a.robot_id, "robot of the cell file (default: the first)");
+}
+
 int runExport(const ExportArgs& a) {
   const Recording rec = readRecording(a.file);
   const CellConfig cell = loadCell(a.common);
@@ -88,19 +95,6 @@ int runExport(const ExportArgs& a) {
 
 }  // namespace
 
-Runner addExportCommand(CLI::App& app) {
-  auto exp = std::make_shared<ExportArgs>();
-  CLI::App* e = addSubcommand(app, "export",
-      "Write a recording's measurements as CSV v1: each tracker reading paired (as the engine pairs) with "
-      "the robot's settled joint state, one row per reading",
-      "  cellcal export cell.mcap --out m.csv                          pairs readings as the engine does\n",
-      "");
-  addCommonOptions(*e, exp->common);
-  e->add_option("file", exp->file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  e->add_option("--out", exp->out, "CSV v1 file to write")->required()->check(outputFile());
-  e->add_option("--robot-id", exp->robot_id, "robot of the cell file (default: the first)");
-
-  return [exp] { return runExport(*exp); };
-}
+Runner addExportCommand(CLI::App& app) { return addCommand(app, "export", addOptions, runExport); }
 
 }  // namespace cellcal::cli

@@ -26,6 +26,20 @@ struct FoxgloveArgs {
   bool quiet = false;
 };
 
+void addOptions(CLI::App& cmd, FoxgloveArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_option("--address", a.address, "IP address to listen on (0.0.0.0: every interface)")->capture_default_str();
+  cmd.add_option("--port", a.port, "TCP port (0: any free port; --port-file says which)")->capture_default_str();
+  cmd.add_option("--port-file", a.port_file, "write the port listened on to this file")->check(outputFile());
+  cmd.add_option("--topics", a.topics, "all | inputs | comma-separated topic names")->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
+  cmd.add_option("--max-client-queue-mib", a.max_client_queue_mib,
+                 "a client with more unsent than this loses messages")->capture_default_str();
+  cmd.add_option("--summary-json", a.summary_json,
+                 "at exit: samples per topic, DDS latency p50/p99, frames sent and dropped, CPU")->check(outputFile());
+  cmd.add_flag("-q,--quiet", a.quiet, "no status lines");
+}
+
 double cpuSeconds() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
@@ -112,32 +126,6 @@ int runFoxglove(const FoxgloveArgs& a) {
 
 }  // namespace
 
-Runner addFoxgloveCommand(CLI::App& app) {
-  auto f = std::make_shared<FoxgloveArgs>();
-  CLI::App* c = addSubcommand(app, "foxglove",
-      "Serve the live cell to Foxglove over its WebSocket protocol (foxglove.websocket.v1): every cell topic as a "
-      "channel with encoding cdr and its omgidl schema (the IDL text), messages as received from DDS, stamped with "
-      "their receive time: the channels of a recording, so config/foxglove/cellcal.json shows the live cell and its "
-      "MCAP recordings alike. Read-only: clients subscribe, nothing they send reaches the cell. A client that reads "
-      "slower than the cell loses messages (counted) rather than slowing the others.",
-      "  cellcal foxglove                                   ws://127.0.0.1:8765, the cell of config/cell.yaml\n"
-      "  cellcal foxglove --dds-profile cellcal_loopback    beside `cellcal cell`\n"
-      "  cellcal foxglove --address 0.0.0.0 --port 8765     for a laptop on the cell network\n",
-      "  config/foxglove/cellcal.json: a Foxglove layout (verification and residual, corrections, health and alarms per "
-      "robot; global variable $robot)\n",
-      "; 3 when nothing was received from the cell");
-  addCommonOptions(*c, f->common);
-  c->add_option("--address", f->address, "IP address to listen on (0.0.0.0: every interface)")->capture_default_str();
-  c->add_option("--port", f->port, "TCP port (0: any free port; --port-file says which)")->capture_default_str();
-  c->add_option("--port-file", f->port_file, "write the port listened on to this file")->check(outputFile());
-  c->add_option("--topics", f->topics, "all | inputs | comma-separated topic names")->capture_default_str();
-  c->add_option("--duration-s", f->duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
-  c->add_option("--max-client-queue-mib", f->max_client_queue_mib,
-                "a client with more unsent than this loses messages")->capture_default_str();
-  c->add_option("--summary-json", f->summary_json,
-                "at exit: samples per topic, DDS latency p50/p99, frames sent and dropped, CPU")->check(outputFile());
-  c->add_flag("-q,--quiet", f->quiet, "no status lines");
-  return [f] { return runFoxglove(*f); };
-}
+Runner addFoxgloveCommand(CLI::App& app) { return addCommand(app, "foxglove", addOptions, runFoxglove); }
 
 }  // namespace cellcal::cli

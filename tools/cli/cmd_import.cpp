@@ -86,21 +86,14 @@ Runner addImportCommand(CLI::App& app) {
   auto out = std::make_shared<std::string>();
   CLI::App* imp = app.add_subcommand("import", "Convert measurements: other formats to CSV v1, CSV v1 to a recording");
   imp->require_subcommand(1);
-  CLI::App* ipa = addSubcommand(*imp, "ipa",
-      "A series of ../shared/datasets/ipa-robot-accuracy (UR10, Leica + T-Mac)",
-      "  cellcal import ipa ../shared/datasets/ipa-robot-accuracy/Series_A/measurements_grid.csv --out a.csv\n",
-      "  the output: a measurement file, CSV v1 (docs/measurement-csv.md), rows in time order\n");
+  CLI::App* ipa = addSubcommand(*imp, "ipa");
   ipa->add_option("series", *in, "Series_A/measurements_grid.csv or Series_B/measurements_joint_configurations.csv")
       ->required()
       ->check(CLI::ExistingFile);
   ipa->add_option("--out", *out, "CSV v1 file to write")->required()->check(outputFile());
   ipa->add_option("--robot", *robot, "robot file (joint limits are checked)")->capture_default_str();
   auto csv = std::make_shared<ImportCsvArgs>();
-  CLI::App* c = addSubcommand(*imp, "csv",
-      "A measurement file (CSV v1) as a recording (MCAP) of JointState and TrackerPose streams, for replay "
-      "and validate: per row, the robot stands settled --bracket-s before and after the reading",
-      "  cellcal import csv a.csv --robot config/robots/ur10.yaml --out a.mcap\n",
-      "  the output: an MCAP recording of the cell topics (docs/recording.md)\n");
+  CLI::App* c = addSubcommand(*imp, "csv");
   c->add_option("file", csv->csv, "CSV v1 measurement file")->required()->check(CLI::ExistingFile);
   c->add_option("--robot", csv->robot_file, "robot file (YAML)")->required()->check(CLI::ExistingFile);
   c->add_option("--out", csv->out, "MCAP file to write")->required()->check(outputFile());

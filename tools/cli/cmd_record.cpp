@@ -57,6 +57,19 @@ struct RecordArgs {
   bool quiet = false;
 };
 
+void addOptions(CLI::App& cmd, RecordArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_option("--out", a.out, "MCAP file to write")->required()->check(outputFile());
+  cmd.add_option("--topics", a.topics, "all | inputs | comma-separated topic names")->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
+  cmd.add_option("--flush-period-s", a.flush_period_s, "close the chunk and flush it this often")->capture_default_str();
+  cmd.add_option("--chunk-kib", a.chunk_kib, "close a chunk when it reaches this size")->capture_default_str();
+  cmd.add_option("--recover", a.recover, "instead of recording: rewrite this (cut short) recording whole to --out")
+      ->check(CLI::ExistingFile);
+  cmd.add_option("--json", a.json, "write the counts as JSON")->check(outputFile());
+  cmd.add_flag("-q,--quiet", a.quiet, "no status line every 10 s");
+}
+
 int runRecover(const RecordArgs& a) {
   mcap::ReadOptions o;
   o.tolerate_truncation = true;
@@ -165,29 +178,6 @@ int runRecord(const RecordArgs& a) {
 
 }  // namespace
 
-Runner addRecordCommand(CLI::App& app) {
-  auto rec = std::make_shared<RecordArgs>();
-  CLI::App* r = addSubcommand(app, "record",
-      "Record the cell's topics to MCAP: one schema per type (encoding omgidl, the IDL text), CDR payloads as on the "
-      "wire, channel metadata with the QoS; log time = receive time, publish time = DDS source timestamp, sequence = "
-      "the writer's sequence number. Whole chunks reach the disk every --flush-period-s: a recorder killed with "
-      "SIGKILL leaves a file readable up to its last complete chunk (replay/validate read it; --recover rewrites it "
-      "whole). Stops on SIGINT/SIGTERM or after --duration-s and says how many messages it wrote.",
-      "  cellcal record --out cell.mcap                               every topic until Ctrl-C\n  cellcal record --out in.mcap --topics inputs --duration-s 600\n  cellcal record --recover cut.mcap --out fixed.mcap           a file cut short (SIGKILL, power loss)\n",
-      "  MCAP: omgidl schemas (the IDL text), CDR payloads as on the wire (docs/recording.md)\n",
-      "; 3 when nothing was received (no writer of the cell's topics on this domain and profile)");
-  addCommonOptions(*r, rec->common);
-  r->add_option("--out", rec->out, "MCAP file to write")->required()->check(outputFile());
-  r->add_option("--topics", rec->topics, "all | inputs | comma-separated topic names")->capture_default_str();
-  r->add_option("--duration-s", rec->duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
-  r->add_option("--flush-period-s", rec->flush_period_s, "close the chunk and flush it this often")->capture_default_str();
-  r->add_option("--chunk-kib", rec->chunk_kib, "close a chunk when it reaches this size")->capture_default_str();
-  r->add_option("--recover", rec->recover, "instead of recording: rewrite this (cut short) recording whole to --out")
-      ->check(CLI::ExistingFile);
-  r->add_option("--json", rec->json, "write the counts as JSON")->check(outputFile());
-  r->add_flag("-q,--quiet", rec->quiet, "no status line every 10 s");
-
-  return [rec] { return runRecord(*rec); };
-}
+Runner addRecordCommand(CLI::App& app) { return addCommand(app, "record", addOptions, runRecord); }
 
 }  // namespace cellcal::cli

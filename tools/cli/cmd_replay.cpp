@@ -29,6 +29,22 @@ struct ReplayArgs {
   bool as_fast_as_possible = false, loop = false, keep_stamps = false, no_progress = false;
 };
 
+void addOptions(CLI::App& cmd, ReplayArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_option("file", a.file, "MCAP recording")->required()->check(CLI::ExistingFile);
+  cmd.add_option("--rate", a.rate, "speed factor of the recorded timing")->capture_default_str();
+  cmd.add_flag("--as-fast-as-possible", a.as_fast_as_possible, "no pauses between messages");
+  cmd.add_option("--topics", a.topics, "inputs | all | comma-separated topic names")->capture_default_str();
+  cmd.add_flag("--loop", a.loop, "start again at the end (stamps keep increasing) until SIGINT/--duration-s");
+  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: at the end)");
+  cmd.add_flag("--keep-stamps", a.keep_stamps, "publish the recorded source stamps unchanged");
+  cmd.add_option("--wait-for-readers", a.wait_for_readers, "wait until every replayed topic has this many readers")
+      ->capture_default_str();
+  cmd.add_option("--wait-s", a.wait_s, "... for at most this long")->capture_default_str();
+  cmd.add_option("--json", a.json, "write the summary as JSON")->check(outputFile());
+  cmd.add_flag("--no-progress", a.no_progress, "no progress bar");
+}
+
 int runReplay(const ReplayArgs& a) {
   installStopHandlers();
   if (!(a.rate > 0)) throw std::runtime_error("--rate must be > 0");
@@ -194,31 +210,6 @@ int runReplay(const ReplayArgs& a) {
 
 }  // namespace
 
-Runner addReplayCommand(CLI::App& app) {
-  auto rep = std::make_shared<ReplayArgs>();
-  CLI::App* p = addSubcommand(app, "replay",
-      "Republish a recording on its topics with the recorded timing (log times) scaled by --rate, like the live cell. "
-      "By default only the cell's inputs (joint_state, tracker_pose, target_pose), so a running engine and "
-      "compensation publisher process them; --topics all replays everything. Source stamps are moved so the "
-      "recording's first message is now (spacing kept; --keep-stamps leaves them). Prints a summary (messages, "
-      "duration, drops, timing error).",
-      "  cellcal replay cell.mcap --rate 2                             inputs at twice the recorded speed\n  cellcal replay cell.mcap --topics all\n",
-      "");
-  addCommonOptions(*p, rep->common);
-  p->add_option("file", rep->file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  p->add_option("--rate", rep->rate, "speed factor of the recorded timing")->capture_default_str();
-  p->add_flag("--as-fast-as-possible", rep->as_fast_as_possible, "no pauses between messages");
-  p->add_option("--topics", rep->topics, "inputs | all | comma-separated topic names")->capture_default_str();
-  p->add_flag("--loop", rep->loop, "start again at the end (stamps keep increasing) until SIGINT/--duration-s");
-  p->add_option("--duration-s", rep->duration_s, "stop after this many seconds (0: at the end)");
-  p->add_flag("--keep-stamps", rep->keep_stamps, "publish the recorded source stamps unchanged");
-  p->add_option("--wait-for-readers", rep->wait_for_readers, "wait until every replayed topic has this many readers")
-      ->capture_default_str();
-  p->add_option("--wait-s", rep->wait_s, "... for at most this long")->capture_default_str();
-  p->add_option("--json", rep->json, "write the summary as JSON")->check(outputFile());
-  p->add_flag("--no-progress", rep->no_progress, "no progress bar");
-
-  return [rep] { return runReplay(*rep); };
-}
+Runner addReplayCommand(CLI::App& app) { return addCommand(app, "replay", addOptions, runReplay); }
 
 }  // namespace cellcal::cli

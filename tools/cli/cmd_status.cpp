@@ -29,6 +29,15 @@ struct StatusArgs {
   std::string json;
 };
 
+void addOptions(CLI::App& cmd, StatusArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_flag("-w,--watch", a.watch, "redraw the view every --period-s until Ctrl-C (a live terminal view)");
+  cmd.add_option("--wait-s", a.wait_s, "without --watch: listen this long, then print once")->capture_default_str();
+  cmd.add_option("--period-s", a.period_s, "--watch: redraw period")->check(CLI::Range(0.1, 60.0))->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "--watch: stop after this long (0: until Ctrl-C)");
+  cmd.add_option("--json", a.json, "also write the last view as JSON to this file")->check(outputFile());
+}
+
 // The wire's health as the engine names it (the IDL enum follows core's Health).
 const char* healthName(msg::CalibrationHealth h) { return cellcal::healthName(static_cast<Health>(static_cast<int>(h))); }
 
@@ -133,6 +142,7 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
 }
 
 int runStatus(const StatusArgs& a) {
+  installStopHandlers();
   const CellConfig cell = loadCell(a.common);
   DdsNode node(cell, "cellcal_status", identity::kObserver);
   std::mutex mutex;
@@ -229,37 +239,6 @@ int runStatus(const StatusArgs& a) {
 
 }  // namespace
 
-Runner addStatusCommand(CLI::App& app) {
-  auto a = std::make_shared<StatusArgs>();
-  CLI::App* cmd = app.add_subcommand(
-      "status",
-      "The cell at a glance, from its topics: per robot the calibration version and health, poses used, the "
-      "a-priori verification estimate (each pose predicted before it was used) and the predicted 1-sigma error, the "
-      "residual, the corrections the compensation publisher sent, rejected samples by reason, drift alarms, stale "
-      "inputs and state-file errors. Joins as a reader only (identity observer under DDS Security).");
-  addCommonOptions(*cmd, a->common);
-  cmd->add_flag("-w,--watch", a->watch, "redraw the view every --period-s until Ctrl-C (a live terminal view)");
-  cmd->add_option("--wait-s", a->wait_s, "without --watch: listen this long, then print once")->capture_default_str();
-  cmd->add_option("--period-s", a->period_s, "--watch: redraw period")->check(CLI::Range(0.1, 60.0))->capture_default_str();
-  cmd->add_option("--duration-s", a->duration_s, "--watch: stop after this long (0: until Ctrl-C)");
-  cmd->add_option("--json", a->json, "also write the last view as JSON to this file")->check(outputFile());
-  cmd->footer(
-      "EXAMPLES\n"
-      "  cellcal status                       print the cell's state once (after 3 s of listening)\n"
-      "  cellcal status --watch               live view, redrawn every second\n"
-      "  cellcal status --json status.json    for scripts and monitoring\n"
-      "COLUMNS\n"
-      "  a-priori   running a-priori error: mean position error of the recent poses, each predicted before it was used\n"
-      "             (CalibrationState.verification_mean_position_m; `cellcal cell`'s hold-out error is the simulated\n"
-      "             truth at fresh poses, another measure)\n"
-      "  predicted  the estimate's own 1-sigma position error, worst of 16 reference poses (CalibrationDiagnostics)\n"
-      "  residual   RMS position residual over the recent poses (a-posteriori)\n"
-      "EXIT STATUS\n"
-      "  0 when it ran (whatever the cell's health), 1 on a DDS or file error, 2 on a usage error.");
-  return [a] {
-    installStopHandlers();
-    return runStatus(*a);
-  };
-}
+Runner addStatusCommand(CLI::App& app) { return addCommand(app, "status", addOptions, runStatus); }
 
 }  // namespace cellcal::cli

@@ -34,6 +34,19 @@ struct ValidateArgs {
   bool require_match = false, no_progress = false;
 };
 
+void addOptions(CLI::App& cmd, ValidateArgs& a) {
+  addCommonOptions(cmd, a.common);
+  cmd.add_option("file", a.file, "MCAP recording")->required()->check(CLI::ExistingFile);
+  cmd.add_option("--json", a.json, "write the comparison and every calibration as JSON")->check(outputFile());
+  cmd.add_option("--tolerance-m", a.tolerance_m, "lengths (and verification errors) equal within this")->capture_default_str();
+  cmd.add_option("--tolerance-rad", a.tolerance_rad, "angles equal within this")->capture_default_str();
+  cmd.add_flag("--require-match", a.require_match, "exit 3 when a calibration differs from the recorded one");
+  cmd.add_flag("--no-progress", a.no_progress, "no progress bar");
+  cmd.add_option("--figures", a.figures,
+                 "write <robot>_accuracy.png (a-priori verification and residual over time) and <robot>_joint_drift.png "
+                 "(identified joint zero offsets over time) into this directory (gnuplot)");
+}
+
 // Figures of one robot's calibrations over a recording (gnuplot, PNG): <robot>_accuracy.png, the a-priori
 // verification error (each pose predicted by the calibration before it) and the a-posteriori residual against the
 // time of the reading; <robot>_joint_drift.png, each joint's zero offset as identified, minus its nominal value.
@@ -359,27 +372,6 @@ int runValidate(const ValidateArgs& a) {
 
 }  // namespace
 
-Runner addValidateCommand(CLI::App& app) {
-  auto val = std::make_shared<ValidateArgs>();
-  CLI::App* v = addSubcommand(app, "validate",
-      "Run the calibration engine's logic (core CalibrationEngine, no DDS) over a recording's JointState and "
-      "TrackerPose messages in log-time order, with the engine settings and robots of --config, and compare each "
-      "calibration with the CalibrationState of the same robot and version in the recording (parameters, "
-      "verification error). Deterministic: the same file and settings give the same output.",
-      "  cellcal validate cell.mcap --json v.json --require-match\n  cellcal validate cell.mcap --figures figs                     accuracy and joint drift over the recording\n",
-      "", "; 3 with --require-match when a calibration differs; 4 when no calibration came out of the recording");
-  addCommonOptions(*v, val->common);
-  v->add_option("file", val->file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  v->add_option("--json", val->json, "write the comparison and every calibration as JSON")->check(outputFile());
-  v->add_option("--tolerance-m", val->tolerance_m, "lengths (and verification errors) equal within this")->capture_default_str();
-  v->add_option("--tolerance-rad", val->tolerance_rad, "angles equal within this")->capture_default_str();
-  v->add_flag("--require-match", val->require_match, "exit 3 when a calibration differs from the recorded one");
-  v->add_flag("--no-progress", val->no_progress, "no progress bar");
-  v->add_option("--figures", val->figures,
-                "write <robot>_accuracy.png (a-priori verification and residual over time) and <robot>_joint_drift.png "
-                "(identified joint zero offsets over time) into this directory (gnuplot)");
-
-  return [val] { return runValidate(*val); };
-}
+Runner addValidateCommand(CLI::App& app) { return addCommand(app, "validate", addOptions, runValidate); }
 
 }  // namespace cellcal::cli

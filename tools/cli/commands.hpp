@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -45,11 +46,19 @@ bool renderGnuplot(const std::string& dir, const std::string& name, const std::s
 
 std::string defaultRobotFile(const std::string& name);
 
-// A subcommand of parent whose --help ends with cliFooter(examples, files, exit_extra).
-CLI::App* addSubcommand(CLI::App& parent, const std::string& name, const std::string& description,
-                        const std::string& examples, const std::string& files, const std::string& exit_extra = "");
+// A subcommand of parent described by its man page, docs/man/cellcal-<name>.txt (cellcal-<parent>-<name>.txt under a
+// command group such as import): its first paragraph above the options in --help, the rest (EXAMPLES, FILES, EXIT
+// STATUS, SEE ALSO) below them.
+CLI::App* addSubcommand(CLI::App& parent, const std::string& name);
 
-// The man-page part of a command's --help: EXAMPLES and FILES as given, then EXIT STATUS and SEE ALSO.
-std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra = "");
+// Adds subcommand `name` (addSubcommand) whose options `options` declares into one Args value; returns the function
+// that runs it on those values, called when the subcommand is selected.
+template <class Args>
+Runner addCommand(CLI::App& parent, const std::string& name, void (*options)(CLI::App&, Args&),
+                  int (*run)(const Args&)) {
+  auto args = std::make_shared<Args>();
+  options(*addSubcommand(parent, name), *args);
+  return [args, run] { return run(*args); };
+}
 
 }  // namespace cellcal::cli

@@ -25,17 +25,10 @@ const CLI::Validator& outputFile() {
 
 std::string defaultRobotFile(const std::string& name) { return components::configDir() + "/robots/" + name; }
 
-std::string cliFooter(const std::string& examples, const std::string& files, const std::string& exit_extra) {
-  return "\nEXAMPLES\n" + examples + (files.empty() ? "" : "\nFILES\n" + files) +
-         "\nEXIT STATUS\n  0 success; 1 a runtime error; 2 a usage error or a bad input file (the message names the "
-         "file, line and field)" + exit_extra + ".\n\nSEE ALSO\n  README.md; docs/ (file formats, diagnosis, recording, "
-         "reliability, security, deployment, figures)\n";
-}
-
-CLI::App* addSubcommand(CLI::App& parent, const std::string& name, const std::string& description,
-                        const std::string& examples, const std::string& files, const std::string& exit_extra) {
-  CLI::App* c = parent.add_subcommand(name, description);
-  c->footer(cliFooter(examples, files, exit_extra));
+CLI::App* addSubcommand(CLI::App& parent, const std::string& name) {
+  const std::string page = "cellcal-" + (parent.get_parent() ? parent.get_name() + "-" : std::string()) + name;
+  CLI::App* c = parent.add_subcommand(name);
+  components::applyManPage(*c, page);
   return c;
 }
 

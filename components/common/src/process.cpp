@@ -8,9 +8,14 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
+#include <stdexcept>
 #include <thread>
 
 namespace cellcal::components {
+namespace detail {
+extern const std::map<std::string, std::string> kManPages;  // man_pages.cpp, generated from docs/man/*.txt
+}  // namespace detail
 namespace {
 std::atomic<bool> g_stop{false};
 extern "C" void onSignal(int) { g_stop = true; }
@@ -41,24 +46,25 @@ void addCommonOptions(CLI::App& app, ProcessOptions& o) {
       ->delimiter(',');
 }
 
-std::string manFooter(const std::string& reads, const std::string& writes, const std::string& examples,
-                      const std::string& files) {
-  return "\nTOPICS\n  reads:  " + reads + "\n  writes: " + writes + "\n\nEXAMPLES\n" + examples +
-         "\nFILES\n" + files +
-         "  cell file (--config): DDS domain and profile, robots and their registration, engine and compensation\n"
-         "    settings (docs/cell-file.md); installed default " + configDir() + "/cell.yaml\n"
-         "\nENVIRONMENT\n"
-         "  CELLCAL_DOMAIN_ID      DDS domain (0..232), over the cell file; --domain-id over both\n"
-         "  CELLCAL_DDS_PROFILE    participant profile: cellcal, cellcal_udp (no shared memory), cellcal_loopback\n"
-         "  CELLCAL_SECURITY_DIR   DDS Security files (config/security/make_pki.sh; docs/SECURITY.md)\n"
-         "  FASTRTPS_DEFAULT_PROFILES_FILE  further Fast DDS XML profiles\n"
-         "\nSIGNALS\n"
-         "  SIGINT, SIGTERM: stop cleanly (the DDS participant leaves, --stats-json is written). A SIGKILLed process\n"
-         "  is noticed by its peers within the 3 s participant lease.\n"
-         "\nEXIT STATUS\n"
-         "  0 stopped cleanly; 1 a runtime error (its message names the file, topic or sample); 2 a usage error.\n"
-         "\nSEE ALSO\n"
-         "  cellcal status --watch (the cell at a glance), docs/ARCHITECTURE.md (topics and QoS), docs/deployment.md\n";
+ManPage manPage(const std::string& name) {
+  const auto it = detail::kManPages.find(name);
+  if (it == detail::kManPages.end()) throw std::logic_error("no man page docs/man/" + name + ".txt in this build");
+  const std::string& text = it->second;
+  const auto blank = text.find("\n\n");
+  ManPage page;
+  page.description = text.substr(0, blank);
+  std::replace(page.description.begin(), page.description.end(), '\n', ' ');
+  page.footer = blank == std::string::npos ? "" : "\n" + text.substr(blank + 2);
+  const std::string key = "{config_dir}";
+  for (auto at = page.footer.find(key); at != std::string::npos; at = page.footer.find(key, at))
+    page.footer.replace(at, key.size(), configDir());
+  return page;
+}
+
+void applyManPage(CLI::App& app, const std::string& name) {
+  const ManPage page = manPage(name);
+  app.description(page.description);
+  app.footer(page.footer);
 }
 
 CellConfig loadCell(const ProcessOptions& o) {

@@ -31,10 +31,18 @@ std::string configDir();
 
 void addCommonOptions(CLI::App& app, ProcessOptions& o);
 
-// The man-page part of a component's --help (app.footer): what it reads and writes, examples, files, and the sections
-// every cellcal process shares (environment, signals, exit status, see also).
-std::string manFooter(const std::string& reads, const std::string& writes, const std::string& examples,
-                      const std::string& files);
+// A command's man page: docs/man/<name>.txt (e.g. cellcal_tracker_adapter, cellcal-diagnose), built into the
+// binaries. Its first paragraph (lines joined by spaces) is the description --help shows above the options; the rest
+// (TOPICS, EXAMPLES, FILES, EXIT STATUS, ...) the footer below them, with {config_dir} replaced by configDir().
+// Throws std::logic_error when no page of that name was built in: a programming error, which the test that runs
+// every command's --help catches.
+struct ManPage {
+  std::string description;
+  std::string footer;
+};
+ManPage manPage(const std::string& name);
+// Sets app's description and footer from manPage(name).
+void applyManPage(CLI::App& app, const std::string& name);
 CellConfig loadCell(const ProcessOptions& o);
 
 void installStopHandlers();
