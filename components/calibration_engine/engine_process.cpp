@@ -185,7 +185,14 @@ void EngineProcess::stopAndReport() {
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},
                   {"pairing_latency_p99_ns", p99(r.pairing_ns)},
-                  {"update_latency_p99_ns", p99(r.update_ns)}};
+                  {"update_latency_p99_ns", p99(r.update_ns)},
+                  {"decided_to_published_p99_ns", p99(r.decided_ns)},
+                  {"decided_to_published_p50_ns", percentileNs(r.decided_ns, 0.5)},
+                  {"decided_to_published_parts_p50_ns",
+                   {{"queued", percentileNs(r.queued_ns, 0.5)},
+                    {"process", percentileNs(r.process_ns, 0.5)},
+                    {"persist", percentileNs(r.persist_ns, 0.5)},
+                    {"publish", percentileNs(r.publish_ns, 0.5)}}}};
   }
   writeJsonFile(options_.process.stats_json,
                 {{"name", "calibration_engine"},

@@ -275,5 +275,50 @@ TEST_F(HostFixture, WithoutPersistenceNothingIsWrittenAndEveryVersionIsHandedOnO
   EXPECT_EQ(host.unknownKeys(), 2u);
 }
 
+// The engine's own share of the latency path (EngineProcess's stats): from receiving the sample that made a reading
+// pairable to its version handed on, measured once per such version by the host's clock, and equal to its parts.
+TEST_F(HostFixture, TheEnginesOwnShareIsMeasuredFromTheDecidingSample) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  std::int64_t now = 0;  // the host's clock: set per sample, a random delay after its receive time
+  std::uniform_int_distribution<std::int64_t> delay_ns(1000, 900000);
+  std::vector<std::int64_t> delays;
+  EngineHost host(config, {false, [&] { return now; }}, nullptr);
+  struct Sink {
+    EngineHost& h;
+    const CellRobot& r;
+    std::int64_t& now;
+    std::int64_t delay = 0;
+    void onJointState(const JointSample& s, std::int64_t t) {
+      now = t + delay;
+      h.onJointState(r.robot_id, s, t);
+    }
+    void onTrackerSample(const TrackerSample& s, std::int64_t t) {
+      now = t + delay;
+      h.onTrackerSample(r.target_id, s, t);
+    }
+    void process(std::int64_t t) {
+      now = t;
+      h.tick(t);
+    }
+  } sink{host, robot, now};
+  Stream st{sim, rng};
+  for (const auto& q : sim.randomConfigurations(20, rng)) {
+    st.advance(60);
+    sink.delay = delay_ns(rng);
+    const std::uint64_t before = host.updates();
+    st.feed(sink, q, st.reading(q));
+    if (host.updates() != before) delays.push_back(sink.delay);
+  }
+  const EngineHost::Robot& r = host.robots().at(robot.robot_id);
+  ASSERT_GT(delays.size(), 0u);
+  ASSERT_EQ(r.decided_ns.size(), delays.size()) << "one measure per version made on a sample's arrival";
+  for (size_t k = 0; k < delays.size(); ++k) {
+    EXPECT_EQ(r.decided_ns[k], delays[k]);
+    EXPECT_EQ(r.queued_ns[k] + r.process_ns[k] + r.persist_ns[k] + r.publish_ns[k], r.decided_ns[k]);
+  }
+}
+
 }  // namespace
 }  // namespace cellcal

@@ -26,8 +26,8 @@ for round in $(seq "$rounds"); do
   done
 done
 echo "durability bench: demo cell, ${duration} s per run, ${rounds} runs of each engine.durability, alternating"
-printf '  %-9s %-4s %8s %14s %14s %16s %16s %15s\n' durability run updates "state p50_us" "state p99_us" \
-  "paired p99_us" "update p99_us" "verify_last_mm"
+printf '  %-9s %-4s %8s %14s %14s %16s %16s %14s %14s %15s\n' durability run updates "state p50_us" "state p99_us" \
+  "paired p99_us" "update p99_us" "own p50_us" "own p99_us" "verify_last_mm"
 for round in $(seq "$rounds"); do
   for mode in journal snapshot; do
     node -e '
@@ -38,13 +38,18 @@ const f = (x, w) => String(x).padStart(w);
 console.log(`  ${process.argv[3].padEnd(9)} ${process.argv[4].padEnd(4)} ${f(s.calibration_updates, 8)} ` +
   `${f(s.latency_us.tracker_to_state_p50.toFixed(0), 14)} ${f(s.latency_us.tracker_to_state_p99.toFixed(0), 14)} ` +
   `${f((er.pairing_latency_p99_ns / 1e3).toFixed(0), 16)} ${f((er.update_latency_p99_ns / 1e3).toFixed(0), 16)} ` +
-  `${f(r.verify_after_last_update_mm.toFixed(4), 15)}`);' "$out/${mode}_$round.json" \
+  `${f((er.decided_to_published_p50_ns / 1e3).toFixed(0), 14)} ${f((er.decided_to_published_p99_ns / 1e3).toFixed(0), 14)} ` +
+  `${f(r.verify_after_last_update_mm.toFixed(4), 15)}`);
+const p = er.decided_to_published_parts_p50_ns, us = (x) => (x / 1e3).toFixed(0);
+console.log(`            own p50 in parts: queued ${us(p.queued)}, pair and update ${us(p.process)}, ` +
+  `save ${us(p.persist)}, convert and publish ${us(p.publish)} us`);' "$out/${mode}_$round.json" \
       "$out/run_${mode}_$round/calibration_engine.stats.json" "$mode" "$round"
   done
 done
 echo "  state: tracker reading stamped -> its CalibrationState received (the launcher); paired: reading stamped -> paired"
 echo "  in the engine (its DDS transport and the wait for the joint state after it: one joint period, 1 ms at 1 kHz);"
-echo "  update: the engine's update of one pose (the state saved and published after it)"
+echo "  update: the engine's update of one pose; own: the engine's own share, from receiving the sample that made a"
+echo "  reading pairable (the joint state after it) to its version saved and published"
 "$build/bin/cellcal_bench" --benchmark_filter=BM_EnginePose --benchmark_repetitions=5 \
   --benchmark_report_aggregates_only=true 2>&1 | grep -E "Benchmark|median"
 echo "  BM_EnginePose/N: 0 in memory, 1 JSON snapshot per pose, 2 with fsync, 3 journal record per pose, 4 with fsync"

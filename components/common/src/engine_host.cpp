@@ -23,11 +23,13 @@ void push(std::deque<std::int64_t>& d, std::int64_t v) {
 
 }  // namespace
 
-std::uint64_t p99(const std::deque<std::int64_t>& v) {
+std::uint64_t percentileNs(const std::deque<std::int64_t>& v, double p) {
   if (v.empty()) return 0;
-  const double x = percentile(std::vector<double>(v.begin(), v.end()), 0.99);
+  const double x = percentile(std::vector<double>(v.begin(), v.end()), p);
   return static_cast<std::uint64_t>(std::max(0.0, x));
 }
+
+std::uint64_t p99(const std::deque<std::int64_t>& v) { return percentileNs(v, 0.99); }
 
 EngineHost::EngineHost(const CellConfig& cell, Options options, OnUpdate on_update)
     : options_(std::move(options)), on_update_(std::move(on_update)) {
@@ -60,7 +62,7 @@ bool EngineHost::onJointState(const std::string& robot_id, const JointSample& s,
     return false;
   }
   it->second.engine->onJointState(s, receive_ns);
-  step(it->second, receive_ns);
+  step(it->second, receive_ns, true);
   return true;
 }
 
@@ -71,12 +73,12 @@ bool EngineHost::onTrackerSample(const std::string& target_id, const TrackerSamp
     return false;
   }
   it->second->engine->onTrackerSample(s, receive_ns);
-  step(*it->second, receive_ns);
+  step(*it->second, receive_ns, true);
   return true;
 }
 
 void EngineHost::tick(std::int64_t now_ns) {
-  for (auto& [id, r] : robots_) step(r, now_ns);
+  for (auto& [id, r] : robots_) step(r, now_ns, false);
 }
 
 void EngineHost::tickIfDue(std::int64_t now_ns) {
@@ -86,17 +88,29 @@ void EngineHost::tickIfDue(std::int64_t now_ns) {
 }
 
 // Pairs and updates; the state file holds every change before a new version is handed on (the latency path).
-void EngineHost::step(Robot& r, std::int64_t now_ns) {
+void EngineHost::step(Robot& r, std::int64_t now_ns, bool arrival) {
   const std::uint64_t before = r.engine->counters().paired;
+  const std::int64_t t0 = options_.clock();
   const bool changed = r.engine->process(now_ns);
-  if (r.engine->counters().paired != before) {
+  const std::int64_t t1 = options_.clock();
+  const bool paired = r.engine->counters().paired != before;
+  if (paired) {
     push(r.pairing_ns, options_.clock() - r.engine->snapshot().last_measurement_stamp_ns);
     push(r.update_ns, r.engine->lastUpdateDurationNs());
   }
   if (r.store && r.engine->stateRevision() != r.saved_revision) persist(r);
+  const std::int64_t t2 = options_.clock();
   if (changed) {
     ++updates_;
     if (on_update_) on_update_(r);
+    if (paired && arrival) {
+      const std::int64_t t3 = options_.clock();
+      push(r.decided_ns, t3 - now_ns);
+      push(r.queued_ns, t0 - now_ns);
+      push(r.process_ns, t1 - t0);
+      push(r.persist_ns, t2 - t1);
+      push(r.publish_ns, t3 - t2);
+    }
   }
   // After publishing: the snapshot rewritten once the journal has grown (off the latency path of this version).
   if (r.store && r.store->compactionDue()) {

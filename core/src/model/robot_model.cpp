@@ -1,7 +1,6 @@
 #include "cellcal/core/model/robot_model.hpp"
 
 #include <cmath>
-#include <sstream>
 
 #include "cellcal/core/model/se3.hpp"
 
@@ -20,17 +19,19 @@ bool RobotModel::isLength(int index) const {
   return ((index - 5 * n) % 6) < 3;
 }
 
+// Built by concatenation: the engine names every parameter in each CalibrationState it publishes (latency path), and
+// a stream per name cost about 1 us.
 std::string RobotModel::paramName(int index) const {
   const int n = numJoints();
-  std::ostringstream s;
+  std::string s;
   if (index < 5 * n) {
-    s << "joint" << index / 5 + 1 << "." << kJointNames[index % 5];
+    s = "joint" + std::to_string(index / 5 + 1) + "." + kJointNames[index % 5];
   } else {
     const int k = index - 5 * n;
-    s << (k < 6 ? "base." : "tool.") << kFrameNames[k % 6];
+    s = std::string(k < 6 ? "base." : "tool.") + kFrameNames[k % 6];
   }
-  s << (isLength(index) ? "_m" : "_rad");
-  return s.str();
+  s += isLength(index) ? "_m" : "_rad";
+  return s;
 }
 
 std::string RobotModel::paramNameHuman(int index) const {

@@ -2,7 +2,8 @@
 // robot of the cell file, joint states dispatched by robot_id and tracker readings by target_id, every robot polled
 // at least every kTickPeriod (a reading whose joint state never comes times out), each robot's state saved after every
 // change before the new version is handed on (EngineHost::OnUpdate: publish it; a journal record by default,
-// core/engine/state_journal.hpp), fsyncs left to the caller's own thread, and the latencies of pairing and update.
+// core/engine/state_journal.hpp), fsyncs left to the caller's own thread, and the latencies of pairing, update and
+// the engine's own share of the path.
 //
 // The engine process drives it from its worker thread (components/calibration_engine); `cellcal validate` drives it
 // over a recording in log order: one piece of code decides what both publish.
@@ -41,7 +42,13 @@ class EngineHost {
     bool restored = false;             // resumed from its state file
     std::string persist_error;         // the last failed write of the state file; empty once one succeeds again
     std::uint64_t persist_failures = 0;
-    std::deque<std::int64_t> pairing_ns, update_ns;  // recent latencies: reading stamp -> paired, update duration
+    // Recent latencies: reading stamp -> paired (the wait for the joint state after it included); the update alone;
+    // and the engine's own share, from receiving the sample that made a reading pairable (the joint state after it,
+    // or the reading itself) to the new version handed to OnUpdate (published) with its state saved.
+    std::deque<std::int64_t> pairing_ns, update_ns, decided_ns;
+    // decided_ns in its parts: waiting for the caller's thread (sample received -> step), pairing and updating
+    // (CalibrationEngine::process), saving the state, handing the version on (OnUpdate: converting and publishing).
+    std::deque<std::int64_t> queued_ns, process_ns, persist_ns, publish_ns;
     std::uint64_t saved_revision = 0;  // the engine's state revision last written (or tried: retried on the next change)
     bool unsynced = false;             // saved since the last takeUnsynced()
   };
@@ -78,7 +85,8 @@ class EngineHost {
   std::uint64_t updates() const { return updates_; }
 
  private:
-  void step(Robot& r, std::int64_t now_ns);
+  // arrival: now_ns is the receive time of the sample that caused this step (not a tick).
+  void step(Robot& r, std::int64_t now_ns, bool arrival);
   void persist(Robot& r);
 
   Options options_;
@@ -89,7 +97,8 @@ class EngineHost {
   std::int64_t next_tick_ns_ = 0;
 };
 
-// The 99th percentile of recent latencies (0 when none), ns.
+// The percentile p (0.5: the median) of recent latencies (0 when none), ns; p99 the 99th.
+std::uint64_t percentileNs(const std::deque<std::int64_t>& v, double p);
 std::uint64_t p99(const std::deque<std::int64_t>& v);
 
 }  // namespace cellcal::components
