@@ -262,6 +262,10 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
                 d.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);
     if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
     if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
+    if (after.rows_left_out > 0)
+      std::printf("%d identification row(s) before the backlash joint first moved in this set-up left out of the fit "
+                  "(which side of the gap it rested on is unknown); they are predicted at the middle of the gap\n",
+                  after.rows_left_out);
     printErrorsAndGrossErrors(ib, ia, vb, va, vbk, vak, ident_out, verify_out, outliers.threshold, in);
     const std::string why = unusableFit(vbk, vak, iak);
     if (!why.empty()) unusable += (unusable.empty() ? "" : "; ") + ("set-up " + std::to_string(s + 1) + ": " + why);
@@ -269,6 +273,7 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
     for (int k = 0; k < 12; ++k) frames[robot.paramNameHuman(f0 + k)] = robot.toHuman(f0 + k, fit.params[s][f0 + k]);
     per.push_back({{"data", files[s]}, {"rows", in.file.rows.size()}, {"measurement", in.measurementJson()},
                    {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", in.modelErrorJson()},
+                   {"rows_left_out_backlash", after.rows_left_out},
                    {"identification", {{"before", errorStatsJson(ib)}, {"after", errorStatsJson(ia)}}},
                    {"verification", {{"before", errorStatsJson(vb)}, {"after", errorStatsJson(va)}}},
                    {"verification_without_outliers", {{"before", errorStatsJson(vbk)}, {"after", errorStatsJson(vak)}}},

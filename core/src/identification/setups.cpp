@@ -29,9 +29,6 @@ bool SetupsProblem::IsValid(std::string* error) const {
       if (drivers[s].size() != observations[s].size())
         return fail("set-up " + std::to_string(s + 1) + ": one driver per observation");
     for (const Extension& e : extensions) {
-      if (e.cause == Cause::kBacklash)
-        return fail(extensionSpec(e) + ": several set-ups take extensions linear in their parameters; a backlash's "
-                    "basis depends on its width (calibrate each set-up with it, or carry its file with --frames-only)");
       if (e.cause == Cause::kThermalDrift && e.time_constant_h == 0)
         for (const auto& d : drivers)
           for (const auto& x : d)
@@ -63,15 +60,35 @@ Eigen::VectorXd setupParams(const RobotModel& m, const Eigen::VectorXd& x, size_
 
 // The extension basis of every row, with the geometry of its set-up's start, as fitExtended takes it: fixed during the
 // fit, so computed once (empty without extensions).
+// A backlash's basis is the play state, which depends on its width: taken at `widths` (the extension parameters the
+// basis is evaluated at; zero: the direction the joint last moved).
 using Bases = std::vector<std::vector<Eigen::MatrixXd>>;
-Bases basesAtStart(const SetupsProblem& pr) {
+Bases basesAtStart(const SetupsProblem& pr, const Eigen::VectorXd& widths) {
   Bases b(pr.observations.size());
   if (pr.extensions.empty()) return b;
   for (size_t s = 0; s < pr.observations.size(); ++s)
     for (size_t i = 0; i < pr.observations[s].size(); ++i)
       b[s].push_back(extensionBasis(*pr.model, pr.starts[s], pr.extensions, pr.observations[s][i].q_rad,
-                                    pr.drivers[s][i], Eigen::VectorXd()));
+                                    pr.drivers[s][i], widths));
   return b;
+}
+
+bool hasBacklash(const std::vector<Extension>& extensions) {
+  return std::any_of(extensions.begin(), extensions.end(), [](const Extension& e) { return e.cause == Cause::kBacklash; });
+}
+
+// The rows of a set-up whose play state is known for every backlash joint (the joint has moved since the set-up's
+// data began): which side of the gap a joint that has not moved yet rests on is unknown to anyone.
+std::vector<int> rowsWithKnownPlay(const std::vector<Extension>& extensions, const std::vector<Drivers>& drivers) {
+  std::vector<int> rows;
+  for (size_t i = 0; i < drivers.size(); ++i) {
+    bool known = true;
+    for (const auto& e : extensions)
+      if (e.cause == Cause::kBacklash)
+        known = known && drivers[i].motion_direction.size() > e.joint && drivers[i].motion_direction[e.joint] != 0.0;
+    if (known) rows.push_back(static_cast<int>(i));
+  }
+  return rows;
 }
 
 // Stacked whitened residual and state Jacobian over every set-up's rows.
@@ -114,6 +131,27 @@ void stack(const SetupsProblem& pr, const Bases& bases, const Eigen::VectorXd& x
 SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   std::string err;
   if (!pr.IsValid(&err)) throw std::invalid_argument("fitSetups: " + err);
+  if (hasBacklash(pr.extensions)) {  // rows of an unknown play state do not take part (as in fitExtended)
+    SetupsProblem kept = pr;
+    std::vector<int> left_out(pr.observations.size(), 0);
+    bool any = false;
+    for (size_t s = 0; s < pr.observations.size(); ++s) {
+      const std::vector<int> rows = rowsWithKnownPlay(pr.extensions, pr.drivers[s]);
+      left_out[s] = static_cast<int>(pr.observations[s].size() - rows.size());
+      if (left_out[s] == 0) continue;
+      any = true;
+      if (rows.size() < 4)
+        throw std::invalid_argument("fitSetups: set-up " + std::to_string(s + 1) +
+                                    ": fewer than 4 rows with a known backlash play state");
+      kept.observations[s] = subset(pr.observations[s], rows);
+      kept.drivers[s] = subset(pr.drivers[s], rows);
+    }
+    if (any) {
+      SetupsFit fit = fitSetups(kept, options);
+      fit.rows_left_out = left_out;
+      return fit;
+    }
+  }
   const RobotModel& m = *pr.model;
   const int np = m.numParams(), n_ext = numExtensionParams(m, pr.extensions);
   Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
@@ -123,7 +161,8 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   // last: a base of set-up 2 never replaces a kinematic parameter).
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
-  const Bases bases = basesAtStart(pr);
+  Eigen::VectorXd widths = Eigen::VectorXd::Zero(n_ext);  // the extension parameters the bases are evaluated at
+  Bases bases = basesAtStart(pr, widths);
   stack(pr, bases, x, r, &J);
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
@@ -150,37 +189,56 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
     stack(pr, bases, state, rr, nullptr);
     return rr.squaredNorm();
   };
-  double c0 = r.squaredNorm(), lambda = 1e-3;
-  for (out.iterations = 1; out.iterations <= options.max_iterations; ++out.iterations) {
-    stack(pr, bases, x, r, &J);
-    Eigen::MatrixXd Js(J.rows(), ne);
-    for (Eigen::Index k = 0; k < ne; ++k) Js.col(k) = J.col(out.estimated[static_cast<size_t>(k)]);
-    const Eigen::VectorXd scale = Js.colwise().norm().transpose().cwiseMax(1e-300).cwiseInverse();
-    Js = Js * scale.asDiagonal();
-    const Eigen::MatrixXd H = Js.transpose() * Js;
-    const Eigen::VectorXd g = Js.transpose() * r;
-    bool accepted = false;
-    Eigen::VectorXd step;
-    for (int tries = 0; tries < 12 && !accepted; ++tries) {
-      Eigen::MatrixXd A = H;
-      A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
-      step = A.ldlt().solve(g);
-      Eigen::VectorXd trial = x;
-      for (Eigen::Index k = 0; k < ne; ++k) trial[out.estimated[static_cast<size_t>(k)]] += scale[k] * step[k];
-      const double c1 = cost(trial);
-      if (std::isfinite(c1) && c1 <= c0) {
-        x = trial;
-        c0 = c1;
-        lambda = std::max(lambda / 10, 1e-9);
-        accepted = true;
-      } else {
-        lambda *= 10;
+  double c0 = r.squaredNorm();
+  // Levenberg-Marquardt from x on the current bases, columns scaled; adds its iterations to out.iterations.
+  auto solve = [&] {
+    double lambda = 1e-3;
+    out.converged = false;
+    int iteration = 1;
+    for (; iteration <= options.max_iterations; ++iteration) {
+      stack(pr, bases, x, r, &J);
+      Eigen::MatrixXd Js(J.rows(), ne);
+      for (Eigen::Index k = 0; k < ne; ++k) Js.col(k) = J.col(out.estimated[static_cast<size_t>(k)]);
+      const Eigen::VectorXd scale = Js.colwise().norm().transpose().cwiseMax(1e-300).cwiseInverse();
+      Js = Js * scale.asDiagonal();
+      const Eigen::MatrixXd H = Js.transpose() * Js;
+      const Eigen::VectorXd g = Js.transpose() * r;
+      bool accepted = false;
+      Eigen::VectorXd step;
+      for (int tries = 0; tries < 12 && !accepted; ++tries) {
+        Eigen::MatrixXd A = H;
+        A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
+        step = A.ldlt().solve(g);
+        Eigen::VectorXd trial = x;
+        for (Eigen::Index k = 0; k < ne; ++k) trial[out.estimated[static_cast<size_t>(k)]] += scale[k] * step[k];
+        const double c1 = cost(trial);
+        if (std::isfinite(c1) && c1 <= c0) {
+          x = trial;
+          c0 = c1;
+          lambda = std::max(lambda / 10, 1e-9);
+          accepted = true;
+        } else {
+          lambda *= 10;
+        }
+      }
+      if (!accepted || step.norm() < options.step_tolerance) {
+        out.converged = true;
+        break;
       }
     }
-    if (!accepted || step.norm() < options.step_tolerance) {
-      out.converged = true;
-      break;
-    }
+    out.iterations += iteration;
+  };
+  solve();
+  // A backlash basis depends on its own width: re-evaluated at the fitted width and solved again until the width
+  // settles (the fixed point fitExtended iterates to).
+  for (int pass = 0; pass < 8 && hasBacklash(pr.extensions); ++pass) {
+    const Eigen::VectorXd e = x.tail(n_ext);
+    const Eigen::VectorXd moved = e.cwiseAbs() - widths.cwiseAbs();
+    if ((moved.array().abs() <= 1e-3 * e.array().abs() + 1e-12).all()) break;
+    widths = e;
+    bases = basesAtStart(pr, widths);
+    c0 = cost(x);
+    solve();
   }
   if (!out.converged) out.message = "maximum iterations reached";
   const int rows = static_cast<int>(r.size());
@@ -198,6 +256,7 @@ ExtendedFit setupFit(const SetupsProblem& pr, const SetupsFit& fit, size_t s) {
   f.extension_names = extensionParamNames(*pr.model, pr.extensions);
   f.converged = fit.converged;
   f.iterations = fit.iterations;
+  f.rows_left_out = fit.rows_left_out.empty() ? 0 : fit.rows_left_out.at(s);
   return f;
 }
 

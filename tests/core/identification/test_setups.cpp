@@ -45,6 +45,45 @@ std::vector<Observation> addSetUp(const RobotModel& robot, const SimulatedCell& 
   return check;
 }
 
+// Both solvers run to a tight step tolerance: a one-set-up comparison is of their optima, not of where each stopped
+// (at the default 1e-9 they differed by up to 1.2 um: CELLCAL_TEST_SEED=9585788424224239527).
+SolverOptions tightSolver() {
+  SolverOptions tight;
+  tight.step_tolerance = 1e-12;
+  tight.max_iterations = 200;
+  return tight;
+}
+
+// The mean position error of set-up s's model under `fit` at fresh configurations (their true poses).
+double meanExtendedError(const RobotModel& robot, const SetupsProblem& pr, const SetupsFit& fit, size_t s,
+                         const std::vector<Observation>& fresh, const std::vector<Drivers>& drivers) {
+  double sum = 0;
+  for (const auto& r : positionResiduals(robot, setupFit(pr, fit, s), fresh, drivers)) sum += r.norm();
+  return sum / static_cast<double>(fresh.size());
+}
+
+// One set-up against its plain reference, fitExtended on the same rows and drivers: the same estimated columns and
+// rows left out, predictions within a micrometre at the fresh configurations.
+void expectAsFitExtended(const RobotModel& robot, const SetupsProblem& extended, const SetupsFit& x,
+                         const std::vector<Observation>& fresh, const std::vector<Drivers>& drivers,
+                         const std::string& what) {
+  const ExtendedFit own = fitExtended(robot, extended.starts[0], extended.observations[0], extended.drivers[0],
+                                      extended.extensions, tightSolver());
+  ASSERT_TRUE(own.converged) << what;
+  EXPECT_EQ(x.rows_left_out.empty() ? 0 : x.rows_left_out[0], own.rows_left_out) << what;
+  const auto a = positionResiduals(robot, setupFit(extended, x, 0), fresh, drivers);
+  const auto b = positionResiduals(robot, own, fresh, drivers);
+  double worst = 0;
+  for (size_t i = 0; i < a.size(); ++i) worst = std::max(worst, (a[i] - b[i]).norm());
+  EXPECT_LT(worst, 1e-6) << what;
+  std::vector<int> kinematic_and_frames;  // the state's columns below the extension parameters
+  for (int c : x.estimated)
+    if (c < robot.numParams()) kinematic_and_frames.push_back(c);
+  std::sort(kinematic_and_frames.begin(), kinematic_and_frames.end());
+  EXPECT_EQ(kinematic_and_frames, own.estimated) << what;
+  EXPECT_EQ(x.estimated_extension, own.estimated_extension) << what;
+}
+
 // One set-up: the plain reference is the single-set-up calibration (fitExtended, geometric) on the same rows; the
 // two agree to a micrometre at fresh configurations. Two or three: judged against the true poses at fresh
 // configurations, the joint fit is better than the set-ups' own calibrations on average over the run (more rows for
@@ -145,44 +184,101 @@ TEST(Setups, AnExtensionIsCommonToEverySetUp) {
     }
     SetupsProblem extended = geometric;
     extended.extensions = {ext};
-    // Both solvers run to a tight step tolerance: the one-set-up comparison is of their optima, not of where each
-    // stopped (at the default 1e-9 they differed by up to 1.2 um: CELLCAL_TEST_SEED=9585788424224239527).
-    SolverOptions tight;
-    tight.step_tolerance = 1e-12;
-    tight.max_iterations = 200;
-    const SetupsFit g = fitSetups(geometric, tight), x = fitSetups(extended, tight);
+    const SetupsFit g = fitSetups(geometric, tightSolver()), x = fitSetups(extended, tightSolver());
     ASSERT_TRUE(g.converged && x.converged) << what;
     ASSERT_EQ(x.extension_params.size(), numExtensionParams(robot, extended.extensions)) << what;
     EXPECT_FALSE(x.estimated_extension.empty()) << what;
     double e_g = 0, e_x = 0;
     for (int s = 0; s < setups; ++s) {
-      ExtendedFit fx;
-      fx.extensions = extended.extensions;
-      fx.params = x.params[s];
-      fx.extension_params = x.extension_params;
       const std::vector<Drivers> none(fresh[s].size());
-      double sum = 0;
-      for (const auto& r : positionResiduals(robot, fx, fresh[s], none)) sum += r.norm();
-      e_x += sum / static_cast<double>(fresh[s].size()) / setups;
+      e_x += meanExtendedError(robot, extended, x, s, fresh[s], none) / setups;
       e_g += meanError(robot, g.params[s], fresh[s]) / setups;
-      if (setups == 1) {
-        const ExtendedFit own = fitExtended(robot, geometric.starts[0], geometric.observations[0], geometric.drivers[0],
-                                            extended.extensions, tight);
-        ASSERT_TRUE(own.converged) << what;
-        const auto a = positionResiduals(robot, fx, fresh[0], none), b = positionResiduals(robot, own, fresh[0], none);
-        double worst = 0;
-        for (size_t i = 0; i < a.size(); ++i) worst = std::max(worst, (a[i] - b[i]).norm());
-        EXPECT_LT(worst, 1e-6) << what;
-        std::vector<int> kinematic_and_frames;  // the state's columns below the extension parameters
-        for (int c : x.estimated)
-          if (c < robot.numParams()) kinematic_and_frames.push_back(c);
-        std::sort(kinematic_and_frames.begin(), kinematic_and_frames.end());
-        EXPECT_EQ(kinematic_and_frames, own.estimated) << what;
-        EXPECT_EQ(x.estimated_extension, own.estimated_extension) << what;
-      }
+      if (setups == 1) expectAsFitExtended(robot, extended, x, fresh[0], none, what);
     }
     std::printf("  %-62s fresh mean: extended %.4f mm, geometric %.4f mm\n", what.c_str(), e_x * 1e3, e_g * 1e3);
     if (setups > 1) {
+      EXPECT_LT(e_x, e_g) << what;
+    }
+  }
+}
+
+// A backlash is the robot's too, and its basis (the play state) depends on its width: a hidden backlash of random
+// width (0.2-1.2 mrad) on a random joint 1-5, random robot, placement and measurement type; each set-up a path of
+// stand-stills (the play state carried along it) whose first rows identify and the rest are fresh configurations,
+// judged against their true poses. One set-up: the plain reference is fitExtended on the same rows and drivers (the
+// same estimated columns and rows left out, predictions within a micrometre). Two or three: the width within a
+// quarter of the truth (joints 1-3, the arm), and the extended fit beats the geometric one at the fresh
+// configurations in every draw. Every set-up leaves out its rows before its backlash joint first moved.
+TEST(Setups, ABacklashIsCommonToEverySetUp) {
+  const std::uint64_t seed = test::testSeed();
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int draw = 0; draw < 6; ++draw) {
+    SimulationConfig sc = test::randomPlacement(rng);
+    const RobotModel robot = test::robot(draw % 2 ? "ur10" : "staubli_tx60");
+    const MeasurementKind kind = draw % 4 < 2 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+    sc.hidden.cause = Cause::kBacklash;
+    sc.hidden.joint = static_cast<int>(rng() % 5);
+    sc.hidden.backlash_width_rad = 2e-4 + 1e-3 * u(rng);
+    const int setups = draw < 2 ? 1 : 2 + draw % 2;
+    const Extension ext{Cause::kBacklash, sc.hidden.joint};
+    const std::string what = robot.name + (kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", backlash:" +
+                             std::to_string(sc.hidden.joint + 1) + " " + std::to_string(sc.hidden.backlash_width_rad * 1e3) +
+                             " mrad, " + std::to_string(setups) + " set-ups, seed " + std::to_string(seed) + " draw " +
+                             std::to_string(draw);
+    SetupsProblem geometric;
+    geometric.model = &robot;
+    std::vector<std::vector<Observation>> fresh;
+    std::vector<std::vector<Drivers>> fresh_drivers;
+    for (int s = 0; s < setups; ++s) {
+      const SimulatedCell cell(robot, s == 0 ? sc : test::trackerMoved(sc, rng));
+      const int n = 40 + static_cast<int>(30 * u(rng));
+      const auto qs = cell.randomConfigurations(n + 60, rng);
+      const DriverTable d = driversFromSequence(qs, {}, {});
+      std::vector<Observation> ident, check;
+      HiddenJointState state;
+      for (size_t i = 0; i < qs.size(); ++i) {
+        if (i) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
+        if (static_cast<int>(i) < n) {
+          ident.push_back(cell.measure(qs[i], &state, 0.0, rng, kind));
+        } else {
+          Observation o;
+          o.q_rad = qs[i];
+          o.kind = kind;
+          o.measured_in_tracker = cell.truePose(qs[i], 0.0, &state);
+          check.push_back(o);
+        }
+      }
+      Eigen::VectorXd start = robot.nominal;
+      start.tail<12>().setZero();
+      geometric.starts.push_back(registerFrames(robot, start, ident).params);
+      geometric.observations.push_back(ident);
+      geometric.drivers.emplace_back(d.rows.begin(), d.rows.begin() + n);
+      fresh.push_back(check);
+      fresh_drivers.emplace_back(d.rows.begin() + n, d.rows.end());
+    }
+    SetupsProblem extended = geometric;
+    extended.extensions = {ext};
+    const SetupsFit g = fitSetups(geometric, tightSolver()), x = fitSetups(extended, tightSolver());
+    ASSERT_TRUE(g.converged && x.converged) << what;
+    ASSERT_EQ(x.rows_left_out.size(), static_cast<size_t>(setups)) << what;
+    ASSERT_EQ(x.estimated_extension, std::vector<int>{0}) << what;
+    double e_g = 0, e_x = 0;
+    for (int s = 0; s < setups; ++s) {
+      EXPECT_GE(x.rows_left_out[s], 1) << what << ": the first row's play state is unknown";
+      e_x += meanExtendedError(robot, extended, x, s, fresh[s], fresh_drivers[s]) / setups;
+      e_g += meanError(robot, g.params[s], fresh[s]) / setups;
+      if (setups == 1) expectAsFitExtended(robot, extended, x, fresh[0], fresh_drivers[0], what);
+    }
+    std::printf("  %-62s width %.4f mrad (true %.4f), fresh mean: extended %.4f mm, geometric %.4f mm\n", what.c_str(),
+                -x.extension_params[0] * 1e3, sc.hidden.backlash_width_rad * 1e3, e_x * 1e3, e_g * 1e3);
+    if (setups > 1) {
+      // Joints 1-3 move the target through the arm (>= 0.3 m): the width to a quarter. A wrist joint moves it through
+      // the wrist-to-target offset only, where 0.2 mrad is 10-20 um, below the readings' noise (seed 959142572:
+      // joint 5, 0.141 mrad for 0.201; seed 307381180: TX60 joint 4, 0.275 for 0.213); there the fresh error alone
+      // is judged.
+      if (sc.hidden.joint < 3)
+        EXPECT_NEAR(-x.extension_params[0], sc.hidden.backlash_width_rad, 0.25 * sc.hidden.backlash_width_rad) << what;
       EXPECT_LT(e_x, e_g) << what;
     }
   }

@@ -11,9 +11,10 @@
 // Model extensions (model_extension.hpp) are the robot's, so their parameters e are common to every set-up and come
 // last in the state: a row of set-up s is predicted at p_s + B e and its e columns are J B, with B the basis at set-up
 // s's start (fixed during the fit, as in fitExtended; a prediction afterwards takes it at the solution). The
-// extension columns have the lowest priority (as in fitExtended). Only extensions linear in e with their basis known
-// before the fit: no backlash (its basis depends on its width) and no thermal drift on a time driver without its
-// warm-up time constant (fitExtended searches it); IsValid says so.
+// extension columns have the lowest priority (as in fitExtended). A backlash's basis depends on its width: as in
+// fitExtended, it is re-evaluated at the fitted width until the width settles, and a set-up's rows whose play state
+// is unknown (the joint has not moved since the set-up's data began) do not take part (`rows_left_out`). No thermal
+// drift on a time driver without its warm-up time constant (fitExtended searches it); IsValid says so.
 #pragma once
 
 #include <Eigen/Core>
@@ -52,6 +53,7 @@ struct SetupsFit {
   Eigen::VectorXd extension_params;     // common to every set-up (numExtensionParams(model, extensions))
   std::vector<int> estimated_extension; // extension parameters estimated (others held at 0), ascending
   double cost_per_row = 0;              // final sum of squared whitened residuals over the rows
+  std::vector<int> rows_left_out;       // per set-up (empty: none): rows of an unknown backlash play state
 };
 
 // Throws std::invalid_argument when !problem.IsValid.
