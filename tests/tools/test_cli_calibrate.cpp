@@ -92,7 +92,7 @@ std::pair<int, std::string> calibrateSetUps(const std::string& dir, const std::s
 // Several set-ups with a model extension (--model): the robot's joint 2 compliance (a UR10, UR's masses in its robot
 // file) drawn at random in size and sign, measured from two tracker placements. One compliance for both set-ups; each
 // set-up's verification error below the geometric joint fit's; the saved file carries the extension and its value;
-// --model auto is refused, saying why.
+// --model auto finds the same model in each set-up and fits it.
 TEST(CliCalibrate, SeveralSetUpsShareOneExtendedModel) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
@@ -141,9 +141,28 @@ TEST(CliCalibrate, SeveralSetUpsShareOneExtendedModel) {
   ASSERT_EQ(saved.calibration->extension_params.size(), 1);
   EXPECT_NEAR(saved.calibration->extension_params[0], x["extension_params"].begin()->get<double>(),
               1e-9 * std::abs(saved.calibration->extension_params[0]));
+  // --model auto: `diagnose` on each set-up's rows names the same cause, which is then fitted as if named.
   const auto [ac, alog] = calibrate("auto", "auto");
-  EXPECT_EQ(ac, 2) << alog;
-  EXPECT_NE(alog.find("--model auto is for one --data"), std::string::npos) << alog;
+  ASSERT_EQ(ac, 0) << alog;
+  EXPECT_NE(alog.find("--model auto: every set-up names joint_compliance joint 2"), std::string::npos) << alog;
+  EXPECT_EQ(readJson(dir + "/auto.json")["extension_params"], x["extension_params"]) << alog;
+  // A set-up of another robot without the compliance beside the first: the set-ups name different models, and the
+  // user is asked to name one.
+  {
+    SimulationConfig plain_sc;
+    plain_sc.seed = seed + 1;
+    const SimulatedCell cell(model, placement(plain_sc, 1, rng));
+    MeasurementFile f;
+    for (const auto& q : cell.randomConfigurations(120, rng)) f.rows.push_back(measuredRow(q, cell.measure(q, 0.0, rng)));
+    std::ofstream out(dir + "/plain.csv");
+    writeMeasurementCsv(out, f, 6, "simulated UR10 without a hidden effect");
+  }
+  const auto [dc, dlog] = calibrateSetUps(dir, "differ", ur10, {files[0], dir + "/plain.csv"}, "auto");
+  EXPECT_EQ(dc, 2) << dlog;
+  EXPECT_NE(dlog.find("--model auto: the set-ups name different models (set-up 1: joint_compliance joint 2; set-up 2: "
+                      "geometric)"),
+            std::string::npos)
+      << dlog;
 }
 
 // A backlash in several set-ups: joint 2's play (0.3-1.0 mrad, drawn at random) carried along each set-up's path of

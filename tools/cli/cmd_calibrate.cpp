@@ -180,13 +180,49 @@ int failedExit(bool converged, const std::string& unusable, const std::string& s
   return 0;
 }
 
+// --model auto with several set-ups: `diagnose` on each set-up's rows (as for one file); the causes it chooses must be
+// the same in every set-up (the model is the robot's), else the user names the model (ConfigError, exit 2, with each
+// set-up's choice).
+std::vector<Extension> causesNamedInEverySetUp(const CalibrateArgs& a, const std::vector<LoadedInput>& ins) {
+  std::vector<std::string> labels;
+  std::vector<Extension> first;
+  bool same = true;
+  for (size_t s = 0; s < ins.size(); ++s) {
+    DiagnosisOptions o;
+    o.identifiability.rank_tolerance = a.rank_tolerance;
+    o.outliers = outlierOptions(a.input);
+    o.excitation_ratio = a.excitation_ratio;
+    ProgressBar bar("calibrate --model auto, set-up " + std::to_string(s + 1));
+    o.progress = [&bar](int done, int total) {
+      bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
+    };
+    const DiagnosisResult d = diagnose(ins[s].robot, ins[s].start, ins[s].data, o);
+    bar.done();
+    std::vector<Extension> chosen = d.best().fit.extensions;
+    for (auto& e : chosen) e.time_constant_h = 0;  // searched per fit; the joint fit takes the cause itself
+    auto key = [](const Extension& e) { return extensionSpec(e); };
+    std::sort(chosen.begin(), chosen.end(), [&](const Extension& x, const Extension& y) { return key(x) < key(y); });
+    labels.push_back("set-up " + std::to_string(s + 1) + ": " + (chosen.empty() ? "geometric" : modelLabel(chosen)));
+    if (s == 0) first = chosen;
+    else if (chosen.size() != first.size() ||
+             !std::equal(chosen.begin(), chosen.end(), first.begin(),
+                         [&](const Extension& x, const Extension& y) { return key(x) == key(y); }))
+      same = false;
+  }
+  std::string all;
+  for (const auto& l : labels) all += (all.empty() ? "" : "; ") + l;
+  if (!same)
+    throw ConfigError("--model auto: the set-ups name different models (" + all +
+                      "); name the one to fit with --model (a usage error, exit 2)");
+  std::printf("--model auto: every set-up names %s (diagnose on each set-up's rows)\n",
+              first.empty() ? "no cause: geometric" : modelLabel(first).c_str());
+  return first;
+}
+
 // Several set-ups (--data given again, or a file whose setup column names several): one kinematic model and one set
 // of model-extension parameters (--model: the robot's), a base and a tool frame per set-up (setups.hpp), errors per
 // set-up. Every set-up registered and split on its own.
 int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
-  if (a.model == "auto")
-    throw ConfigError("several set-ups: --model auto is for one --data (run `cellcal diagnose` on each set-up's "
-                      "file, then name the cause: --model CAUSE:JOINT; a usage error, exit 2)");
   if (a.frames_only) throw ConfigError("--frames-only takes one set-up (a usage error, exit 2)");
   std::vector<std::string> files;
   for (const auto& in : ins) files.push_back(in.name);
@@ -194,7 +230,10 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
   SetupsProblem pr;
   pr.model = &robot;
   pr.identifiability.rank_tolerance = a.rank_tolerance;
-  if (a.model != "geometric") pr.extensions = parseModel(a.model, robot);
+  if (a.model == "auto")
+    pr.extensions = causesNamedInEverySetUp(a, ins);
+  else if (a.model != "geometric")
+    pr.extensions = parseModel(a.model, robot);
   for (const auto& in : ins) {
     pr.starts.push_back(in.start);
     pr.observations.push_back(in.data.identification);
