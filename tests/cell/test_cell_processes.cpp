@@ -85,10 +85,11 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
   // A busy host reaches fewer (beside two CPU hogs, one run left 0.057 mm); then the cell is judged against the
   // in-process engine on the same poses alone, and the shortfall is reported.
   const int updates = s["calibration_updates"].get<int>();
-  if (updates >= 60)
+  if (updates >= 60) {
     EXPECT_LT(at_update, 0.05) << what;
-  else
+  } else {
     std::printf("  NOTE: the host let the program reach %d poses in 9 s; the floor is not judged\n", updates);
+  }
   EXPECT_LT(after, 1.5 * ref + 0.005) << what << ", in-process " << ref;
   const auto& r = s["robots"][0];
   // Landed error: over the run, at the time of each target (so including drift since the last update).

@@ -180,34 +180,45 @@ int failedExit(bool converged, const std::string& unusable, const std::string& s
   return 0;
 }
 
+// --model auto: `diagnose` on a file's rows with calibrate's identifiability, gross-error and excitation settings; a
+// progress bar (tens of fits on a large file; drawn only on a terminal) named `what`.
+DiagnosisResult diagnoseForAuto(const CalibrateArgs& a, const LoadedInput& in, const OutlierOptions& outliers,
+                                const std::string& what) {
+  DiagnosisOptions o;
+  o.identifiability.rank_tolerance = a.rank_tolerance;
+  o.outliers = outliers;
+  o.excitation_ratio = a.excitation_ratio;
+  ProgressBar bar(what);
+  o.progress = [&bar](int done, int total) {
+    bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
+  };
+  DiagnosisResult d = diagnose(in.robot, in.start, in.data, o);
+  bar.done();
+  return d;
+}
+
 // --model auto with several set-ups: `diagnose` on each set-up's rows (as for one file); the causes it chooses must be
 // the same in every set-up (the model is the robot's), else the user names the model (ConfigError, exit 2, with each
 // set-up's choice).
 std::vector<Extension> causesNamedInEverySetUp(const CalibrateArgs& a, const std::vector<LoadedInput>& ins) {
   std::vector<std::string> labels;
   std::vector<Extension> first;
+  std::string first_label;
   bool same = true;
   for (size_t s = 0; s < ins.size(); ++s) {
-    DiagnosisOptions o;
-    o.identifiability.rank_tolerance = a.rank_tolerance;
-    o.outliers = outlierOptions(a.input);
-    o.excitation_ratio = a.excitation_ratio;
-    ProgressBar bar("calibrate --model auto, set-up " + std::to_string(s + 1));
-    o.progress = [&bar](int done, int total) {
-      bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
-    };
-    const DiagnosisResult d = diagnose(ins[s].robot, ins[s].start, ins[s].data, o);
-    bar.done();
+    const DiagnosisResult d = diagnoseForAuto(a, ins[s], outlierOptions(a.input),
+                                              "calibrate --model auto, set-up " + std::to_string(s + 1));
     std::vector<Extension> chosen = d.best().fit.extensions;
     for (auto& e : chosen) e.time_constant_h = 0;  // searched per fit; the joint fit takes the cause itself
-    auto key = [](const Extension& e) { return extensionSpec(e); };
-    std::sort(chosen.begin(), chosen.end(), [&](const Extension& x, const Extension& y) { return key(x) < key(y); });
-    labels.push_back("set-up " + std::to_string(s + 1) + ": " + (chosen.empty() ? "geometric" : modelLabel(chosen)));
-    if (s == 0) first = chosen;
-    else if (chosen.size() != first.size() ||
-             !std::equal(chosen.begin(), chosen.end(), first.begin(),
-                         [&](const Extension& x, const Extension& y) { return key(x) == key(y); }))
-      same = false;
+    std::sort(chosen.begin(), chosen.end(),
+              [](const Extension& x, const Extension& y) { return extensionSpec(x) < extensionSpec(y); });
+    const std::string label = chosen.empty() ? "geometric" : modelLabel(chosen);
+    labels.push_back("set-up " + std::to_string(s + 1) + ": " + label);
+    if (s == 0) {
+      first = chosen;
+      first_label = label;
+    }
+    same = same && label == first_label;
   }
   std::string all;
   for (const auto& l : labels) all += (all.empty() ? "" : "; ") + l;
@@ -215,7 +226,7 @@ std::vector<Extension> causesNamedInEverySetUp(const CalibrateArgs& a, const std
     throw ConfigError("--model auto: the set-ups name different models (" + all +
                       "); name the one to fit with --model (a usage error, exit 2)");
   std::printf("--model auto: every set-up names %s (diagnose on each set-up's rows)\n",
-              first.empty() ? "no cause: geometric" : modelLabel(first).c_str());
+              first.empty() ? "no cause: geometric" : first_label.c_str());
   return first;
 }
 
@@ -437,16 +448,7 @@ int runCalibrate(const CalibrateArgs& a) {
     message = r.message;
     if (a.model != "geometric") {
       if (a.model == "auto") {
-        DiagnosisOptions o;
-        o.identifiability.rank_tolerance = a.rank_tolerance;
-        o.outliers = p.outliers;
-        o.excitation_ratio = a.excitation_ratio;
-        ProgressBar bar("calibrate --model auto");  // tens of fits on a large file; drawn only on a terminal
-        o.progress = [&bar](int done, int total) {
-          bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
-        };
-        const DiagnosisResult d = diagnose(robot, start, in.data, o);
-        bar.done();
+        const DiagnosisResult d = diagnoseForAuto(a, in, p.outliers, "calibrate --model auto");
         after = d.best().fit;
         held_after = d.best().held;
         ident_outliers = d.identification_outliers;

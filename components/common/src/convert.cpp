@@ -113,7 +113,7 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
   for (size_t k = 0; k < s.estimated_extension.size(); ++k)
     order.emplace_back(model.numParams() + s.estimated_extension[k], nk + static_cast<Eigen::Index>(k));
   std::sort(order.begin(), order.end());
-  m.parameter_correlations().reserve(order.size() * (order.size() - std::min<size_t>(order.size(), 1)) / 2);
+  m.parameter_correlations().reserve(order.size() * (order.size() - 1) / 2);  // 0 for no order: 0 * anything
   for (size_t a = 0; a < order.size(); ++a)
     for (size_t b = a + 1; b < order.size(); ++b) {
       const Eigen::Index i = order[a].second, j = order[b].second;

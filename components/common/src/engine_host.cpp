@@ -95,7 +95,7 @@ void EngineHost::step(Robot& r, std::int64_t now_ns, bool arrival) {
   const std::int64_t t1 = options_.clock();
   const bool paired = r.engine->counters().paired != before;
   if (paired) {
-    push(r.pairing_ns, options_.clock() - r.engine->snapshot().last_measurement_stamp_ns);
+    push(r.pairing_ns, t1 - r.engine->snapshot().last_measurement_stamp_ns);
     push(r.update_ns, r.engine->lastUpdateDurationNs());
   }
   if (r.store && r.engine->stateRevision() != r.saved_revision) persist(r);

@@ -33,12 +33,6 @@ std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const ExtendedFit& f
   return bases(model, fit.params, fit.extensions, obs, drivers, fit.extension_params);
 }
 
-bool hasBacklash(const std::vector<Extension>& exts) {
-  for (const auto& e : exts)
-    if (e.cause == Cause::kBacklash) return true;
-  return false;
-}
-
 // Stacked whitened residual and Jacobian [d/dparams (all), d/de (all)] of the extended model.
 void stackExtended(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& e,
                    const std::vector<Observation>& obs, const std::vector<Eigen::MatrixXd>& B, Eigen::VectorXd& r,
@@ -188,15 +182,6 @@ double searchTimeConstant(const RobotModel& model, const Eigen::VectorXd& start,
   return best_tau;
 }
 
-// Position and orientation errors of `obs` under a fit, screened.
-// Rows a model cannot predict: a backlash joint that has not moved since the data began (its play state is unknown).
-bool unpredictable(const std::vector<Extension>& exts, const Drivers& d) {
-  for (const auto& e : exts)
-    if (e.cause == Cause::kBacklash && (d.motion_direction.size() <= e.joint || d.motion_direction[e.joint] == 0.0))
-      return true;
-  return false;
-}
-
 // How far a row the fit cannot fully predict may be off without a gross error: before a backlash joint first moves
 // its play state is unknown and the model predicts the middle of the gap, up to half the width off (m, at the target).
 double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, const Observation& obs, const Drivers& d) {
@@ -205,7 +190,7 @@ double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, con
   Eigen::MatrixXd J(6, model.numParams());
   for (size_t e = 0, c = 0; e < fit.extensions.size(); c += static_cast<size_t>(numExtensionParams(model, fit.extensions[e])), ++e) {
     const Extension& x = fit.extensions[e];
-    if (x.cause != Cause::kBacklash || unpredictable({x}, d) == false) continue;
+    if (x.cause != Cause::kBacklash || playStateUnknown({x}, d) == false) continue;
     forwardKinematics(model, data, fit.params, obs.q_rad);
     computePoseJacobian(model, data, J);
     allowance += 0.5 * std::abs(fit.extension_params[static_cast<Eigen::Index>(c)]) *
@@ -226,7 +211,7 @@ OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, con
   for (size_t i = 0; i < obs.size(); ++i) {
     const Pose& T = forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad);
     all.push_back(obs[i].measured_in_tracker.translation() - T.translation());
-    if (unpredictable(fit.extensions, drivers[i])) {
+    if (playStateUnknown(fit.extensions, drivers[i])) {
       unknown.push_back(static_cast<int>(i));
       continue;
     }
@@ -306,11 +291,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   std::vector<Drivers> kept_drivers;
   int left_out = 0;
   for (size_t i = 0; i < obs.size(); ++i) {
-    bool unknown = false;
-    for (const auto& e : extensions)
-      if (e.cause == Cause::kBacklash)
-        unknown = unknown || drivers[i].motion_direction.size() <= e.joint || drivers[i].motion_direction[e.joint] == 0.0;
-    if (unknown) {
+    if (playStateUnknown(extensions, drivers[i])) {
       ++left_out;
     } else {
       kept_obs.push_back(obs[i]);
@@ -646,8 +627,8 @@ NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, con
   // A row the model cannot predict (before a backlash joint first moves: its play state unknown) differs from its
   // repeat by the play, not by the readings' noise: it is no repeat.
   std::vector<bool> known;
-  for (const auto& d : fitted_drivers) known.push_back(!unpredictable(fit.extensions, d));
-  for (const auto& d : predicted_drivers) known.push_back(!unpredictable(fit.extensions, d));
+  for (const auto& d : fitted_drivers) known.push_back(!playStateUnknown(fit.extensions, d));
+  for (const auto& d : predicted_drivers) known.push_back(!playStateUnknown(fit.extensions, d));
   constexpr double kSameRad = 2e-3;
   std::vector<size_t> order(q.size());
   for (size_t i = 0; i < order.size(); ++i) order[i] = i;

@@ -73,21 +73,11 @@ Bases basesAtStart(const SetupsProblem& pr, const Eigen::VectorXd& widths) {
   return b;
 }
 
-bool hasBacklash(const std::vector<Extension>& extensions) {
-  return std::any_of(extensions.begin(), extensions.end(), [](const Extension& e) { return e.cause == Cause::kBacklash; });
-}
-
-// The rows of a set-up whose play state is known for every backlash joint (the joint has moved since the set-up's
-// data began): which side of the gap a joint that has not moved yet rests on is unknown to anyone.
+// The rows of a set-up whose play state is known for every backlash joint (playStateUnknown).
 std::vector<int> rowsWithKnownPlay(const std::vector<Extension>& extensions, const std::vector<Drivers>& drivers) {
   std::vector<int> rows;
-  for (size_t i = 0; i < drivers.size(); ++i) {
-    bool known = true;
-    for (const auto& e : extensions)
-      if (e.cause == Cause::kBacklash)
-        known = known && drivers[i].motion_direction.size() > e.joint && drivers[i].motion_direction[e.joint] != 0.0;
-    if (known) rows.push_back(static_cast<int>(i));
-  }
+  for (size_t i = 0; i < drivers.size(); ++i)
+    if (!playStateUnknown(extensions, drivers[i])) rows.push_back(static_cast<int>(i));
   return rows;
 }
 

@@ -109,6 +109,18 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
   return t;
 }
 
+bool hasBacklash(const std::vector<Extension>& extensions) {
+  return std::any_of(extensions.begin(), extensions.end(), [](const Extension& e) { return e.cause == Cause::kBacklash; });
+}
+
+bool playStateUnknown(const std::vector<Extension>& extensions, const Drivers& drivers) {
+  for (const auto& e : extensions)
+    if (e.cause == Cause::kBacklash &&
+        (drivers.motion_direction.size() <= e.joint || drivers.motion_direction[e.joint] == 0.0))
+      return true;
+  return false;
+}
+
 double playState(const Drivers& drivers, int j, double width_rad) {
   if (!(width_rad > 0)) return drivers.motion_direction.size() > j ? drivers.motion_direction[j] : 0.0;
   if (drivers.recent_steps_rad.rows() <= j) return 0.0;

@@ -277,8 +277,9 @@ TEST(Setups, ABacklashIsCommonToEverySetUp) {
       // the wrist-to-target offset only, where 0.2 mrad is 10-20 um, below the readings' noise (seed 959142572:
       // joint 5, 0.141 mrad for 0.201; seed 307381180: TX60 joint 4, 0.275 for 0.213); there the fresh error alone
       // is judged.
-      if (sc.hidden.joint < 3)
+      if (sc.hidden.joint < 3) {
         EXPECT_NEAR(-x.extension_params[0], sc.hidden.backlash_width_rad, 0.25 * sc.hidden.backlash_width_rad) << what;
+      }
       EXPECT_LT(e_x, e_g) << what;
     }
   }

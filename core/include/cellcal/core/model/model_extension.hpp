@@ -94,6 +94,12 @@ struct Extension {
   double time_constant_h = 0.0;
 };
 
+// Whether `extensions` include a backlash; whether a row's play state is unknown for one of their backlash joints (it
+// has not moved since the data began: which side of the gap it rests on is unknown to anyone, and a fit leaves the
+// row out).
+bool hasBacklash(const std::vector<Extension>& extensions);
+bool playStateUnknown(const std::vector<Extension>& extensions, const Drivers& drivers);
+
 // Frames of the chain in the tracker frame: [0] robot base, [i] after A_i (i = 1..n), [n+1] target.
 std::vector<Pose> chainFrames(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad);
 
