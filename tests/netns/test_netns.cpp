@@ -7,7 +7,14 @@
 
 #include <fcntl.h>
 #include <algorithm>
+#include <arpa/inet.h>
+#include <netinet/in.h>
 #include <sched.h>
+#include <sys/socket.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstring>
 
 #include <cstdio>
 #include <regex>
@@ -40,9 +47,10 @@ class NetnsCell : public ::testing::Test {
     std::string why;
     if (shell(kScript + " check", &why) != 0) GTEST_SKIP() << "network namespaces not available: " << why;
     prefix_ = "cn" + std::to_string(::getpid() % 100000);
-    std::string out;
-    ASSERT_EQ(shell(kScript + " up " + prefix_ + up_options_, &out), 0) << out;
-    made_ = true;
+    if (!manual_) {
+      std::string out;
+      ASSERT_EQ(up(up_options_, &out), 0) << out;
+    }
   }
   void TearDown() override {
     if (!made_) return;
@@ -50,6 +58,15 @@ class NetnsCell : public ::testing::Test {
     EXPECT_EQ(shell(kScript + " down " + prefix_, &out), 0) << out;
     shell("ip netns list", &out);
     EXPECT_EQ(out.find(prefix_ + "-"), std::string::npos) << "namespaces left behind:\n" << out;
+  }
+  // `cellnet.sh up` with these options (the hosts made afresh, with this build's cellnet_shaper where the kernel has
+  // no netem); its exit code (3: links cannot be shaped here), its output in `out`.
+  int up(const std::string& options, std::string* out) {
+    const int rc = shell("CELLNET_SHAPER=" + std::string(CELLCAL_BIN_DIR) + "/cellnet_shaper " + kScript + " up " +
+                             prefix_ + options,
+                         out);
+    made_ = true;
+    return rc;
   }
   std::string ns(const std::string& host) const { return prefix_ + "-" + host; }
   // `cellcal cell` on the cell server, the adapters on their hosts.
@@ -67,6 +84,7 @@ class NetnsCell : public ::testing::Test {
 
   std::string prefix_;
   std::string up_options_;  // more arguments of `cellnet.sh up`
+  bool manual_ = false;     // the test makes its hosts itself (up())
   bool made_ = false;
 };
 
@@ -239,8 +257,6 @@ TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
   tracker.stop();
 }
 
-// The same cell (same robot errors, seed and program) on one host over loopback and across the three hosts: the same
-// calibration, latencies reported for both.
 // Sixteen robots on two cell servers (`cellcal cell --shards 2`): engine and compensation publisher 1 on the cell
 // server with the launcher, 2 on cell-server-2; each shard's tracker adapter on the tracker PC and joint-state adapter
 // on the robot PC. Every robot is calibrated, and each engine receives only its eight robots' streams (content
@@ -294,6 +310,8 @@ TEST_F(NetnsCell, SixteenRobotsOnTwoCellServers) {
               received.c_str(), server2_rx / 1e6, robot_tx / 1e6);
 }
 
+// The same cell (same robot errors, seed and program) on one host over loopback and across the three hosts: the same
+// calibration, latencies reported for both.
 TEST_F(NetnsCell, ConvergesAcrossThreeHostsAsOnOneHost) {
   const std::string dir = testDir();
   const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}});
@@ -421,6 +439,214 @@ TEST_F(NetnsCell, AHostWhoseClockIsOffIsNamed) {
   EXPECT_TRUE(named) << warning;
   std::printf("  tracker clock 20 ms ahead: named by cellcal status %.1f s after the start: \"%s\"\n", seen_after_s,
               warning.c_str());
+}
+
+
+// Links that delay, jitter and drop what the hosts send (`cellnet.sh up ... delay D J loss P%`: tc netem where the
+// kernel has it, else tools/netns/cellnet_shaper, which does the same in user space).
+class NetnsShaped : public NetnsCell {
+ protected:
+  NetnsShaped() { manual_ = true; }
+  // The shaper's account of every link, or null where netem shaped them (it keeps none).
+  nlohmann::json shaperStats() {
+    std::string out;
+    if (shell(kScript + " stats " + prefix_ + " 2>/dev/null", &out) != 0) return nullptr;
+    auto j = nlohmann::json::parse(out, nullptr, false);
+    return j.is_discarded() ? nlohmann::json() : j;
+  }
+};
+
+// One-way delays of datagrams from one host to another, measured outside the shaper: the sender stamps each
+// datagram with CLOCK_REALTIME, the receiver's kernel stamps its arrival (SO_TIMESTAMPNS), one clock on one machine.
+struct OneWay {
+  int sent = 0;
+  std::vector<double> delay_ms;  // of those received, in arrival order
+  int reordered = 0;             // arrivals with a lower sequence number than one before them
+};
+
+OneWay sendDatagrams(const std::string& from_ns, const std::string& to_ns, const std::string& to_address, int n,
+                     double interval_ms) {
+  OneWay r;
+  struct Socket {
+    int fd = -1;
+    ~Socket() {
+      if (fd >= 0) ::close(fd);
+    }
+  } tx, rx;
+  for (auto [host, sock] : {std::pair{&to_ns, &rx}, std::pair{&from_ns, &tx}}) {
+    const OnHost on(*host);  // a socket belongs to the namespace it was made in
+    if (!on.ok()) return r;
+    sock->fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  }
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(47123);
+  ::inet_pton(AF_INET, to_address.c_str(), &a.sin_addr);
+  const int on = 1, buf = 4 << 20;
+  ::setsockopt(rx.fd, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
+  ::setsockopt(rx.fd, SOL_SOCKET, SO_RCVBUF, &buf, sizeof buf);
+  timeval tv{0, 200000};
+  ::setsockopt(rx.fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  if (::bind(rx.fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) return r;
+  // Until one datagram has crossed: the sender knows the receiver's link address (an ARP request the link dropped is
+  // repeated only after a second, and the datagrams waiting for it would overflow the neighbour queue).
+  bool crossed = false;
+  for (int k = 0; k < 25 && !crossed; ++k) {
+    const int64_t warm[2] = {-1, 0};
+    ::sendto(tx.fd, warm, sizeof warm, 0, reinterpret_cast<sockaddr*>(&a), sizeof a);
+    char data[64];
+    crossed = ::recv(rx.fd, data, sizeof data, 0) >= 16;
+  }
+  if (!crossed) return r;
+  std::atomic<bool> sending{true};
+  std::thread receiver([&] {
+    int last_seq = -1, quiet = 0;
+    while (sending || quiet < 5) {  // until 1 s after the last send without arrivals
+      char data[64], control[256];
+      iovec iov{data, sizeof data};
+      msghdr m{};
+      m.msg_iov = &iov;
+      m.msg_iovlen = 1;
+      m.msg_control = control;
+      m.msg_controllen = sizeof control;
+      if (::recvmsg(rx.fd, &m, 0) < 16) {
+        if (!sending) ++quiet;
+        continue;
+      }
+      quiet = 0;
+      int64_t seq, sent_ns;
+      std::memcpy(&seq, data, 8);
+      std::memcpy(&sent_ns, data + 8, 8);
+      if (seq < 0) continue;  // a late warm-up datagram
+      for (cmsghdr* c = CMSG_FIRSTHDR(&m); c; c = CMSG_NXTHDR(&m, c)) {
+        if (c->cmsg_level != SOL_SOCKET || c->cmsg_type != SCM_TIMESTAMPNS) continue;
+        timespec ts;
+        std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
+        r.delay_ms.push_back((ts.tv_sec * 1000000000LL + ts.tv_nsec - sent_ns) / 1e6);
+      }
+      if (seq < last_seq) ++r.reordered;
+      last_seq = std::max<int>(last_seq, static_cast<int>(seq));
+    }
+  });
+  for (int64_t k = 0; k < n; ++k) {
+    timespec now;
+    ::clock_gettime(CLOCK_REALTIME, &now);
+    const int64_t ns = now.tv_sec * 1000000000LL + now.tv_nsec;
+    char data[16];
+    std::memcpy(data, &k, 8);
+    std::memcpy(data + 8, &ns, 8);
+    ::sendto(tx.fd, data, sizeof data, 0, reinterpret_cast<sockaddr*>(&a), sizeof a);
+    ++r.sent;
+    std::this_thread::sleep_for(std::chrono::microseconds(static_cast<int>(interval_ms * 1000)));
+  }
+  sending = false;
+  receiver.join();
+  return r;
+}
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[static_cast<size_t>(q * (v.size() - 1))];
+}
+
+// The shaping itself, measured by datagrams the test sends from the tracker PC to the cell server: nothing arrives
+// sooner than the delay less the jitter, arrivals spread over the jitter, and the share lost is the loss asked for
+// (within a binomial band). How late the slowest arrive is the host's scheduling, reported.
+TEST_F(NetnsShaped, TheLinksDelayJitterAndDropAsAsked) {
+  const uint64_t seed = testSeed();
+  const double delay_ms = 2, jitter_ms = 0.5, loss = 0.01;
+  std::string out;
+  const int rc = up(" --seed " + std::to_string(seed % 1000000007) + " delay 2ms 0.5ms loss 1%", &out);
+  if (rc == 3) GTEST_SKIP() << "links cannot be shaped here: " << out;
+  ASSERT_EQ(rc, 0) << out;
+  const int n = 4000;
+  const OneWay w = sendDatagrams(ns("tracker-pc"), ns("cell-server"), "10.231.0.3", n, 0.25);
+  ASSERT_EQ(w.sent, n);
+  const int lost = n - static_cast<int>(w.delay_ms.size());
+  const double mean_lost = n * loss, sd_lost = std::sqrt(n * loss * (1 - loss));
+  EXPECT_GE(lost, mean_lost - 5 * sd_lost) << "fewer datagrams lost than the loss asked for";
+  EXPECT_LE(lost, mean_lost + 5 * sd_lost) << "more datagrams lost than the loss asked for";
+  ASSERT_FALSE(w.delay_ms.empty());
+  const double lo = quantile(w.delay_ms, 0), p10 = quantile(w.delay_ms, 0.1), p50 = quantile(w.delay_ms, 0.5),
+               p90 = quantile(w.delay_ms, 0.9), p99 = quantile(w.delay_ms, 0.99);
+  EXPECT_GE(lo, delay_ms - jitter_ms - 0.02) << "a datagram arrived sooner than the delay less the jitter";
+  EXPECT_GE(p50, delay_ms - 0.25 * jitter_ms);
+  EXPECT_LT(p50, delay_ms + jitter_ms + 3.0) << "the median held far longer than asked";
+  EXPECT_GE(p90 - p10, jitter_ms) << "arrivals not spread over the jitter (uniform +-0.5 ms: p90 - p10 = 0.8 ms)";
+  const auto stats = shaperStats();
+  std::printf("  delay 2ms 0.5ms loss 1%%: %d datagrams every 0.25 ms tracker-pc -> cell-server: %d lost (%.2f %%), one-way delay min %.3f "
+              "p10 %.3f p50 %.3f p90 %.3f p99 %.3f ms, %d arrived out of order; shaped by %s\n",
+              n, lost, 100.0 * lost / n, lo, p10, p50, p90, p99, w.reordered,
+              stats.is_null() ? "netem" : "cellnet_shaper");
+}
+
+// The same cell (robot errors, seed, program) on one host over loopback and across three hosts whose links delay,
+// jitter and drop, at three link settings: the calibration after the last update within 1.05x of the one-host run's
+// at 2 ms / 0.5 ms / 1 %, every update from a reading that arrived (no version without a pose), no clock warning;
+// latencies and what the links did reported beside the one-host figures.
+TEST_F(NetnsShaped, ConvergesAsOnOneHostAtEveryLinkSetting) {
+  const std::string dir = testDir();
+  const uint64_t seed = testSeed();
+  const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}});
+  const auto one = runCell(dir + "/one", cfg, "12");
+  ASSERT_FALSE(one.is_discarded());
+  const int n_one = one["calibration_updates"];
+  const double e_one = one["verify_after_last_update_mm"];
+  std::printf("  one host (loopback): %d updates, hold-out after the last %.4f mm; tracker->state p50 %.0f p99 %.0f us, "
+              "target->compensated p50 %.0f p99 %.0f us\n",
+              n_one, e_one, one["latency_us"]["tracker_to_state_p50"].get<double>(),
+              one["latency_us"]["tracker_to_state_p99"].get<double>(),
+              one["latency_us"]["target_to_compensated_p50"].get<double>(),
+              one["latency_us"]["target_to_compensated_p99"].get<double>());
+  struct Setting {
+    std::string netem;
+    double max_ratio;
+  };
+  const std::vector<Setting> settings = {
+      {"delay 1ms 0.2ms loss 0.5%", 1.10}, {"delay 2ms 0.5ms loss 1%", 1.05}, {"delay 5ms 1ms loss 2%", 1.10}};
+  for (size_t k = 0; k < settings.size(); ++k) {
+    const Setting& setting = settings[k];
+    SCOPED_TRACE(setting.netem);
+    // Its own work folder, so its own state (work-dir/state): the engine starts from nominal as in the one-host run.
+    const std::string d = dir + "/link" + std::to_string(k + 1);
+    std::string out;
+    const int rc = up(" --seed " + std::to_string(seed % 1000000007) + " " + setting.netem, &out);
+    if (rc == 3) GTEST_SKIP() << "links cannot be shaped here: " << out;
+    ASSERT_EQ(rc, 0) << out;
+    fs::create_directories(d + "/hosts");
+    components::ChildProcess across(ipCommand(), cellAcrossHosts(cfg, d + "/hosts", "12", true),
+                                    d + "/hosts/cell.log");
+    ASSERT_EQ(across.wait(90), 0) << readTextFile(d + "/hosts/cell.log");
+    const auto links = shaperStats();
+    const auto h = readJson(d + "/hosts/summary.json");
+    ASSERT_FALSE(h.is_discarded()) << readTextFile(d + "/hosts/cell.log");
+    for (const auto& p : h["processes"]) EXPECT_EQ(p["exit_code"], 0) << p.dump();
+    EXPECT_EQ(readTextFile(d + "/hosts/run/calibration_engine.log").find("clock:"), std::string::npos);
+    const auto state = readEngineState(d + "/hosts/run/state", "tx60");
+    ASSERT_FALSE(state.is_null());
+    EXPECT_EQ(state["version"], state["poses_used"]) << "a version without a pose, or a pose applied twice";
+    const int published = h["topics"]["cellcal/tracker_pose"]["published"], received = h["topics"]["cellcal/tracker_pose"]["received"];
+    const int n = h["calibration_updates"];
+    EXPECT_LE(n, received);
+    const double e = h["verify_after_last_update_mm"];
+    EXPECT_LE(e, setting.max_ratio * e_one) << "the calibration across shaped links is worse than on one host";
+    std::string dropped = "netem (no account)";
+    if (!links.is_null()) {
+      std::ostringstream o;
+      for (const auto& l : links["links"])
+        if (l["from_host"].get<int>() > 100)
+          o << l["host"].get<std::string>() << " " << l["dropped"] << " of " << l["from_host"] << " frames dropped, held p50 "
+            << l["held_p50_us"] << " p99 " << l["held_p99_us"] << " us; ";
+      dropped = o.str();
+    }
+    std::printf("  %s: %d updates, hold-out after the last %.4f mm (%.3fx one host); tracker readings %d of %d "
+                "received; tracker->state p50 %.0f p99 %.0f us, target->compensated p50 %.0f p99 %.0f us\n    links: %s\n",
+                setting.netem.c_str(), n, e, e / e_one, received, published,
+                h["latency_us"]["tracker_to_state_p50"].get<double>(), h["latency_us"]["tracker_to_state_p99"].get<double>(),
+                h["latency_us"]["target_to_compensated_p50"].get<double>(),
+                h["latency_us"]["target_to_compensated_p99"].get<double>(), dropped.c_str());
+  }
 }
 
 }  // namespace
