@@ -147,8 +147,13 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
   const auto n = x.size();
   const Eigen::Index ext0 = n - n_ext;
-  // Identifiable columns of the stacked Jacobian at the start, in the model's priority (frames of further set-ups
-  // last: a base of set-up 2 never replaces a kinematic parameter).
+  // Identifiable columns of the stacked Jacobian at the start, in the model's priority, every set-up's tool first and
+  // further set-ups' bases last. The tools first: a common change at the flange (joint 6's flange-side parameters)
+  // is then what is held, as in a single set-up, and each set-up's tool takes it exactly, whatever its size. Holding
+  // a further set-up's tool instead leaves the rotations about the flange to reach the held value, which for a target
+  // near the flange axis takes a rotation of radians that Levenberg-Marquardt crawls along
+  // (CELLCAL_TEST_SEED=829672055: joint 6's offset at -1.1 rad after 200 iterations). Bases last: a base of set-up 2
+  // never replaces a kinematic parameter.
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
   Eigen::VectorXd widths = Eigen::VectorXd::Zero(n_ext);  // the extension parameters the bases are evaluated at
@@ -156,14 +161,20 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   stack(pr, bases, x, r, &J);
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
-  for (int c : identificationPriority(m))
-    if (std::count(cand.begin(), cand.end(), c)) order.push_back(c);
-  const int f = m.baseParam(FrameParam::kX);
-  for (Eigen::Index c = np; c < ext0; ++c) {
-    // A further set-up's frame parameter is a candidate when the same parameter of set-up 0 is.
-    const int same = f + static_cast<int>((c - np) % 12);
-    if (std::count(cand.begin(), cand.end(), same)) order.push_back(static_cast<int>(c));
-  }
+  const int f = m.baseParam(FrameParam::kX), tool0 = m.toolParam(FrameParam::kX);
+  const auto further = [&](bool tool) {  // further set-ups' frame columns whose parameter of set-up 0 is a candidate
+    for (Eigen::Index c = np; c < ext0; ++c) {
+      const int same = f + static_cast<int>((c - np) % 12);
+      if ((same >= tool0) == tool && std::count(cand.begin(), cand.end(), same)) order.push_back(static_cast<int>(c));
+    }
+  };
+  const std::vector<int> priority = identificationPriority(m);
+  for (int c : priority)
+    if (c >= tool0 && c < tool0 + 6 && std::count(cand.begin(), cand.end(), c)) order.push_back(c);
+  further(true);
+  for (int c : priority)
+    if (!(c >= tool0 && c < tool0 + 6) && std::count(cand.begin(), cand.end(), c)) order.push_back(c);
+  further(false);
   for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
   SetupsFit out;
   out.estimated = independentColumns(J, order, pr.identifiability);

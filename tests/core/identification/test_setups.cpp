@@ -19,6 +19,7 @@ namespace cellcal {
 namespace {
 
 constexpr double kPerSetupBound = 1.3;
+constexpr double kPerSetupAllowance_m = 2e-6;  // chance, at a micrometre level (the distribution below)
 
 double meanError(const RobotModel& m, const Eigen::VectorXd& params, const std::vector<Observation>& obs) {
   return mean(positionErrors(m, params, obs));
@@ -88,10 +89,12 @@ void expectAsFitExtended(const RobotModel& robot, const SetupsProblem& extended,
 // two agree to a micrometre at fresh configurations. Two or three: judged against the true poses at fresh
 // configurations, the joint fit is better than the set-ups' own calibrations on average over the run (more rows for
 // the same kinematics), and no set-up's error is above kPerSetupBound times its own calibration's (a set-up's frames
-// come from its own rows in both, so one set-up can come out a little worse by chance). Measured over 200 seeds
-// (3,000 set-ups): largest ratio 1.19, median 0.74; the run's mean at most 0.83 of the own calibrations'. Until
-// 2026-11-29 each set-up was held to 1.05x its own calibration on noisy fresh readings, which a CI seed failed at
-// 1.08x (CELLCAL_TEST_SEED=14411837373366597251).
+// come from its own rows in both, so one set-up can come out a little worse by chance) plus 2 um. Measured over 200
+// seeds (3,000 set-ups): largest ratio 1.19, median 0.74; the run's mean at most 0.83 of the own calibrations'. Over
+// 1,500 seeds (22,500 set-ups, 2026-11-29): median 0.745, 99.9th percentile 1.155, largest 1.35; the two above 1.3
+// were above it by 0.4 and 0.5 um (CELLCAL_TEST_SEED=14054155998754238561: 0.0152 against 0.0110 mm), hence the
+// allowance; a set-up the joint fit gets wrong is off by far more. Until 2026-11-29 each set-up was held to 1.05x its
+// own calibration on noisy fresh readings, which a CI seed failed at 1.08x (CELLCAL_TEST_SEED=14411837373366597251).
 TEST(Setups, OneModelWithAFramePairPerSetUp) {
   const std::uint64_t seed = test::testSeed();
   std::mt19937_64 rng(seed);
@@ -135,7 +138,7 @@ TEST(Setups, OneModelWithAFramePairPerSetUp) {
         joint_sum += e_joint;
         separate_sum += e_own;
         ++judged;
-        EXPECT_LT(e_joint, kPerSetupBound * e_own) << what << ", set-up " << s + 1;
+        EXPECT_LT(e_joint, kPerSetupBound * e_own + kPerSetupAllowance_m) << what << ", set-up " << s + 1;
       }
     }
   }
@@ -149,8 +152,7 @@ TEST(Setups, OneModelWithAFramePairPerSetUp) {
 // random robot, placement and measurement type. One set-up: the plain reference is fitExtended on the same rows and
 // drivers (the same estimated columns, predictions within a micrometre at fresh configurations). Two or three set-ups:
 // at fresh configurations against the truth, the extended joint fit beats the geometric joint fit in every draw.
-TEST(Setups, AnExtensionIsCommonToEverySetUp) {
-  const std::uint64_t seed = test::testSeed();
+void expectAnExtensionCommonToEverySetUp(std::uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1, 1);
   for (int draw = 0; draw < 6; ++draw) {
@@ -199,6 +201,18 @@ TEST(Setups, AnExtensionIsCommonToEverySetUp) {
     if (setups > 1) {
       EXPECT_LT(e_x, e_g) << what;
     }
+  }
+}
+
+TEST(Setups, AnExtensionIsCommonToEverySetUp) { expectAnExtensionCommonToEverySetUp(test::testSeed()); }
+
+// Seeds that once failed. 829672055: UR10, points, a target 2.4 mm off the flange axis, three set-ups; set-up 3's
+// tool was held at its registration while joint 6's flange-side parameters were estimated, and Levenberg-Marquardt
+// crawled along a rotation about the flange (joint 6's offset at -1.1 rad after 200 iterations, not converged).
+TEST(Setups, SeedsThatOnceFailed) {
+  for (std::uint64_t seed : {829672055ull}) {
+    SCOPED_TRACE(seed);
+    expectAnExtensionCommonToEverySetUp(seed);
   }
 }
 
