@@ -515,6 +515,74 @@ TEST(CliCalibrate, ExtrapolationIsNeverReportedAsSuccess) {
   std::printf("%d draws exit 0, %d exit 4 (not usable); %d parameters held and named\n", exits_0, exits_4, held_named);
 }
 
+// A model carried to a new set-up (`calibrate --frames-only`): a campaign calibrated and saved, then the tracker
+// moved; robot, measurement type and placements drawn at random. The frames registered on the new rows get their own
+// uncertainty: every frame parameter the rows determine (all 12 from 6D readings, 9 from points: no tool rotation) a
+// finite sigma, and the variance factor of what they leave, at most about 1 with the campaign's kinematics (only noise)
+// and far above it with the robot file's nominal ones (their error shows in the residual, and the frames' sigmas
+// widen with it). No predicted model error is claimed (the file's covariance does not know what new frames absorb).
+TEST(CliCalibrate, FramesOnlyGivesTheFramesTheirOwnUncertainty) {
+  const std::string dir = testDir();
+  std::mt19937_64 rng(testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int d = 0; d < 3; ++d) {
+    const std::string name = u(rng) < 0.5 ? "staubli_tx60" : "ur10";
+    const MeasurementKind kind = u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+    SimulationConfig sc;
+    sc.seed = rng();
+    randomTrackerAndTarget(rng, sc.base_in_tracker, sc.tool_in_flange);
+    const RobotModel model = robot(name);
+    const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name + ".yaml";
+    const SimulatedCell campaign(model, sc), moved(model, placement(sc, 1, rng));
+    auto write = [&](const SimulatedCell& cell, const std::string& path) {
+      MeasurementFile f;
+      for (const auto& q : cell.randomConfigurations(120, rng)) {
+        const Observation o = cell.measure(q, 0.0, rng, kind);
+        MeasurementRow r;
+        r.q_rad = q;
+        r.position_m = o.measured_in_tracker.translation();
+        if (kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+        f.rows.push_back(r);
+      }
+      std::ofstream out(path);
+      writeMeasurementCsv(out, f, model.numJoints(), "simulated");
+    };
+    write(campaign, dir + "/campaign.csv");
+    write(moved, dir + "/moved.csv");
+    const std::string what = name + (kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", draw " + std::to_string(d);
+    Process c(dir, "campaign", {"cellcal", "calibrate", "--robot", nominal, "--data", dir + "/campaign.csv",
+                                "--save-robot", dir + "/campaign.yaml"});
+    ASSERT_EQ(c.wait(120), 0) << what << "\n" << c.log();
+    double factor[2], base_x_sigma[2];
+    for (int k = 0; k < 2; ++k) {
+      const std::string file = k == 0 ? dir + "/campaign.yaml" : nominal, tag = k == 0 ? "calibrated" : "nominal";
+      Process p(dir, "frames_" + tag, {"cellcal", "calibrate", "--robot", file, "--data", dir + "/moved.csv",
+                                       "--frames-only", "--json", dir + "/" + tag + ".json"});
+      const int code = p.wait(120);
+      ASSERT_TRUE(code == 0 || (k == 1 && code == 4)) << what << "\n" << p.log();  // nominal may be unusable
+      const auto j = readJson(dir + "/" + tag + ".json");
+      EXPECT_TRUE(j["prediction"].is_null()) << what;
+      EXPECT_NE(p.log().find("predicted model error: not computed with --frames-only"), std::string::npos) << p.log();
+      factor[k] = j["frames_variance_factor"];
+      int frames = 0;
+      for (const auto& prm : j["parameters"]) {
+        const std::string n = prm["name"];
+        if ((n.rfind("base.", 0) != 0 && n.rfind("tool.", 0) != 0) || !prm["estimated"].get<bool>()) continue;
+        ++frames;
+        EXPECT_TRUE(prm["stddev"].is_number() && prm["stddev"].get<double>() > 0) << what << ": " << prm.dump();
+        if (n == "base.x_mm") base_x_sigma[k] = prm["stddev"].get<double>() * std::sqrt(std::max(1.0, factor[k]));
+      }
+      EXPECT_EQ(frames, kind == MeasurementKind::kPose6D ? 12 : 9) << what << "\n" << p.log();
+    }
+    EXPECT_GT(factor[0], 0.0) << what;  // below 1 where the file's default sigma exceeds the simulated noise (0.37-0.6)
+    EXPECT_LT(factor[0], 3.0) << what << ": the campaign's kinematics leave more than noise on the moved set-up";
+    EXPECT_GT(factor[1], 10 * factor[0]) << what << ": the nominal kinematics' error does not show in the residual";
+    EXPECT_GT(base_x_sigma[1], base_x_sigma[0]) << what;
+    std::printf("  %s: frames' variance factor %.2f with the campaign's kinematics, %.1f with the nominal ones; "
+                "base.x sigma %.4f / %.4f mm\n", what.c_str(), factor[0], factor[1], base_x_sigma[0], base_x_sigma[1]);
+  }
+}
+
 TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {
   const std::string dir = testDir();
   std::ofstream(dir + "/bad.csv") << "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n1,2,3,4,5,6,1,2,3\n1,2,3,4,5,six,1,2,3\n";

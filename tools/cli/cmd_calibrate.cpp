@@ -480,9 +480,19 @@ int runCalibrate(const CalibrateArgs& a) {
   const std::vector<Drivers> idr_kept = subset(idr, ik);
   const ErrorStats iak = errorStats(robot, after, ident_kept, idr_kept);
   // How far the model can be trusted: its predicted position error on every kept row, against the actual one.
-  // Not with --frames-only: the kinematics' uncertainty is the robot file's, from its own data.
-  const PredictionModel pm = a.frames_only ? PredictionModel{} : predictionModel(robot, after, ident_kept, idr_kept);
-  const Trust trust = a.frames_only ? Trust{} : trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
+  // Not with --frames-only: the robot file's covariance is of a fit whose frames were registered on its own rows;
+  // here new frames absorb part of the kinematics' error, which that covariance does not say (not computed, said).
+  const bool predicted = !a.frames_only;
+  const PredictionModel pm = predicted ? predictionModel(robot, after, ident_kept, idr_kept) : PredictionModel{};
+  const Trust trust = predicted ? trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept) : Trust{};
+  // The frames' own uncertainty with --frames-only: their covariance on these rows, the kinematics as the file has
+  // them, scaled by what the frames leave (the kinematics' error on this set-up is in that residual).
+  double frames_variance_factor = 1;
+  if (a.frames_only) {  // a frame parameter these rows do not determine (a tool rotation from points) is not estimated
+    after.estimated = conditionalCovariance(robot, after, ident_kept, idr_kept, after.estimated, &after.covariance,
+                                            &frames_variance_factor);
+    estimated = after.estimated.size();
+  }
   // With --frames-only the start is the same model with its frames registered in closed form: no baseline to beat,
   // only the extrapolation rule applies.
   const std::string unusable = unusableFit(a.frames_only ? vak : vbk, vak, iak);
@@ -508,7 +518,7 @@ int runCalibrate(const CalibrateArgs& a) {
   // The estimated parameters: value, change from the start (the robot file's, frames registered) and 1 sigma.
   // The readings' sigmas weight the fit; the residual says how far they hold: the sigmas are scaled by the square root
   // of the a-posteriori variance factor (1 when the readings' sigmas and the model are right).
-  const double vf = std::sqrt(std::max(1.0, a.frames_only ? 1.0 : pm.variance_factor));
+  const double vf = std::sqrt(std::max(1.0, a.frames_only ? frames_variance_factor : pm.variance_factor));
   std::printf("\nestimated parameters: value, change from the start, 1 sigma (the fit's, x %.2f: the root of the "
               "variance factor)\n", vf);
   for (int i : after.estimated) {
@@ -520,12 +530,15 @@ int runCalibrate(const CalibrateArgs& a) {
     std::printf("  %-24s %12.6g %+10.3g  sigma %.3g\n", after.extension_names[k].c_str(), after.extension_params[k],
                 after.extension_params[k], vf * after.extensionStddev(k));
   for (const auto& h : held_after) std::printf("held: %s\n", deficitText(h).c_str());
-  if (!a.frames_only)
+  if (predicted)
     std::printf("predicted model error (1 sigma, position): identification rows %.4f mm RMS (max %.4f), verification "
                 "rows %.4f mm RMS (max %.4f); actual/predicted (with the reading noise, position variance factor %.2f): "
                 "RMS %.2f\n",
                 trust.ident_rms_mm, trust.ident_max_mm, trust.verify_rms_mm, trust.verify_max_mm,
                 pm.variance_factor_position, trust.ratio_rms);
+  else
+    std::printf("predicted model error: not computed with --frames-only (the robot file's covariance does not know "
+                "what these rows' frames absorb); the errors above are the model's on this set-up\n");
   if (trust.extrapolated > 0)
     std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
                 "the identification rows)\n", trust.extrapolated);
@@ -578,7 +591,8 @@ int runCalibrate(const CalibrateArgs& a) {
                                       {"threshold_robust_sigmas", p.outliers.threshold}}},
                         {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd},
                         {"held", heldJson(held_after)},
-                        {"prediction", {{"identification_rms_mm", trust.ident_rms_mm},
+                        {"prediction", !predicted ? nlohmann::json(nullptr) : nlohmann::json{
+                                        {"identification_rms_mm", trust.ident_rms_mm},
                                         {"identification_max_mm", trust.ident_max_mm},
                                         {"verification_rms_mm", trust.verify_rms_mm},
                                         {"verification_max_mm", trust.verify_max_mm},
@@ -586,6 +600,7 @@ int runCalibrate(const CalibrateArgs& a) {
                                         {"variance_factor_orientation", pm.variance_factor_orientation},
                                         {"actual_over_predicted_rms", trust.ratio_rms},
                                         {"verification_rows_outside_calibrated_region", trust.extrapolated}}},
+                        {"frames_variance_factor", a.frames_only ? nlohmann::json(frames_variance_factor) : nlohmann::json(nullptr)},
                         {"implausible", implausible},
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
     std::ofstream(a.json) << j.dump(2) << "\n";

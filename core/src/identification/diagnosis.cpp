@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "calibration_internal.hpp"
@@ -484,6 +485,31 @@ ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& st
   }
   if (screen) *screen = std::move(sc);
   return fit;
+}
+
+std::vector<int> conditionalCovariance(const RobotModel& model, const ExtendedFit& fit,
+                                       const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                       const std::vector<int>& columns, Eigen::MatrixXd* covariance,
+                                       double* variance_factor) {
+  for (int c : columns)
+    if (c < 0 || c >= model.numParams())
+      throw std::invalid_argument("conditionalCovariance: column " + std::to_string(c) + " is not a kinematic parameter");
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackExtended(model, fit.params, fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(), obs, B, r, &J);
+  std::vector<int> kept = independentColumns(J, columns, IdentifiabilityOptions{});
+  std::vector<int> ordered;  // in the order given
+  for (int c : columns)
+    if (std::count(kept.begin(), kept.end(), c)) ordered.push_back(c);
+  const auto n = static_cast<Eigen::Index>(ordered.size());
+  Eigen::MatrixXd A(J.rows(), n);
+  for (Eigen::Index c = 0; c < n; ++c) A.col(c) = J.col(ordered[static_cast<size_t>(c)]);
+  if (variance_factor)
+    *variance_factor = r.size() > n ? r.squaredNorm() / static_cast<double>(r.size() - n)
+                                    : std::numeric_limits<double>::quiet_NaN();
+  if (covariance) *covariance = (A.transpose() * A).ldlt().solve(Eigen::MatrixXd::Identity(n, n));
+  return ordered;
 }
 
 OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,

@@ -90,6 +90,17 @@ ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& st
                               const SolverOptions& solver, const IdentifiabilityOptions& identifiability,
                               const Eigen::VectorXd* warm_start, const OutlierOptions& outliers, OutlierScreen* screen);
 
+// What `obs` determine of some kinematic parameters at `fit`, every other parameter and the extension parameters as
+// the fit has them (e.g. the frames registered on a new set-up: calibrate --frames-only). Returns the columns of
+// `columns` the rows determine (independentColumns in that priority: a tool rotation from points is not), and in
+// `covariance` (A^T A)^-1 of the whitened Jacobian over them, SI, in that order. `variance_factor` (optional)
+// receives r^T r / (rows - columns returned): the ratio of what the fit leaves to the readings' sigmas, by which the
+// covariance is to be scaled when it is above 1.
+std::vector<int> conditionalCovariance(const RobotModel& model, const ExtendedFit& fit,
+                                       const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                       const std::vector<int>& columns, Eigen::MatrixXd* covariance,
+                                       double* variance_factor = nullptr);
+
 // Screening of rows a fit predicts (e.g. verification rows): their errors against the robust scale of their own.
 OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                          const std::vector<Drivers>& drivers, const OutlierOptions& options);
