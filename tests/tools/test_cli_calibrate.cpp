@@ -448,6 +448,17 @@ TEST(CliContinuous, RunsAFileInTimeOrder) {
   EXPECT_NEAR(pj["rls"]["mean_mm"].get<double>(), j["rls"]["mean_mm"].get<double>(), 1e-9) << periodic.log();
 }
 
+// A measurement file's row: a simulated reading of `kind` at joints q.
+MeasurementRow readingRow(const SimulatedCell& cell, const Eigen::VectorXd& q, MeasurementKind kind,
+                          std::mt19937_64& rng) {
+  const Observation o = cell.measure(q, 0.0, rng, kind);
+  MeasurementRow r;
+  r.q_rad = q;
+  r.position_m = o.measured_in_tracker.translation();
+  if (kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+  return r;
+}
+
 // Identification rows from one corner of the workspace, verification rows from all of it (`--split halves`): the
 // robot, the frames, the measurement type, the model (geometric or a joint compliance) and which corner (one wrist
 // orientation; the upper arm within a 10 deg band; the forearm within a 10 deg band) drawn at random. Whatever the
@@ -459,24 +470,15 @@ TEST(CliCalibrate, ExtrapolationIsNeverReportedAsSuccess) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   int exits_4 = 0, exits_0 = 0, held_named = 0;
   for (int d = 0; d < 6; ++d) {
-    const std::string name = u(rng) < 0.5 ? "staubli_tx60" : "ur10";
-    const MeasurementKind kind = u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-    SimulationConfig sc;
-    sc.seed = rng();
-    randomTrackerAndTarget(rng, sc.base_in_tracker, sc.tool_in_flange);
+    const RandomDraw draw = randomDraw(rng);
+    const std::string& name = draw.name;
+    const MeasurementKind kind = draw.kind;
     const RobotModel model = robot(name);
-    const SimulatedCell cell(model, sc);
+    const SimulatedCell cell(model, draw.sc);
     const int corner = static_cast<int>(3 * u(rng));
     const Eigen::VectorXd q0 = cell.randomConfigurations(1, rng).front();
     MeasurementFile f;
-    auto add = [&](const Eigen::VectorXd& q) {
-      const Observation o = cell.measure(q, 0.0, rng, kind);
-      MeasurementRow r;
-      r.q_rad = q;
-      r.position_m = o.measured_in_tracker.translation();
-      if (kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-      f.rows.push_back(r);
-    };
+    auto add = [&](const Eigen::VectorXd& q) { f.rows.push_back(readingRow(cell, q, kind, rng)); };
     for (Eigen::VectorXd q : cell.randomConfigurations(120, rng)) {
       if (corner == 0) q.tail(3) = q0.tail(3) + 0.01 * Eigen::Vector3d::Random();
       else q[corner] = q0[corner] + (u(rng) - 0.5) * 10 * kPi / 180;
@@ -524,26 +526,16 @@ TEST(CliCalibrate, ExtrapolationIsNeverReportedAsSuccess) {
 TEST(CliCalibrate, FramesOnlyGivesTheFramesTheirOwnUncertainty) {
   const std::string dir = testDir();
   std::mt19937_64 rng(testSeed());
-  std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int d = 0; d < 3; ++d) {
-    const std::string name = u(rng) < 0.5 ? "staubli_tx60" : "ur10";
-    const MeasurementKind kind = u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-    SimulationConfig sc;
-    sc.seed = rng();
-    randomTrackerAndTarget(rng, sc.base_in_tracker, sc.tool_in_flange);
+    const RandomDraw draw = randomDraw(rng);
+    const std::string& name = draw.name;
+    const MeasurementKind kind = draw.kind;
     const RobotModel model = robot(name);
     const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name + ".yaml";
-    const SimulatedCell campaign(model, sc), moved(model, placement(sc, 1, rng));
+    const SimulatedCell campaign(model, draw.sc), moved(model, placement(draw.sc, 1, rng));
     auto write = [&](const SimulatedCell& cell, const std::string& path) {
       MeasurementFile f;
-      for (const auto& q : cell.randomConfigurations(120, rng)) {
-        const Observation o = cell.measure(q, 0.0, rng, kind);
-        MeasurementRow r;
-        r.q_rad = q;
-        r.position_m = o.measured_in_tracker.translation();
-        if (kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-        f.rows.push_back(r);
-      }
+      for (const auto& q : cell.randomConfigurations(120, rng)) f.rows.push_back(readingRow(cell, q, kind, rng));
       std::ofstream out(path);
       writeMeasurementCsv(out, f, model.numJoints(), "simulated");
     };

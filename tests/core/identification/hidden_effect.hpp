@@ -154,6 +154,22 @@ inline void randomTrackerAndTarget(std::mt19937_64& rng, Eigen::Matrix<double, 6
   tool.tail<3>() = randomRpy(rng);
 }
 
+// A test's draw: a robot (by its file's name), a measurement type, the tracker and target placed at random.
+struct RandomDraw {
+  std::string name;
+  MeasurementKind kind = MeasurementKind::kPose6D;
+  SimulationConfig sc;
+};
+inline RandomDraw randomDraw(std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  RandomDraw d;
+  d.name = u(rng) < 0.5 ? "staubli_tx60" : "ur10";
+  d.kind = u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+  d.sc.seed = rng();
+  randomTrackerAndTarget(rng, d.sc.base_in_tracker, d.sc.tool_in_flange);
+  return d;
+}
+
 namespace detail {
 
 // How the truth moves a pose beyond the joint errors: link deflection and the effects outside the library.

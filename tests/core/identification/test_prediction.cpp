@@ -24,14 +24,8 @@ struct Draw {
   SimulationConfig config;
 };
 Draw draw(std::mt19937_64& rng) {
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  Draw d;
-  d.name = u(rng) < 0.5 ? "staubli_tx60" : "ur10";
-  d.kind = u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-  d.model = test::robot(d.name);
-  d.config.seed = rng();
-  test::randomTrackerAndTarget(rng, d.config.base_in_tracker, d.config.tool_in_flange);
-  return d;
+  const test::RandomDraw r = test::randomDraw(rng);
+  return {r.name, r.kind, test::robot(r.name), r.sc};
 }
 
 ExtendedFit asFit(const CalibrationResult& r) {
