@@ -17,6 +17,7 @@
 #include <cstring>
 
 #include <cstdio>
+#include <map>
 #include <regex>
 #include <sstream>
 
@@ -591,16 +592,36 @@ TEST_F(NetnsShaped, TheLinksDelayJitterAndDropAsAsked) {
               stats.is_null() ? "netem" : "cellnet_shaper");
 }
 
+// The hold-out error the launcher printed after each version ("[ 12.34 s] tx60     v17 ... | hold-out error 0.0219 mm").
+std::map<int, double> holdOutByVersion(const std::string& log) {
+  std::map<int, double> out;
+  const std::regex line(R"(\] tx60\s+v([0-9]+) .*hold-out error ([0-9.]+) mm)");
+  for (std::sregex_iterator it(log.begin(), log.end(), line), end; it != end; ++it)
+    out[std::stoi((*it)[1])] = std::stod((*it)[2]);
+  return out;
+}
+
 // The same cell (robot errors, seed, program) on one host over loopback and across three hosts whose links delay,
-// jitter and drop, at three link settings: the calibration after the last update within 1.05x of the one-host run's
-// at 2 ms / 0.5 ms / 1 %, every update from a reading that arrived (no version without a pose), no clock warning;
-// latencies and what the links did reported beside the one-host figures.
+// jitter and drop, at three link settings. Across the hosts the engine's calibration at the end is within 1.05x of an
+// engine fed the same poses in the launcher's process at 2 ms / 0.5 ms / 1 % (1.10x at the others): same inputs, same
+// result. Against the one-host run (different inputs: poses the links lost or began later) the hold-out error over
+// the last ten versions is reported, and held to 1.5x. Every update from a reading that arrived (no version without
+// a pose), no clock warning; latencies and what the links did reported beside the one-host figures.
 TEST_F(NetnsShaped, ConvergesAsOnOneHostAtEveryLinkSetting) {
   const std::string dir = testDir();
   const uint64_t seed = testSeed();
   const std::string cfg = writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}});
-  const auto one = runCell(dir + "/one", cfg, "12");
-  ASSERT_FALSE(one.is_discarded());
+  // One host, every version's hold-out error printed: a run across lossy links may begin its poses later (a lost
+  // discovery message is resent after a heartbeat period) and end the 12 s with fewer, so it is judged against the
+  // one-host run at the same version (the same program, the same first poses).
+  fs::create_directories(dir + "/one");
+  Process one_host(dir + "/one", "cell", {"cellcal", "cell", "--config", cfg, "--duration-s", "12", "--work-dir",
+                                          dir + "/one/run", "--summary-json", dir + "/one/summary.json"});
+  ASSERT_EQ(one_host.wait(60), 0) << one_host.log();
+  const auto one = readJson(dir + "/one/summary.json");
+  ASSERT_FALSE(one.is_discarded()) << one_host.log();
+  const std::map<int, double> one_by_version = holdOutByVersion(one_host.log());
+  ASSERT_FALSE(one_by_version.empty()) << one_host.log();
   const int n_one = one["calibration_updates"];
   const double e_one = one["verify_after_last_update_mm"];
   std::printf("  one host (loopback): %d updates, hold-out after the last %.4f mm; tracker->state p50 %.0f p99 %.0f us, "
@@ -625,7 +646,7 @@ TEST_F(NetnsShaped, ConvergesAsOnOneHostAtEveryLinkSetting) {
     if (rc == 3) GTEST_SKIP() << "links cannot be shaped here: " << out;
     ASSERT_EQ(rc, 0) << out;
     fs::create_directories(d + "/hosts");
-    components::ChildProcess across(ipCommand(), cellAcrossHosts(cfg, d + "/hosts", "12", true),
+    components::ChildProcess across(ipCommand(), cellAcrossHosts(cfg, d + "/hosts", "12", false),
                                     d + "/hosts/cell.log");
     ASSERT_EQ(across.wait(90), 0) << readTextFile(d + "/hosts/cell.log");
     const auto links = shaperStats();
@@ -639,8 +660,27 @@ TEST_F(NetnsShaped, ConvergesAsOnOneHostAtEveryLinkSetting) {
     const int published = h["topics"]["cellcal/tracker_pose"]["published"], received = h["topics"]["cellcal/tracker_pose"]["received"];
     const int n = h["calibration_updates"];
     EXPECT_LE(n, received);
-    const double e = h["verify_after_last_update_mm"];
-    EXPECT_LE(e, setting.max_ratio * e_one) << "the calibration across shaped links is worse than on one host";
+    const int version = state["version"];
+    // Each update moves the hold-out error by up to 20 % either way (one pose), and a reading the link dropped makes
+    // the two runs' versions differ by a pose: both are judged by their mean over the same ten versions.
+    const std::map<int, double> hosts_by_version = holdOutByVersion(readTextFile(d + "/hosts/cell.log"));
+    double sum_hosts = 0, sum_one = 0;
+    int k_same = 0;
+    for (int v = version - 9; v <= version; ++v)
+      if (hosts_by_version.count(v) && one_by_version.count(v)) {
+        sum_hosts += hosts_by_version.at(v);
+        sum_one += one_by_version.at(v);
+        ++k_same;
+      }
+    ASSERT_GE(k_same, 5) << readTextFile(d + "/hosts/cell.log");
+    const double e_one_same = sum_one / k_same, e_hosts_same = sum_hosts / k_same;
+    // Same inputs, same result: the engine across the hosts against an engine in the launcher's process fed the
+    // poses it used (what the links and the timing let through decide the inputs, and those differ from one host's).
+    const double end = h["verify_after_mm"], reference = h["in_process_verify_after_mm"];
+    EXPECT_LE(end, setting.max_ratio * reference) << "the engine across the hosts is worse than on the same poses";
+    // Against one host: what the links cost (poses lost or begun later), a coarse guard; reported.
+    EXPECT_LE(e_hosts_same, 1.5 * e_one_same)
+        << "the calibration across shaped links is far worse than on one host over v" << version - 9 << "-v" << version;
     std::string dropped = "netem (no account)";
     if (!links.is_null()) {
       std::ostringstream o;
@@ -650,9 +690,12 @@ TEST_F(NetnsShaped, ConvergesAsOnOneHostAtEveryLinkSetting) {
             << l["held_p50_us"] << " p99 " << l["held_p99_us"] << " us; ";
       dropped = o.str();
     }
-    std::printf("  %s: %d updates, hold-out after the last %.4f mm (%.3fx one host); tracker readings %d of %d "
-                "received; tracker->state p50 %.0f p99 %.0f us, target->compensated p50 %.0f p99 %.0f us\n    links: %s\n",
-                setting.netem.c_str(), n, e, e / e_one, received, published,
+    std::printf("  %s: %d updates, hold-out at the end %.4f mm, %.3fx the in-process engine on the same poses; over "
+                "v%d-v%d %.4f mm against one host's %.4f mm (%.3fx); tracker readings %d of %d received; tracker->state p50 %.0f p99 %.0f us, "
+                "target->compensated p50 %.0f p99 %.0f us\n    links: %s\n",
+                setting.netem.c_str(), n, end, end / reference, version - 9, version, e_hosts_same, e_one_same,
+                e_hosts_same / e_one_same,
+                received, published,
                 h["latency_us"]["tracker_to_state_p50"].get<double>(), h["latency_us"]["tracker_to_state_p99"].get<double>(),
                 h["latency_us"]["target_to_compensated_p50"].get<double>(),
                 h["latency_us"]["target_to_compensated_p99"].get<double>(), dropped.c_str());
