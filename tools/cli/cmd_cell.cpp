@@ -148,9 +148,13 @@ struct Judge {
 };
 
 // The same robot program and tracker model, through core's CalibrationEngine in this process (no DDS): what the
-// cell should reach. Poses measured up to `cell_time_end_s`.
-double inProcessReference(const CellConfig& cell, const CellRobot& robot, int index, double cell_time_end_s,
-                          const Judge& judge) {
+// cell should reach. Poses measured up to `cell_time_end_s`; the hold-out error at that time and how many poses.
+struct Reference {
+  double verify_mm = std::nan("");
+  int poses = 0;
+};
+Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int index, double cell_time_end_s,
+                             const Judge& judge) {
   const SimulatedCell sim = makeSimulatedCell(robot, cell.simulation, index);
   const SimRobotProgram program(sim, cell.simulation);
   EngineSettings es = cell.engine;
@@ -173,7 +177,8 @@ double inProcessReference(const CellConfig& cell, const CellRobot& robot, int in
       engine.process(wall(t_read) + 2000);
     }
   const CalibrationSnapshot& snap = engine.snapshot();
-  return judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0);
+  return {judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0),
+          static_cast<int>(snap.poses_used)};
 }
 
 // The launcher's own participant: the cell's application (TargetPoses at --targets-hz) and its judge (scores every
@@ -260,13 +265,16 @@ class CellJudge {
   void summarize(nlohmann::json* summary) const {
     nlohmann::json robots = nlohmann::json::array();
     double before = 0, after = 0, reference = 0, at_update = 0;
+    int reference_poses = 0;
     const double n = static_cast<double>(judges_.size());
     for (size_t i = 0; i < judges_.size(); ++i) {
       const Judge& j = judges_[i];
       const double t_h = j.cell_time_s / 3600.0;
       const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
-      const double ref =
-          a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j) : std::nan("");
+      const Reference r =
+          a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j) : Reference{};
+      const double ref = r.verify_mm;
+      reference_poses += r.poses;
       before += vb / n;
       after += va / n;
       at_update += j.verify_mm / n;
@@ -278,6 +286,7 @@ class CellJudge {
                         {"verify_after_mm", va},
                         {"verify_after_last_update_mm", j.verify_mm},  // at the cell time of the last update
                         {"in_process_verify_after_mm", ref},
+                        {"in_process_poses", r.poses},  // the poses the program measured by then, all fed to it
                         {"targets_applied", j.applied},
                         {"targets_refused", j.refused},
                         {"targets_refused_why", j.refused_why},
@@ -291,6 +300,7 @@ class CellJudge {
     s["verify_before_mm"] = before;
     s["verify_after_mm"] = after;
     s["in_process_verify_after_mm"] = reference;
+    s["in_process_poses"] = reference_poses;
     s["verify_after_last_update_mm"] = at_update;
     s["latency_us"] = {{"tracker_to_state_p50", percentile(tracker_to_state_us_, 0.5)},
                        {"tracker_to_state_p99", percentile(tracker_to_state_us_, 0.99)},
