@@ -479,12 +479,6 @@ int runCalibrate(const CalibrateArgs& a) {
   const std::vector<Observation> ident_kept = subset(ident, ik);
   const std::vector<Drivers> idr_kept = subset(idr, ik);
   const ErrorStats iak = errorStats(robot, after, ident_kept, idr_kept);
-  // How far the model can be trusted: its predicted position error on every kept row, against the actual one.
-  // Not with --frames-only: the robot file's covariance is of a fit whose frames were registered on its own rows;
-  // here new frames absorb part of the kinematics' error, which that covariance does not say (not computed, said).
-  const bool predicted = !a.frames_only;
-  const PredictionModel pm = predicted ? predictionModel(robot, after, ident_kept, idr_kept) : PredictionModel{};
-  const Trust trust = predicted ? trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept) : Trust{};
   // The frames' own uncertainty with --frames-only: their covariance on these rows, the kinematics as the file has
   // them, scaled by what the frames leave (the kinematics' error on this set-up is in that residual).
   double frames_variance_factor = 1;
@@ -493,6 +487,22 @@ int runCalibrate(const CalibrateArgs& a) {
                                             &frames_variance_factor);
     estimated = after.estimated.size();
   }
+  // How far the model can be trusted: its predicted position error on every kept row, against the actual one. With
+  // --frames-only, the robot file's covariance carried to these rows less what the new frames take up of it
+  // (carriedPrediction); a robot file without a calibration section carries the priors of a model no one calibrated.
+  const PredictionModel pm = [&] {
+    if (!a.frames_only) return predictionModel(robot, after, ident_kept, idr_kept);
+    PredictionModel carried;
+    if (in.calibration) {
+      carried.columns = in.calibration->columns;
+      carried.covariance = in.calibration->covariance;
+    } else {
+      carried = predictionModel(robot, after, {}, {});
+    }
+    // The readings' noise on these rows as the frames leave it (their sigmas may not be the campaign's).
+    return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated, frames_variance_factor);
+  }();
+  const Trust trust = trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
   // With --frames-only the start is the same model with its frames registered in closed form: no baseline to beat,
   // only the extrapolation rule applies.
   const std::string unusable = unusableFit(a.frames_only ? vak : vbk, vak, iak);
@@ -530,15 +540,14 @@ int runCalibrate(const CalibrateArgs& a) {
     std::printf("  %-24s %12.6g %+10.3g  sigma %.3g\n", after.extension_names[k].c_str(), after.extension_params[k],
                 after.extension_params[k], vf * after.extensionStddev(k));
   for (const auto& h : held_after) std::printf("held: %s\n", deficitText(h).c_str());
-  if (predicted)
-    std::printf("predicted model error (1 sigma, position): identification rows %.4f mm RMS (max %.4f), verification "
+  std::printf("predicted model error (1 sigma, position%s): identification rows %.4f mm RMS (max %.4f), verification "
                 "rows %.4f mm RMS (max %.4f); actual/predicted (with the reading noise, position variance factor %.2f): "
                 "RMS %.2f\n",
+                a.frames_only ? (in.calibration ? "; the robot file's covariance less what the new frames take up"
+                                                : "; the priors of an uncalibrated model less what the new frames take up")
+                              : "",
                 trust.ident_rms_mm, trust.ident_max_mm, trust.verify_rms_mm, trust.verify_max_mm,
                 pm.variance_factor_position, trust.ratio_rms);
-  else
-    std::printf("predicted model error: not computed with --frames-only (the robot file's covariance does not know "
-                "what these rows' frames absorb); the errors above are the model's on this set-up\n");
   if (trust.extrapolated > 0)
     std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
                 "the identification rows)\n", trust.extrapolated);
@@ -591,7 +600,7 @@ int runCalibrate(const CalibrateArgs& a) {
                                       {"threshold_robust_sigmas", p.outliers.threshold}}},
                         {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd},
                         {"held", heldJson(held_after)},
-                        {"prediction", !predicted ? nlohmann::json(nullptr) : nlohmann::json{
+                        {"prediction", nlohmann::json{
                                         {"identification_rms_mm", trust.ident_rms_mm},
                                         {"identification_max_mm", trust.ident_max_mm},
                                         {"verification_rms_mm", trust.verify_rms_mm},
@@ -608,12 +617,13 @@ int runCalibrate(const CalibrateArgs& a) {
   if (const int code = failedExit(converged, unusable, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);
-    if (a.frames_only) {  // the kinematics' uncertainty stays the robot file's (none when it has no section)
-      const RobotCalibration kept = in.calibration ? *in.calibration : RobotCalibration{};
-      cal.columns = kept.columns;
-      cal.covariance = kept.covariance;
-      cal.estimated = kept.estimated;
-      cal.variance_factor_position = kept.variance_factor_position;
+    if (a.frames_only) {  // estimated: the new frames, and what the robot file's own calibration estimated
+      for (size_t k = 0; k < cal.columns.size(); ++k) {
+        if (cal.estimated[k] || !in.calibration) continue;
+        const auto& kc = in.calibration->columns;
+        const auto it = std::find(kc.begin(), kc.end(), cal.columns[k]);
+        cal.estimated[k] = it != kc.end() && in.calibration->estimated[static_cast<size_t>(it - kc.begin())];
+      }
     }
     auto fixed = [](double v, int digits) {
       char b[64];
@@ -640,7 +650,7 @@ int runCalibrate(const CalibrateArgs& a) {
           {"verification_rms_mm", fixed(vak.rms_mm, 4)},
           {"verification_max_mm", fixed(vak.max_mm, 4)},
           {"identification_max_mm", fixed(iak.max_mm, 4)}};
-      if (!a.frames_only) pv.emplace_back("predicted_verification_rms_mm", fixed(trust.verify_rms_mm, 4));
+      pv.emplace_back("predicted_verification_rms_mm", fixed(trust.verify_rms_mm, 4));
       for (auto& kv : cal.provenance) pv.push_back(kv);
       return pv;
     }();

@@ -103,6 +103,66 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
   return pm;
 }
 
+PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
+                                  const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                  const std::vector<int>& frames, double noise_variance_factor) {
+  if (obs.size() != drivers.size()) throw std::invalid_argument("carriedPrediction: one Drivers entry per observation");
+  if (!(noise_variance_factor >= 0) || !std::isfinite(noise_variance_factor))
+    throw std::invalid_argument("carriedPrediction: noise_variance_factor must be finite and >= 0");
+  const auto nc = static_cast<Eigen::Index>(carried.columns.size());
+  if (carried.covariance.rows() != nc || carried.covariance.cols() != nc)
+    throw std::invalid_argument("carriedPrediction: the carried covariance does not match its columns");
+  const int ncols = model.numParams() + static_cast<int>(fit.extension_params.size());
+  for (int c : carried.columns)
+    if (c < 0 || c >= ncols) throw std::invalid_argument("carriedPrediction: carried column " + std::to_string(c) + " out of range");
+  for (int c : frames)
+    if (c < 0 || c >= model.numParams()) throw std::invalid_argument("carriedPrediction: frame column out of range");
+  std::vector<Eigen::Index> m_at;  // positions in `carried` of the columns the new frames do not replace
+  for (Eigen::Index k = 0; k < nc; ++k)
+    if (!std::count(frames.begin(), frames.end(), carried.columns[static_cast<size_t>(k)])) m_at.push_back(k);
+  const auto nm = static_cast<Eigen::Index>(m_at.size()), nf = static_cast<Eigen::Index>(frames.size());
+  Eigen::MatrixXd S(nm, nm);
+  for (Eigen::Index i = 0; i < nm; ++i)
+    for (Eigen::Index j = 0; j < nm; ++j) S(i, j) = carried.covariance(m_at[i], m_at[j]);
+  // Normal equations of the frames on these rows, and their coupling to the carried columns.
+  Eigen::MatrixXd Nff = Eigen::MatrixXd::Zero(nf, nf), Nfm = Eigen::MatrixXd::Zero(nf, nm);
+  KinematicsData data(model);
+  Eigen::MatrixXd J, Af, Am;
+  int rows_total = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const int rows = jacobianRows(model, data, fit, obs[i], drivers[i], nullptr, J);
+    rows_total += rows;
+    Af.resize(rows, nf);
+    Am.resize(rows, nm);
+    for (Eigen::Index c = 0; c < nf; ++c) Af.col(c) = J.col(frames[static_cast<size_t>(c)]);
+    for (Eigen::Index c = 0; c < nm; ++c) Am.col(c) = J.col(carried.columns[static_cast<size_t>(m_at[c])]);
+    Nff.noalias() += Af.transpose() * Af;
+    Nfm.noalias() += Af.transpose() * Am;
+  }
+  const auto ldlt = Nff.ldlt();
+  const Eigen::MatrixXd Nff_inv = ldlt.solve(Eigen::MatrixXd::Identity(nf, nf));
+  const Eigen::MatrixXd K = ldlt.solve(Nfm);
+  PredictionModel pm;
+  pm.covariance.resize(nm + nf, nm + nf);
+  pm.covariance.topLeftCorner(nm, nm) = S;
+  pm.covariance.bottomLeftCorner(nf, nm) = -K * S;
+  pm.covariance.topRightCorner(nm, nf) = -S * K.transpose();
+  pm.covariance.bottomRightCorner(nf, nf) = K * S * K.transpose() + noise_variance_factor * Nff_inv;
+  pm.prior_sigma.resize(nm + nf);
+  for (Eigen::Index k = 0; k < nm; ++k) {
+    pm.columns.push_back(carried.columns[static_cast<size_t>(m_at[k])]);
+    pm.prior_sigma[k] = carried.prior_sigma.size() == nc ? carried.prior_sigma[m_at[k]] : std::sqrt(S(k, k));
+  }
+  for (Eigen::Index k = 0; k < nf; ++k) {
+    pm.columns.push_back(frames[static_cast<size_t>(k)]);
+    pm.prior_sigma[nm + k] = std::sqrt(std::max(0.0, pm.covariance(nm + k, nm + k)));
+  }
+  pm.variance_factor = pm.variance_factor_position = pm.variance_factor_orientation = noise_variance_factor;
+  pm.rows = rows_total;
+  pm.estimated = static_cast<int>(nf);
+  return pm;
+}
+
 double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
                               const Eigen::VectorXd& q_rad, const Drivers& drivers) {
   Observation o;

@@ -3,6 +3,7 @@
 // at random (few poses on purpose: the model's own error must be comparable to the readings' noise to be judged).
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 
@@ -81,6 +82,109 @@ TEST(Prediction, SigmaOfTheModelErrorMatchesTheTrueErrorOnRandomRobots) {
   std::sort(per_draw.begin(), per_draw.end());
   std::printf("RMS(true / predicted) over %d draws x 50 held-out poses: %.3f (per draw: min %.2f, median %.2f, max %.2f)\n",
               draws, rms, per_draw.front(), per_draw[per_draw.size() / 2], per_draw.back());
+  EXPECT_GT(rms, 0.7);
+  EXPECT_LT(rms, 1.4);
+}
+
+// A model carried to a new set-up (carriedPrediction): a campaign calibrated on few poses, then the tracker and target
+// placed elsewhere (robot, measurement type, both placements and pose counts drawn at random) and the frames
+// registered again on the new rows with the campaign's kinematics held. Two checks:
+//  - against a plain reference: draw model errors from the carried covariance, make noise-free readings of the new
+//    rows with them, register the frames by Gauss-Newton (refineFrames, nonlinear) and take the error that is left at
+//    held-out configurations; its RMS against the linear prediction without reading noise;
+//  - against the truth: the actual error of the carried model on held-out configurations of the new set-up against
+//    its predicted sigma; the RMS of their ratio between 0.7 and 1.4, as for a model on its own set-up.
+TEST(Prediction, ACarriedModelOnANewSetUpPredictsWhatItsNewFramesLeave) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int draws = 24;
+  double sum_sq_ratio = 0;
+  int n = 0;
+  for (int d = 0; d < draws; ++d) {
+    const Draw dr = draw(rng);
+    const RobotModel& model = dr.model;
+    const SimulatedCell campaign(model, dr.config);
+    SimulationConfig moved_config = dr.config;  // the same robot (its errors drawn from the same seed), moved
+    test::randomTrackerAndTarget(rng, moved_config.base_in_tracker, moved_config.tool_in_flange);
+    const SimulatedCell moved(model, moved_config);
+    std::vector<Observation> ident, rows;
+    for (const auto& q : campaign.randomConfigurations(12 + static_cast<int>(40 * u(rng)), rng))
+      ident.push_back(campaign.measure(q, 0.0, rng, dr.kind));
+    for (const auto& q : moved.randomConfigurations(10 + static_cast<int>(40 * u(rng)), rng))
+      rows.push_back(moved.measure(q, 0.0, rng, dr.kind));
+    const RegistrationResult reg = registerFrames(model, model.nominal, ident);
+    const ExtendedFit fit = asFit(solveGaussNewton(CalibrationProblem{&model, reg.params, ident, std::nullopt, {}, {}}));
+    const PredictionModel pm = predictionModel(model, fit, ident, std::vector<Drivers>(ident.size()));
+    // calibrate --frames-only: frames registered in closed form, then refined with the kinematics held.
+    const std::vector<Drivers> drivers(rows.size());
+    ExtendedFit carried;
+    carried.params = refineFrames(model, registerFrames(model, fit.params, rows).params, {}, {}, rows, drivers).params;
+    std::vector<int> frame_columns;
+    for (int k = 0; k < 6; ++k)
+      frame_columns.insert(frame_columns.end(), {model.baseParam(static_cast<FrameParam>(k)),
+                                                 model.toolParam(static_cast<FrameParam>(k))});
+    Eigen::MatrixXd frame_cov;
+    double frames_factor = 0;
+    const std::vector<int> frames =
+        conditionalCovariance(model, carried, rows, drivers, frame_columns, &frame_cov, &frames_factor);
+    const PredictionModel cpm = carriedPrediction(model, carried, pm, rows, drivers, frames, frames_factor);
+    const auto held_out = moved.randomConfigurations(40, rng);
+    KinematicsData data(model);
+
+    // The plain reference: sampled model errors, noise-free readings, nonlinear registration.
+    const PredictionModel cpm0 = carriedPrediction(model, carried, pm, rows, drivers, frames, 0.0);
+    std::vector<Eigen::Index> m_at;
+    for (Eigen::Index k = 0; k < static_cast<Eigen::Index>(pm.columns.size()); ++k)
+      if (!std::count(frames.begin(), frames.end(), pm.columns[static_cast<size_t>(k)])) m_at.push_back(k);
+    Eigen::MatrixXd S(m_at.size(), m_at.size());
+    for (size_t i = 0; i < m_at.size(); ++i)
+      for (size_t j = 0; j < m_at.size(); ++j) S(i, j) = pm.covariance(m_at[i], m_at[j]);
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(S);  // S = V diag(l) V^T: dm = V sqrt(l) z
+    const Eigen::MatrixXd L = es.eigenvectors() * es.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+    double mc_sq = 0, lin_sq = 0;
+    const int samples = 60;
+    for (int k = 0; k < samples; ++k) {
+      Eigen::VectorXd z(S.rows());
+      for (Eigen::Index i = 0; i < z.size(); ++i) z[i] = g(rng);
+      const Eigen::VectorXd dm = L * z;
+      Eigen::VectorXd truth = carried.params;
+      for (size_t i = 0; i < m_at.size(); ++i) truth[pm.columns[static_cast<size_t>(m_at[i])]] += dm[static_cast<Eigen::Index>(i)];
+      std::vector<Observation> exact = rows;
+      for (auto& o : exact) {
+        const Pose t = forwardKinematics(model, data, truth, o.q_rad);
+        o.measured_in_tracker = t;
+      }
+      const Eigen::VectorXd registered = refineFrames(model, carried.params, {}, {}, exact, drivers).params;
+      for (const auto& q : held_out) {
+        const Eigen::Vector3d at = forwardKinematics(model, data, registered, q).translation();  // a copy: data is reused
+        mc_sq += (at - forwardKinematics(model, data, truth, q).translation()).squaredNorm();
+      }
+    }
+    for (const auto& q : held_out) lin_sq += std::pow(predictedPositionSigma(model, carried, cpm0, q, Drivers{}), 2);
+    const double mc_mm = std::sqrt(mc_sq / (samples * static_cast<double>(held_out.size()))) * 1e3;
+    const double lin_mm = std::sqrt(lin_sq / static_cast<double>(held_out.size())) * 1e3;
+    // 60 samples: the sampled RMS is within about 10 % of its expectation.
+    EXPECT_NEAR(mc_mm / lin_mm, 1.0, 0.25) << dr.name << " draw " << d << ": sampled " << mc_mm << " mm, linear " << lin_mm;
+
+    // Against the truth.
+    double draw_sq = 0;
+    for (const auto& q : held_out) {
+      const double truth_m = (forwardKinematics(model, data, carried.params, q).translation() -
+                              moved.truePose(q, 0.0).translation()).norm();
+      const double sigma_m = predictedPositionSigma(model, carried, cpm, q, Drivers{});
+      ASSERT_GT(sigma_m, 0);
+      draw_sq += truth_m * truth_m / (sigma_m * sigma_m);
+      sum_sq_ratio += truth_m * truth_m / (sigma_m * sigma_m);
+      ++n;
+    }
+    std::printf("draw %2d: %s %s, %2zu + %2zu poses: frames-only error RMS sampled %.4f / linear %.4f mm; "
+                "RMS(true / predicted) %.2f\n",
+                d, dr.name.c_str(), dr.kind == MeasurementKind::kPose6D ? "6D" : "points", ident.size(), rows.size(),
+                mc_mm, lin_mm, std::sqrt(draw_sq / static_cast<double>(held_out.size())));
+  }
+  const double rms = std::sqrt(sum_sq_ratio / n);
+  std::printf("RMS(true / predicted) over %d carried models x 40 held-out poses: %.3f\n", draws, rms);
   EXPECT_GT(rms, 0.7);
   EXPECT_LT(rms, 1.4);
 }

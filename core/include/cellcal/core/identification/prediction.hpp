@@ -47,6 +47,26 @@ struct PredictionModel {
 PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                                 const std::vector<Drivers>& drivers, const PredictionOptions& options = {});
 
+// The prediction of a calibrated model carried to another set-up, its frames registered again on `obs` at `fit`
+// (calibrate --frames-only). `carried` is the model's prediction from the campaign that identified it (a robot file's
+// calibration section: its columns and covariance are used; without one, the priors:
+// predictionModel with no rows). `frames` are the frame columns the new rows determine (conditionalCovariance). The
+// new frames absorb part of the carried model's error dm on these rows: with A the whitened Jacobian of `obs`,
+//     frame error  df = -K dm + e,   K = (A_f^T A_f)^-1 A_f^T A_m,   e ~ N(0, s^2 (A_f^T A_f)^-1),
+// s^2 = `noise_variance_factor`, the factor by which these rows' sigmas understate what the frames leave of them (the
+// frames' fit's r^T r / (rows - frames): conditionalCovariance). It is the new rows' own: a campaign's factor scales
+// the campaign's sigmas, and another file's rows may carry other sigmas (per-reading ones, or a default). It is also
+// the result's variance_factor_position, by which the readings' noise is scaled beside it. The position error at q is
+// J_m(q) dm + J_f(q) df, so the result is a PredictionModel over the carried columns other than `frames`, then
+// `frames`, with the joint covariance [S, -S K^T; -K S, K S K^T + s^2 (A_f^T A_f)^-1] (S the carried covariance of the
+// others): predictedPositionSigma gives that error's 1 sigma. An error the new frames take up entirely (a base offset)
+// predicts nothing; one they cannot (a link length) predicts what it does at q less what the frames took on these rows.
+// The error the model makes only on this set-up (a cause it does not hold that acts differently here) is not in it:
+// the ratio of actual to predicted on held-out rows says so.
+PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
+                                  const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                  const std::vector<int>& frames, double noise_variance_factor);
+
 // Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
 // 3D position error the model makes there, reading noise not included).
 double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
