@@ -162,18 +162,20 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
   const int f = m.baseParam(FrameParam::kX), tool0 = m.toolParam(FrameParam::kX);
+  const auto is_tool = [&](int kinematic) { return kinematic >= tool0 && kinematic < tool0 + 6; };
+  const auto candidate = [&](int kinematic) { return std::count(cand.begin(), cand.end(), kinematic) > 0; };
   const auto further = [&](bool tool) {  // further set-ups' frame columns whose parameter of set-up 0 is a candidate
     for (Eigen::Index c = np; c < ext0; ++c) {
       const int same = f + static_cast<int>((c - np) % 12);
-      if ((same >= tool0) == tool && std::count(cand.begin(), cand.end(), same)) order.push_back(static_cast<int>(c));
+      if (is_tool(same) == tool && candidate(same)) order.push_back(static_cast<int>(c));
     }
   };
   const std::vector<int> priority = identificationPriority(m);
   for (int c : priority)
-    if (c >= tool0 && c < tool0 + 6 && std::count(cand.begin(), cand.end(), c)) order.push_back(c);
+    if (is_tool(c) && candidate(c)) order.push_back(c);
   further(true);
   for (int c : priority)
-    if (!(c >= tool0 && c < tool0 + 6) && std::count(cand.begin(), cand.end(), c)) order.push_back(c);
+    if (!is_tool(c) && candidate(c)) order.push_back(c);
   further(false);
   for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
   SetupsFit out;
