@@ -123,6 +123,13 @@ TEST_F(NetnsNoMulticast, MulticastDiscoveryFindsNobody) {
   std::printf("  no multicast, multicast discovery: %d tracker readings reached the engine\n", readings);
 }
 
+// Readings the engine rejected for one robot, every reason together (its stats' "rejected" map).
+int rejectedReadings(const nlohmann::json& robot_stats) {
+  int n = 0;
+  for (const auto& [why, count] : robot_stats["rejected"].items()) n += count.get<int>();
+  return n;
+}
+
 // The cell across the hosts with `discovery` found every process: it calibrated as with multicast (12 s, as
 // ConvergesAcrossThreeHostsAsOnOneHost), every reading arrived and was used or rejected with its reason, and the
 // engine's banner names the discovery. How many poses the simulated robot makes in 12 s is the host's to decide
@@ -133,9 +140,7 @@ void expectTheCellRan(const nlohmann::json& s, const std::string& dir, const std
   const int received = s["topics"]["cellcal/tracker_pose"]["received"];
   EXPECT_EQ(s["topics"]["cellcal/tracker_pose"]["published"], received);
   const auto& robot = s["engine"]["robots"]["tx60"];
-  int rejected = 0;
-  for (const auto& [why, n] : robot["rejected"].items()) rejected += n.get<int>();
-  EXPECT_EQ(robot["poses_used"].get<int>() + rejected, received) << "a reading neither used nor rejected\n" << s.dump();
+  EXPECT_EQ(robot["poses_used"].get<int>() + rejectedReadings(robot), received) << "a reading neither used nor rejected\n" << s.dump();
   EXPECT_LT(s["verify_after_last_update_mm"].get<double>(), 0.05);
   EXPECT_NE(readTextFile(dir + "/hosts/run/calibration_engine.log").find("discovery by " + banner), std::string::npos);
   std::printf("  no multicast, %s: %d updates, hold-out %.4f mm, tracker->state p50 %.0f us\n", label,
@@ -430,8 +435,7 @@ TEST_F(NetnsCell, ATrackerLinkCutIsReportedAndTheCellResumes) {
   const auto engine_stats = readJson(dir + "/hosts/run/calibration_engine.stats.json");
   ASSERT_FALSE(engine_stats.is_discarded());
   const auto& robot_stats = engine_stats["extra"]["robots"]["tx60"];
-  int rejected = 0;
-  for (const auto& [why, n] : robot_stats["rejected"].items()) rejected += n.get<int>();
+  const int rejected = rejectedReadings(robot_stats);
   EXPECT_LE(robot_stats["poses_used"].get<int>() + rejected, readings_rx) << engine_stats.dump();
   EXPECT_NE(engine_log.find("stale input: tracker_pose"), std::string::npos) << engine_log;
   // Calibrated again, not lost: 2 h of cell time of warm-up went unobserved during the cut, so the poses after it

@@ -26,12 +26,12 @@ SimulationConfig placement(const SimulationConfig& sc, int s, std::mt19937_64& r
   return c;
 }
 
-// A measurement file's row of a simulated 6D reading at joints q.
+// A measurement file's row of a simulated reading at joints q (its orientation when the reading is 6D).
 MeasurementRow measuredRow(const Eigen::VectorXd& q, const Observation& o) {
   MeasurementRow r;
   r.q_rad = q;
   r.position_m = o.measured_in_tracker.translation();
-  r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+  if (o.kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
   return r;
 }
 
@@ -448,17 +448,6 @@ TEST(CliContinuous, RunsAFileInTimeOrder) {
   EXPECT_NEAR(pj["rls"]["mean_mm"].get<double>(), j["rls"]["mean_mm"].get<double>(), 1e-9) << periodic.log();
 }
 
-// A measurement file's row: a simulated reading of `kind` at joints q.
-MeasurementRow readingRow(const SimulatedCell& cell, const Eigen::VectorXd& q, MeasurementKind kind,
-                          std::mt19937_64& rng) {
-  const Observation o = cell.measure(q, 0.0, rng, kind);
-  MeasurementRow r;
-  r.q_rad = q;
-  r.position_m = o.measured_in_tracker.translation();
-  if (kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-  return r;
-}
-
 // Identification rows from one corner of the workspace, verification rows from all of it (`--split halves`): the
 // robot, the frames, the measurement type, the model (geometric or a joint compliance) and which corner (one wrist
 // orientation; the upper arm within a 10 deg band; the forearm within a 10 deg band) drawn at random. Whatever the
@@ -478,7 +467,7 @@ TEST(CliCalibrate, ExtrapolationIsNeverReportedAsSuccess) {
     const int corner = static_cast<int>(3 * u(rng));
     const Eigen::VectorXd q0 = cell.randomConfigurations(1, rng).front();
     MeasurementFile f;
-    auto add = [&](const Eigen::VectorXd& q) { f.rows.push_back(readingRow(cell, q, kind, rng)); };
+    auto add = [&](const Eigen::VectorXd& q) { f.rows.push_back(measuredRow(q, cell.measure(q, 0.0, rng, kind))); };
     for (Eigen::VectorXd q : cell.randomConfigurations(120, rng)) {
       if (corner == 0) q.tail(3) = q0.tail(3) + 0.01 * Eigen::Vector3d::Random();
       else q[corner] = q0[corner] + (u(rng) - 0.5) * 10 * kPi / 180;
@@ -536,7 +525,8 @@ TEST(CliCalibrate, FramesOnlyGivesTheFramesTheirOwnUncertainty) {
     const SimulatedCell campaign(model, draw.sc), moved(model, placement(draw.sc, 1, rng));
     auto write = [&](const SimulatedCell& cell, const std::string& path) {
       MeasurementFile f;
-      for (const auto& q : cell.randomConfigurations(120, rng)) f.rows.push_back(readingRow(cell, q, kind, rng));
+      for (const auto& q : cell.randomConfigurations(120, rng))
+        f.rows.push_back(measuredRow(q, cell.measure(q, 0.0, rng, kind)));
       std::ofstream out(path);
       writeMeasurementCsv(out, f, model.numJoints(), "simulated");
     };
