@@ -320,5 +320,44 @@ TEST_F(HostFixture, TheEnginesOwnShareIsMeasuredFromTheDecidingSample) {
   }
 }
 
+// What made each reading pairable is counted by its cause: a reading whose joint state of the same instant was there
+// already pairs on its own arrival (a tracker triggered with the controller), one that came before the joint state
+// after it pairs on that joint state; the reading's own transport (stamp -> received) is kept per reading.
+TEST_F(HostFixture, EachPairingIsCountedByTheSampleThatDecidedIt) {
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  EngineHost host(config, {false, nullptr}, nullptr);
+  Stream st{sim, rng};
+  std::uniform_int_distribution<std::int64_t> transport_ns(50'000, 900'000);
+  std::vector<std::int64_t> transports;
+  std::uint64_t on_reading = 0, on_joint_state = 0;
+  for (const auto& q : sim.randomConfigurations(30, rng)) {
+    st.advance(60);
+    const TrackerSample s = st.reading(q);
+    const std::int64_t transport = transport_ns(rng);
+    const std::uint64_t paired = host.robots().at(robot.robot_id).engine->counters().paired;
+    host.onJointState(robot.robot_id, {s.stamp_ns - 1000, ++st.seq, q, true}, s.stamp_ns);
+    if (rng() % 2) {  // triggered: the joint state of the reading's instant arrives first
+      host.onJointState(robot.robot_id, {s.stamp_ns, ++st.seq, q, true}, s.stamp_ns + 1000);
+      host.onTrackerSample(robot.target_id, s, s.stamp_ns + transport);
+      on_reading += host.robots().at(robot.robot_id).engine->counters().paired - paired;
+    } else {          // free-running: the reading waits for the next joint state
+      host.onTrackerSample(robot.target_id, s, s.stamp_ns + transport);
+      host.onJointState(robot.robot_id, {s.stamp_ns + 1000, ++st.seq, q, true}, s.stamp_ns + transport + 1000);
+      on_joint_state += host.robots().at(robot.robot_id).engine->counters().paired - paired;
+    }
+    transports.push_back(transport);
+  }
+  const EngineHost::Robot& r = host.robots().at(robot.robot_id);
+  EXPECT_GT(on_reading, 5u);
+  EXPECT_GT(on_joint_state, 5u);
+  EXPECT_EQ(r.paired_on_reading, on_reading);
+  EXPECT_EQ(r.paired_on_joint_state, on_joint_state);
+  EXPECT_EQ(r.paired_on_tick, 0u);
+  EXPECT_EQ(on_reading + on_joint_state, r.engine->counters().paired);
+  EXPECT_EQ(std::vector<std::int64_t>(r.reading_received_ns.begin(), r.reading_received_ns.end()), transports);
+}
+
 }  // namespace
 }  // namespace cellcal

@@ -42,12 +42,16 @@ console.log(`  ${process.argv[3].padEnd(9)} ${process.argv[4].padEnd(4)} ${f(s.c
   `${f(r.verify_after_last_update_mm.toFixed(4), 15)}`);
 const p = er.decided_to_published_parts_p50_ns, us = (x) => (x / 1e3).toFixed(0);
 console.log(`            own p50 in parts: queued ${us(p.queued)}, pair and update ${us(p.process)}, ` +
-  `save ${us(p.persist)}, convert and publish ${us(p.publish)} us`);' "$out/${mode}_$round.json" \
+  `save ${us(p.persist)}, convert and publish ${us(p.publish)} us`);
+const on = er.paired_on;
+console.log(`            reading stamped -> received by the engine p50 ${us(er.reading_received_p50_ns)}, ` +
+  `p99 ${us(er.reading_received_p99_ns)} us; paired on the own arrival of the reading ${on.reading}, ` +
+  `on a later joint state ${on.joint_state}, on a tick ${on.tick}`);' "$out/${mode}_$round.json" \
       "$out/run_${mode}_$round/calibration_engine.stats.json" "$mode" "$round"
   done
 done
 echo "  state: tracker reading stamped -> its CalibrationState received (the launcher); paired: reading stamped -> paired"
-echo "  in the engine (its DDS transport and the wait for the joint state after it: one joint period, 1 ms at 1 kHz);"
+echo "  in the engine (the tracker's path to the engine, any wait for the joint state after the reading, the queue);"
 echo "  update: the engine's update of one pose; own: the engine's own share, from receiving the sample that made a"
 echo "  reading pairable (the joint state after it) to its version saved and published"
 "$build/bin/cellcal_bench" --benchmark_filter=BM_EnginePose --benchmark_repetitions=5 \

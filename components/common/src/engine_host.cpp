@@ -62,7 +62,7 @@ bool EngineHost::onJointState(const std::string& robot_id, const JointSample& s,
     return false;
   }
   it->second.engine->onJointState(s, receive_ns);
-  step(it->second, receive_ns, true);
+  step(it->second, receive_ns, Cause::kJointState);
   return true;
 }
 
@@ -72,13 +72,14 @@ bool EngineHost::onTrackerSample(const std::string& target_id, const TrackerSamp
     ++unknown_keys_;
     return false;
   }
+  push(it->second->reading_received_ns, receive_ns - s.stamp_ns);
   it->second->engine->onTrackerSample(s, receive_ns);
-  step(*it->second, receive_ns, true);
+  step(*it->second, receive_ns, Cause::kReading);
   return true;
 }
 
 void EngineHost::tick(std::int64_t now_ns) {
-  for (auto& [id, r] : robots_) step(r, now_ns, false);
+  for (auto& [id, r] : robots_) step(r, now_ns, Cause::kTick);
 }
 
 void EngineHost::tickIfDue(std::int64_t now_ns) {
@@ -88,7 +89,7 @@ void EngineHost::tickIfDue(std::int64_t now_ns) {
 }
 
 // Pairs and updates; the state file holds every change before a new version is handed on (the latency path).
-void EngineHost::step(Robot& r, std::int64_t now_ns, bool arrival) {
+void EngineHost::step(Robot& r, std::int64_t now_ns, Cause cause) {
   const std::uint64_t before = r.engine->counters().paired;
   const std::int64_t t0 = options_.clock();
   const bool changed = r.engine->process(now_ns);
@@ -97,13 +98,15 @@ void EngineHost::step(Robot& r, std::int64_t now_ns, bool arrival) {
   if (paired) {
     push(r.pairing_ns, t1 - r.engine->snapshot().last_measurement_stamp_ns);
     push(r.update_ns, r.engine->lastUpdateDurationNs());
+    (cause == Cause::kReading ? r.paired_on_reading : cause == Cause::kJointState ? r.paired_on_joint_state : r.paired_on_tick) +=
+        r.engine->counters().paired - before;
   }
   if (r.store && r.engine->stateRevision() != r.saved_revision) persist(r);
   const std::int64_t t2 = options_.clock();
   if (changed) {
     ++updates_;
     if (on_update_) on_update_(r);
-    if (paired && arrival) {
+    if (paired && cause != Cause::kTick) {
       const std::int64_t t3 = options_.clock();
       push(r.decided_ns, t3 - now_ns);
       push(r.queued_ns, t0 - now_ns);

@@ -49,6 +49,11 @@ class EngineHost {
     // decided_ns in its parts: waiting for the caller's thread (sample received -> step), pairing and updating
     // (CalibrationEngine::process), saving the state, handing the version on (OnUpdate: converting and publishing).
     std::deque<std::int64_t> queued_ns, process_ns, persist_ns, publish_ns;
+    // Reading stamp -> received by this host: the tracker's own path (its host, its adapter, the network).
+    std::deque<std::int64_t> reading_received_ns;
+    // What made each paired reading pairable: its own arrival (the joint state at or after its stamp was there
+    // already), a joint state arriving after it, or a tick (a reading decided by timeout).
+    std::uint64_t paired_on_reading = 0, paired_on_joint_state = 0, paired_on_tick = 0;
     std::uint64_t saved_revision = 0;  // the engine's state revision last written (or tried: retried on the next change)
     bool unsynced = false;             // saved since the last takeUnsynced()
   };
@@ -85,8 +90,9 @@ class EngineHost {
   std::uint64_t updates() const { return updates_; }
 
  private:
-  // arrival: now_ns is the receive time of the sample that caused this step (not a tick).
-  void step(Robot& r, std::int64_t now_ns, bool arrival);
+  // What caused a step: a sample received at now_ns, or a tick.
+  enum class Cause { kJointState, kReading, kTick };
+  void step(Robot& r, std::int64_t now_ns, Cause cause);
   void persist(Robot& r);
 
   Options options_;
