@@ -184,6 +184,8 @@ void EngineProcess::stopAndReport() {
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},
+                  // tracker sequence numbers of the readings applied, in order (the last 4096)
+                  {"applied_readings", std::vector<std::uint64_t>(r.engine->appliedReadings().begin(), r.engine->appliedReadings().end())},
                   {"pairing_latency_p99_ns", p99(r.pairing_ns)},
                   {"reading_received_p50_ns", percentileNs(r.reading_received_ns, 0.5)},
                   {"reading_received_p99_ns", p99(r.reading_received_ns)},

@@ -32,7 +32,23 @@ void TrackerAdapter::runSim() {
   }
   std::mutex mutex;
   std::uint64_t measured = 0;
+  // Per robot, the program's pose each reading measured (reading sequence k: element k - 1): what an in-process
+  // reference needs to replay exactly the readings an engine applied.
+  std::map<std::string, std::vector<long long>> pose_of_reading;
   const SimulationSettings& sim = cell_.simulation;
+  if (options_.wait_for_readers > 0) {
+    // The robot program waits for this adapter's RobotTruth reader (joint_state_adapter --wait-for-readers): made
+    // only once the readings have somewhere to go.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    fdds::PublicationMatchedStatus m;
+    while (std::chrono::steady_clock::now() < deadline && !stopRequested()) {
+      writer_.entity()->get_publication_matched_status(m);
+      if (m.current_count >= options_.wait_for_readers) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    std::cerr << "tracker_adapter: readers matched: tracker_pose " << m.current_count << " of "
+              << options_.wait_for_readers << "\n";
+  }
   node_.reader<sim::RobotTruth>([&](const sim::RobotTruth& t, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> lock(mutex);
     auto it = robots.find(t.robot_id().to_string());
@@ -54,12 +70,14 @@ void TrackerAdapter::runSim() {
     auto m = toTrackerPose(r.robot->target_id, static_cast<std::int64_t>(t.source_stamp_ns()) + offset_ns, ++r.seq, obs);
     writer_.write(m);
     ++measured;
+    pose_of_reading[it->first].push_back(t.pose_id());
   });
   std::cerr << "tracker_adapter: sim, " << robots.size() << " target(s), domain " << node_.domainId() << "\n";
   const RunLimit limit(input_.duration_s);
   while (!limit.over()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
   node_.shutdown();  // before `robots` goes: no callback after this point
   extra_["readings"] = measured;
+  extra_["pose_of_reading"] = pose_of_reading;
 }
 
 void TrackerAdapter::runCsv() {

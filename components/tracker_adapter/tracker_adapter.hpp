@@ -21,6 +21,9 @@ class TrackerAdapter : public SourceAdapter {
     SourceOptions input = SourceOptions::withUdpPort(5611);
     double sigma_position_mm = 0.015;  // csv: the readings' noise
     double sigma_orientation_deg = 0.005;
+    // sim: measure only once TrackerPose has this many readers (the engines, the recorder), at most 10 s: readings
+    // made before the engine's reader is found are lost (best effort), and on a lossy link that can take seconds.
+    int wait_for_readers = 0;
   };
   explicit TrackerAdapter(const Options& options);
 

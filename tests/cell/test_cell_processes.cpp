@@ -49,9 +49,12 @@ TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
   EXPECT_GT(before, 0.3);
   EXPECT_LT(at_update, 0.05);
   EXPECT_LT(at_update, before / 10);
-  // Through the processes as good as core's engine fed the same program in-process.
-  EXPECT_LT(after, 1.5 * ref + 0.005) << "in-process " << ref;
+  // Through the processes as good as core's engine fed the same readings in-process: the launcher replays exactly
+  // the readings the engine applied (their sequence numbers from the engine's stats, their poses from the tracker's).
   const auto& r = s["robots"][0];
+  EXPECT_EQ(r["in_process_inputs"], "applied_readings");
+  EXPECT_EQ(r["in_process_poses"], s["calibration_updates"]);
+  EXPECT_LT(after, 1.05 * ref) << "in-process " << ref;
   EXPECT_LT(r["landed_error_compensated_mean_mm"].get<double>(), r["landed_error_uncompensated_mean_mm"].get<double>() / 5);
   for (const char* k : {"tracker_to_state_p50", "tracker_to_state_p99", "target_to_compensated_p50", "target_to_compensated_p99"})
     EXPECT_GT(s["latency_us"][k].get<double>(), 0) << k;

@@ -147,14 +147,28 @@ struct Judge {
   double verifyNominal(double t_h) const { return verify(IdentifiedModel{sim.nominalParams(), {}, {}}, t_h); }
 };
 
+// What the cell's processes say of one robot's readings, from their --stats-json: the program's pose each reading
+// of the simulated tracker measured (reading sequence k: element k - 1), and the sequence numbers of the readings the
+// engine applied, of its `poses_used` in all (more than applied: it resumed from a state).
+struct ReadingsApplied {
+  std::vector<long long> pose_of_reading;
+  std::vector<std::uint64_t> applied;
+  std::uint64_t poses_used = 0;
+};
+
 // The same robot program and tracker model, through core's CalibrationEngine in this process (no DDS): what the
-// cell should reach. Poses measured up to `cell_time_end_s`; the hold-out error at that time and how many poses.
+// cell should reach on the same inputs. The hold-out error at `cell_time_end_s`, how many poses were fed and which.
+// With `readings`: exactly the readings the engine applied, replayed (every reading the tracker made draws its noise
+// in order, as the tracker did; those the engine did not apply are not fed). Without them, or when they do not
+// account for the engine's poses: every pose the program measured up to `cell_time_end_s` (`inputs` says which).
 struct Reference {
   double verify_mm = std::nan("");
   int poses = 0;
+  std::string inputs;  // "applied_readings" or "program"
+  std::string why_program;  // when readings were given and could not be used
 };
 Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int index, double cell_time_end_s,
-                             const Judge& judge) {
+                             const Judge& judge, const ReadingsApplied* readings) {
   const SimulatedCell sim = makeSimulatedCell(robot, cell.simulation, index);
   const SimRobotProgram program(sim, cell.simulation);
   EngineSettings es = cell.engine;
@@ -163,22 +177,76 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   const std::int64_t epoch = 1'700'000'000'000'000'000;
   auto wall = [&](double t) { return epoch + static_cast<std::int64_t>(t / cell.time_compression * 1e9); };
   const double pt = cell.simulation.pose_time_s, sf = cell.simulation.settle_fraction;
-  std::uint64_t seq = 0;
+  std::vector<std::pair<int, int>> pose_at;  // pose id -> (campaign, index)
   for (int g = 0; g < program.campaigns(); ++g)
-    for (int k = 0; k < program.posesIn(g); ++k) {
-      const double t_read = program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
-      if (t_read > cell_time_end_s) break;
-      const Eigen::VectorXd& q = program.campaignConfigurations(g)[k];
-      engine.onJointState({wall(t_read) - 1000, ++seq, q, true}, wall(t_read));
-      TrackerSample s = toTrackerSample(toTrackerPose(robot.target_id, wall(t_read), seq,
-                                                      sim.measure(q, t_read / 3600.0, rng, robot.measurement)));
-      engine.onTrackerSample(s, wall(t_read));
-      engine.onJointState({wall(t_read) + 1000, ++seq, q, true}, wall(t_read));
-      engine.process(wall(t_read) + 2000);
+    for (int k = 0; k < program.posesIn(g); ++k) pose_at.emplace_back(g, k);
+  std::uint64_t seq = 0;
+  // One reading of pose (g, k), fed or only drawn.
+  auto reading = [&](int g, int k, bool feed) {
+    const double t_read = program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
+    const Eigen::VectorXd& q = program.campaignConfigurations(g)[k];
+    const Observation obs = sim.measure(q, t_read / 3600.0, rng, robot.measurement);
+    ++seq;
+    if (!feed) return;
+    engine.onJointState({wall(t_read) - 1000, seq, q, true}, wall(t_read));
+    engine.onTrackerSample(toTrackerSample(toTrackerPose(robot.target_id, wall(t_read), seq, obs)), wall(t_read));
+    engine.onJointState({wall(t_read) + 1000, ++seq, q, true}, wall(t_read));
+    engine.process(wall(t_read) + 2000);
+  };
+  Reference ref;
+  if (readings) {
+    const std::set<std::uint64_t> applied(readings->applied.begin(), readings->applied.end());
+    const auto made = readings->pose_of_reading.size();
+    if (readings->applied.size() != readings->poses_used)
+      ref.why_program = "the engine applied " + std::to_string(readings->applied.size()) + " readings in this run of its " +
+                        std::to_string(readings->poses_used) + " poses (resumed from a state, or more than it lists)";
+    else if (!applied.empty() && *applied.rbegin() > made)
+      ref.why_program = "the engine applied reading #" + std::to_string(*applied.rbegin()) + ", the tracker lists " +
+                        std::to_string(made);
+    for (const long long id : readings->pose_of_reading)
+      if (ref.why_program.empty() && (id < 0 || id >= static_cast<long long>(pose_at.size())))
+        ref.why_program = "the tracker measured pose " + std::to_string(id) + ", not in the program";
+    if (ref.why_program.empty()) {
+      for (size_t i = 0; i < made; ++i) {
+        const auto [g, k] = pose_at[static_cast<size_t>(readings->pose_of_reading[i])];
+        reading(g, k, applied.count(i + 1) > 0);
+      }
+      ref.inputs = "applied_readings";
     }
+  }
+  if (ref.inputs.empty()) {
+    ref.inputs = "program";
+    for (const auto& [g, k] : pose_at) {
+      if (program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt > cell_time_end_s)
+        break;
+      reading(g, k, true);
+    }
+  }
   const CalibrationSnapshot& snap = engine.snapshot();
-  return {judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0),
-          static_cast<int>(snap.poses_used)};
+  ref.verify_mm = judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0);
+  ref.poses = static_cast<int>(snap.poses_used);
+  return ref;
+}
+
+// The readings of one robot the simulated tracker made and the engine applied (mergeProcessStats put both processes'
+// stats in the summary); nullopt when a process did not say.
+std::optional<ReadingsApplied> readingsApplied(const nlohmann::json& summary, const std::string& robot_id) {
+  std::optional<ReadingsApplied> out;
+  const nlohmann::json trackers = summary.value("trackers", nlohmann::json::object()),
+                       engines = summary.value("engines", nlohmann::json::object());
+  for (const auto& [name, t] : trackers.items())
+    if (t.contains("pose_of_reading") && t["pose_of_reading"].contains(robot_id)) {
+      out.emplace();
+      out->pose_of_reading = t["pose_of_reading"][robot_id].get<std::vector<long long>>();
+    }
+  if (!out) return std::nullopt;
+  for (const auto& [name, e] : engines.items())
+    if (e.contains("robots") && e["robots"].contains(robot_id) && e["robots"][robot_id].contains("applied_readings")) {
+      out->applied = e["robots"][robot_id]["applied_readings"].get<std::vector<std::uint64_t>>();
+      out->poses_used = e["robots"][robot_id].value("poses_used", 0ULL);
+      return out;
+    }
+  return std::nullopt;
 }
 
 // The launcher's own participant: the cell's application (TargetPoses at --targets-hz) and its judge (scores every
@@ -271,8 +339,13 @@ class CellJudge {
       const Judge& j = judges_[i];
       const double t_h = j.cell_time_s / 3600.0;
       const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
-      const Reference r =
-          a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j) : Reference{};
+      const std::optional<ReadingsApplied> readings = readingsApplied(*summary, j.robot->robot_id);
+      const Reference r = a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j,
+                                                                       readings ? &*readings : nullptr)
+                                                  : Reference{};
+      if (!r.why_program.empty())
+        std::printf("cell: %s: the in-process engine replays the program, not the readings applied: %s\n",
+                    j.robot->robot_id.c_str(), r.why_program.c_str());
       const double ref = r.verify_mm;
       reference_poses += r.poses;
       before += vb / n;
@@ -286,7 +359,8 @@ class CellJudge {
                         {"verify_after_mm", va},
                         {"verify_after_last_update_mm", j.verify_mm},  // at the cell time of the last update
                         {"in_process_verify_after_mm", ref},
-                        {"in_process_poses", r.poses},  // the poses the program measured by then, all fed to it
+                        {"in_process_poses", r.poses},    // the poses it applied
+                        {"in_process_inputs", r.inputs},  // applied_readings: the engine's; program: every pose by then
                         {"targets_applied", j.applied},
                         {"targets_refused", j.refused},
                         {"targets_refused_why", j.refused_why},
@@ -463,7 +537,8 @@ std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, con
   };
   each("calibration_engine", {"--state-dir", state_dir, "--quiet"});
   each("compensation_publisher", {});
-  each("tracker_adapter", {"--source", "sim"});
+  // Each tracker adapter measures once its readings have every reader: the engines and the recorder.
+  each("tracker_adapter", {"--source", "sim", "--wait-for-readers", std::to_string(n + (a.record.empty() ? 0 : 1))});
   // The robot starts its program once the engine and the tracker listen (discovery on loopback takes a moment):
   // RobotTruth's readers are every tracker adapter, this launcher and the recorder.
   each("joint_state_adapter",
@@ -506,6 +581,7 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
       s["compensation_publishers"][c.name] = p["extra"];
     }
     if (c.name == "recorder") s["recorder"] = p["extra"];
+    if (c.name.rfind("tracker_adapter", 0) == 0) s["trackers"][c.name] = p["extra"];
   }
   s["topics"] = topics;
   s["calibration_updates"] = calibration_updates;

@@ -453,6 +453,8 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
   recent_.push_back(r);
   while (recent_.size() > kRecentWindow) recent_.pop_front();
   ++snap_.poses_used;
+  applied_readings_.push_back(p.tracker_sequence);
+  if (applied_readings_.size() > kAppliedKept) applied_readings_.pop_front();
   return true;
 }
 
