@@ -34,6 +34,13 @@ void reportStart(const EngineHost& host) {
   }
 }
 
+// [[tracker sequence number, stamp_ns], ...]: what an in-process replay needs to feed the same readings.
+nlohmann::json appliedReadingsJson(const std::deque<CalibrationEngine::AppliedReading>& applied) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& a : applied) out.push_back({a.tracker_sequence, a.stamp_ns});
+  return out;
+}
+
 }  // namespace
 
 EngineProcess::EngineProcess(const Options& options)
@@ -184,8 +191,8 @@ void EngineProcess::stopAndReport() {
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},
-                  // tracker sequence numbers of the readings applied, in order (the last 4096)
-                  {"applied_readings", std::vector<std::uint64_t>(r.engine->appliedReadings().begin(), r.engine->appliedReadings().end())},
+                  // the readings applied, in order (the last 4096): [tracker sequence number, stamp_ns]
+                  {"applied_readings", appliedReadingsJson(r.engine->appliedReadings())},
                   {"pairing_latency_p99_ns", p99(r.pairing_ns)},
                   {"reading_received_p50_ns", percentileNs(r.reading_received_ns, 0.5)},
                   {"reading_received_p99_ns", p99(r.reading_received_ns)},

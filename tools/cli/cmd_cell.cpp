@@ -152,15 +152,16 @@ struct Judge {
 // engine applied, of its `poses_used` in all (more than applied: it resumed from a state).
 struct ReadingsApplied {
   std::vector<long long> pose_of_reading;
-  std::vector<std::uint64_t> applied;
+  std::vector<std::pair<std::uint64_t, std::int64_t>> applied;  // (tracker sequence number, stamp_ns)
   std::uint64_t poses_used = 0;
 };
 
 // The same robot program and tracker model, through core's CalibrationEngine in this process (no DDS): what the
 // cell should reach on the same inputs. The hold-out error at `cell_time_end_s`, how many poses were fed and which.
-// With `readings`: exactly the readings the engine applied, replayed (every reading the tracker made draws its noise
-// in order, as the tracker did; those the engine did not apply are not fed). Without them, or when they do not
-// account for the engine's poses: every pose the program measured up to `cell_time_end_s` (`inputs` says which).
+// With `readings`: exactly the readings the engine applied, replayed at the stamps it saw (every reading the tracker
+// made draws its noise in order, as the tracker did; those the engine did not apply are not fed). Without them, or
+// when they do not account for the engine's poses: every pose the program measured up to `cell_time_end_s`, stamped
+// by cell time (`inputs` says which).
 struct Reference {
   double verify_mm = std::nan("");
   int poses = 0;
@@ -181,27 +182,28 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   for (int g = 0; g < program.campaigns(); ++g)
     for (int k = 0; k < program.posesIn(g); ++k) pose_at.emplace_back(g, k);
   std::uint64_t seq = 0;
-  // One reading of pose (g, k), fed or only drawn.
-  auto reading = [&](int g, int k, bool feed) {
+  // One reading of pose (g, k): fed stamped `stamp_ns` (0: by cell time), or only drawn (nullopt).
+  auto reading = [&](int g, int k, std::optional<std::int64_t> stamp_ns) {
     const double t_read = program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
     const Eigen::VectorXd& q = program.campaignConfigurations(g)[k];
     const Observation obs = sim.measure(q, t_read / 3600.0, rng, robot.measurement);
     ++seq;
-    if (!feed) return;
-    engine.onJointState({wall(t_read) - 1000, seq, q, true}, wall(t_read));
-    engine.onTrackerSample(toTrackerSample(toTrackerPose(robot.target_id, wall(t_read), seq, obs)), wall(t_read));
-    engine.onJointState({wall(t_read) + 1000, ++seq, q, true}, wall(t_read));
-    engine.process(wall(t_read) + 2000);
+    if (!stamp_ns) return;
+    const std::int64_t t = *stamp_ns != 0 ? *stamp_ns : wall(t_read);
+    engine.onJointState({t - 1000, seq, q, true}, t);
+    engine.onTrackerSample(toTrackerSample(toTrackerPose(robot.target_id, t, seq, obs)), t);
+    engine.onJointState({t + 1000, ++seq, q, true}, t);
+    engine.process(t + 2000);
   };
   Reference ref;
   if (readings) {
-    const std::set<std::uint64_t> applied(readings->applied.begin(), readings->applied.end());
+    const std::map<std::uint64_t, std::int64_t> applied(readings->applied.begin(), readings->applied.end());
     const auto made = readings->pose_of_reading.size();
     if (readings->applied.size() != readings->poses_used)
       ref.why_program = "the engine applied " + std::to_string(readings->applied.size()) + " readings in this run of its " +
                         std::to_string(readings->poses_used) + " poses (resumed from a state, or more than it lists)";
-    else if (!applied.empty() && *applied.rbegin() > made)
-      ref.why_program = "the engine applied reading #" + std::to_string(*applied.rbegin()) + ", the tracker lists " +
+    else if (!applied.empty() && applied.rbegin()->first > made)
+      ref.why_program = "the engine applied reading #" + std::to_string(applied.rbegin()->first) + ", the tracker lists " +
                         std::to_string(made);
     for (const long long id : readings->pose_of_reading)
       if (ref.why_program.empty() && (id < 0 || id >= static_cast<long long>(pose_at.size())))
@@ -209,7 +211,8 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
     if (ref.why_program.empty()) {
       for (size_t i = 0; i < made; ++i) {
         const auto [g, k] = pose_at[static_cast<size_t>(readings->pose_of_reading[i])];
-        reading(g, k, applied.count(i + 1) > 0);
+        const auto a = applied.find(i + 1);
+        reading(g, k, a == applied.end() ? std::nullopt : std::optional<std::int64_t>(a->second));
       }
       ref.inputs = "applied_readings";
     }
@@ -219,7 +222,7 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
     for (const auto& [g, k] : pose_at) {
       if (program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt > cell_time_end_s)
         break;
-      reading(g, k, true);
+      reading(g, k, 0);
     }
   }
   const CalibrationSnapshot& snap = engine.snapshot();
@@ -242,7 +245,7 @@ std::optional<ReadingsApplied> readingsApplied(const nlohmann::json& summary, co
   if (!out) return std::nullopt;
   for (const auto& [name, e] : engines.items())
     if (e.contains("robots") && e["robots"].contains(robot_id) && e["robots"][robot_id].contains("applied_readings")) {
-      out->applied = e["robots"][robot_id]["applied_readings"].get<std::vector<std::uint64_t>>();
+      out->applied = e["robots"][robot_id]["applied_readings"].get<std::vector<std::pair<std::uint64_t, std::int64_t>>>();
       out->poses_used = e["robots"][robot_id].value("poses_used", 0ULL);
       return out;
     }

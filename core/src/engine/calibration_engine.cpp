@@ -453,7 +453,7 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
   recent_.push_back(r);
   while (recent_.size() > kRecentWindow) recent_.pop_front();
   ++snap_.poses_used;
-  applied_readings_.push_back(p.tracker_sequence);
+  applied_readings_.push_back({p.tracker_sequence, p.tracker_stamp_ns});
   if (applied_readings_.size() > kAppliedKept) applied_readings_.pop_front();
   return true;
 }

@@ -89,15 +89,19 @@ TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
   std::int64_t t = 1'700'000'000'000'000'000;
   std::uint64_t seq = 0;
   int readings = 0;
+  std::vector<std::pair<std::uint64_t, std::int64_t>> first;  // each stand-still's first reading
   for (const auto& q : qs) {
-    for (int k = 0; k < 20; ++k) {  // moving toward q
+    for (int k = 0; k < 20; ++k) {  // moving toward q, the tracker streaming too
       t += 1'000'000;
       engine.onJointState({t, ++seq, q * (0.5 + k / 40.0), false}, t);
+      engine.onTrackerSample(test::trackerSample(sim.measure(q, 0.0, rng), t, ++seq), t);
+      engine.process(t);
     }
     for (int k = 0; k < 100; ++k) {  // standing still: the tracker streams at 1 kHz
       t += 1'000'000;
       engine.onJointState({t, ++seq, q, true}, t);
       engine.onTrackerSample(test::trackerSample(sim.measure(q, 0.0, rng), t, ++seq), t);
+      if (k == 0) first.emplace_back(seq, t);
       engine.process(t);
       ++readings;
     }
@@ -105,6 +109,11 @@ TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
   EXPECT_EQ(engine.snapshot().version, 3u);
   EXPECT_EQ(engine.counters().paired, static_cast<std::uint64_t>(readings));
   EXPECT_EQ(engine.counters().same_pose, static_cast<std::uint64_t>(readings - 3));
+  EXPECT_EQ(engine.counters().rejected[static_cast<int>(Rejection::kRobotMoving)], 60u);
+  // Which readings the calibration used: the first of each stand-still, none taken while moving or repeated.
+  std::vector<std::pair<std::uint64_t, std::int64_t>> applied;
+  for (const auto& a : engine.appliedReadings()) applied.emplace_back(a.tracker_sequence, a.stamp_ns);
+  EXPECT_EQ(applied, first);
 }
 
 TEST_F(EngineFixture, PeriodicModeUpdatesOncePerBatch) {

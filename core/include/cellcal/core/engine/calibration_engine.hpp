@@ -127,10 +127,14 @@ class CalibrationEngine {
   std::string clockWarning() const;
   // Wall time of the last update (linearization + RLS), ns.
   std::int64_t lastUpdateDurationNs() const { return last_update_duration_ns_; }
-  // The tracker sequence numbers of the readings applied to the estimate since this engine was made, in the order
-  // applied (the last kAppliedKept): which readings a calibration used.
+  // The readings applied to the estimate since this engine was made, in the order applied (the last kAppliedKept):
+  // which readings a calibration used, by the tracker's sequence number and stamp.
+  struct AppliedReading {
+    std::uint64_t tracker_sequence = 0;
+    std::int64_t stamp_ns = 0;
+  };
   static constexpr std::size_t kAppliedKept = 4096;
-  const std::deque<std::uint64_t>& appliedReadings() const { return applied_readings_; }
+  const std::deque<AppliedReading>& appliedReadings() const { return applied_readings_; }
 
  private:
   struct Pending {
@@ -189,7 +193,7 @@ class CalibrationEngine {
   std::int64_t gated_joint_stamp_ns_ = 0;
   std::vector<Eigen::VectorXd> reference_q_;
   std::int64_t last_update_duration_ns_ = 0;
-  std::deque<std::uint64_t> applied_readings_;
+  std::deque<AppliedReading> applied_readings_;
   Eigen::VectorXd last_joint_q_, used_q_;
   std::int64_t used_joint_stamp_ns_ = 0;
   std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
