@@ -181,10 +181,14 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   std::vector<std::pair<int, int>> pose_at;  // pose id -> (campaign, index)
   for (int g = 0; g < program.campaigns(); ++g)
     for (int k = 0; k < program.posesIn(g); ++k) pose_at.emplace_back(g, k);
+  // Cell time of the tracker's reading of pose (g, k).
+  auto readAt_s = [&](int g, int k) {
+    return program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
+  };
   std::uint64_t seq = 0;
   // One reading of pose (g, k): fed stamped `stamp_ns` (0: by cell time), or only drawn (nullopt).
   auto reading = [&](int g, int k, std::optional<std::int64_t> stamp_ns) {
-    const double t_read = program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
+    const double t_read = readAt_s(g, k);
     const Eigen::VectorXd& q = program.campaignConfigurations(g)[k];
     const Observation obs = sim.measure(q, t_read / 3600.0, rng, robot.measurement);
     ++seq;
@@ -220,8 +224,7 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   if (ref.inputs.empty()) {
     ref.inputs = "program";
     for (const auto& [g, k] : pose_at) {
-      if (program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt > cell_time_end_s)
-        break;
+      if (readAt_s(g, k) > cell_time_end_s) break;
       reading(g, k, 0);
     }
   }
