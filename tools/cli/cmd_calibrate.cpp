@@ -499,8 +499,11 @@ int runCalibrate(const CalibrateArgs& a) {
     } else {
       carried = predictionModel(robot, after, {}, {});
     }
-    // The readings' noise on these rows as the frames leave it (their sigmas may not be the campaign's).
-    return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated, frames_variance_factor);
+    // The readings' noise on these rows as the frames leave it, position and orientation rows apart (their sigmas may
+    // not be the campaign's, and a tracker may understate one kind).
+    return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated,
+                             residualVarianceFactors(robot, after, ident_kept, idr_kept,
+                                                     static_cast<int>(after.estimated.size())));
   }();
   const Trust trust = trustOf(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
   // With --frames-only the start is the same model with its frames registered in closed form: no baseline to beat,

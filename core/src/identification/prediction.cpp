@@ -31,6 +31,16 @@ int jacobianRows(const RobotModel& model, KinematicsData& data, const ExtendedFi
   return rows;
 }
 
+// Each kind's residual sum of squares over its share of rows - estimated (residualVarianceFactors).
+VarianceFactors factorsOf(double rss_p, int rows_p, double rss_o, int rows_o, int estimated) {
+  const int rows = rows_p + rows_o;
+  auto factor = [&](double rss, int kind_rows) {
+    const double dof = kind_rows - estimated * static_cast<double>(kind_rows) / std::max(rows, 1);
+    return kind_rows > 0 && dof > 0 ? std::max(rss / dof, 1e-12) : 1.0;
+  };
+  return {factor(rss_p, rows_p), factor(rss_o, rows_o)};
+}
+
 }  // namespace
 
 bool PredictionOptions::IsValid(std::string* error) const {
@@ -39,6 +49,27 @@ bool PredictionOptions::IsValid(std::string* error) const {
     return false;
   }
   return true;
+}
+
+VarianceFactors residualVarianceFactors(const RobotModel& model, const ExtendedFit& fit,
+                                        const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                        int estimated) {
+  if (obs.size() != drivers.size()) throw std::invalid_argument("residualVarianceFactors: one Drivers entry per observation");
+  KinematicsData data(model);
+  Eigen::MatrixXd J;
+  Eigen::VectorXd r;
+  double rss_p = 0, rss_o = 0;
+  int rows_p = 0, rows_o = 0;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const int rows = jacobianRows(model, data, fit, obs[i], drivers[i], &r, J);
+    rss_p += r.head(3).squaredNorm();
+    rows_p += 3;
+    if (rows == 6) {
+      rss_o += r.tail(3).squaredNorm();
+      rows_o += 3;
+    }
+  }
+  return factorsOf(rss_p, rows_p, rss_o, rows_o, estimated);
 }
 
 PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
@@ -88,12 +119,9 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
   }
   pm.rows = rows_p + rows_o;
   pm.estimated = static_cast<int>(fit.estimated.size() + fit.estimated_extension.size());
-  auto factor = [&](double rss, int rows) {
-    const double dof = rows - pm.estimated * static_cast<double>(rows) / std::max(pm.rows, 1);
-    return dof > 0 ? std::max(rss / dof, 1e-12) : 1.0;
-  };
-  pm.variance_factor_position = factor(rss_p, rows_p);
-  pm.variance_factor_orientation = rows_o > 0 ? factor(rss_o, rows_o) : 1.0;
+  const VarianceFactors vf = factorsOf(rss_p, rows_p, rss_o, rows_o, pm.estimated);
+  pm.variance_factor_position = vf.position;
+  pm.variance_factor_orientation = vf.orientation;
   pm.variance_factor = rows_o > 0 ? (rss_p + rss_o) / std::max(1.0, pm.rows - static_cast<double>(pm.estimated))
                                   : pm.variance_factor_position;
   const Eigen::MatrixXd A = Np / pm.variance_factor_position + No / pm.variance_factor_orientation +
@@ -105,10 +133,10 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
 
 PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
                                   const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
-                                  const std::vector<int>& frames, double noise_variance_factor) {
+                                  const std::vector<int>& frames, const VarianceFactors& noise) {
   if (obs.size() != drivers.size()) throw std::invalid_argument("carriedPrediction: one Drivers entry per observation");
-  if (!(noise_variance_factor >= 0) || !std::isfinite(noise_variance_factor))
-    throw std::invalid_argument("carriedPrediction: noise_variance_factor must be finite and >= 0");
+  for (double f : {noise.position, noise.orientation})
+    if (!(f >= 0) || !std::isfinite(f)) throw std::invalid_argument("carriedPrediction: variance factors must be finite and >= 0");
   const auto nc = static_cast<Eigen::Index>(carried.columns.size());
   if (carried.covariance.rows() != nc || carried.covariance.cols() != nc)
     throw std::invalid_argument("carriedPrediction: the carried covariance does not match its columns");
@@ -125,10 +153,11 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
   for (Eigen::Index i = 0; i < nm; ++i)
     for (Eigen::Index j = 0; j < nm; ++j) S(i, j) = carried.covariance(m_at[i], m_at[j]);
   // Normal equations of the frames on these rows, and their coupling to the carried columns.
-  Eigen::MatrixXd Nff = Eigen::MatrixXd::Zero(nf, nf), Nfm = Eigen::MatrixXd::Zero(nf, nm);
+  // Nfs: A_f^T Σ A_f, the frames' normal matrix with each kind of row scaled by its variance factor.
+  Eigen::MatrixXd Nff = Eigen::MatrixXd::Zero(nf, nf), Nfm = Eigen::MatrixXd::Zero(nf, nm), Nfs = Nff;
   KinematicsData data(model);
   Eigen::MatrixXd J, Af, Am;
-  int rows_total = 0;
+  int rows_total = 0, rows_o = 0;
   for (size_t i = 0; i < obs.size(); ++i) {
     const int rows = jacobianRows(model, data, fit, obs[i], drivers[i], nullptr, J);
     rows_total += rows;
@@ -138,6 +167,11 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
     for (Eigen::Index c = 0; c < nm; ++c) Am.col(c) = J.col(carried.columns[static_cast<size_t>(m_at[c])]);
     Nff.noalias() += Af.transpose() * Af;
     Nfm.noalias() += Af.transpose() * Am;
+    Nfs.noalias() += noise.position * Af.topRows(3).transpose() * Af.topRows(3);
+    if (rows == 6) {
+      Nfs.noalias() += noise.orientation * Af.bottomRows(3).transpose() * Af.bottomRows(3);
+      rows_o += 3;
+    }
   }
   const auto ldlt = Nff.ldlt();
   const Eigen::MatrixXd Nff_inv = ldlt.solve(Eigen::MatrixXd::Identity(nf, nf));
@@ -147,7 +181,7 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
   pm.covariance.topLeftCorner(nm, nm) = S;
   pm.covariance.bottomLeftCorner(nf, nm) = -K * S;
   pm.covariance.topRightCorner(nm, nf) = -S * K.transpose();
-  pm.covariance.bottomRightCorner(nf, nf) = K * S * K.transpose() + noise_variance_factor * Nff_inv;
+  pm.covariance.bottomRightCorner(nf, nf) = K * S * K.transpose() + Nff_inv * Nfs * Nff_inv;
   pm.prior_sigma.resize(nm + nf);
   for (Eigen::Index k = 0; k < nm; ++k) {
     pm.columns.push_back(carried.columns[static_cast<size_t>(m_at[k])]);
@@ -157,7 +191,10 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
     pm.columns.push_back(frames[static_cast<size_t>(k)]);
     pm.prior_sigma[nm + k] = std::sqrt(std::max(0.0, pm.covariance(nm + k, nm + k)));
   }
-  pm.variance_factor = pm.variance_factor_position = pm.variance_factor_orientation = noise_variance_factor;
+  pm.variance_factor_position = noise.position;
+  pm.variance_factor_orientation = noise.orientation;
+  const double rows_p = rows_total - rows_o;
+  pm.variance_factor = rows_total > 0 ? (noise.position * rows_p + noise.orientation * rows_o) / rows_total : noise.position;
   pm.rows = rows_total;
   pm.estimated = static_cast<int>(nf);
   return pm;

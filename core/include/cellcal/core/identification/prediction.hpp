@@ -43,6 +43,17 @@ struct PredictionModel {
   int rows = 0, estimated = 0;   // whitened rows of the identification data; parameters the fit estimated
 };
 
+// By how much a fit's whitened residuals exceed the readings' sigmas, position rows and orientation rows apart (a
+// model error, or a tracker that understates one kind of noise, shows in millimetres and in degrees by different
+// amounts): each kind's residual sum of squares over its share of the degrees of freedom, rows - `estimated` split in
+// proportion to the rows. 1 for a kind without rows (or without degrees of freedom).
+struct VarianceFactors {
+  double position = 1.0, orientation = 1.0;
+};
+VarianceFactors residualVarianceFactors(const RobotModel& model, const ExtendedFit& fit,
+                                        const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                        int estimated);
+
 // The posterior of `fit` on its identification rows (those it was fitted on, gross errors left out).
 PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
                                 const std::vector<Drivers>& drivers, const PredictionOptions& options = {});
@@ -52,20 +63,21 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
 // calibration section: its columns and covariance are used; without one, the priors:
 // predictionModel with no rows). `frames` are the frame columns the new rows determine (conditionalCovariance). The
 // new frames absorb part of the carried model's error dm on these rows: with A the whitened Jacobian of `obs`,
-//     frame error  df = -K dm + e,   K = (A_f^T A_f)^-1 A_f^T A_m,   e ~ N(0, s^2 (A_f^T A_f)^-1),
-// s^2 = `noise_variance_factor`, the factor by which these rows' sigmas understate what the frames leave of them (the
-// frames' fit's r^T r / (rows - frames): conditionalCovariance). It is the new rows' own: a campaign's factor scales
-// the campaign's sigmas, and another file's rows may carry other sigmas (per-reading ones, or a default). It is also
-// the result's variance_factor_position, by which the readings' noise is scaled beside it. The position error at q is
-// J_m(q) dm + J_f(q) df, so the result is a PredictionModel over the carried columns other than `frames`, then
-// `frames`, with the joint covariance [S, -S K^T; -K S, K S K^T + s^2 (A_f^T A_f)^-1] (S the carried covariance of the
-// others): predictedPositionSigma gives that error's 1 sigma. An error the new frames take up entirely (a base offset)
-// predicts nothing; one they cannot (a link length) predicts what it does at q less what the frames took on these rows.
+//     frame error  df = -K dm + e,   K = (A_f^T A_f)^-1 A_f^T A_m,   e ~ N(0, N^-1 (A_f^T Σ A_f) N^-1),
+// N = A_f^T A_f, Σ the variance of the whitened rows: `noise`, the factors by which these rows' sigmas understate what
+// the frames leave of them, position rows and orientation rows apart (residualVarianceFactors of the frames' fit with
+// the frames estimated; with one factor s^2 for every row, e ~ N(0, s^2 N^-1)). They are the new rows' own: a
+// campaign's factor scales the campaign's sigmas, and another file's rows may carry other sigmas (per-reading ones, or
+// a default). They are also the result's variance factors, by which the readings' noise is scaled beside it. The
+// position error at q is J_m(q) dm + J_f(q) df, so the result is a PredictionModel over the carried columns other
+// than `frames`, then `frames`, with the joint covariance [S, -S K^T; -K S, K S K^T + cov(e)] (S the carried
+// covariance of the others): predictedPositionSigma gives that error's 1 sigma. An error the new frames take up
+// entirely (a base offset) predicts nothing; one they cannot (a link length) predicts what it does at q less what the frames took on these rows.
 // The error the model makes only on this set-up (a cause it does not hold that acts differently here) is not in it:
 // the ratio of actual to predicted on held-out rows says so.
 PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
                                   const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
-                                  const std::vector<int>& frames, double noise_variance_factor);
+                                  const std::vector<int>& frames, const VarianceFactors& noise);
 
 // Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
 // 3D position error the model makes there, reading noise not included).
