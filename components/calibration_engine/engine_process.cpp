@@ -86,7 +86,13 @@ std::string EngineProcess::staleInputs(EngineHost::Robot& r, std::int64_t now) {
   return out;
 }
 
+// The engine's notes for the operator (the drift added at the first reading, a refused calibration file), once.
+void EngineProcess::logNotes(EngineHost::Robot& r) {
+  for (const auto& n : r.engine->takeNotes()) std::cerr << "calibration_engine: " << r.robot->robot_id << ": " << n << "\n";
+}
+
 void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
+  logNotes(r);
   Published& p = published_[r.robot->robot_id];
   const std::string stale = staleInputs(r, now);
   auto d = toCalibrationDiagnostics(r, stale, inputs_refused_, now, ++p.diag_seq);
@@ -110,6 +116,7 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
 // A new version: published at once (the latency path; the state file was replaced before).
 void EngineProcess::onUpdate(EngineHost::Robot& r) {
   publishState(r);
+  logNotes(r);
   const auto& snap = r.engine->snapshot();
   if (!options_.quiet)
     std::cerr << "calibration_engine: " << r.robot->robot_id << " v" << snap.version << " poses " << snap.poses_used

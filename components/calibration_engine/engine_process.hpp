@@ -60,6 +60,7 @@ class EngineProcess {
   void onUpdate(EngineHost::Robot& r);
   void publishState(EngineHost::Robot& r);
   void publishDiagnostics(EngineHost::Robot& r, std::int64_t now);
+  void logNotes(EngineHost::Robot& r);
   std::string staleInputs(EngineHost::Robot& r, std::int64_t now);
   void handle(std::vector<Input>& batch);
   void stopAndReport();

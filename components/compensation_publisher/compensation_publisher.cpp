@@ -58,9 +58,14 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
   if (!r.calibration)
     std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " received ("
               << c->poses_used << " poses)\n";
-  if (c->health != msg::HEALTH_OK && (!r.calibration || r.calibration->health == msg::HEALTH_OK) && r.last_ok)
-    std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " has health "
-              << static_cast<int>(c->health) << ": keeping v" << r.last_ok->version << "\n";
+  if (c->health != msg::HEALTH_OK && (!r.calibration || r.calibration->health == msg::HEALTH_OK) && r.last_ok) {
+    std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " is "
+              << healthText(c->health) << ": applying ";
+    if (r.last_ok->version == c->version) std::cerr << "v" << c->version << " as it was received while ok\n";
+    else std::cerr << "v" << r.last_ok->version << ", the last ok calibration\n";
+  }
+  if (c->health == msg::HEALTH_OK && r.calibration && r.calibration->health != msg::HEALTH_OK)
+    std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " is ok again: applying it\n";
   if (c->health == msg::HEALTH_OK) r.last_ok = *c;
   r.calibration = std::move(c);
 }
@@ -114,16 +119,16 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
     out.reason("no calibration received yet");
   } else if (!r.last_ok) {
     out.calibration_version(r.calibration->version);
-    out.reason("calibration v" + std::to_string(r.calibration->version) + " is not healthy (health " +
-               std::to_string(static_cast<int>(r.calibration->health)) + ") and none was before");
+    out.reason("calibration v" + std::to_string(r.calibration->version) + " is " + healthText(r.calibration->health) +
+               " and no earlier one was ok");
   } else {
     const ReceivedCalibration& use = *r.last_ok;
     out.calibration_version(use.version);
     // Said in `reason` even when applied: what the operator should know about the calibration used.
     std::string note;
     if (r.calibration->health != msg::HEALTH_OK)
-      note = "holding v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
-             " has health " + std::to_string(static_cast<int>(r.calibration->health));
+      note = "applying v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
+             " is " + healthText(r.calibration->health);
     if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
     // The engine gone (killed, its host down): its participant's lease expired, no CalibrationState writer is left.
     if (node_.matchedWriters<msg::CalibrationState>() == 0)

@@ -52,8 +52,8 @@ struct BenchArgs {
 void addOptions(CLI::App& cmd, BenchArgs& a) {
   cmd.add_option("--robots", a.robots, "robots (each with a joint-state and a tracker stream)")->check(CLI::Range(1, 64))->capture_default_str();
   cmd.add_option("--rate-hz", a.rate_hz, "rate of each stream")->check(CLI::Range(10.0, 5000.0))->capture_default_str();
-  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses per second and robot")->capture_default_str();
-  cmd.add_option("--duration-s", a.duration_s, "measuring time")->capture_default_str();
+  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses per second and robot")->check(positive())->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "measuring time")->check(positive())->capture_default_str();
   cmd.add_option("--domain-id", a.domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
   cmd.add_option("--seed", a.seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
       ->capture_default_str();

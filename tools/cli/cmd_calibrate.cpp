@@ -133,6 +133,53 @@ std::vector<std::string> implausibleParameters(const RobotModel& robot, const Ei
 }
 
 
+// A column's 1 sigma in the prediction's covariance (what --save-robot writes and predictions use; SI), NaN when the
+// prediction does not cover it.
+double savedSigma(const PredictionModel& pm, int column) {
+  for (size_t k = 0; k < pm.columns.size(); ++k)
+    if (pm.columns[k] == column) return std::sqrt(std::max(0.0, pm.covariance(static_cast<Eigen::Index>(k), static_cast<Eigen::Index>(k))));
+  return std::nan("");
+}
+
+// The fit's sigma of an estimated parameter holds the parameters it did not estimate at their values; the robot file
+// saves the covariance over every parameter a prediction depends on, the held ones at their prior width. Where a
+// parameter moves with a held one (joint 1's d with the base's z: only their sum is pinned) the saved sigma is that
+// of the two together: said beside the fit's, with the held parameter it moves with. `shown`: the fit's, human units.
+std::string savedSigmaNote(const RobotModel& robot, const ExtendedFit& fit, const PredictionModel& pm, int column,
+                           double shown) {
+  const double saved_si = savedSigma(pm, column);
+  if (std::isnan(saved_si)) return "";
+  const bool kin = column < robot.numParams();
+  const double saved = kin ? robot.toHuman(column, saved_si) : saved_si;
+  if (!(saved > 2.0 * shown)) return "";
+  // The held column it is most correlated with.
+  Eigen::Index me = -1;
+  for (size_t k = 0; k < pm.columns.size(); ++k)
+    if (pm.columns[k] == column) me = static_cast<Eigen::Index>(k);
+  std::string partner;
+  double best = 0;
+  for (size_t k = 0; k < pm.columns.size(); ++k) {
+    const int c = pm.columns[k];
+    const bool estimated = c < robot.numParams()
+                               ? std::count(fit.estimated.begin(), fit.estimated.end(), c) > 0
+                               : std::count(fit.estimated_extension.begin(), fit.estimated_extension.end(),
+                                            c - robot.numParams()) > 0;
+    if (estimated) continue;
+    const auto kk = static_cast<Eigen::Index>(k);
+    const double r = std::abs(pm.covariance(me, kk)) / std::sqrt(pm.covariance(me, me) * pm.covariance(kk, kk));
+    if (r > best) {
+      best = r;
+      partner = c < robot.numParams() ? robot.paramNameHuman(c) : fit.extension_names[static_cast<size_t>(c - robot.numParams())];
+    }
+  }
+  char buf[240];
+  std::snprintf(buf, sizeof buf, kin ? " (%.4f in the robot file: %s%s)" : " (%.3g in the robot file: %s%s)", saved,
+                partner.empty() ? "with the parameters it does not estimate at their prior width"
+                                : "it moves with ",
+                partner.empty() ? "" : (partner + ", which the data leave at its prior width").c_str());
+  return buf;
+}
+
 // The error table: a header, then one row per (name, stats).
 void printErrorTable(const std::vector<std::pair<const char*, const ErrorStats*>>& rows) {
   std::printf("                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
@@ -164,6 +211,29 @@ void printErrorsAndGrossErrors(const ErrorStats& ib, const ErrorStats& ia, const
   if (!verify_out.rows.empty())
     std::printf("  verification:   %zu rows: %s\n", verify_out.rows.size(),
                 linesText(verify_out.rows, in.verification_lines).c_str());
+}
+
+// The last line of a calibration: deploy this model or not, and why (before/after: the held-out rows without their
+// gross errors).
+std::string recommendation(bool converged, const std::string& unusable, const ErrorStats& before,
+                           const ErrorStats& after, const std::string& model, bool frames_only, double variance_factor,
+                           int extrapolated) {
+  char buf[640];
+  if (!converged) return "recommendation: do not deploy: the solver did not converge (exit 3)";
+  if (!unusable.empty()) return "recommendation: do not deploy: " + unusable + " (exit 4)";
+  const double gain = before.mean_mm > 0 ? 100.0 * (1.0 - after.mean_mm / before.mean_mm) : 0.0;
+  if (frames_only)
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the robot file's model with these frames: held-out mean "
+                  "%.4f mm", after.mean_mm);
+  else
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the %s model: held-out mean %.4f mm against %.4f mm before "
+                  "(%.0f %% better)", model.c_str(), after.mean_mm, before.mean_mm, gain);
+  std::string out = buf;
+  if (extrapolated > 0) out += "; outside the calibrated region (" + std::to_string(extrapolated) + " verification rows) "
+                               "it extrapolates: measure poses there";
+  if (variance_factor > 4 && model.rfind("geometric", 0) == 0 && !frames_only)
+    out += "; it leaves more than noise: `cellcal diagnose` names the cause and the extended model to deploy instead";
+  return out;
 }
 
 // Exit 3 (not converged) or 4 (not usable) with what was not written; 0 to go on.
@@ -535,22 +605,35 @@ int runCalibrate(const CalibrateArgs& a) {
   std::printf("\nestimated parameters: value, change from the start, 1 sigma (the fit's, x %.2f: the root of the "
               "variance factor)\n", vf);
   for (int i : after.estimated) {
-    const double sd = after.paramStddev(i);
-    std::printf("  %-24s %12.4f %+10.4f  sigma %.4f\n", robot.paramNameHuman(i).c_str(), robot.toHuman(i, after.params[i]),
-                robot.toHuman(i, after.params[i] - start[i]), std::isnan(sd) ? 0.0 : vf * robot.toHuman(i, sd));
+    const double sd = after.paramStddev(i), shown = std::isnan(sd) ? 0.0 : vf * robot.toHuman(i, sd);
+    std::printf("  %-24s %12.4f %+10.4f  sigma %.4f%s\n", robot.paramNameHuman(i).c_str(), robot.toHuman(i, after.params[i]),
+                robot.toHuman(i, after.params[i] - start[i]), shown,
+                a.frames_only ? "" : savedSigmaNote(robot, after, pm, i, shown).c_str());
   }
-  for (int k : after.estimated_extension)
-    std::printf("  %-24s %12.6g %+10.3g  sigma %.3g\n", after.extension_names[k].c_str(), after.extension_params[k],
-                after.extension_params[k], vf * after.extensionStddev(k));
+  for (int k : after.estimated_extension) {
+    const double shown = vf * after.extensionStddev(k);
+    std::printf("  %-24s %12.6g %+10.3g  sigma %.3g%s\n", after.extension_names[k].c_str(), after.extension_params[k],
+                after.extension_params[k], shown,
+                a.frames_only ? "" : savedSigmaNote(robot, after, pm, robot.numParams() + k, shown).c_str());
+  }
   for (const auto& h : held_after) std::printf("held: %s\n", deficitText(h).c_str());
-  std::printf("predicted model error (1 sigma, position%s): identification rows %.4f mm RMS (max %.4f), verification "
-                "rows %.4f mm RMS (max %.4f); actual/predicted (with the reading noise, position variance factor %.2f): "
-                "RMS %.2f\n",
-                a.frames_only ? (in.calibration ? "; the robot file's covariance less what the new frames take up"
-                                                : "; the priors of an uncalibrated model less what the new frames take up")
-                              : "",
-                trust.ident_rms_mm, trust.ident_max_mm, trust.verify_rms_mm, trust.verify_max_mm,
-                pm.variance_factor_position, trust.ratio_rms);
+  // Two different figures: how uncertain the fitted parameters are (small with many rows), and what the model leaves
+  // (the residual it cannot explain, which no amount of data shrinks).
+  std::printf("uncertainty of the calibrated model (1 sigma, position%s): %.4f mm RMS on the verification rows (max "
+              "%.4f; identification rows %.4f, max %.4f): how far the fitted parameters may lie from the best this "
+              "model can do on these data\n",
+              a.frames_only ? (in.calibration ? "; the robot file's covariance less what the new frames take up"
+                                              : "; the priors of an uncalibrated model less what the new frames take up")
+                            : "",
+              trust.verify_rms_mm, trust.verify_max_mm, trust.ident_rms_mm, trust.ident_max_mm);
+  std::printf("what the model leaves: %.4f mm RMS on the verification rows, the readings' position sigmas x %.1f "
+              "(position variance factor %.2f)%s\n",
+              va.rms_mm, std::sqrt(pm.variance_factor_position), pm.variance_factor_position,
+              pm.variance_factor_position > 4 ? ": effects the model does not hold, or readings noisier than their "
+                                                "sigmas (`cellcal diagnose` looks for the cause)"
+                                              : ": about the readings' noise");
+  std::printf("check: the verification errors against that uncertainty and the residual together: RMS ratio %.2f (1: "
+              "the predicted errors can be trusted)\n", trust.ratio_rms);
   if (trust.extrapolated > 0)
     std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
                 "the identification rows)\n", trust.extrapolated);
@@ -559,14 +642,7 @@ int runCalibrate(const CalibrateArgs& a) {
                 "or too little excitation\n", w.c_str());
   if (!r.identifiability.dropped.empty()) {
     std::printf("not identifiable from these data (held at their start value):");
-    for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramName(d.index).c_str());
-    std::printf("\n");
-  }
-  if (!after.estimated_extension.empty()) {
-    std::printf("extension parameters:");
-    for (int k : after.estimated_extension)
-      std::printf(" %s=%.6g (sd %.2g)", after.extension_names[k].c_str(), after.extension_params[k],
-                  after.extensionStddev(k));
+    for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramNameHuman(d.index).c_str());
     std::printf("\n");
   }
   if (!a.json.empty()) {
@@ -574,10 +650,11 @@ int runCalibrate(const CalibrateArgs& a) {
     // (reading sigmas), null where the parameter was not estimated.
     nlohmann::json params = nlohmann::json::array();
     for (int i = 0; i < robot.numParams(); ++i) {
-      const double sd = after.paramStddev(i);
+      const double sd = after.paramStddev(i), saved = savedSigma(pm, i);
       params.push_back({{"name", robot.paramNameHuman(i)}, {"initial", robot.toHuman(i, start[i])},
                         {"value", robot.toHuman(i, after.params[i])},
                         {"stddev", std::isnan(sd) ? nlohmann::json(nullptr) : nlohmann::json(robot.toHuman(i, sd))},
+                        {"stddev_saved", std::isnan(saved) ? nlohmann::json(nullptr) : nlohmann::json(robot.toHuman(i, saved))},
                         {"estimated", !std::isnan(sd)}});
     }
     nlohmann::json ext = nlohmann::json::object(), ext_sd = nlohmann::json::object();
@@ -617,6 +694,8 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
+  std::printf("%s\n", recommendation(converged, unusable, vbk, vak, model_label, a.frames_only,
+                                       pm.variance_factor_position, trust.extrapolated).c_str());
   if (const int code = failedExit(converged, unusable, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);

@@ -58,13 +58,15 @@ struct CellArgs {
 
 void addOptions(CLI::App& cmd, CellArgs& a) {
   addCommonOptions(cmd, a.common);
-  a.common.participant_profile = "cellcal_loopback";
   cmd.add_option("--duration-s", a.duration_s, "how long the robot program runs (wall clock, from its first sample)")
+      ->check(positive())
       ->capture_default_str();
   cmd.add_option("--summary-json", a.summary_json, "write the summary (processes, topics, accuracy, latencies)");
   cmd.add_option("--work-dir", a.work_dir, "logs, per-process stats and the engine's state")->capture_default_str();
   cmd.add_flag("--resume", a.resume, "keep the engine state of a previous run (default: start uncalibrated)");
-  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses published per second and robot")->capture_default_str();
+  cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses published per second and robot")
+      ->check(positive())
+      ->capture_default_str();
   cmd.add_flag("--quiet", a.quiet, "no line per update");
   cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
   cmd.add_option("--shards", a.shards,
@@ -131,7 +133,11 @@ struct Judge {
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
   std::uint64_t target_seq = 0, applied = 0, refused = 0;
-  std::map<std::string, std::uint64_t> refused_why;  // the compensation publisher's reason, without its figures
+  // The compensation publisher's reasons, grouped without their figures: how many, and the last one as it was said.
+  std::map<std::string, std::pair<std::uint64_t, std::string>> refused_why;
+  std::string health = "uncalibrated";  // of the latest CalibrationState
+  std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last
+  size_t landed_reported = 0;           // compensated_error_mm up to here is in a printed line
   std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
 
   double verify(const IdentifiedModel& m, double t_h) const {
@@ -369,7 +375,7 @@ class CellJudge {
                         {"in_process_inputs", r.inputs},  // applied_readings: the engine's; program: every pose by then
                         {"targets_applied", j.applied},
                         {"targets_refused", j.refused},
-                        {"targets_refused_why", j.refused_why},
+                        {"targets_refused_why", refusedWhyJson(j)},
                         {"correction_mean_mm", mean(j.correction_mm)},
                         {"correction_mean_deg", mean(j.correction_deg)},
                         {"landed_error_compensated_mean_mm", mean(j.compensated_error_mm)},
@@ -397,17 +403,14 @@ class CellJudge {
                 "p50 %.0f us, p99 %.0f us\n",
                 percentile(tracker_to_state_us_, 0.5), percentile(tracker_to_state_us_, 0.99),
                 percentile(target_to_compensated_us_, 0.5), percentile(target_to_compensated_us_, 0.99));
-    // Targets passed through uncorrected, and why (# stands for the figures of each answer).
+    // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it.
     for (const auto& j : judges_) {
       if (!j.refused) continue;
-      std::printf("cell: %s: %llu of %llu targets passed through uncorrected:", j.robot->robot_id.c_str(),
+      std::printf("cell: %s: %llu of %llu targets passed through uncorrected:\n", j.robot->robot_id.c_str(),
                   static_cast<unsigned long long>(j.refused), static_cast<unsigned long long>(j.refused + j.applied));
-      const char* sep = " ";
-      for (const auto& [why, n] : j.refused_why) {
-        std::printf("%s%llu %s", sep, static_cast<unsigned long long>(n), why.c_str());
-        sep = "; ";
-      }
-      std::printf("\n");
+      for (const auto& [key, why] : j.refused_why)
+        std::printf("cell:   %llu x %s%s\n", static_cast<unsigned long long>(why.first), why.second.c_str(),
+                    why.first > 1 ? " (the last of them)" : "");
     }
   }
 
@@ -418,6 +421,13 @@ class CellJudge {
     double s = 0;
     for (double x : v) s += x;
     return v.empty() ? std::nan("") : s / static_cast<double>(v.size());
+  }
+
+  // {reason without its figures: {count, last}}.
+  static nlohmann::json refusedWhyJson(const Judge& j) {
+    nlohmann::json out = nlohmann::json::object();
+    for (const auto& [key, why] : j.refused_why) out[key] = {{"count", why.first}, {"last", why.second}};
+    return out;
   }
 
   Judge* find(const std::string& id) {
@@ -447,13 +457,27 @@ class CellJudge {
     const double t_h = cell_time / 3600.0;
     j->verify_mm = j->verify(j->identified, t_h);
     j->nominal_mm = j->verifyNominal(t_h);
+    j->health = healthName(static_cast<Health>(static_cast<int>(m.health())));
     if (a_.quiet) return;
-    char corr[32] = "none yet";  // no target compensated with a calibration so far
-    if (!j->correction_mm.empty()) std::snprintf(corr, sizeof corr, "%.3f mm", j->correction_mm.back());
-    std::printf("[%6.2f s] %-8s v%-4llu poses %-4u cell time %5.2f h | hold-out error %.4f mm (uncalibrated %.3f mm) | "
-                "last correction %s\n",
-                elapsed(), j->robot->robot_id.c_str(), static_cast<unsigned long long>(c->version), c->poses_used, t_h,
-                j->verify_mm, j->nominal_mm, corr);
+    // The calibration as published (its health in capitals when it is not ok: the engine degraded or holds an older
+    // version) and what compensation did since the last line: the version it applied, where those targets landed.
+    std::string health = j->health;
+    if (health != "ok") std::transform(health.begin(), health.end(), health.begin(), ::toupper);
+    std::string comp = "compensation: no target corrected since the last line";
+    if (j->compensated_error_mm.size() > j->landed_reported) {
+      double sum = 0;
+      for (size_t k = j->landed_reported; k < j->compensated_error_mm.size(); ++k) sum += j->compensated_error_mm[k];
+      const size_t n = j->compensated_error_mm.size() - j->landed_reported;
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "compensation v%llu: %zu targets landed %.4f mm from where they were wanted",
+                    static_cast<unsigned long long>(j->applied_version), n, sum / static_cast<double>(n));
+      comp = buf;
+      j->landed_reported = j->compensated_error_mm.size();
+    }
+    std::printf("[%6.2f s] %-8s v%-4llu %-14s poses %-4u cell time %5.2f h | hold-out error %.4f mm (uncalibrated "
+                "%.3f mm) | %s\n",
+                elapsed(), j->robot->robot_id.c_str(), static_cast<unsigned long long>(c->version), health.c_str(),
+                c->poses_used, t_h, j->verify_mm, j->nominal_mm, comp.c_str());
     std::fflush(stdout);
   }
 
@@ -469,10 +493,14 @@ class CellJudge {
       ++j->refused;
       // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
       const std::string reason = m.reason().to_string();
-      ++j->refused_why[maskFigures(reason.substr(0, reason.find(';')))];
+      const std::string first = reason.substr(0, reason.find(';'));
+      auto& why = j->refused_why[maskFigures(first)];
+      ++why.first;
+      why.second = first;
       return;
     }
     ++j->applied;
+    j->applied_version = m.calibration_version();
     j->correction_mm.push_back(m.correction_position_m() * 1e3);
     j->correction_deg.push_back(m.correction_orientation_rad() * 180 / kPi);
     // Where the real robot lands: the controller (nominal model) drives to the commanded pose.

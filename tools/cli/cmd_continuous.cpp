@@ -29,23 +29,23 @@ void addOptions(CLI::App& cmd, ContinuousArgs& a) {
   cmd.add_option("--data", a.data, "measurement file, CSV v1, with stamp_s (or --period-s)")->required()->check(CLI::ExistingFile);
   cmd.add_option("--period-s", a.period_s,
                  "a file without stamp_s: its rows in visiting order, this many seconds apart")
-      ->check(CLI::PositiveNumber);
-  cmd.add_option("--interval-h", a.options.update_interval_h, "hours between updates")->capture_default_str();
-  cmd.add_option("--poses-per-update", a.options.poses_per_update, "fresh poses per update")->capture_default_str();
+      ->check(positive());
+  cmd.add_option("--interval-h", a.options.update_interval_h, "hours between updates")->check(positive())->capture_default_str();
+  cmd.add_option("--poses-per-update", a.options.poses_per_update, "fresh poses per update")->check(positive())->capture_default_str();
   cmd.add_option("--initial-h", a.options.initial_h, "the initial batch comes from the first hours")
-      ->capture_default_str();
+      ->check(positive())->capture_default_str();
   cmd.add_option("--initial-poses", a.options.initial_poses, "poses of the initial batch, evenly spaced")
-      ->capture_default_str();
+      ->check(positive())->capture_default_str();
   cmd.add_option("--drift-scale", a.options.drift_scale,
-                 "scale of the engine's drift model (process noise per hour between updates); 0: none (lambda = 1)")
+                 "scale of the engine's drift model (process noise per hour between updates)->check(nonNegative()); 0: none (lambda = 1)")
       ->capture_default_str();
   cmd.add_option("--model", a.model,
                  "extensions in the RLS state as well, e.g. joint_compliance:2 (the cause `diagnose` names)");
-  cmd.add_option("--sigma-position-mm", a.sigma_position_mm, "reading sigma (1 sigma)")->capture_default_str();
-  cmd.add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "reading sigma (1 sigma)")->capture_default_str();
+  cmd.add_option("--sigma-position-mm", a.sigma_position_mm, "reading sigma (1 sigma)")->check(positive())->capture_default_str();
+  cmd.add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "reading sigma (1 sigma)")->check(positive())->capture_default_str();
   cmd.add_flag("--position-only", a.position_only, "use positions only");
   cmd.add_option("--block-h", a.block_h, "also print the errors pooled per block of this many hours (0: no)")
-      ->capture_default_str();
+      ->check(nonNegative())->capture_default_str();
   cmd.add_flag("--quiet", a.quiet, "no per-interval table");
   cmd.add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());

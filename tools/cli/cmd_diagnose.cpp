@@ -1,5 +1,6 @@
 // `cellcal diagnose`: what the geometric model gets wrong in a measurement file, which physical cause explains it,
 // the extended model and its gain on held-out rows.
+#include <iomanip>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -150,16 +151,18 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
     data << "x before after\n";
     double lo = INFINITY, hi = -INFINITY;
     for (size_t i = 0; i < sig.x.size(); ++i) {
-      data << sig.x[i] << ' ' << sig.y_before[i] << ' ' << sig.y_after[i] << '\n';
+      data << std::setprecision(10) << sig.x[i] << ' ' << sig.y_before[i] << ' ' << sig.y_after[i] << '\n';
       lo = std::min({lo, sig.y_before[i], sig.y_after[i]});
       hi = std::max({hi, sig.y_before[i], sig.y_after[i]});
     }
     const double pad = 0.05 * std::max(hi - lo, 1e-12);
-    gp << "set multiplot layout 1,2\nset grid\nset key off\nset xlabel '" << sig.x_label << "'\nset ylabel '"
+    // The extended model's name (up to three causes) spans the figure above both panels: a panel's half width cut it.
+    gp << "set multiplot layout 1,2 title 'verification rows: geometric model (left), with " << modelLabel(b.fit.extensions)
+       << " (right)' font ',11'\nset grid\nset key off\nset xlabel '" << sig.x_label << "'\nset ylabel '"
        << sig.y_label << "'\nset yrange [" << lo - pad << ":" << hi + pad << "]\n"
        << "set title 'geometric model'\nplot datafile using 1:2 skip 1 with points pt 7 ps 0.4 lc rgb '#1f77b4'\n"
-       << "set title 'with " << modelLabel(b.fit.extensions)
-       << "'\nplot datafile using 1:3 skip 1 with points pt 7 ps 0.4 lc rgb '#d62728'\nunset multiplot\n";
+       << "set title 'extended model'\nplot datafile using 1:3 skip 1 with points pt 7 ps 0.4 lc rgb '#d62728'\n"
+          "unset multiplot\n";
     std::string plot_error;
     for (const char* format : {"svg", "png"})  // SVG for the report, PNG for pages that take images only
       if (!renderGnuplot(a.report, "signature", data.str(), gp.str(), &plot_error, format))
@@ -311,9 +314,29 @@ int runDiagnose(const DiagnoseArgs& a) {
     writeReport(a, in, d);
     std::printf("report: %s/report.md\n", a.report.c_str());
   }
+  // The plain answer: which model to deploy, and why.
+  const bool converged = g.fit.converged && b.fit.converged;
+  if (!converged) {
+    std::printf("recommendation: deploy neither: the %s fit did not converge (%s; exit 3)\n",
+                g.fit.converged ? "extended" : "geometric", (g.fit.converged ? b.fit : g.fit).message.c_str());
+    return 3;
+  }
   if (!d.unusable.empty()) {
-    std::printf("not usable: %s (exit 4)\n", d.unusable.c_str());
+    std::printf("recommendation: deploy neither: %s (exit 4)\n", d.unusable.c_str());
     return 4;
+  }
+  if (d.selection.empty()) {
+    std::printf("recommendation: deploy the geometric model (`cellcal calibrate`): no cause in the library improves its "
+                "held-out mean %.4f mm", g.verification.mean_mm);
+    if (const DriverStructure* left = d.structureLeft())
+      std::printf("; structure against %s (%.0f %% of the residual) is left that no cause in the library explains",
+                  left->driver.c_str(), 100 * left->share);
+    std::printf("\n");
+  } else {
+    std::printf("recommendation: deploy the extended model %s (`cellcal calibrate --model auto`): held-out mean %.4f mm "
+                "against %.4f mm for the geometric model (%.1f %% better)%s\n",
+                modelLabel(b.fit.extensions).c_str(), b.verification.mean_mm, g.verification.mean_mm, d.gain_pct,
+                d.structureLeft() ? "; it explains only part of what the geometric model leaves" : "");
   }
   return 0;
 }

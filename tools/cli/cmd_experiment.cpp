@@ -1,4 +1,5 @@
 // `cellcal experiment paper`: the published experiments on the simulated robot (core/paper_experiment.hpp).
+#include <algorithm>
 #include <cstdio>
 #include <unistd.h>
 #include <fstream>
@@ -187,12 +188,30 @@ void writePlots(const PaperExperimentResult& r, const std::string& dir) {
       data << "\n";
     }
   }
+  // One panel per schedule (periodic; continuous with 15 and with 20 fresh poses), each run of it a line: nine runs
+  // on one axis hid each other.
+  std::vector<std::pair<std::string, std::vector<size_t>>> panels;
+  for (size_t k = 0; k < runs.size(); ++k) {
+    const std::string panel = runs[k]->mode == "periodic" ? "periodic (" + std::to_string(runs[k]->updated_poses) + " poses)"
+                                                          : "continuous, " + std::to_string(runs[k]->updated_poses) + " poses";
+    auto it = std::find_if(panels.begin(), panels.end(), [&](const auto& p) { return p.first == panel; });
+    if (it == panels.end()) it = panels.insert(panels.end(), {panel, {}});
+    it->second.push_back(k);
+  }
   std::ostringstream gp;
-  gp << "set title 'Verification error per group: before (left) and after (right) each update'\n"
+  gp << "set multiplot layout 1," << panels.size()
+     << " title 'Verification error per group: before (left) and after (right) each update'\n"
      << "set xlabel 'group (2 h apart)'\nset ylabel 'mean position error (mm)'\nset logscale y\n"
-     << "set key outside right\nset grid\nset xtics 1\nset xrange [-0.5:" << groups - 0.5 << "]\n"
-     << "plot for [c=4:" << 3 + runs.size() << "] datafile using 1:c with linespoints title columnhead(c), "
-     << "datafile using 1:3 with lines lw 2 dt 2 lc 'black' title 'noise floor'\n";
+     << "set key top right font ',9'\nset grid\nset xtics 1\nset xrange [-0.5:" << groups - 0.5 << "]\n";
+  for (const auto& [panel, members] : panels) {
+    gp << "set title '" << panel << "'\nplot ";
+    for (size_t k : members) {
+      const auto* m = runs[k];
+      gp << "datafile using 1:" << 4 + k << " skip 1 with linespoints title '" << runLabel(*m) << "', ";
+    }
+    gp << "datafile using 1:3 skip 1 with lines lw 2 dt 2 lc 'black' title 'noise floor'\n";
+  }
+  gp << "unset multiplot\n";
   if (!renderGnuplot(dir, "maintenance", data.str(), gp.str(), &err)) std::cerr << "warning: " << err << "\n";
   // Figure 2: pose sweep.
   std::ostringstream d2;

@@ -61,9 +61,9 @@ void addOptions(CLI::App& cmd, RecordArgs& a) {
   addCommonOptions(cmd, a.common);
   cmd.add_option("--out", a.out, "MCAP file to write")->required()->check(outputFile());
   cmd.add_option("--topics", a.topics, "all | inputs | comma-separated topic names")->capture_default_str();
-  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)");
-  cmd.add_option("--flush-period-s", a.flush_period_s, "close the chunk and flush it this often")->capture_default_str();
-  cmd.add_option("--chunk-kib", a.chunk_kib, "close a chunk when it reaches this size")->capture_default_str();
+  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: until SIGINT/SIGTERM)")->check(nonNegative());
+  cmd.add_option("--flush-period-s", a.flush_period_s, "close the chunk and flush it this often")->check(positive())->capture_default_str();
+  cmd.add_option("--chunk-kib", a.chunk_kib, "close a chunk when it reaches this size")->check(positive())->capture_default_str();
   cmd.add_option("--recover", a.recover, "instead of recording: rewrite this (cut short) recording whole to --out")
       ->check(CLI::ExistingFile);
   cmd.add_option("--json", a.json, "write the counts as JSON")->check(outputFile());

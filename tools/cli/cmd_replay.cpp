@@ -32,15 +32,15 @@ struct ReplayArgs {
 void addOptions(CLI::App& cmd, ReplayArgs& a) {
   addCommonOptions(cmd, a.common);
   cmd.add_option("file", a.file, "MCAP recording")->required()->check(CLI::ExistingFile);
-  cmd.add_option("--rate", a.rate, "speed factor of the recorded timing")->capture_default_str();
+  cmd.add_option("--rate", a.rate, "speed factor of the recorded timing")->check(positive())->capture_default_str();
   cmd.add_flag("--as-fast-as-possible", a.as_fast_as_possible, "no pauses between messages");
   cmd.add_option("--topics", a.topics, "inputs | all | comma-separated topic names")->capture_default_str();
   cmd.add_flag("--loop", a.loop, "start again at the end (stamps keep increasing) until SIGINT/--duration-s");
-  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: at the end)");
+  cmd.add_option("--duration-s", a.duration_s, "stop after this many seconds (0: at the end)")->check(nonNegative());
   cmd.add_flag("--keep-stamps", a.keep_stamps, "publish the recorded source stamps unchanged");
   cmd.add_option("--wait-for-readers", a.wait_for_readers, "wait until every replayed topic has this many readers")
       ->capture_default_str();
-  cmd.add_option("--wait-s", a.wait_s, "... for at most this long")->capture_default_str();
+  cmd.add_option("--wait-s", a.wait_s, "... for at most this long")->check(nonNegative())->capture_default_str();
   cmd.add_option("--json", a.json, "write the summary as JSON")->check(outputFile());
   cmd.add_flag("--no-progress", a.no_progress, "no progress bar");
 }

@@ -9,6 +9,7 @@
 #include <sstream>
 #include <thread>
 
+#include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/components/process.hpp"
@@ -32,14 +33,12 @@ struct StatusArgs {
 void addOptions(CLI::App& cmd, StatusArgs& a) {
   addCommonOptions(cmd, a.common);
   cmd.add_flag("-w,--watch", a.watch, "redraw the view every --period-s until Ctrl-C (a live terminal view)");
-  cmd.add_option("--wait-s", a.wait_s, "without --watch: listen this long, then print once")->capture_default_str();
+  cmd.add_option("--wait-s", a.wait_s, "without --watch: listen this long, then print once")->check(nonNegative())->capture_default_str();
   cmd.add_option("--period-s", a.period_s, "--watch: redraw period")->check(CLI::Range(0.1, 60.0))->capture_default_str();
-  cmd.add_option("--duration-s", a.duration_s, "--watch: stop after this long (0: until Ctrl-C)");
+  cmd.add_option("--duration-s", a.duration_s, "--watch: stop after this long (0: until Ctrl-C)")->check(nonNegative());
   cmd.add_option("--json", a.json, "also write the last view as JSON to this file")->check(outputFile());
 }
 
-// The wire's health as the engine names it (the IDL enum follows core's Health).
-const char* healthName(msg::CalibrationHealth h) { return cellcal::healthName(static_cast<Health>(static_cast<int>(h))); }
 
 struct RobotView {
   bool has_state = false, has_diagnostics = false;
@@ -99,9 +98,10 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
   if (engine_writers == 0 && !elsewhere.empty())
     out << "  no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile << "\n"
         << elsewhere;
-  else if (engine_writers == 0)  // the usual reason on one host: `cellcal cell` joins on another profile
+  else if (engine_writers == 0)
     out << "  (no engine on domain " << cell.dds.domain_id << " with profile " << cell.dds.participant_profile
-        << ": `cellcal cell` runs on cellcal_loopback, try --dds-profile cellcal_loopback; or --domain-id)\n";
+        << " yet: is the cell running? Its processes join the domain and profile of their cell file; another cell: "
+           "--config, --domain-id or --dds-profile)\n";
   out << "\n";
   out << std::left << std::setw(12) << "robot" << std::setw(8) << "version" << std::setw(15) << "health"
       << std::setw(7) << "poses" << std::setw(12) << "a-priori" << std::setw(12) << "predicted" << std::setw(12)
@@ -109,8 +109,10 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
   for (const auto& [id, r] : robots) {
     std::uint64_t rejected = 0;
     for (const auto& [reason, n] : r.rejections) rejected += n;
+    // What the engine said last, while it is seen; once it is gone, that it was so (no longer known).
+    const std::string health = engine_writers > 0 || !r.has_state ? r.health : "? (was " + r.health + ")";
     out << std::left << std::setw(12) << id << std::setw(8) << ("v" + std::to_string(r.version)) << std::setw(15)
-        << r.health << std::setw(7) << r.poses_used << std::setw(12) << fmt(r.verification_mm, 4, " mm")
+        << health << std::setw(7) << r.poses_used << std::setw(12) << fmt(r.verification_mm, 4, " mm")
         << std::setw(12) << fmt(r.predicted_mm, 4, " mm") << std::setw(12) << fmt(r.residual_mm, 4, " mm")
         << std::setw(34)
         << (fmt(r.last_correction_mm, 3, " mm") + " " + fmt(r.last_correction_deg, 3, " deg") + " (" +
@@ -121,6 +123,9 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
   for (const auto& [id, r] : robots) {
     std::vector<std::string> notes;
     if (!r.has_state) notes.push_back("no CalibrationState yet");
+    if (r.has_state && engine_writers == 0)
+      notes.push_back("ENGINE NOT SEEN: v" + std::to_string(r.version) + " " + r.health +
+                      " is what it published last (the compensation publisher keeps applying the last ok version)");
     if (!r.health_reason.empty()) notes.push_back("health: " + r.health_reason);
     if (r.drift_alarm) notes.push_back("DRIFT ALARM");
     if (!r.stale_inputs.empty()) notes.push_back("STALE INPUT: " + r.stale_inputs);
@@ -154,7 +159,7 @@ int runStatus(const StatusArgs& a) {
     if (r.has_state && m.version() < r.version) return;
     r.has_state = true;
     r.version = m.version();
-    r.health = healthName(m.health());
+    r.health = healthText(m.health());
     r.poses_used = m.poses_used();
     r.verification_mm = m.verification_mean_position_m() * 1e3;
     r.residual_mm = m.residual_rms_position_m() * 1e3;
@@ -171,6 +176,9 @@ int runStatus(const StatusArgs& a) {
     for (size_t i = 0; i < d.rejection_reasons().size() && i < d.rejection_counts().size(); ++i)
       if (d.rejection_counts()[i] > 0) r.rejections[d.rejection_reasons()[i].to_string()] = d.rejection_counts()[i];
     r.drift_alarm = d.drift_alarm();
+    // The diagnostics come every republish period and whenever the health changes: the health they carry is the
+    // engine's latest, newer than a CalibrationState's when no version was made since.
+    if (!r.has_state || d.source_stamp_ns() >= r.state_stamp_ns) r.health = healthText(d.health());
     r.health_reason = d.health_reason().to_string();
     r.stale_inputs = d.stale_inputs().to_string();
     r.clock_warning = d.clock_warning().to_string();

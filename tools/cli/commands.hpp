@@ -15,6 +15,9 @@ using Runner = std::function<int()>;
 // For options naming a file to write (--out, --json, --save-robot): makes its folder when missing, so a command runs
 // as written on a fresh clone; a folder that cannot be made is a usage error naming it.
 const CLI::Validator& outputFile();
+// Numbers a quantity must be: "> 0" and ">= 0", said as "must be > 0, got -5" (CLI11's own ranges print 300 digits).
+const CLI::Validator& positive();
+const CLI::Validator& nonNegative();
 
 Runner addExperimentCommand(CLI::App& app);
 // Adds `cell` (the four-process cell on localhost).

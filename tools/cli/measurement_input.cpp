@@ -1,3 +1,4 @@
+#include "commands.hpp"
 #include "measurement_input.hpp"
 
 #include <algorithm>
@@ -84,6 +85,7 @@ std::vector<LoadedInput> loadSetups(const InputArgs& a) {
   std::vector<LoadedInput> out;
   for (const auto& path : paths) {
     auto [rf, file] = readInput(a, path);
+    if (file.rows.empty()) throw ConfigError(path + ": no data rows");  // readMeasurementCsv refuses it already
     for (auto& [label, part] : bySetup(file)) {
       if (label.empty() && file.rows.size() != part.rows.size())
         throw ConfigError(path + ": line " + std::to_string(part.rows.front().line) +
@@ -130,7 +132,10 @@ LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile 
   }
   if (in.oriented_rows == 0) in.kind = MeasurementKind::kPosition3D;
   if (in.data.identification.size() < 8 || in.data.verification.empty())
-    throw std::runtime_error(name + ": too few rows (" + std::to_string(rows.size()) + ")");
+    throw ConfigError(name + ": too few rows (" + std::to_string(rows.size()) + "): the " + a.split +
+                      " split gives " + std::to_string(in.data.identification.size()) + " to identify and " +
+                      std::to_string(in.data.verification.size()) +
+                      " to verify; at least 8 and 1 are needed (16 rows or more)");
   const auto t0 = std::chrono::steady_clock::now();
   in.start = in.robot.nominal;
   in.registration_rms_mm = std::nan("");
@@ -210,7 +215,7 @@ std::vector<Extension> parseModel(const std::string& spec, const RobotModel& rob
   try {
     return parseExtensionList(spec, robot);
   } catch (const std::invalid_argument& e) {
-    throw std::runtime_error(std::string("--model: ") + e.what() + " (or geometric, auto)");
+    throw ConfigError(std::string("--model: ") + e.what() + " (or geometric, auto; a usage error, exit 2)");
   }
 }
 
@@ -289,12 +294,12 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
         else a.more_data.push_back(f);
       });
   cmd->add_option("--split", a.split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
-  cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->capture_default_str();
-  cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->capture_default_str();
+  cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->check(positive())->capture_default_str();
+  cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->check(positive())->capture_default_str();
   cmd->add_flag("--position-only", a.position_only, "use positions only, even where orientations are given");
   cmd->add_option("--outlier-threshold", a.outlier_threshold,
                   "a row whose position error exceeds this many robust sigmas (per axis, from the median residual) is a "
-                  "gross error: listed by its line and left out of the fit; 0: no screening")
+                  "gross error: listed by its line and left out of the fit->check(nonNegative()); 0: no screening")
       ->check(CLI::Number)
       ->capture_default_str();
   cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");

@@ -251,6 +251,8 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
   return r;
 }
 
+const char* healthText(msg::CalibrationHealth h) { return healthName(static_cast<Health>(static_cast<int>(h))); }
+
 Pose toPose(const std::array<double, 3>& p, const std::array<double, 4>& q) {
   Pose T = Pose::Identity();
   T.translation() = Eigen::Vector3d(p[0], p[1], p[2]);

@@ -166,35 +166,27 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   for (size_t k = 0; k < ext_names.size(); ++k)
     for (size_t j = 0; j < file_ext_names.size(); ++j)
       if (ext_names[k] == file_ext_names[j]) ext_params[static_cast<Eigen::Index>(k)] = cal.extension_params[static_cast<Eigen::Index>(j)];
-  // Drift since the file's date (wall clock), each variance at most the uncalibrated prior's.
+  // Each variance at most the uncalibrated prior's. The drift since the file's date is added at the first reading,
+  // over the hours from the date to that reading's stamp (the engine takes time from its inputs: a replay of the
+  // same readings gives the same result whenever it runs).
   const auto date_ns = cal.dateUtcNs();
-  const auto now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
-                          std::chrono::system_clock::now().time_since_epoch()).count();
-  const double age_h = date_ns ? std::max(0.0, static_cast<double>(now_ns - *date_ns) * 1e-9 / 3600.0) : 0.0;
-  // Each estimated parameter also takes the drift of those it stands for (structuralAbsorption).
-  const Eigen::MatrixXd T = structuralAbsorption(m, m.nominal, robot_->measurement, est);
-  P.topLeftCorner(ne, ne) +=
-      T * drift_sigma_.cwiseAbs2().asDiagonal() * T.transpose() * (age_h / settings_->drift_per_h);
-  int capped = 0;
-  for (Eigen::Index k = 0; k < n; ++k)
-    if (P(k, k) > prior_sd[k] * prior_sd[k]) {
-      const double f = prior_sd[k] / std::sqrt(P(k, k));
-      P.row(k) *= f;
-      P.col(k) *= f;
-      ++capped;
-    }
+  file_date_ns_ = date_ns.value_or(0);
+  start_prior_sd_ = prior_sd;
+  const int capped = capVariances(P, prior_sd);
   rls_ = std::make_unique<RlsCalibrator>(m, params, est, exts, ext_params, acting, P);
   started_calibrated_ = true;
   std::ostringstream note;
   note << "started from " << path << ": calibrated " << (date_ns ? cal.provenanceValue("date_utc") : "(no date)");
-  if (date_ns) note << ", " << std::fixed << std::setprecision(1) << age_h << " h ago (drift since then widens its covariance)";
+  if (date_ns) note << " (the first reading widens its covariance by the drift from then to its stamp)";
   else note << " (no date_utc: no drift added)";
   note << "; " << covered << " of the " << n << " estimated parameters from it";
   if (capped) note << ", " << capped << " at most as wide as the uncalibrated prior";
   if (robot_->base_in_tracker || robot_->tool_in_flange)
     note << "; base and tool frames from the file (the cell file's base_in_tracker / tool_in_flange are the "
-            "controller's nominal; a moved tracker shows as poses beyond the outlier gate: re-register with "
-            "`cellcal calibrate --frames-only`)";
+            "controller's nominal)";
+  note << "; on probation until a pose fits it: " << kProbationPoses
+       << " first poses in a row beyond the outlier gate (another set-up, a moved tracker) and the engine starts "
+          "from the nominal model instead";
   for (const auto& e : cal.extensions) {
     bool kept = false;
     for (const auto& x : exts) kept = kept || extensionSpec(x) == extensionSpec(e);
@@ -213,6 +205,94 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   refreshStatistics();
   decideHealth();
   ++state_revision_;
+}
+
+// Scales row and column k of P so that its variance is at most sd[k]^2; returns how many were scaled.
+int CalibrationEngine::capVariances(Eigen::MatrixXd& P, const Eigen::VectorXd& sd) {
+  int capped = 0;
+  for (Eigen::Index k = 0; k < P.rows() && k < sd.size(); ++k)
+    if (P(k, k) > sd[k] * sd[k]) {
+      const double f = sd[k] / std::sqrt(P(k, k));
+      P.row(k) *= f;
+      P.col(k) *= f;
+      ++capped;
+    }
+  return capped;
+}
+
+// The drift of the parameters from the calibration file's date to the first reading's stamp (wall-clock hours, as
+// the file's date is), each estimated parameter also taking the drift of those it stands for (structuralAbsorption),
+// each variance at most the uncalibrated prior's.
+void CalibrationEngine::addDriftSinceFile(std::int64_t stamp_ns) {
+  const std::int64_t date_ns = file_date_ns_;
+  file_date_ns_ = 0;
+  const double age_h = std::max(0.0, static_cast<double>(stamp_ns - date_ns) * 1e-9 / 3600.0);
+  const RobotModel& m = robot_->model;
+  const std::vector<int> est = rls_->estimated();
+  const auto ne = static_cast<Eigen::Index>(est.size());
+  Eigen::MatrixXd P = rls_->covariance();
+  const Eigen::MatrixXd T = structuralAbsorption(m, m.nominal, robot_->measurement, est);
+  P.topLeftCorner(ne, ne) += T * drift_sigma_.cwiseAbs2().asDiagonal() * T.transpose() * (age_h / settings_->drift_per_h);
+  const int capped = capVariances(P, start_prior_sd_);
+  rls_ = std::make_unique<RlsCalibrator>(m, rls_->params(), est, rls_->extensions(), rls_->extensionParams(),
+                                         rls_->estimatedExtension(), P);
+  std::ostringstream note;
+  note << "first reading " << std::fixed << std::setprecision(1) << age_h
+       << " h after the calibration file's date (by its stamp): the drift model widened the file's covariance over "
+          "that time";
+  if (capped) note << ", " << capped << " parameters at most as wide as the uncalibrated prior";
+  notes_.push_back(note.str());
+  ++state_revision_;
+}
+
+// The readings held while the calibration file was on probation contradicted it: the engine starts over from the
+// nominal model and the cell file's registration, then takes those readings.
+bool CalibrationEngine::refuseCalibrationFile(double gate) {
+  const RobotModel& m = robot_->model;
+  std::ostringstream why;
+  why << "calibration_file " << robot_->calibration_file << " does not fit this cell: its first " << probe_.size()
+      << " poses lie";
+  double least_nis = std::numeric_limits<double>::infinity();
+  for (size_t k = 0; k < probe_.size(); ++k) {
+    why << (k ? ", " : " ") << std::fixed << std::setprecision(2) << probe_[k].prior_error_m * 1e3;
+    least_nis = std::min(least_nis, probe_[k].nis_per_row);
+  }
+  why << " mm from where it predicts them (normalized innovation " << std::scientific << std::setprecision(2)
+      << least_nis << " per row or more, gate " << std::defaultfloat << gate
+      << "): calibrated on another set-up, the tracker moved, or another robot. Started from the nominal model and "
+         "the cell file's registration instead (to keep the file's kinematics: `cellcal calibrate --frames-only` on a "
+         "few poses of this cell, then start from that file)";
+  const GaussianPrior prior =
+      diagonalPrior(m, m.nominal, m.canonicalParams(), settings_->prior_length_m, settings_->prior_angle_rad);
+  rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot_->measurement);
+  if (!robot_->extensions.empty()) startExtensions(rls_->params(), rls_->estimated(), rls_->covariance());
+  started_calibrated_ = false;
+  refused_file_ = true;
+  file_date_ns_ = 0;
+  last_good_.reset();
+  recent_.clear();
+  gate_window_.clear();
+  consecutive_outliers_ = 0;
+  gated_q_.resize(0);
+  used_q_.resize(0);
+  snap_.last_update_stamp_ns = 0;
+  snap_.start_warning = why.str();
+  notes_.push_back("WARNING: " + why.str());
+  std::vector<Probe> held = std::move(probe_);
+  probe_.clear();
+  ++snap_.version;  // the file's model is withdrawn at once: compensation must stop applying it
+  publishEstimate();
+  refreshStatistics();
+  decideHealth();
+  ++state_revision_;
+  for (const auto& h : held) handlePaired(h.pending);
+  return true;
+}
+
+std::vector<std::string> CalibrationEngine::takeNotes() {
+  std::vector<std::string> out(notes_.begin(), notes_.end());
+  notes_.clear();
+  return out;
 }
 
 void CalibrationEngine::publishEstimate() {
@@ -340,83 +420,109 @@ bool CalibrationEngine::process(std::int64_t now_ns) {
   PairingOutcome out = pairing_.poll(now_ns);
   for (const auto& [r, d] : out.rejected) reject(r, robot_->target_id + " " + d);
   bool changed = false;
-  const bool extended = !rls_->extensions().empty();
   for (const auto& p : out.paired) {
-    const auto t0 = steadyNs();
+    const bool extended = !rls_->extensions().empty();
     Pending pending{p, extended ? play_.driversAt(p.joint_stamp_ns, p.observation.q_rad) : Drivers{}};
-    const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
-    if (settings_->outlier_gate_nis_per_row > 0) {
-      const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
-      const int rows = p.observation.rows();
-      // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate
-      // scales with the recent median NIS per row when that is above 1. A gross error (a bumped target, a beam
-      // break caught mid-reading) is hundreds of sigmas and stays far outside.
-      // The median is over every new stand-still, gated or not: when most poses look like outliers the model (or the
-      // station) changed, the gate opens within half a window, and the drift alarm says so, instead of the engine
-      // freezing on an estimate that no longer fits.
-      double scale = 1;
-      if (gate_window_.size() >= 5) {
-        std::vector<double> v(gate_window_.begin(), gate_window_.end());
-        std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-        scale = std::max(1.0, v[v.size() / 2]);
-      }
-      const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
-      const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
-      if (new_stand_still && std::isfinite(nis)) {
-        gate_window_.push_back(nis / rows);
-        while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
-      }
-      if (!(nis <= gate)) {
-        std::ostringstream m;
-        m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
-          << " above the gate " << gate << " (" << rows << " rows)";
-        reject(Rejection::kOutlier, m.str());
-        if (new_stand_still) {
-          ++consecutive_outliers_;
-          gated_q_ = p.observation.q_rad;
-          gated_joint_stamp_ns_ = p.joint_stamp_ns;
-          const Health before = snap_.health;
-          decideHealth();
-          if (snap_.health != before) changed = true;  // publish the hold at once
-        }
-        continue;
-      }
+    changed = handlePaired(pending) || changed;
+  }
+  return changed;
+}
+
+// One paired reading: the outlier gate (with the calibration file on probation at the start), one update per
+// stand-still, continuous or periodic. True when a version was made or the health changed.
+bool CalibrationEngine::handlePaired(const Pending& pending) {
+  const PairedReading& p = pending.reading;
+  const auto t0 = steadyNs();
+  if (file_date_ns_ != 0) addDriftSinceFile(p.tracker_stamp_ns);
+  const bool extended = !rls_->extensions().empty();
+  bool changed = false;
+  const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
+  if (settings_->outlier_gate_nis_per_row > 0) {
+    const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
+    const int rows = p.observation.rows();
+    // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate
+    // scales with the recent median NIS per row when that is above 1. A gross error (a bumped target, a beam
+    // break caught mid-reading) is hundreds of sigmas and stays far outside.
+    // The median is over every new stand-still, gated or not: when most poses look like outliers the model (or the
+    // station) changed, the gate opens within half a window, and the drift alarm says so, instead of the engine
+    // freezing on an estimate that no longer fits.
+    double scale = 1;
+    if (gate_window_.size() >= 5) {
+      std::vector<double> v(gate_window_.begin(), gate_window_.end());
+      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+      scale = std::max(1.0, v[v.size() / 2]);
     }
-    consecutive_outliers_ = 0;
-    gated_q_.resize(0);
-    ++counters_.paired;
-    // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
-    // using them as independent observations would overweight the pose. The first reading is used at once.
-    if (same_as_used) {
-      ++counters_.same_pose;
-      continue;
+    const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
+    const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+    if (new_stand_still && std::isfinite(nis)) {
+      gate_window_.push_back(nis / rows);
+      while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
     }
-    used_q_ = p.observation.q_rad;
-    used_joint_stamp_ns_ = p.joint_stamp_ns;
-    if (settings_->mode == EngineMode::kContinuous) {
-      if (applyPose(pending)) {
+    if (!(nis <= gate)) {
+      std::ostringstream m;
+      m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
+        << " above the gate " << gate << " (" << rows << " rows)";
+      // A calibration file on probation (no pose has passed the gate since the engine started from it): its first
+      // stand-stills are held; kProbationPoses in a row beyond the gate mean it does not fit this cell.
+      if (new_stand_still && onProbation()) {
+        const Pose predicted = rls_->predict(p.observation.q_rad, extended ? &pending.drivers : nullptr);
+        probe_.push_back({pending, m.str(),
+                          (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
+                          nis / rows});
+        gated_q_ = p.observation.q_rad;
+        gated_joint_stamp_ns_ = p.joint_stamp_ns;
+        if (probe_.size() >= kProbationPoses) return refuseCalibrationFile(gate);
+        return false;
+      }
+      reject(Rejection::kOutlier, m.str());
+      if (new_stand_still) {
+        ++consecutive_outliers_;
+        gated_q_ = p.observation.q_rad;
+        gated_joint_stamp_ns_ = p.joint_stamp_ns;
+        const Health before = snap_.health;
+        decideHealth();
+        if (snap_.health != before) changed = true;  // publish the hold at once
+      }
+      return changed;
+    }
+  }
+  // A pose passed the gate: readings held on probation were outliers after all.
+  for (const auto& h : probe_) reject(Rejection::kOutlier, h.rejection);
+  probe_.clear();
+  consecutive_outliers_ = 0;
+  gated_q_.resize(0);
+  ++counters_.paired;
+  // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
+  // using them as independent observations would overweight the pose. The first reading is used at once.
+  if (same_as_used) {
+    ++counters_.same_pose;
+    return changed;
+  }
+  used_q_ = p.observation.q_rad;
+  used_joint_stamp_ns_ = p.joint_stamp_ns;
+  if (settings_->mode == EngineMode::kContinuous) {
+    if (applyPose(pending)) {
+      finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+      changed = true;
+    }
+  } else {
+    batch_.push_back(pending);
+    if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
+      bool any = false;
+      for (const auto& b : batch_) any = applyPose(b) || any;
+      batch_.clear();
+      if (any) {
         finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
         changed = true;
       }
     } else {
-      batch_.push_back(std::move(pending));
-      if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
-        bool any = false;
-        for (const auto& b : batch_) any = applyPose(b) || any;
-        batch_.clear();
-        if (any) {
-          finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
-          changed = true;
-        }
-      } else {
-        snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
-        snap_.last_tracker_sequence = p.tracker_sequence;
-        pairing_.setAppliedUntil(p.tracker_stamp_ns);
-        ++state_revision_;
-      }
+      snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
+      snap_.last_tracker_sequence = p.tracker_sequence;
+      pairing_.setAppliedUntil(p.tracker_stamp_ns);
+      ++state_revision_;
     }
-    last_update_duration_ns_ = steadyNs() - t0;
   }
+  last_update_duration_ns_ = steadyNs() - t0;
   return changed;
 }
 
@@ -500,7 +606,8 @@ void CalibrationEngine::decideHealth() {
   if (snap_.poses_used < needed) {
     publishEstimate();
     snap_.health = Health::kUncalibrated;
-    snap_.health_reason = std::to_string(snap_.poses_used) + " of the " + std::to_string(needed) + " poses needed";
+    snap_.health_reason = std::to_string(snap_.poses_used) + " of the " + std::to_string(needed) + " poses needed" +
+                          (refused_file_ ? " (started from nominal: the calibration file does not fit this cell)" : "");
     return;
   }
   if (!why.str().empty()) {
@@ -586,6 +693,11 @@ EngineState CalibrationEngine::exportState() const {
   const bool extended = !rls_->extensions().empty();
   for (const auto& b : batch_)
     s.pending_batch.push_back({b.reading, extended ? std::optional<Drivers>(b.drivers) : std::nullopt});
+  s.started_from = refused_file_         ? EngineState::Start::kNominalFileRefused
+                   : started_calibrated_ ? EngineState::Start::kCalibrationFile
+                                         : EngineState::Start::kNominal;
+  s.file_drift_pending_since_ns = file_date_ns_;
+  s.start_warning = snap_.start_warning;
   return s;
 }
 
@@ -645,7 +757,17 @@ void CalibrationEngine::importState(const EngineState& s) {
     }
   }
   start_note_.clear();
-  if (started_calibrated_)
+  // How it started: kept since states say it; before, the cell file's calibration_file decided, and the drift since
+  // the file's date was in the saved covariance.
+  file_date_ns_ = 0;
+  if (s.started_from) {
+    started_calibrated_ = *s.started_from == EngineState::Start::kCalibrationFile;
+    refused_file_ = *s.started_from == EngineState::Start::kNominalFileRefused;
+    if (started_calibrated_) file_date_ns_ = s.file_drift_pending_since_ns;
+    snap_.start_warning = s.start_warning;
+  }
+  probe_.clear();
+  if (robot_->start)
     note += std::string(note.empty() ? "" : "; ") + "resumed from its state file: calibration_file " +
             robot_->calibration_file + " (the start of a new cell) is not used";
   restore_note_ = note;

@@ -169,6 +169,12 @@ std::string engineStateToJson(const EngineState& s) {
     batch.push_back(o);
   }
   j["pending_batch"] = batch;
+  if (s.started_from)
+    j["started_from"] = *s.started_from == EngineState::Start::kNominal           ? "nominal"
+                        : *s.started_from == EngineState::Start::kCalibrationFile ? "calibration_file"
+                                                                                  : "nominal_calibration_file_refused";
+  j["file_drift_pending_since_ns"] = s.file_drift_pending_since_ns;
+  j["start_warning"] = s.start_warning;
   return j.dump();
 }
 
@@ -228,6 +234,16 @@ EngineState engineStateFromJson(const std::string& text) {
       good.covariance = squareOf(g.at("covariance").get<std::vector<double>>(), "last_good: covariance");
       s.last_good = std::move(good);
     }
+    if (j.contains("started_from")) {
+      const std::string v = j.at("started_from").get<std::string>();
+      if (v == "nominal") s.started_from = EngineState::Start::kNominal;
+      else if (v == "calibration_file") s.started_from = EngineState::Start::kCalibrationFile;
+      else if (v == "nominal_calibration_file_refused") s.started_from = EngineState::Start::kNominalFileRefused;
+      else throw std::runtime_error("started_from: unknown value '" + v + "'");
+    }
+    if (j.contains("file_drift_pending_since_ns"))
+      s.file_drift_pending_since_ns = j.at("file_drift_pending_since_ns").get<std::int64_t>();
+    if (j.contains("start_warning")) s.start_warning = j.at("start_warning").get<std::string>();
   } catch (const json::exception& e) {
     throw std::runtime_error(std::string("missing or malformed field: ") + e.what());
   }

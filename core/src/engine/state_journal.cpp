@@ -242,6 +242,11 @@ std::string engineStateToBinary(const EngineState& s) {
       w.doubles(b.drivers->recent_steps_rad.data(), static_cast<std::size_t>(b.drivers->recent_steps_rad.size()));
     }
   }
+  // Appended fields (records written before them end above and read as their defaults).
+  w.pod(static_cast<std::uint8_t>(s.started_from.has_value()));
+  if (s.started_from) w.pod(static_cast<std::uint8_t>(*s.started_from));
+  w.pod(s.file_drift_pending_since_ns);
+  w.str(s.start_warning);
   return std::move(w.out);
 }
 
@@ -320,6 +325,16 @@ EngineState engineStateFromBinary(const std::string& bytes) {
       p.drivers = std::move(d);
     }
     s.pending_batch.push_back(std::move(p));
+  }
+  if (!r.done()) {  // the fields appended since the first records
+    if (r.flag("started_from")) {
+      const auto v = r.pod<std::uint8_t>("started_from");
+      if (v > static_cast<std::uint8_t>(EngineState::Start::kNominalFileRefused))
+        throw std::runtime_error("started_from: unknown value " + std::to_string(v));
+      s.started_from = static_cast<EngineState::Start>(v);
+    }
+    s.file_drift_pending_since_ns = r.pod<std::int64_t>("file_drift_pending_since_ns");
+    s.start_warning = r.str("start_warning");
   }
   if (!r.done()) throw std::runtime_error("bytes after the state");
   return s;

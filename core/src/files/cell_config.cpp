@@ -215,6 +215,25 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
         r.fail(n["calibration_file"], fc,
                "its kinematic parameters differ from those of robot_file " + rb.robot_file +
                    " (another robot or joint layout)");
+      // Another robot of the same layout (a UR10's calibration in a TX60's cell): its name, or its joints further
+      // from robot_file's drawing than a calibration moves them (20 mm, 5 deg).
+      std::string other;
+      if (sm.name != rb.model.name) other = "its robot is '" + sm.name + "', robot_file's '" + rb.model.name + "'";
+      for (int j = 0; other.empty() && j < sm.numJoints(); ++j)
+        for (const JointParam p : {JointParam::kThetaOffset, JointParam::kD, JointParam::kA, JointParam::kAlpha}) {
+          const int i = sm.jointParam(j, p);
+          const double diff = std::abs(sm.nominal[i] - rb.model.nominal[i]);
+          if (sm.isLength(i) ? diff > 0.02 : diff > 5.0 * 3.14159265358979323846 / 180.0) {
+            other = "its " + sm.paramNameHuman(i) + " is " + std::to_string(sm.toHuman(i, sm.nominal[i])) +
+                    ", robot_file's " + std::to_string(rb.model.toHuman(i, rb.model.nominal[i])) +
+                    " (more than a calibration moves a joint: 20 mm, 5 deg)";
+            break;
+          }
+        }
+      if (!other.empty())
+        r.fail(n["calibration_file"], fc,
+               rb.calibration_file + " is not a calibration of robot_file " + rb.robot_file + ": " + other +
+                   " (another robot's calibration?)");
     }
     if (n["ros2_joint_names"].IsDefined()) {
       const YAML::Node x = n["ros2_joint_names"];

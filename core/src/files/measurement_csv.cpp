@@ -1,12 +1,16 @@
 #include "cellcal/core/files/measurement_csv.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <map>
 #include <iomanip>
 #include <sstream>
+
+#include <Eigen/SVD>
 
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/model/se3.hpp"
@@ -70,6 +74,91 @@ void checkPositionUnits(const MeasurementFile& f, const RobotModel& robot, const
   throw ConfigError(where + buf);
 }
 
+// Radians written in the _deg columns: every joint value lies within +-2 pi, and the readings spread far more than
+// those angles, read as degrees, move the target under the nominal model (a 57x smaller motion).
+void checkJointUnits(const MeasurementFile& f, const RobotModel& robot, const std::string& where) {
+  if (f.rows.size() < 3) return;
+  double largest_deg = 0;
+  for (const auto& r : f.rows) largest_deg = std::max(largest_deg, radToDeg(r.q_rad.cwiseAbs().maxCoeff()));
+  if (largest_deg > 2 * kPi + 1e-9) return;
+  KinematicsData d(robot);
+  std::vector<Eigen::Vector3d> measured, as_degrees, as_radians;
+  for (const auto& r : f.rows) {
+    measured.push_back(r.position_m);
+    as_degrees.push_back(forwardKinematics(robot, d, robot.nominal, r.q_rad).translation());
+    as_radians.push_back(forwardKinematics(robot, d, robot.nominal, r.q_rad * (180.0 / kPi)).translation());
+  }
+  const double read_mm = rmsSpread(measured) * 1e3, deg_mm = rmsSpread(as_degrees) * 1e3,
+               rad_mm = rmsSpread(as_radians) * 1e3;
+  // Read as radians the angles explain the readings' spread; read as degrees they fall short by a factor 3 or more.
+  if (read_mm < 20.0 || deg_mm * 3.0 >= read_mm || rad_mm * 1.6 < read_mm || rad_mm > 1.6 * read_mm) return;
+  char buf[480];
+  std::snprintf(buf, sizeof buf,
+                ": q1_deg..q%d_deg: every joint value lies within +-%.2f while the readings spread %.0f mm about their "
+                "centre (RMS over %zu rows) and these angles, read as degrees, move the target only %.1f mm under the "
+                "nominal model (%.0f mm read as radians): radians written where degrees are expected? (name the "
+                "columns q1_rad.. or multiply by 57.2958)",
+                robot.numJoints(), largest_deg, read_mm, f.rows.size(), deg_mm, rad_mm);
+  throw ConfigError(where + buf);
+}
+
+// Quaternions written in x, y, z, w order under qw, qx, qy, qz. The rotation from one row's reading to the next,
+// seen from the target (M_i^T M_j = T^T F_i^T F_j T), is the nominal model's from the flange, turned by the target's
+// one fixed rotation T: one rotation maps every such rotation vector of the model onto the readings'. Read in the
+// wrong order the readings' are no rotation of the model's (a permutation keeps the angles, not the axes).
+double rotationMismatchDeg(const std::vector<Eigen::Vector3d>& model, const std::vector<Eigen::Vector3d>& read) {
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (size_t k = 0; k < model.size(); ++k) H += read[k] * model[k].transpose();
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  const Eigen::Matrix3d R = svd.matrixU() * D * svd.matrixV().transpose();
+  double s = 0;
+  for (size_t k = 0; k < model.size(); ++k) s += (read[k] - R * model[k]).squaredNorm();
+  return radToDeg(std::sqrt(s / static_cast<double>(model.size())));
+}
+
+void checkQuaternionOrder(const MeasurementFile& f, const RobotModel& robot, const std::string& where) {
+  std::vector<const MeasurementRow*> rows;
+  for (const auto& r : f.rows)
+    if (r.orientation && rows.size() < 400) rows.push_back(&r);
+  if (rows.size() < 4) return;
+  KinematicsData d(robot);
+  std::vector<Eigen::Matrix3d> nominal, written, reordered;
+  for (const auto* r : rows) {
+    nominal.push_back(forwardKinematics(robot, d, robot.nominal, r->q_rad).linear());
+    const Eigen::Quaterniond& q = *r->orientation;
+    written.push_back(q.toRotationMatrix());
+    // As read, w holds the file's x, x its y, y its z and z its w.
+    reordered.push_back(Eigen::Quaterniond(q.z(), q.w(), q.x(), q.y()).normalized().toRotationMatrix());
+  }
+  std::vector<Eigen::Vector3d> model, as_written, as_reordered;
+  // Every pair of a small file, rows one and two apart in a large one.
+  const size_t reach = rows.size() <= 40 ? rows.size() : 2;
+  for (size_t i = 0; i + 1 < rows.size(); ++i)
+    for (size_t j = i + 1; j < rows.size() && j <= i + reach; ++j) {
+      const Eigen::Vector3d a = logSO3(nominal[i].transpose() * nominal[j]);
+      const Eigen::Vector3d w = logSO3(written[i].transpose() * written[j]);
+      const Eigen::Vector3d r = logSO3(reordered[i].transpose() * reordered[j]);
+      // Near half a turn the rotation vector's sign is ambiguous: such pairs say nothing here.
+      if (a.norm() > 2.9 || w.norm() > 2.9 || r.norm() > 2.9 || a.norm() < 0.05) continue;
+      model.push_back(a);
+      as_written.push_back(w);
+      as_reordered.push_back(r);
+    }
+  if (model.size() < 3) return;
+  const double off_written = rotationMismatchDeg(model, as_written);
+  const double off_reordered = rotationMismatchDeg(model, as_reordered);
+  if (off_written < 5.0 || off_reordered * 5.0 > off_written) return;
+  char buf[520];
+  std::snprintf(buf, sizeof buf,
+                ": qw, qx, qy, qz: the rotations between consecutive readings are no rotation of the nominal model's "
+                "(%.1f deg RMS apart as written, %.2f deg read as x, y, z, w; %zu pairs of rows): quaternions written "
+                "in x, y, z, w order? (CSV v1 names the columns; name them qx, qy, qz, qw in the header)",
+                off_written, off_reordered, model.size());
+  throw ConfigError(where + buf);
+}
+
 }  // namespace
 
 MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
@@ -89,6 +178,14 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
   }
   if (header.empty()) throw ConfigError(source + ": no header row (expected q1_deg.., x_mm, y_mm, z_mm, ...)");
   const int header_line = lineno;
+  if (header.size() == 1)
+    for (const char sep : {';', '\t', ' '})
+      if (header[0].find(sep) != std::string::npos)
+        throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: one column '" + header[0].substr(0, 60) +
+                          (header[0].size() > 60 ? "..." : "") + "': the columns are separated by " +
+                          (sep == ';' ? "';'" : sep == '\t' ? "tabs" : "spaces") +
+                          ", CSV v1 by ',' with '.' decimals (a spreadsheet's export with decimal commas: replace "
+                          "',' by '.', then the separator by ',')");
   const int n = robot.numJoints();
   std::map<std::string, int> col;
   for (size_t i = 0; i < header.size(); ++i) {
@@ -158,9 +255,10 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
       if (number(qcol[j], true, &v)) {
         row.q_rad[j] = deg ? degToRad(v) : v;
         if (row.q_rad[j] < robot.limits[j].lower_rad || row.q_rad[j] > robot.limits[j].upper_rad)
-          err = RowError{qcol[j] + 1, header[qcol[j]], "joint outside its limits [" +
-                                                           std::to_string(radToDeg(robot.limits[j].lower_rad)) + ", " +
-                                                           std::to_string(radToDeg(robot.limits[j].upper_rad)) + "] deg"};
+          err = RowError{qcol[j] + 1, header[qcol[j]],
+                         "joint outside its limits [" + std::to_string(radToDeg(robot.limits[j].lower_rad)) + ", " +
+                             std::to_string(radToDeg(robot.limits[j].upper_rad)) + "] deg" +
+                             (!deg && std::abs(v) > 2 * kPi ? ": degrees written where radians are expected?" : "")};
       }
     }
     for (int k = 0; k < 3; ++k) {
@@ -217,7 +315,12 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     }
     f.rows.push_back(std::move(row));
   }
+  if (f.rows.empty())
+    throw ConfigError(source + ":" + std::to_string(header_line) + ": no data rows after the header" +
+                      (f.skipped_rows ? " (" + std::to_string(f.skipped_rows) + " bad rows skipped)" : std::string()));
   checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["x_mm"] + 1));
+  if (deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(qcol[0] + 1));
+  if (has_q) checkQuaternionOrder(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["qw"] + 1));
   return f;
 }
 

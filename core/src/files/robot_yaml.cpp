@@ -406,6 +406,33 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
     r.fail(joints, "joints[*].a_mm/d_mm",
            "the link lengths add up to " + std::to_string(reach_m * 1e3) +
                " mm: no robot arm is that small; metres written where millimetres are expected?");
+  // A drawing's values (a file without a calibration section): one length in metres among millimetres (0 < |v| < 1
+  // mm beside lengths of 100 mm and more), an angle in radians (a right angle or its multiple written as 1.5708).
+  if (const YAML::Node c = root["calibration"]; !c.IsDefined() || c.IsNull()) {
+    double longest_mm = 0;
+    for (int j = 0; j < n; ++j)
+      longest_mm = std::max({longest_mm, std::abs(m.nominal[m.jointParam(j, JointParam::kA)]) * 1e3,
+                             std::abs(m.nominal[m.jointParam(j, JointParam::kD)]) * 1e3});
+    for (int j = 0; j < n; ++j) {
+      const std::string f = "joints[" + std::to_string(j) + "]";
+      for (const char* key : {"d_mm", "a_mm"}) {
+        const double v_mm = m.nominal[m.jointParam(j, key[0] == 'd' ? JointParam::kD : JointParam::kA)] * 1e3;
+        if (v_mm != 0.0 && std::abs(v_mm) < 1.0 && longest_mm >= 100.0)
+          r.fail(joints[j][key], f + "." + key,
+                 num(v_mm) + " mm beside lengths of up to " + num(longest_mm) +
+                     " mm: metres written where millimetres are expected? (a nominal length is 0 or many millimetres)");
+      }
+      for (const char* key : {"theta_offset_deg", "alpha_deg", "beta_deg"}) {
+        const YAML::Node v = joints[j][key];
+        if (!v.IsDefined() || v.IsNull()) continue;
+        const double deg = r.number(v, f + "." + key);
+        for (int k = 1; k <= 4; ++k)
+          if (std::abs(std::abs(deg) - k * kPi / 2) < 2e-3)
+            r.fail(v, f + "." + key,
+                   num(deg) + " deg is " + std::to_string(90 * k) + " deg written in radians? (the field is in degrees)");
+      }
+    }
+  }
   std::string err;
   if (!m.IsValid(&err)) throw ConfigError(source + ": " + err);
   RobotFile file{m, std::nullopt};

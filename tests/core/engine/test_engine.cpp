@@ -245,61 +245,87 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
   EXPECT_GE(gained, kDraws / 2);
 }
 
+// A campaign on the simulated cell, calibrated and saved as `calibrate --save-robot` saves it, dated `date_s` (Unix
+// seconds); `move_base_m` moves its base frame that far (another set-up). Returns the file's path.
+std::string savedCampaign(const CellRobot& robot, const SimulatedCell& cell, std::mt19937_64& rng, const std::string& dir,
+                          std::int64_t date_s, double move_base_m = 0, ExtendedFit* fit_out = nullptr) {
+  std::vector<Observation> campaign;
+  for (const auto& q : cell.randomConfigurations(60, rng)) campaign.push_back(cell.measure(q, 0.0, rng));
+  const std::vector<Drivers> drivers(campaign.size());
+  ExtendedFit fit = fitExtended(robot.model, robot.model.nominal, campaign, drivers, std::vector<Extension>{});
+  EXPECT_TRUE(fit.converged) << fit.message;
+  RobotCalibration cal = robotCalibration(robot.model, fit, predictionModel(robot.model, fit, campaign, drivers));
+  const std::time_t made = static_cast<std::time_t>(date_s);
+  char date[32];
+  std::strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&made));
+  cal.provenance = {{"date_utc", date}};
+  if (move_base_m > 0) {
+    std::normal_distribution<double> g;
+    const Eigen::Vector3d dir3 = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    fit.params.segment<3>(robot.model.baseParam(FrameParam::kX)) += move_base_m * dir3;
+  }
+  const std::string path = dir + "/calibrated_" + std::to_string(date_s) + "_" + std::to_string(move_base_m) + ".yaml";
+  saveRobotFile(path, robot.model.withParams(fit.params), &cal, "test campaign");
+  if (fit_out) *fit_out = fit;
+  return path;
+}
+
 // A cell that starts from a measurement campaign: the campaign's calibration, saved as `calibrate --save-robot` saves
 // it, is the engine's first version (healthy, the saved kinematics to rounding), and its first poses are predicted
 // as well as the campaign calibrated them, where an engine started from nominal predicts them with the nominal error.
+// The drift since the file's date widens its covariance at the first reading, by that reading's stamp: an engine
+// made later from the same file and fed the same readings gives the same calibration bit for bit.
 TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFirstVersion) {
   CellRobot robot = config.robots[0];
   const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
   std::mt19937_64 rng(seed);
-  std::vector<Observation> campaign;
-  for (const auto& q : cell.randomConfigurations(60, rng)) campaign.push_back(cell.measure(q, 0.0, rng));
-  const std::vector<Drivers> drivers(campaign.size());
-  const ExtendedFit fit = fitExtended(robot.model, robot.model.nominal, campaign, drivers, std::vector<Extension>{});
-  ASSERT_TRUE(fit.converged) << fit.message;
-  RobotCalibration cal = robotCalibration(robot.model, fit, predictionModel(robot.model, fit, campaign, drivers));
-  const std::time_t made = std::time(nullptr) - 3 * 3600;  // three hours ago: drift since then widens the prior
-  char date[32];
-  std::strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&made));
-  cal.provenance = {{"date_utc", date}};
-  const std::string path = config.engine.state_dir + "/calibrated.yaml";
-  saveRobotFile(path, robot.model.withParams(fit.params), &cal, "test campaign");
-  robot.calibration_file = path;
-  robot.start = loadRobotFile(path);
+  test::Stream stream{cell, rng};
+  const std::int64_t first_s = stream.t_ns / 1'000'000'000 + 60;  // the first reading's stamp (advance(60) below)
+  ExtendedFit fit;
+  std::mt19937_64 campaign_rng(seed + 1);
+  robot.calibration_file = savedCampaign(robot, cell, campaign_rng, config.engine.state_dir, first_s - 3 * 3600, 0, &fit);
+  robot.start = loadRobotFile(robot.calibration_file);
+  CellRobot robot_now = robot;  // the same file dated at the first reading
+  std::mt19937_64 campaign_rng_now(seed + 1);
+  robot_now.calibration_file = savedCampaign(robot, cell, campaign_rng_now, config.engine.state_dir, first_s);
+  robot_now.start = loadRobotFile(robot_now.calibration_file);
 
   // Cell time as the stream's (one wall second a cell second), as in the stream tests above.
   CalibrationEngine started(robot, config.engine, 1.0);
+  CalibrationEngine started_now(robot_now, config.engine, 1.0);
   CalibrationEngine fresh(config.robots[0], config.engine, 1.0);
-  const CalibrationSnapshot& s0 = started.snapshot();
+  const CalibrationSnapshot s0 = started.snapshot();
   EXPECT_EQ(s0.version, 1u);
   EXPECT_EQ(s0.health, Health::kOk) << s0.health_reason << "\n" << started.startNote();
   EXPECT_EQ(fresh.snapshot().health, Health::kUncalibrated);
   EXPECT_LT((s0.params - fit.params).cwiseAbs().maxCoeff(), 1e-12);
-  EXPECT_NE(started.startNote().find("3.0 h ago"), std::string::npos) << started.startNote();
-  // Its prior: the file's covariance, widened (never narrowed) by three hours of drift: against the same file dated now.
-  RobotFile now_file = *robot.start;
-  char now_date[32];
-  const std::time_t now = std::time(nullptr);
-  std::strftime(now_date, sizeof now_date, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&now));
-  now_file.calibration->provenance = {{"date_utc", now_date}};
-  CellRobot robot_now = robot;
-  robot_now.start = now_file;
-  const CalibrationEngine started_now(robot_now, config.engine, 1.0);
-  ASSERT_EQ(started_now.snapshot().covariance.rows(), s0.covariance.rows());
-  for (Eigen::Index k = 0; k < s0.covariance.rows(); ++k)
-    EXPECT_GE(s0.covariance(k, k), started_now.snapshot().covariance(k, k) * (1 - 1e-12)) << k;
-  EXPECT_GT(s0.covariance.trace(), started_now.snapshot().covariance.trace());
+  EXPECT_NE(started.startNote().find("the first reading widens its covariance"), std::string::npos) << started.startNote();
   const double nominal = verifyError(cell, cell.nominalParams(), 0.0, seed + 5);
   const double at_start = verifyError(cell, s0.params, 0.0, seed + 5);
   EXPECT_LT(at_start, nominal / 5) << "nominal " << nominal * 1e3 << " mm, started " << at_start * 1e3 << " mm";
 
-  // The same twelve stand-stills for both: each predicted before it is used (the engines' running verification).
-  test::Stream stream{cell, rng};
+  // The same twelve stand-stills for all: each predicted before it is used (the engines' running verification).
+  std::vector<std::pair<Eigen::VectorXd, TrackerSample>> poses;
   for (const auto& q : cell.randomConfigurations(12, rng)) {
     stream.advance(60);
-    const TrackerSample s = stream.reading(q);
-    stream.feed(started, q, s);
-    stream.feed(fresh, q, s);
+    poses.emplace_back(q, stream.reading(q));
+  }
+  for (size_t k = 0; k < poses.size(); ++k) {
+    stream.feed(started, poses[k].first, poses[k].second);
+    stream.feed(started_now, poses[k].first, poses[k].second);
+    stream.feed(fresh, poses[k].first, poses[k].second);
+    if (k == 0) {
+      // Three hours of drift widened the prior of the first update (never narrowed it): its posterior is at least
+      // the posterior of the same file dated at the reading, entry by entry.
+      const auto notes = started.takeNotes();
+      ASSERT_EQ(notes.size(), 1u);
+      EXPECT_NE(notes[0].find("first reading 3.0 h after the calibration file's date"), std::string::npos) << notes[0];
+      const Eigen::MatrixXd& P = started.snapshot().covariance;
+      const Eigen::MatrixXd& P_now = started_now.snapshot().covariance;
+      ASSERT_EQ(P.rows(), P_now.rows());
+      for (Eigen::Index i = 0; i < P.rows(); ++i) EXPECT_GE(P(i, i), P_now(i, i) * (1 - 1e-9)) << i;
+      EXPECT_GT(P.trace(), P_now.trace());
+    }
   }
   EXPECT_EQ(started.snapshot().version, 13u) << started.counters().last_rejection;
   EXPECT_EQ(started.snapshot().health, Health::kOk) << started.snapshot().health_reason;
@@ -307,6 +333,75 @@ TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFi
   std::printf("  a-priori mean over the first 12 poses: from the file %.4f mm, from nominal %.4f mm (nominal model "
               "%.4f, file at start %.4f mm)\n", a * 1e3, b * 1e3, nominal * 1e3, at_start * 1e3);
   EXPECT_LT(a, b / 3);
+  // The same file, an engine made later, the same readings: the same calibration to the bit.
+  CalibrationEngine replay(robot, config.engine, 1.0);
+  for (const auto& [q, s] : poses) stream.feed(replay, q, s);
+  EXPECT_EQ(replay.snapshot().version, started.snapshot().version);
+  EXPECT_TRUE(replay.snapshot().params == started.snapshot().params);
+  EXPECT_TRUE(replay.snapshot().covariance == started.snapshot().covariance);
+}
+
+// A calibration file made on another set-up (its base 1 m from this cell's, any direction): the engine sees at its
+// first poses that the file does not fit (each far beyond the outlier gate), says so, withdraws the file's model (a
+// new version, uncalibrated) and starts from the nominal model with the cell file's registration, applying the
+// readings it held: from then on it is the engine that started from nominal, to the bit. A file of this cell whose
+// first reading is a gross error (a bumped target) is kept, and that reading counted as an outlier.
+TEST_F(EngineFixture, ACalibrationFileOfAnotherSetUpIsRefusedAtTheFirstPoses) {
+  CellRobot robot = config.robots[0];
+  const SimulatedCell cell = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  test::Stream stream{cell, rng};
+  const std::int64_t first_s = stream.t_ns / 1'000'000'000;
+  std::mt19937_64 campaign_rng(seed + 1);
+  CellRobot moved = robot, kept = robot;
+  moved.calibration_file = savedCampaign(robot, cell, campaign_rng, config.engine.state_dir, first_s - 3600, 1.0);
+  moved.start = loadRobotFile(moved.calibration_file);
+  kept.calibration_file = savedCampaign(robot, cell, campaign_rng, config.engine.state_dir, first_s - 3600);
+  kept.start = loadRobotFile(kept.calibration_file);
+  CalibrationEngine refusing(moved, config.engine, 1.0), keeping(kept, config.engine, 1.0);
+  CalibrationEngine fresh(config.robots[0], config.engine, 1.0);
+  const auto qs = cell.randomConfigurations(30, rng);
+  for (size_t k = 0; k < qs.size(); ++k) {
+    stream.advance(60);
+    TrackerSample s = stream.reading(qs[k]);
+    stream.feed(refusing, qs[k], s);
+    stream.feed(fresh, qs[k], s);
+    if (k == 0) s.position_m += Eigen::Vector3d(0.004, -0.003, 0.002);  // the kept file's first reading: bumped target
+    stream.feed(keeping, qs[k], s);
+    const CalibrationSnapshot& r = refusing.snapshot();
+    if (k + 1 < CalibrationEngine::kProbationPoses) {
+      EXPECT_EQ(r.version, 1u) << k;  // held: neither applied nor yet refused
+      EXPECT_TRUE(r.start_warning.empty()) << k;
+    } else if (k + 1 == CalibrationEngine::kProbationPoses) {
+      EXPECT_NE(r.start_warning.find("does not fit this cell"), std::string::npos) << r.start_warning;
+      EXPECT_EQ(r.version, 2u + CalibrationEngine::kProbationPoses) << "withdrawn, then the held readings applied";
+      EXPECT_EQ(r.health, Health::kUncalibrated);
+      EXPECT_NE(r.health_reason.find("started from nominal"), std::string::npos) << r.health_reason;
+      bool said = false;
+      for (const auto& n : refusing.takeNotes()) said = said || n.find("WARNING: calibration_file") == 0;
+      EXPECT_TRUE(said);
+    }
+  }
+  EXPECT_EQ(refusing.counters().rejected[static_cast<size_t>(Rejection::kOutlier)], 0u);
+  EXPECT_TRUE(refusing.snapshot().params == fresh.snapshot().params)
+      << (refusing.snapshot().params - fresh.snapshot().params).cwiseAbs().maxCoeff();
+  EXPECT_TRUE(refusing.snapshot().covariance == fresh.snapshot().covariance);
+  EXPECT_EQ(refusing.snapshot().poses_used, fresh.snapshot().poses_used);
+  EXPECT_EQ(refusing.snapshot().health, fresh.snapshot().health);
+  // A restart keeps the refusal: the state says how the engine started.
+  CalibrationEngine resumed(moved, config.engine, 1.0);
+  resumed.importState(refusing.exportState());
+  EXPECT_EQ(resumed.snapshot().health, refusing.snapshot().health);
+  EXPECT_EQ(resumed.snapshot().start_warning, refusing.snapshot().start_warning);
+  // The file of this cell: kept, calibrated throughout, its bumped first reading one outlier.
+  EXPECT_TRUE(keeping.snapshot().start_warning.empty()) << keeping.snapshot().start_warning;
+  EXPECT_EQ(keeping.snapshot().health, Health::kOk) << keeping.snapshot().health_reason;
+  EXPECT_EQ(keeping.counters().rejected[static_cast<size_t>(Rejection::kOutlier)], 1u) << keeping.counters().last_rejection;
+  EXPECT_EQ(keeping.snapshot().poses_used, qs.size() - 1);
+  const double nominal = verifyError(cell, cell.nominalParams(), 0.0, seed + 5);
+  std::printf("  hold-out after 30 poses: refused file -> nominal start %.4f mm, kept file %.4f mm, nominal model %.4f mm\n",
+              verifyError(cell, refusing.snapshot().params, 0.0, seed + 5) * 1e3,
+              verifyError(cell, keeping.snapshot().params, 0.0, seed + 5) * 1e3, nominal * 1e3);
 }
 
 // A pause in the robot program is not a stale tracker: while the robot works (moving, or standing at places the

@@ -96,6 +96,10 @@ EngineState randomState(std::mt19937_64& rng, std::uint64_t version) {
     }
     s.pending_batch.push_back(std::move(p));
   }
+  // How the engine started (absent in states written before it was kept).
+  if (const int start = small(rng) % 4; start < 3) s.started_from = static_cast<EngineState::Start>(start);
+  if (small(rng) % 2) s.file_drift_pending_since_ns = 1'600'000'000'000'000'000 + static_cast<std::int64_t>(rng() % 1'000'000'000);
+  if (small(rng) % 2) s.start_warning = "calibration_file \"x.yaml\" does not fit this cell: " + std::to_string(rng());
   return s;
 }
 
@@ -132,13 +136,26 @@ TEST_F(JournalTest, ABinaryRecordKeepsEverythingTheJsonSnapshotKeeps) {
     EXPECT_TRUE(a == b) << "k " << k << ": "
                         << nlohmann::json::diff(nlohmann::json::parse(b), nlohmann::json::parse(a)).dump().substr(0, 600);
   }
-  // The comparison sees a change in the last field written.
+  // The comparison sees a change in the last field written (the start warning's last character), and in the last of
+  // the fields the first records ended with (the pending pose's joint stamp, before its "no drivers" flag).
   EngineState s = randomState(rng, 7);
+  s.start_warning = "refused";
+  std::string b = engineStateToBinary(s);
+  b[b.size() - 1] ^= 0x01;
+  EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
   s.pending_batch.resize(1);
   s.pending_batch[0].drivers.reset();
-  std::string b = engineStateToBinary(s);
-  b[b.size() - 2] ^= 0x01;  // the pose's joint stamp (the last byte is the "no drivers" flag)
+  const std::size_t appended = 1 + (s.started_from ? 1 : 0) + 8 + 8 + s.start_warning.size();
+  b = engineStateToBinary(s);
+  b[b.size() - appended - 2] ^= 0x01;
   EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
+  // A record written before the appended fields (it ends with the pending batch) reads, as a state without them.
+  EngineState old = s;
+  old.started_from.reset();
+  old.file_drift_pending_since_ns = 0;
+  old.start_warning.clear();
+  const std::string old_record = engineStateToBinary(s).substr(0, engineStateToBinary(s).size() - appended);
+  EXPECT_EQ(engineStateToJson(engineStateFromBinary(old_record)), engineStateToJson(old));
 }
 
 TEST_F(JournalTest, AJournalCutOrCorruptedInItsLastRecordReadsAsTheStateBeforeIt) {

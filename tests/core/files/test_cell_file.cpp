@@ -5,7 +5,10 @@
 #include <filesystem>
 #include <fstream>
 
+#include <random>
+
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -74,6 +77,43 @@ TEST(CellFile, ErrorsNameLineAndField) {
                     "robots/none.yaml }\n")
                 .find("robots[0].calibration_file: "),
             std::string::npos);
+}
+
+// calibration_file of another robot with the same joint layout (a UR10's calibration in a TX60's cell) is refused,
+// naming the robots; so is one whose joints lie further from robot_file's drawing than a calibration moves them.
+// A calibration of the robot itself (its joints moved by up to 1 mm and 0.1 deg) loads.
+TEST(CellFile, ACalibrationFileOfAnotherRobotIsRefused) {
+  const std::uint64_t seed = test::testSeed();
+  const fs::path dir = fs::temp_directory_path() / ("cellcal_cellfile_" + std::to_string(seed));
+  fs::create_directories(dir);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  auto calibrated = [&](const RobotModel& m, const std::string& file) {
+    RobotCalibration cal;
+    cal.provenance = {{"date_utc", "2026-11-30T08:00:00Z"}};
+    saveRobotFile((dir / file).string(), m, &cal, "test");
+    return (dir / file).string();
+  };
+  auto cell = [](const std::string& robot_file, const std::string& calibration_file) {
+    return "robots:\n  - { robot_id: a, target_id: t, robot_file: " + robot_file + ",\n      calibration_file: " +
+           calibration_file + " }\n";
+  };
+  const RobotModel ur10 = test::robot("ur10"), tx60 = test::robot("staubli_tx60");
+  const std::string other = errorOf(cell("robots/staubli_tx60.yaml", calibrated(ur10, "ur10_cal.yaml")));
+  EXPECT_NE(other.find("robots[0].calibration_file: "), std::string::npos) << other;
+  EXPECT_NE(other.find("is not a calibration of robot_file"), std::string::npos) << other;
+  EXPECT_NE(other.find("its robot is 'ur10', robot_file's 'staubli_tx60'"), std::string::npos) << other;
+  RobotModel near = tx60, far = tx60;
+  for (int j = 0; j < tx60.numJoints(); ++j) {
+    near.nominal[tx60.jointParam(j, JointParam::kA)] += 1e-3 * u(rng);
+    near.nominal[tx60.jointParam(j, JointParam::kThetaOffset)] += 0.1 * kPi / 180 * u(rng);
+  }
+  const int moved = tx60.jointParam(static_cast<int>(rng() % 6), JointParam::kA);
+  far.nominal[moved] += (u(rng) < 0 ? -1 : 1) * 0.05;
+  EXPECT_EQ(errorOf(cell("robots/staubli_tx60.yaml", calibrated(near, "near.yaml"))), "");
+  const std::string far_why = errorOf(cell("robots/staubli_tx60.yaml", calibrated(far, "far.yaml")));
+  EXPECT_NE(far_why.find("its " + tx60.paramNameHuman(moved) + " is "), std::string::npos) << far_why;
+  fs::remove_all(dir);
 }
 
 // A registration drawn at random (tracker 0.5-5 m from the base, target 10-300 mm off the flange, any rotation) loads;

@@ -1,6 +1,7 @@
 // CSV v1 measurement files: columns, units, optional orientation, and errors naming file:line:column.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 #include <sstream>
 
@@ -9,6 +10,7 @@
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "test_support.hpp"
+#include "../identification/hidden_effect.hpp"
 
 namespace cellcal {
 namespace {
@@ -112,6 +114,81 @@ TEST(MeasurementCsv, MetresInMillimetreColumnsAreCalledOut) {
       EXPECT_NE(what.find("metres written where millimetres are expected"), std::string::npos) << what;
     }
   }
+}
+
+// What a file of a tracker's export gets wrong: a measured file (robot, tracker, target, pose count drawn at random,
+// 6D) is read as written; the same file with its joints in radians under the _deg header, its quaternions in x, y,
+// z, w order under qw, qx, qy, qz, separated by ';', or with only its header is refused with the likely cause and the
+// header line. Random 3D files and files of a robot that barely moves are not refused.
+TEST(MeasurementCsv, WrongUnitsOrderOrSeparatorAreCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  auto refusal = [](const std::string& text, const RobotModel& m) -> std::string {
+    try {
+      parseMeasurementCsv(text, "m.csv", m);
+    } catch (const ConfigError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  auto replaceFirst = [](std::string s, const std::string& from, const std::string& to) {
+    const auto at = s.find(from);
+    if (at != std::string::npos) s.replace(at, from.size(), to);
+    return s;
+  };
+  for (int trial = 0; trial < 30; ++trial) {
+    const test::RandomDraw d = test::randomDraw(rng);
+    const RobotModel m = test::robot(d.name);
+    const SimulatedCell cell(m, d.sc);
+    MeasurementFile f;
+    const bool oriented = trial % 3 != 2;
+    for (const auto& q : cell.randomConfigurations(6 + static_cast<int>(rng() % 60), rng)) {
+      MeasurementRow r;
+      r.q_rad = q;
+      const Observation o = cell.measure(q, 0.0, rng);
+      r.position_m = o.measured_in_tracker.translation();
+      if (oriented) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+      f.rows.push_back(r);
+    }
+    std::ostringstream out;
+    writeMeasurementCsv(out, f, m.numJoints(), "");
+    const std::string good = out.str();
+    SCOPED_TRACE(d.name + ", " + std::to_string(f.rows.size()) + " rows" + (oriented ? ", 6D" : ", 3D"));
+    EXPECT_EQ(refusal(good, m), "");
+    // The header is the first line: q1_rad,...  Radians under _deg names.
+    std::string header = good.substr(0, good.find('\n'));
+    std::string as_deg = header;
+    for (auto at = as_deg.find("_rad"); at != std::string::npos; at = as_deg.find("_rad")) as_deg.replace(at, 4, "_deg");
+    const std::string rad_in_deg = refusal(replaceFirst(good, header, as_deg), m);
+    EXPECT_EQ(rad_in_deg.rfind("m.csv:1:1: q1_deg..q" + std::to_string(m.numJoints()) + "_deg: ", 0), 0u) << rad_in_deg;
+    EXPECT_NE(rad_in_deg.find("radians written where degrees are expected"), std::string::npos) << rad_in_deg;
+    // ';' between the columns.
+    std::string semi = good;
+    std::replace(semi.begin(), semi.end(), ',', ';');
+    const std::string semi_why = refusal(semi, m);
+    EXPECT_EQ(semi_why.rfind("m.csv:1:1: header: one column", 0), 0u) << semi_why;
+    EXPECT_NE(semi_why.find("separated by ';'"), std::string::npos) << semi_why;
+    // Only the header.
+    EXPECT_EQ(refusal(header + "\n", m), "m.csv:1: no data rows after the header");
+    if (!oriented) continue;
+    // x, y, z, w values under qw, qx, qy, qz: the reader takes the file's x as w, y as x, z as y and w as z, which is
+    // what renaming the columns qw, qx, qy, qz as qz, qw, qx, qy does.
+    const std::string xyzw = refusal(replaceFirst(good, "qw,qx,qy,qz", "qz,qw,qx,qy"), m);
+    EXPECT_EQ(xyzw.rfind("m.csv:1:", 0), 0u) << xyzw;
+    EXPECT_NE(xyzw.find("quaternions written in x, y, z, w order"), std::string::npos) << xyzw;
+  }
+  // A robot that barely moves (a few degrees about one configuration) is not taken for radians in _deg columns.
+  const RobotModel m = test::robot("ur10");
+  std::string text = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n";
+  KinematicsData kd(m);
+  std::uniform_real_distribution<double> u(-3.0, 3.0);
+  for (int i = 0; i < 20; ++i) {
+    Eigen::VectorXd q(6);
+    for (int j = 0; j < 6; ++j) q[j] = u(rng);
+    const Eigen::Vector3d p = forwardKinematics(m, kd, m.nominal, q * kPi / 180).translation() * 1e3;
+    for (int j = 0; j < 6; ++j) text += std::to_string(q[j]) + ",";
+    text += std::to_string(p.x()) + "," + std::to_string(p.y()) + "," + std::to_string(p.z()) + "\n";
+  }
+  EXPECT_EQ(refusal(text, m), "");
 }
 
 TEST(MeasurementCsv, SkipBadRowsKeepsTheGoodOnesAndCountsTheRest) {

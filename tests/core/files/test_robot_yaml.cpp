@@ -5,6 +5,7 @@
 #include <random>
 
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "test_support.hpp"
 
@@ -93,6 +94,38 @@ TEST(RobotYaml, MetresInMillimetreFieldsAreCalledOut) {
   const std::string metres = replace(replace(kValid, "a_mm: 300", "a_mm: 0.3"), "d_mm: 100", "d_mm: 0.1");
   const std::string e = errorOf(metres);
   EXPECT_NE(e.find("metres written where millimetres are expected"), std::string::npos) << e << "\n" << metres;
+}
+
+// One length of a shipped robot's drawing written in metres (a nonzero a or d drawn at random, divided by 1000), or one
+// right angle written in radians, is refused naming the joint's field and its line; the drawing itself loads.
+TEST(RobotYaml, OneLengthInMetresOrOneAngleInRadiansIsCalledOut) {
+  std::mt19937_64 rng(test::testSeed());
+  for (const char* name : {"staubli_tx60", "ur10"}) {
+    const RobotModel m = test::robot(name);
+    EXPECT_EQ(errorOf(robotFileText(m, nullptr, "")), "");
+    std::vector<int> lengths, right_angles;
+    for (int j = 0; j < m.numJoints(); ++j) {
+      for (JointParam p : {JointParam::kD, JointParam::kA})
+        if (m.nominal[m.jointParam(j, p)] != 0) lengths.push_back(m.jointParam(j, p));
+      if (std::abs(m.nominal[m.jointParam(j, JointParam::kAlpha)]) > 1) right_angles.push_back(m.jointParam(j, JointParam::kAlpha));
+    }
+    ASSERT_FALSE(lengths.empty());
+    ASSERT_FALSE(right_angles.empty());
+    const int i = lengths[rng() % lengths.size()], k = right_angles[rng() % right_angles.size()];
+    const int joint = i / 5;
+    RobotModel metres = m;
+    metres.nominal[i] /= 1000;
+    const std::string e = errorOf(robotFileText(metres, nullptr, ""));
+    const std::string field = "joints[" + std::to_string(joint) + "]." + (m.isLength(i) && i % 5 == 1 ? "d_mm" : "a_mm");
+    EXPECT_NE(e.find("<test>:" + std::to_string(3 + joint) + ":"), std::string::npos) << e;
+    EXPECT_NE(e.find(field + ": "), std::string::npos) << e;
+    EXPECT_NE(e.find("metres written where millimetres are expected"), std::string::npos) << e;
+    RobotModel radians = m;
+    radians.nominal[k] = degToRad(radians.nominal[k]);  // 90 deg written as 1.5708
+    const std::string r = errorOf(robotFileText(radians, nullptr, ""));
+    EXPECT_NE(r.find("joints[" + std::to_string(k / 5) + "].alpha_deg: "), std::string::npos) << r;
+    EXPECT_NE(r.find("written in radians"), std::string::npos) << r;
+  }
 }
 
 TEST(RobotYaml, MissingKeyIsNamed) {

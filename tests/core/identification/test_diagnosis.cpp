@@ -474,9 +474,12 @@ TEST(HiddenEffects, OutsideTheLibraryIsNeverPassedOffAsAnExplanation) {
 TEST(HiddenEffects, ThermalDriftWithoutAThermometerFitsTheWarmUp) {
   const int draws = drawsOr(10);
   std::mt19937_64 rng = suiteRng();
-  int graded = 0, right = 0;
+  int graded = 0, right = 0, drawn = 0;
   double worst = 0, worst_line = 0;
-  for (int k = 0; k < draws; ++k) {
+  // Files are drawn until `draws` of them are judged or four times as many were drawn (a drift below twice the
+  // noise is not judged: about half of them; 10 drawn once gave 2 judged and failed a count of the draws).
+  for (int k = 0; graded < draws / 2 && k < 4 * draws; ++k) {
+    ++drawn;
     test::DrawOptions o;
     o.force_cause = Cause::kThermalDrift;
     o.no_thermometer_probability = 1.0;
@@ -505,8 +508,8 @@ TEST(HiddenEffects, ThermalDriftWithoutAThermometerFitsTheWarmUp) {
     EXPECT_LE(ratio, 1.2) << h.draw.describe() << " -> " << namedText(d);
   }
   std::printf("  summary: %d files, %d with the drift above twice the noise, %d named thermal drift; worst final/noise "
-              "RMS %.3f (straight line in time: %.3f)\n", draws, graded, right, worst, worst_line);
-  ASSERT_GE(graded, draws / 3);
+              "RMS %.3f (straight line in time: %.3f)\n", drawn, graded, right, worst, worst_line);
+  ASSERT_GE(graded, draws / 2);
   EXPECT_EQ(right, graded);
 }
 

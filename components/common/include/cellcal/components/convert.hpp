@@ -58,6 +58,10 @@ struct ReceivedCalibration {
 std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,
                                                          std::string* error);
 
+// The wire's health as the engine names it ("uncalibrated", "ok", "degraded", "hold_last_good"; the IDL enum follows
+// core's Health).
+const char* healthText(msg::CalibrationHealth h);
+
 Pose toPose(const std::array<double, 3>& p_m, const std::array<double, 4>& q_xyzw);
 void fromPose(const Pose& T, std::array<double, 3>& p_m, std::array<double, 4>& q_xyzw);
 

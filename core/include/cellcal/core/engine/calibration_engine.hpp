@@ -75,6 +75,8 @@ struct CalibrationSnapshot {
   std::string health_reason;
   // When health is hold_last_good: the version whose parameters are published (params, covariance, ... are its).
   std::uint64_t held_version = 0;
+  // Set when the engine refused its calibration file (its first poses contradicted it) and started from nominal.
+  std::string start_warning;
 };
 
 struct EngineCounters {
@@ -91,9 +93,14 @@ class CalibrationEngine {
   // `robot` and `settings` must outlive the engine. It starts uncalibrated, from the nominal model and the prior; or,
   // when the cell file gives the robot a calibration_file (CellRobot::start), calibrated: version 1, health ok (when
   // its predicted error is within hold_prediction_sigma_m), the file's kinematics, frames and extension values the
-  // estimate, its covariance the prior, each parameter's variance widened by the drift model over the wall-clock hours
-  // since the file's date (at most to the uncalibrated prior's). Parameters the file does not cover (an extension it
-  // did not fit) start from the engine's prior. startNote() says what was taken.
+  // estimate, its covariance the prior. The first reading widens each parameter's variance by the drift model over the
+  // hours from the file's date to that reading's stamp (at most to the uncalibrated prior's): the engine takes time
+  // from its inputs, never from the clock. Parameters the file does not cover (an extension it did not fit) start from
+  // the engine's prior. startNote() says what was taken.
+  // The file is on probation until a pose passes the outlier gate: when its first kProbationPoses stand-stills are all
+  // beyond the gate (calibrated on another set-up, a moved tracker), the engine says so (snapshot().start_warning,
+  // takeNotes()), starts from the nominal model and the cell file's registration, and applies those readings.
+  static constexpr size_t kProbationPoses = 3;
   CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression);
 
   // Resumes from a saved state. Throws std::runtime_error saying why when the state does not fit this robot (another
@@ -135,12 +142,26 @@ class CalibrationEngine {
   };
   static constexpr std::size_t kAppliedKept = 4096;
   const std::deque<AppliedReading>& appliedReadings() const { return applied_readings_; }
+  // What happened since the last call that an operator should read once (the drift added at the first reading, a
+  // refused calibration file); the engine process logs them.
+  std::vector<std::string> takeNotes();
 
  private:
   struct Pending {
     PairedReading reading;
     Drivers drivers;  // play state when it was paired (the joint history moves on while a batch fills)
   };
+  struct Probe {  // a reading held while the calibration file is on probation
+    Pending pending;
+    std::string rejection;       // what its rejection as an outlier would say
+    double prior_error_m = 0;    // |measured - predicted| position
+    double nis_per_row = 0;
+  };
+  bool handlePaired(const Pending& pending);
+  bool onProbation() const { return started_calibrated_ && !refused_file_ && snap_.poses_used == 0; }
+  bool refuseCalibrationFile(double gate);
+  void addDriftSinceFile(std::int64_t stamp_ns);
+  static int capVariances(Eigen::MatrixXd& P, const Eigen::VectorXd& sd);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
   double predictionSigma() const;
@@ -162,6 +183,11 @@ class CalibrationEngine {
   std::string restore_note_;
   std::string start_note_;
   bool started_calibrated_ = false;  // from a calibrated robot file: healthy without poses of its own
+  bool refused_file_ = false;        // its first poses contradicted it: started from nominal
+  std::int64_t file_date_ns_ = 0;    // the file's date while the drift since it is not yet added
+  Eigen::VectorXd start_prior_sd_;   // the uncalibrated prior's widths over the state (caps the file's variances)
+  std::vector<Probe> probe_;
+  std::deque<std::string> notes_;
   PairingBuffer pairing_;
   std::unique_ptr<RlsCalibrator> rls_;
   Eigen::VectorXd drift_sigma_;       // accumulated over settings.drift_per_h

@@ -67,6 +67,16 @@ struct EngineState {
     std::optional<Drivers> drivers;  // with extensions: the drivers when it was paired
   };
   std::vector<PendingPose> pending_batch;
+
+  // How the estimate started. Absent in states written before it was kept: as the cell file says (a calibration_file
+  // or not), with the drift since the file's date already in the covariance.
+  enum class Start { kNominal, kCalibrationFile, kNominalFileRefused };
+  std::optional<Start> started_from;
+  // Started from a calibration file whose date is this and no reading yet: the first reading widens the covariance by
+  // the drift from this date to its stamp (0: nothing pending).
+  std::int64_t file_drift_pending_since_ns = 0;
+  // Why the calibration file was refused (kNominalFileRefused), as the engine said it.
+  std::string start_warning;
 };
 
 }  // namespace cellcal
