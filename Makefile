@@ -41,6 +41,7 @@ bench: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -L bench
 	$(BUILD_DIR)/bin/cellcal_bench
 	$(BUILD_DIR)/bin/cellcal_ik_sweep --seeds 5000
+	bash tools/bench/diagnose_speed.sh $(BUILD_DIR)
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
 	bash tools/bench/foxglove_bench.sh $(BUILD_DIR) 20
 	bash tools/bench/engine_saturation.sh $(BUILD_DIR) 10

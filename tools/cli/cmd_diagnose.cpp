@@ -210,7 +210,7 @@ int runDiagnose(const DiagnoseArgs& a) {
     const auto& c = d.candidates[i];
     std::printf("%-44s %6d %12.4f %12.4f %8.1f%s\n", extensionLabel(c.fit.extensions.back()).c_str(),
                 c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z,
-                static_cast<int>(i) == d.chosen ? "   <- first chosen" : "");
+                static_cast<int>(i) == d.chosen ? "   <- first chosen" : c.screened ? "   (screened: one linearized step)" : "");
   }
   if (d.selection.size() > 1) {
     std::printf("\nforward selection (each added cause fitted with the ones before it):\n");
@@ -265,7 +265,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                        {"label", extensionLabel(c.fit.extensions.back())},
                        {"verify_mean_mm", c.verification.mean_mm}, {"verify_rms_mm", c.verification.rms_mm},
                        {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
-                       {"score_m2", c.score}});
+                       {"score_m2", c.score}, {"screened", c.screened}});
     nlohmann::json causes = nlohmann::json::array();
     for (const auto& st : d.selection)
       causes.push_back({{"cause", causeName(st.added.cause)}, {"joints", jointsJson(st.added)},

@@ -2,11 +2,14 @@
 
 #include "cellcal/core/identification/prediction.hpp"
 
+#include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <map>
+#include <optional>
 #include <stdexcept>
 
 #include "calibration_internal.hpp"
@@ -276,7 +279,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
                         const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
                         const SolverOptions& solver, const IdentifiabilityOptions& identifiability,
-                        const Eigen::VectorXd* warm_start) {
+                        const Eigen::VectorXd* warm_start, const Eigen::VectorXd* warm_extension) {
   for (const auto& e : extensions)
     if (e.cause == Cause::kNone || !applicable(model, e, true))
       throw std::invalid_argument(std::string("fitExtended: ") + causeName(e.cause) + " does not apply to joint " +
@@ -301,7 +304,8 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   }
   if (left_out > 0) {
     if (kept_obs.empty()) throw std::invalid_argument("fitExtended: no row has a known backlash play state");
-    ExtendedFit fit = fitExtended(model, start, kept_obs, kept_drivers, extensions, solver, identifiability, warm_start);
+    ExtendedFit fit =
+        fitExtended(model, start, kept_obs, kept_drivers, extensions, solver, identifiability, warm_start, warm_extension);
     fit.rows_left_out = left_out;
     return fit;
   }
@@ -352,8 +356,9 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
       for (Eigen::Index c = 0; c < m; ++c) A->col(c) = Jfull.col(cols[c]);
     }
   };
+  const bool warm_e = warm_extension && warm_extension->size() == k && warm_extension->allFinite();
   Eigen::VectorXd x0(m);
-  for (Eigen::Index c = 0; c < m; ++c) x0[c] = cols[c] < np ? p0[cols[c]] : 0.0;
+  for (Eigen::Index c = 0; c < m; ++c) x0[c] = cols[c] < np ? p0[cols[c]] : warm_e ? (*warm_extension)[cols[c] - np] : 0.0;
   internal::GaussNewtonOutcome gn = internal::gaussNewton(eval, x0, solver);
   unpack(gn.x, fit.params, fit.extension_params);
   int iterations = gn.iterations;
@@ -455,6 +460,9 @@ bool DiagnosisOptions::IsValid(std::string* error) const {
   if (!(structure_alpha > 0 && structure_alpha < 1)) return fail("structure_alpha must be in (0, 1)");
   if (!(excitation_ratio >= 0 && excitation_ratio < 1)) return fail("excitation_ratio must be in [0, 1)");
   if (!(max_extrapolation_ratio >= 0)) return fail("max_extrapolation_ratio must be >= 0 (0: off)");
+  if (screen_keep < 0) return fail("screen_keep must be >= 0 (0: no screen, every candidate fitted in full)");
+  if (screen_rows < 0) return fail("screen_rows must be >= 0 (0: every row)");
+  if (!(screen_margin >= 0)) return fail("screen_margin must be >= 0");
   if (std::string e; !outliers.IsValid(&e)) return fail(e);
   for (Cause c : causes)
     if (c == Cause::kNone) return fail("causes: 'none' is not an extension (it is the default outcome)");
@@ -752,6 +760,184 @@ bool conflicts(const Extension& e, const std::vector<Extension>& chosen) {
   return false;
 }
 
+// A forward-selection round's candidates judged by one linearized step from the round's base fit, before any is
+// fitted in full. The whitened residual and the kinematic Jacobian of every identification row, and the position
+// residual and Jacobian of every verification row, are taken once at the base (as it predicts each row: its
+// extensions included); the normal equations of the base's own columns once too. A candidate adds only its own
+// columns J_i B_i: their products with the base's, the Schur complement that says which of them leave the base's span
+// (the sine of the angle, as independentColumns decides on the stacked Jacobian), and the Gauss-Newton step over the
+// base's columns and the kept new ones. The verification residual that step predicts gives the candidate's score and
+// its paired z against the base. A candidate whose columns all lie in the base's span adds nothing (nullopt).
+class RoundScreen {
+ public:
+  RoundScreen(const RobotModel& model, const Eigen::VectorXd& start, const ExtendedFit& base,
+              const std::vector<Observation>& I, const std::vector<Drivers>& ID, const std::vector<Observation>& V,
+              const std::vector<Drivers>& VD, double rank_tolerance)
+      : model_(model), start_(start), base_(base), I_(I), ID_(ID), V_(V), VD_(VD), tol_(rank_tolerance) {
+    const int np = model.numParams();
+    const auto nbk = static_cast<Eigen::Index>(base.estimated.size());
+    const auto nb = nbk + static_cast<Eigen::Index>(base.estimated_extension.size());
+    const std::vector<Eigen::MatrixXd> BI = bases(model, start, base.extensions, I, ID, base.extension_params);
+    const std::vector<Eigen::MatrixXd> BV = bases(model, start, base.extensions, V, VD, base.extension_params);
+    KinematicsData data(model);
+    const int m = totalRows(I);
+    r_.resize(m);
+    Jk_.resize(m, np);
+    Ab_.resize(m, nb);
+    Eigen::Matrix<double, 6, 1> ri;
+    Eigen::MatrixXd Ji;
+    int row = 0;
+    for (size_t i = 0; i < I.size(); ++i) {
+      const Eigen::VectorXd pi = rowParams(base, BI[i]);
+      const int rows = whitenedResidual(model, data, pi, I[i], ri, &Ji);
+      r_.segment(row, rows) = ri.head(rows);
+      Jk_.middleRows(row, rows) = Ji.topRows(rows);
+      for (Eigen::Index c = 0; c < nbk; ++c) Ab_.block(row, c, rows, 1) = Ji.block(0, base.estimated[c], rows, 1);
+      if (nb > nbk) {
+        const Eigen::MatrixXd JB = Ji.topRows(rows) * BI[i];
+        for (Eigen::Index c = nbk; c < nb; ++c)
+          Ab_.block(row, c, rows, 1) = JB.col(base.estimated_extension[static_cast<size_t>(c - nbk)]);
+      }
+      row += rows;
+    }
+    // The base's columns, scaled to unit norm, as Q R (Householder, thin Q): what a candidate's columns leave of the
+    // base's span is found by projecting them out, as independentColumns does on the stacked Jacobian (the normal
+    // equations would square the conditioning of nearly dependent columns).
+    scale_b_ = Ab_.colwise().norm().transpose().cwiseMax(1e-300).cwiseInverse();
+    const Eigen::HouseholderQR<Eigen::MatrixXd> qr(Ab_ * scale_b_.asDiagonal());
+    Qb_ = qr.householderQ() * Eigen::MatrixXd::Identity(m, nb);
+    Rb_ = qr.matrixQR().topRows(nb).triangularView<Eigen::Upper>();
+    r_perp_ = r_ - Qb_ * (Qb_.transpose() * r_);
+    // Verification rows: position residual (m) and position Jacobian (m per SI unit) at the base.
+    ev_.resize(V.size());
+    Jv_.resize(V.size());
+    Avb_.resize(V.size());
+    for (size_t i = 0; i < V.size(); ++i) {
+      const Eigen::VectorXd pi = rowParams(base, BV[i]);
+      whitenedResidual(model, data, pi, V[i], ri, &Ji);
+      const double s = V[i].sigma_position_m;
+      ev_[i] = ri.head<3>() * s;
+      Jv_[i] = Ji.topRows(3) * s;
+      Avb_[i].resize(3, nb);
+      for (Eigen::Index c = 0; c < nbk; ++c) Avb_[i].col(c) = Jv_[i].col(base.estimated[c]);
+      if (nb > nbk) {
+        const Eigen::MatrixXd JB = Jv_[i] * BV[i];
+        for (Eigen::Index c = nbk; c < nb; ++c) Avb_[i].col(c) = JB.col(base.estimated_extension[static_cast<size_t>(c - nbk)]);
+      }
+    }
+  }
+
+  struct Screened {
+    double score = 0;            // verify_mse_m2 * (1 + penalty * k / rows), of the predicted residuals
+    CandidateResult result;      // the step's parameters and predicted verification figures (no identification figures)
+    std::vector<Eigen::Vector3d> residuals;  // predicted verification position residuals
+  };
+
+  std::optional<Screened> screen(const Extension& ext, double penalty_per_param) const {
+    const int k = numExtensionParams(model_, ext);
+    const Eigen::Index nb = Ab_.cols();
+    // The candidate's columns on the identification rows, scaled to unit norm.
+    Eigen::MatrixXd Ac(r_.size(), k);
+    int row = 0;
+    for (size_t i = 0; i < I_.size(); ++i) {
+      const int rows = I_[i].rows();
+      Ac.middleRows(row, rows) = Jk_.middleRows(row, rows) * extensionBasis(model_, start_, ext, I_[i].q_rad, ID_[i]);
+      row += rows;
+    }
+    const Eigen::VectorXd norms = Ac.colwise().norm().transpose();
+    const double base_max = Ab_.cols() ? Ab_.colwise().norm().maxCoeff() : norms.maxCoeff();
+    // What of each new column (unit norm) leaves the base's span and the new columns kept before it: kept while that
+    // sine exceeds the rank tolerance (modified Gram-Schmidt, twice).
+    std::vector<Eigen::Index> kept;
+    Eigen::MatrixXd U(r_.size(), k);  // orthonormal: the kept columns' parts outside the base's span
+    for (Eigen::Index j = 0; j < k; ++j) {
+      if (!(norms[j] > 1e-10 * base_max)) continue;
+      Eigen::VectorXd c = Ac.col(j) / norms[j];
+      for (int pass = 0; pass < 2; ++pass) {
+        c -= Qb_ * (Qb_.transpose() * c);
+        for (size_t a = 0; a < kept.size(); ++a) c -= U.col(static_cast<Eigen::Index>(a)) * U.col(static_cast<Eigen::Index>(a)).dot(c);
+      }
+      const double sine = c.norm();
+      if (!(sine > tol_)) continue;
+      U.col(static_cast<Eigen::Index>(kept.size())) = c / sine;
+      kept.push_back(j);
+    }
+    if (kept.empty()) return std::nullopt;
+    const auto nk = static_cast<Eigen::Index>(kept.size());
+    // The least-squares step over the base's columns and the kept new ones: the new ones' coefficients from what the
+    // base leaves (their parts outside its span), the base's from the rest.
+    Eigen::MatrixXd Ck(r_.size(), nk), Ck_perp(r_.size(), nk);
+    for (Eigen::Index a = 0; a < nk; ++a) {
+      Ck.col(a) = Ac.col(kept[a]);
+      Ck_perp.col(a) = Ck.col(a) - Qb_ * (Qb_.transpose() * Ck.col(a));
+    }
+    const Eigen::VectorXd yk = Ck_perp.colPivHouseholderQr().solve(r_perp_);
+    const Eigen::VectorXd rest = r_ - Ck * yk;
+    Eigen::VectorXd xb = Ab_.cols() ? Eigen::VectorXd(Rb_.triangularView<Eigen::Upper>().solve(Qb_.transpose() * rest))
+                                    : Eigen::VectorXd();
+    xb = xb.cwiseProduct(scale_b_);
+    Eigen::VectorXd xc = Eigen::VectorXd::Zero(k);
+    for (Eigen::Index a = 0; a < nk; ++a) xc[kept[a]] = yk[a];
+    if (!xb.allFinite() || !xc.allFinite()) return std::nullopt;
+    // The step's parameters, as a fit would report them.
+    Screened out;
+    ExtendedFit& f = out.result.fit;
+    f.extensions = base_.extensions;
+    f.extensions.push_back(ext);
+    f.extension_names = extensionParamNames(model_, f.extensions);
+    f.params = base_.params;
+    const auto nbk = static_cast<Eigen::Index>(base_.estimated.size());
+    for (Eigen::Index c = 0; c < nbk; ++c) f.params[base_.estimated[c]] += xb[c];
+    const auto kb = base_.extension_params.size();
+    f.extension_params = Eigen::VectorXd::Zero(kb + k);
+    if (kb) f.extension_params.head(kb) = base_.extension_params;
+    for (Eigen::Index c = nbk; c < nb; ++c) f.extension_params[base_.estimated_extension[static_cast<size_t>(c - nbk)]] += xb[c];
+    f.extension_params.tail(k) = xc;
+    f.estimated = base_.estimated;
+    f.estimated_extension = base_.estimated_extension;
+    for (Eigen::Index a = 0; a < nk; ++a) f.estimated_extension.push_back(static_cast<int>(kb + kept[a]));
+    f.converged = false;
+    f.message = "screened: one linearized step from the round's base fit";
+    // The verification residual the step predicts.
+    ErrorStats& v = out.result.verification;
+    double sum = 0, sq = 0;
+    out.residuals.resize(V_.size());
+    for (size_t i = 0; i < V_.size(); ++i) {
+      const Eigen::MatrixXd Bc = extensionBasis(model_, start_, ext, V_[i].q_rad, VD_[i]);
+      const Eigen::Vector3d e = ev_[i] - Avb_[i] * xb - Jv_[i] * (Bc * xc);
+      out.residuals[i] = e;
+      const double d = e.norm() * 1e3;
+      sum += d;
+      sq += d * d;
+      v.max_mm = std::max(v.max_mm, d);
+    }
+    v.rows = static_cast<int>(V_.size());
+    v.mean_mm = V_.empty() ? 0 : sum / static_cast<double>(V_.size());
+    v.rms_mm = V_.empty() ? 0 : std::sqrt(sq / static_cast<double>(V_.size()));
+    out.result.verify_mse_m2 = std::pow(v.rms_mm * 1e-3, 2);
+    out.score = out.result.verify_mse_m2 *
+                (1.0 + penalty_per_param * f.numEstimatedExtension() / static_cast<double>(r_.size()));
+    out.result.score = out.score;
+    return out;
+  }
+
+ private:
+  const RobotModel& model_;
+  const Eigen::VectorXd& start_;
+  const ExtendedFit& base_;
+  const std::vector<Observation>& I_;
+  const std::vector<Drivers>& ID_;
+  const std::vector<Observation>& V_;
+  const std::vector<Drivers>& VD_;
+  double tol_;
+  Eigen::VectorXd r_;
+  Eigen::MatrixXd Jk_, Ab_;
+  Eigen::VectorXd scale_b_, r_perp_;
+  Eigen::MatrixXd Qb_, Rb_;
+  std::vector<Eigen::Vector3d> ev_;
+  std::vector<Eigen::MatrixXd> Jv_, Avb_;
+};
+
 struct Selection {
   CandidateResult geometric;
   std::vector<CandidateResult> candidates;
@@ -808,18 +994,81 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
     progress();
     CandidateResult base = sel.geometric;
     std::vector<Eigen::Vector3d> base_res = positionResiduals(model, base.fit, V, VD);
+    // The screen's rows: every one up to screen_rows, else every k-th (evenly through the file) of each set.
+    auto thin = [&](size_t n) {
+      std::vector<int> keep;
+      const size_t stride = options.screen_rows > 0 ? (n + options.screen_rows - 1) / options.screen_rows : 1;
+      for (size_t i = 0; i < n; i += std::max<size_t>(1, stride)) keep.push_back(static_cast<int>(i));
+      return keep;
+    };
+    const std::vector<int> si = thin(I.size()), sv = thin(V.size());
+    const std::vector<Observation> SI = subset(I, si), SV = subset(V, sv);
+    const std::vector<Drivers> SID = subset(ID, si), SVD = subset(VD, sv);
     for (int round = 0; round < options.max_causes; ++round) {
       const std::vector<Extension> chosen = base.fit.extensions;
       std::vector<CandidateResult> cands;
       std::vector<std::vector<Eigen::Vector3d>> residuals;
       std::vector<Extension> added;
-      for (const Extension& ext : to_try) {
-        if (conflicts(ext, chosen)) continue;
+      // The linearized screen (RoundScreen): every candidate judged by one step; the screen_keep best, and those it
+      // cannot judge (a warm-up whose time constant is searched in the fit), fitted in full. screen_keep 0: every
+      // candidate fitted in full.
+      std::vector<Extension> to_fit;
+      std::map<size_t, const ExtendedFit*> warm;  // to_fit index -> the screen's step
+      size_t fitted_screened = 0;
+      std::vector<std::pair<Extension, RoundScreen::Screened>> screened;
+      {
+        std::optional<RoundScreen> screen;
+        if (options.screen_keep > 0)
+          screen.emplace(model, start, base.fit, SI, SID, SV, SVD, options.identifiability.rank_tolerance);
+        for (const Extension& ext : to_try) {
+          if (conflicts(ext, chosen)) continue;
+          if (!screen || needsTimeConstant(ext, ID)) {
+            to_fit.push_back(ext);
+            continue;
+          }
+          auto sc = screen->screen(ext, options.penalty_per_param);
+          if (sc) screened.emplace_back(ext, std::move(*sc));
+        }
+        std::sort(screened.begin(), screened.end(),
+                  [](const auto& a, const auto& b) { return a.second.score < b.second.score; });
+        // The best, and those whose screened score lies within screen_margin of it (at most screen_keep); then, within
+        // the margin, each candidate with fewer parameters than every one taken so far (parsimony may prefer it:
+        // chooseCandidate takes a simpler significant candidate unless a larger one beats it clearly).
+        std::vector<bool> take(screened.size(), false);
+        int fewest = std::numeric_limits<int>::max();
+        for (size_t i = 0; i < screened.size(); ++i) {
+          if (i > 0 && screened[i].second.score > (1.0 + options.screen_margin) * screened[0].second.score) break;
+          const int k = screened[i].second.result.fit.numEstimatedExtension();
+          if (static_cast<int>(i) < options.screen_keep || k < fewest) {
+            take[i] = true;
+            fewest = std::min(fewest, k);
+          }
+        }
+        // Taken first in the order of the screen; the others follow (only_screened below).
+        std::vector<std::pair<Extension, RoundScreen::Screened>> ordered;
+        for (int pass = 0; pass < 2; ++pass)
+          for (size_t i = 0; i < screened.size(); ++i)
+            if (take[i] == (pass == 0)) ordered.push_back(std::move(screened[i]));
+        screened = std::move(ordered);
+        fitted_screened = static_cast<size_t>(std::count(take.begin(), take.end(), true));
+        for (size_t i = 0; i < fitted_screened; ++i) {
+          to_fit.push_back(screened[i].first);
+          warm[to_fit.size() - 1] = &screened[i].second.result.fit;
+        }
+      }
+      for (size_t f = 0; f < to_fit.size(); ++f) {
+        const Extension& ext = to_fit[f];
         std::vector<Extension> exts = chosen;
         exts.push_back(ext);
         std::vector<ExcitationDeficit> held;
         const IdentifiabilityOptions io = heldFor(exts, &held);
-        CandidateResult c = evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &base.fit.params));
+        // From the screen's step where there is one (a few Gauss-Newton iterations fewer), else from the base.
+        const auto w = warm.find(f);
+        CandidateResult c =
+            w != warm.end()
+                ? evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &w->second->params,
+                                       &w->second->extension_params))
+                : evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &base.fit.params));
         c.held = std::move(held);
         progress();
         // Nothing the model so far could not already do.
@@ -828,6 +1077,15 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
         c.z = pairedZ(base_res, residuals.back());
         cands.push_back(std::move(c));
         added.push_back(ext);
+      }
+      // The screened ones not fitted: in the first round's table with their step's figures, never chosen.
+      std::vector<CandidateResult> only_screened;
+      for (size_t i = fitted_screened; i < screened.size(); ++i) {
+        CandidateResult c = std::move(screened[i].second.result);
+        c.z = pairedZ(subset(base_res, sv), screened[i].second.residuals);
+        c.screened = true;
+        only_screened.push_back(std::move(c));
+        progress();
       }
       std::vector<size_t> order(cands.size());
       for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -844,6 +1102,7 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
       if (round == 0) {
         sel.candidates = sorted;
         sel.chosen = pick;
+        for (auto& c : only_screened) sel.candidates.push_back(std::move(c));
       }
       if (pick < 0) break;
       SelectionStep step;

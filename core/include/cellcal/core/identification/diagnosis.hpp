@@ -71,7 +71,8 @@ std::string modelLabel(const std::vector<Extension>& exts);
 // `drivers`: one per observation. With a backlash, rows where its joint has not moved yet are left out of the fit
 // (`rows_left_out`); they are still predicted (play state 0, the middle of the gap) by errorStats and the like.
 // `warm_start` (optional): kinematic parameters to start from instead (e.g. a geometric fit); `start` still decides
-// which parameters are candidates and what the held ones are.
+// which parameters are candidates and what the held ones are. `warm_extension` (optional, the list overload): the
+// extension parameters to start from (e.g. the linearized screen's step), else 0.
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
                         const std::vector<Drivers>& drivers, const Extension& extension,
                         const SolverOptions& solver = {}, const IdentifiabilityOptions& identifiability = {},
@@ -81,7 +82,8 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
                         const std::vector<Drivers>& drivers, const std::vector<Extension>& extensions,
                         const SolverOptions& solver = {}, const IdentifiabilityOptions& identifiability = {},
-                        const Eigen::VectorXd* warm_start = nullptr);
+                        const Eigen::VectorXd* warm_start = nullptr,
+                        const Eigen::VectorXd* warm_extension = nullptr);
 
 // fitExtended, then screening for gross errors (outliers.hpp): refit on the rows kept until the flagged set repeats.
 // `screen` (optional) receives the last screening, indices into `obs`.
@@ -150,6 +152,15 @@ struct DiagnosisOptions {
   // Held-out max beyond this many times the identification max (or a held-out mean worse than the start model's):
   // the fit is not usable and nothing is recommended (unusableFit).
   double max_extrapolation_ratio = 3.0;
+  // Each forward-selection round screens its candidates with one linearized step from the round's base fit and fits
+  // in full only the best, at most this many (and any warm-up whose time constant the fit searches); 0: every
+  // candidate in full.
+  int screen_keep = 2;
+  // ... of those whose screened score is within this fraction of the best screened score (the best always).
+  double screen_margin = 0.05;
+  // The screen judges at most this many identification and this many verification observations (every k-th of a
+  // larger file); 0: all of them. The fits use every row.
+  int screen_rows = 2000;
   // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
   // bars on large files; runs on the caller's thread.
   std::function<void(int done, int total)> progress;
@@ -170,6 +181,9 @@ struct CandidateResult {
   double verify_mse_m2 = 0;  // mean squared position error on the verification rows
   double score = 0;          // verify_mse_m2 * (1 + penalty * k / rows)
   double z = 0;              // paired improvement over the geometric model, in standard errors
+  // Judged by the linearized screen only (DiagnosisOptions::screen_keep): `fit` is one Gauss-Newton step from the
+  // round's base, `verification` the residual that step predicts (no identification figures); never chosen.
+  bool screened = false;
 };
 
 // How much structure against one driver the held-out position residual of a fit still has. The residual components
