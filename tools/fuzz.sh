@@ -16,7 +16,7 @@ cmake -S "$ROOT/tests/fuzz" -B "$BUILD" -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUI
 cmake --build "$BUILD" -j "$(nproc)" >"$BUILD.build.log" 2>&1 || { tail -50 "$BUILD.build.log" >&2; exit 1; }
 echo "fuzz: built; running each parser for $SECONDS_PER_TARGET s"
 status=0
-for t in robot_yaml cell_yaml measurement_csv mcap state_journal; do
+for t in robot_yaml cell_yaml measurement_csv mcap state_journal urdf; do
   corpus="$ROOT/tests/fuzz/corpus/$t"
   work="$BUILD/work/$t"; findings="$BUILD/findings/$t"
   mkdir -p "$work" "$findings"

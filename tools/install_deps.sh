@@ -10,6 +10,8 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev
   libwebsocketpp-dev libasio-dev    # cellcal foxglove (the Foxglove WebSocket protocol, recording/foxglove)
+  liburdfdom-dev                    # robot descriptions in URDF (cellcal robot import/export, --robot FILE.urdf)
+  liborocos-kdl-dev libkdl-parser-dev  # tests: KDL, the independent reference for the URDF conversion
   libfastrtps-dev fastddsgen
   openssl                           # config/security/make_pki.sh (DDS Security test CA and certificates)
   cyclonedds-dev cyclonedds-tools   # tests/interop (a Cyclone DDS peer from cellcal's IDL)

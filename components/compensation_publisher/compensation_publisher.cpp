@@ -3,11 +3,14 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <fstream>
 #include <iostream>
+#include <sstream>
 #include <thread>
 
 #include "cellcal/components/ros2.hpp"
 #include "cellcal/core/engine/compensation.hpp"
+#include "cellcal/core/files/robot_file.hpp"
 
 namespace cellcal::components {
 
@@ -16,7 +19,7 @@ CompensationPublisher::CompensationPublisher(const Options& options)
       cell_(loadCell(options.process)),
       node_(cell_, "cellcal_compensation_publisher", identity::kCompensationPublisher),
       writer_(node_.writer<msg::CompensatedTarget>()) {
-  for (const auto& r : cell_.robots) robots_[r.robot_id] = Robot{&r, std::nullopt, std::nullopt, {}, 0, "", std::nullopt};
+  for (const auto& r : cell_.robots) robots_[r.robot_id].robot = &r;
   if (!options_.ros_pose_topic.empty()) {
     for (auto& [id, r] : robots_) {
       const std::string ros_name = robots_.size() == 1 ? options_.ros_pose_topic : options_.ros_pose_topic + "/" + id;
@@ -28,6 +31,8 @@ CompensationPublisher::CompensationPublisher(const Options& options)
                 << " (geometry_msgs/PoseStamped, frame_id " << options_.ros_frame_id << ")\n";
     }
   }
+  if (!options_.ros_description_topic.empty())
+    for (auto& [id, r] : robots_) openDescription(id, r);
   node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) { onCalibrationState(m); });
   node_.reader<msg::CalibrationDiagnostics>(
       [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
@@ -68,6 +73,84 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
     std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " is ok again: applying it\n";
   if (c->health == msg::HEALTH_OK) r.last_ok = *c;
   r.calibration = std::move(c);
+  if (r.description && r.last_ok &&
+      (r.last_ok->version != r.description->version || r.last_ok->last_measurement_stamp_ns != r.description->stamp_ns))
+    publishDescription(it->first, r);
+}
+
+// The robot's URDF (its robot_file, or the URDF a robot file was converted from), checked to be the robot of the cell
+// file and to have a fixed joint after the last revolute one to carry its calibration (an export of the nominal model),
+// and the writer. Any problem stops the process at start, named: the user asked for the topic.
+void CompensationPublisher::openDescription(const std::string& id, Robot& r) {
+  const std::string what = "--ros-description-topic: " + id + ": ";
+  const CellRobot& robot = *r.robot;
+  std::string why;
+  const auto origin = urdfOriginOf(robot.robot_file, isUrdfPath(robot.robot_file) ? decltype(RobotFile::source){}
+                                                                                   : loadRobotFile(robot.robot_file).source,
+                                   &why);
+  if (!origin) throw std::runtime_error(what + why + ": a calibrated URDF needs the robot's URDF");
+  std::ifstream in(origin->path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  UrdfImport nominal = importUrdf(text.str(), origin->path, origin->options);
+  if (const std::string mismatch = urdfMismatch(nominal, robot.model); !mismatch.empty())
+    throw std::runtime_error(what + origin->path + " is not the robot of " + robot.robot_file + " (" + mismatch + ")");
+  exportUrdf(text.str(), origin->path, nominal, nominal.model.nominal, Pose::Identity());  // throws, naming the element
+  const std::string ros_name =
+      robots_.size() == 1 ? options_.ros_description_topic : options_.ros_description_topic + "/" + id;
+  const auto topic = ros2DdsTopic(ros_name, &why);
+  if (!topic) throw std::runtime_error(what + why);
+  r.description = Description{origin->path, text.str(), std::move(nominal),
+                              node_.writer<std_msgs::msg::dds_::String_>(*topic)};
+  std::cerr << "compensation_publisher: " << id << ": the calibrated URDF of " << origin->path << " on ROS 2 topic "
+            << ros_name << " after each new ok calibration (std_msgs/String, transient local)\n";
+}
+
+// The calibrated URDF of the last ok calibration: its kinematic parameters in the chain's joint origins, the tool
+// frame's change from the cell's registration (what the target's frame absorbed of joint 6) in the last fixed joint.
+// An XML comment at the top names the robot and the version. A failure is said and counted; targets go on.
+void CompensationPublisher::publishDescription(const std::string& id, Robot& r) {
+  Description& d = *r.description;
+  const ReceivedCalibration& c = *r.last_ok;
+  const RobotModel& m = r.robot->model;
+  try {
+    const int tool = m.toolParam(FrameParam::kX);
+    const Pose tip_correction = poseFromXyzRpy(c.params[tool], c.params[tool + 1], c.params[tool + 2], c.params[tool + 3],
+                                               c.params[tool + 4], c.params[tool + 5]) *
+                                poseFromXyzRpy(m.nominal[tool], m.nominal[tool + 1], m.nominal[tool + 2],
+                                               m.nominal[tool + 3], m.nominal[tool + 4], m.nominal[tool + 5])
+                                    .inverse();
+    std::string xml = exportUrdf(d.xml, d.path, d.nominal, c.params.head(m.numParams()), tip_correction);
+    std::string from = d.path;  // "--" may not stand in an XML comment
+    for (size_t at = from.find("--"); at != std::string::npos; at = from.find("--", at)) from.replace(at, 2, "-_");
+    const std::string comment = "<!-- cellcal: " + id + ", calibration v" + std::to_string(c.version) + " (" +
+                                std::to_string(c.poses_used) + " poses): " + from +
+                                " with the chain's joint origins calibrated" +
+                                (c.extensions.empty() ? "" : "; its model extensions are not carried") + " -->\n";
+    size_t at = 0;  // after the XML declaration (which must come first), else at the top
+    if (xml.rfind("<?xml", 0) == 0) {
+      const size_t end = xml.find('\n', xml.find("?>"));
+      at = end == std::string::npos ? xml.size() : end + 1;
+    }
+    xml.insert(at, comment);
+    std_msgs::msg::dds_::String_ sample;
+    sample.data(std::move(xml));
+    if (!d.writer.write(sample)) throw std::runtime_error("DDS refused the sample");
+    ++d.published;
+    d.version = c.version;
+    d.stamp_ns = c.last_measurement_stamp_ns;
+    if (!c.extensions.empty() && !d.extensions_said) {
+      std::cerr << "compensation_publisher: " << id << ": robot_description carries the geometric part only; the model "
+                << "extensions are not in a URDF\n";
+      d.extensions_said = true;
+    }
+  } catch (const std::exception& e) {
+    ++d.failed;
+    d.version = c.version;  // said once per version
+    d.stamp_ns = c.last_measurement_stamp_ns;
+    std::cerr << "compensation_publisher: " << id << ": calibration v" << c.version
+              << " not published as a URDF: " << e.what() << "\n";
+  }
 }
 
 void CompensationPublisher::onDiagnostics(const msg::CalibrationDiagnostics& d) {
@@ -180,13 +263,20 @@ int CompensationPublisher::run() {
   }
   node_.shutdown();
   nlohmann::json versions = nlohmann::json::object();
-  for (const auto& [id, r] : robots_) versions[id] = r.calibration ? r.calibration->version : 0;
+  nlohmann::json descriptions = nlohmann::json::object();
+  for (const auto& [id, r] : robots_) {
+    versions[id] = r.calibration ? r.calibration->version : 0;
+    if (r.description)
+      descriptions[id] = {{"published", r.description->published}, {"failed", r.description->failed},
+                          {"last_version", r.description->version}};
+  }
   writeJsonFile(options_.process.stats_json,
                 {{"name", "compensation_publisher"},
                  {"pid", ::getpid()},
                  {"topics", node_.stats()},
                  {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
-                            {"bad_calibration_states", bad_states_}, {"calibration_versions", versions}}}});
+                            {"bad_calibration_states", bad_states_}, {"calibration_versions", versions},
+                            {"descriptions", descriptions}}}});
   std::cerr << "compensation_publisher: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
             << "): " << applied_ << " targets corrected, " << refused_ << " passed through uncorrected (" << clamped_
             << " clamped)\n";

@@ -12,6 +12,12 @@
 // over DDS, docs/ros2.md): the corrected pose in the targets' frame (header.frame_id from --ros-frame-id), stamped
 // with the target's stamp. Targets passed through uncorrected are not published there (an uncorrected pose on a
 // topic of corrected ones would look like a correction); their reasons stay on cellcal/compensated_target.
+// With --ros-description-topic it publishes the robot's URDF with the chain's joint origins calibrated (std_msgs/String,
+// reliable, transient local, keep last 1, as robot_state_publisher publishes robot_description) after each new ok
+// calibration, so RViz and MoveIt see the calibrated arm: the robot's robot_file must be a URDF or a robot file
+// converted from one (`cellcal robot import`); the target's registered place on the flange (the cell file's
+// tool_in_flange) is where the calibrated tool frame's change is measured from, so the exported tip is the robot's
+// (core/files/urdf.hpp exportUrdf). Model extensions are not carried (said once).
 //
 // Lifetime: the constructor joins the domain, creates the writer and the calibration readers, waits for every
 // robot's calibration (at most --wait-for-calibration-s), then takes targets; run() returns on SIGINT/SIGTERM or after
@@ -29,6 +35,7 @@
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/core/files/urdf.hpp"
 
 namespace cellcal::components {
 
@@ -40,11 +47,21 @@ class CompensationPublisher {
     double wait_for_calibration_s = 3;  // at start, for every robot's calibration
     std::string ros_pose_topic;         // empty: no ROS 2 output; with several robots, <topic>/<robot_id> each
     std::string ros_frame_id = "cellcal_tracker";
+    std::string ros_description_topic;  // empty: none; with several robots, <topic>/<robot_id> each
   };
   explicit CompensationPublisher(const Options& options);
   int run();
 
  private:
+  // --ros-description-topic: the robot's nominal URDF and the last calibration published as its calibrated URDF.
+  struct Description {
+    std::string path, xml;
+    UrdfImport nominal;
+    Writer<std_msgs::msg::dds_::String_> writer;
+    std::uint64_t version = 0, stamp_ns = 0;  // of the calibration last published (0: none yet)
+    std::uint64_t published = 0, failed = 0;
+    bool extensions_said = false;
+  };
   struct Robot {
     const CellRobot* robot = nullptr;
     std::optional<ReceivedCalibration> calibration;  // the latest received
@@ -54,10 +71,13 @@ class CompensationPublisher {
     std::uint64_t seq = 0;
     std::string engine_warning;                      // from the engine's diagnostics: stale inputs
     std::optional<Writer<geometry_msgs::msg::dds_::PoseStamped_>> ros_pose;  // --ros-pose-topic
+    std::optional<Description> description;                                // --ros-description-topic
   };
   void onCalibrationState(const msg::CalibrationState& m);
   void onDiagnostics(const msg::CalibrationDiagnostics& d);
   void onTarget(const msg::TargetPose& t);
+  void openDescription(const std::string& id, Robot& r);
+  void publishDescription(const std::string& id, Robot& r);
   void waitForCalibrations();
 
   Options options_;

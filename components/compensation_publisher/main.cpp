@@ -18,5 +18,8 @@ int main(int argc, char** argv) {
                  "(several robots: <topic>/<robot_id>)");
   app.add_option("--ros-frame-id", o.ros_frame_id, "header.frame_id of those poses (the targets' frame)")
       ->capture_default_str();
+  app.add_option("--ros-description-topic", o.ros_description_topic,
+                 "also publish the robot's URDF with the calibrated joint origins as std_msgs/String on this ROS 2 topic "
+                 "after each new ok calibration (transient local; several robots: <topic>/<robot_id>)");
   return runMain("cellcal_compensation_publisher", argc, argv, app, [&] { return CompensationPublisher(o).run(); });
 }

@@ -22,6 +22,8 @@ void JointStateAdapter::runSim() {
   std::vector<SimRobotProgram> programs;
   for (size_t i = 0; i < cell_.robots.size(); ++i) cells.push_back(makeSimulatedCell(cell_.robots[i], cell_.simulation, cell_.robots[i].index));
   for (const auto& c : cells) programs.emplace_back(c, cell_.simulation);
+  for (size_t i = 0; i < cells.size(); ++i)
+    std::cerr << "joint_state_adapter: " << cell_.robots[i].robot_id << ": simulating " << simulatedRobotText(cells[i]) << "\n";
   if (options_.wait_for_readers > 0) {
     // Start the program only once someone listens: JointState matched by >= 1 reader (the engine) and
     // RobotTruth by >= N (the simulated tracker, and the launcher when it watches). At most 10 s.

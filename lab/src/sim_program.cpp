@@ -1,6 +1,7 @@
 #include "cellcal/lab/sim_program.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 
 namespace cellcal {
@@ -14,6 +15,11 @@ SimulatedCell makeSimulatedCell(const CellRobot& robot, const SimulationSettings
   c.seed = settings.seed + 7919ULL * static_cast<std::uint64_t>(index);
   c.base_in_tracker = robot.model.nominal.segment<6>(robot.model.baseParam(FrameParam::kX));
   c.tool_in_flange = robot.model.nominal.segment<6>(robot.model.toolParam(FrameParam::kX));
+  if (settings.true_robot) {
+    c.true_params = settings.true_robot->model.nominal;
+    c.true_frames = settings.true_robot->calibration.has_value();
+    c.true_robot_name = settings.true_robot->model.name + " of " + settings.true_robot_file;
+  }
   if (settings.effect == Cause::kNone) return SimulatedCell(robot.model, c);
   // The hidden effect, scaled to its RMS joint error over the workspace (configurations drawn from the seed).
   const SimulatedCell plain(robot.model, c);
@@ -25,6 +31,22 @@ SimulatedCell makeSimulatedCell(const CellRobot& robot, const SimulationSettings
   c.hidden = scaledHiddenEffect(plain.model(), true0, settings.effect, settings.effect_joint, settings.effect_size_rad,
                                 links, qs, rng);
   return SimulatedCell(robot.model, c);
+}
+
+std::string simulatedRobotText(const SimulatedCell& cell) {
+  const SimulationConfig& c = cell.config();
+  char buf[400];
+  if (c.true_params) {
+    std::snprintf(buf, sizeof buf, "the true robot is %s: its joints%s", c.true_robot_name.c_str(),
+                  c.true_frames ? " and frames (a calibrated robot file)" : ", the cell's registration with random frame errors");
+  } else {
+    std::snprintf(buf, sizeof buf,
+                  "a random %s: the robot file's nominal with %.1f-%.1f mm and %.2f-%.2f deg errors on every parameter "
+                  "(seed %llu; simulation.true_robot_file names a robot of your own)",
+                  cell.model().name.c_str(), c.length_error_min_m * 1e3, c.length_error_max_m * 1e3,
+                  radToDeg(c.angle_error_min_rad), radToDeg(c.angle_error_max_rad), static_cast<unsigned long long>(c.seed));
+  }
+  return buf;
 }
 
 SimRobotProgram::SimRobotProgram(const SimulatedCell& cell, const SimulationSettings& s) : s_(s) {

@@ -2,12 +2,16 @@
  * TargetPose samples of an input file at their times, and counts the CalibrationState and CompensatedTarget samples
  * cellcal's processes send back. Used by the interop test (tests/interop, docs/interop.md).
  *
- *   cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC]
+ *   cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC|- [ROS_DESCRIPTION_TOPIC]]
  *
  * With ROS_POSE_TOPIC (a DDS topic, e.g. rt/cellcal/corrected_pose) it is also a ROS 2 node as rmw_cyclonedds puts
  * one on the wire: it publishes the robot's joints as sensor_msgs/JointState on rt/joint_states (R lines; types from
  * idl/ros2_msgs.idl, ROS 2's default QoS: reliable, keep last 10) and reads geometry_msgs/PoseStamped on
  * ROS_POSE_TOPIC; it then waits for a reader of rt/joint_states instead of cellcal/joint_state.
+ * With ROS_DESCRIPTION_TOPIC (e.g. rt/robot_description) it reads std_msgs/String there as RViz reads
+ * robot_description (reliable, transient local, keep last 1), counts the samples and writes the last one to
+ * OUT_JSON.urdf; OUT_JSON then also has the last ok CalibrationState's version and parameter values.
+ * With an empty INPUT_FILE it only listens, for at most LINGER_S, until a robot_description came (a late joiner).
  *
  * Input lines (times in ns after the start; stamps are taken from the wall clock when the sample is sent):
  *   J t_ns robot_id settled n q1 .. qn
@@ -50,9 +54,16 @@ typedef struct {
   uint64_t poses;
   char last_frame_id[65];
   double corrected[KEEP][7], posed[KEEP][7];
+  /* robot_description: samples received and the last one; the last ok CalibrationState's version and values */
+  uint64_t descriptions;
+  char* last_description;
+  uint64_t ok_version;
+  uint32_t ok_n;
+  double ok_values[128];
 } counts_t;
 
-static void drain(dds_entity_t states, dds_entity_t compensated, dds_entity_t poses, counts_t* c) {
+static void drain(dds_entity_t states, dds_entity_t compensated, dds_entity_t poses, dds_entity_t descriptions,
+                  counts_t* c) {
   void* samples[16] = {0};
   dds_sample_info_t infos[16];
   int n;
@@ -62,6 +73,11 @@ static void drain(dds_entity_t states, dds_entity_t compensated, dds_entity_t po
       const cellcal_msg_CalibrationState* s = samples[i];
       ++c->states;
       if (s->version > c->max_version) c->max_version = s->version;
+      if (s->health == cellcal_msg_HEALTH_OK && s->parameter_values._length <= 128) {
+        c->ok_version = s->version;
+        c->ok_n = s->parameter_values._length;
+        for (uint32_t k = 0; k < c->ok_n; ++k) c->ok_values[k] = s->parameter_values._buffer[k];
+      }
     }
     dds_return_loan(states, samples, n);
   }
@@ -95,11 +111,21 @@ static void drain(dds_entity_t states, dds_entity_t compensated, dds_entity_t po
     }
     dds_return_loan(poses, samples, n);
   }
+  while (descriptions > 0 && (n = dds_take(descriptions, samples, infos, 16, 16)) > 0) {
+    for (int i = 0; i < n; ++i) {
+      if (!infos[i].valid_data) continue;
+      const std_msgs_msg_dds__String_* d = samples[i];
+      ++c->descriptions;
+      free(c->last_description);
+      c->last_description = strdup(d->data ? d->data : "");
+    }
+    dds_return_loan(descriptions, samples, n);
+  }
 }
 
 int main(int argc, char** argv) {
-  if (argc != 5 && argc != 6) {
-    fprintf(stderr, "usage: cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC]\n");
+  if (argc < 5 || argc > 7) {
+    fprintf(stderr, "usage: cyclone_peer DOMAIN INPUT_FILE LINGER_S OUT_JSON [ROS_POSE_TOPIC|- [ROS_DESCRIPTION_TOPIC]]\n");
     return 2;
   }
   const dds_domainid_t domain = (dds_domainid_t)atoi(argv[1]);
@@ -135,7 +161,7 @@ int main(int argc, char** argv) {
   const dds_entity_t w_tg = check(dds_create_writer(pp, t_tg, command, NULL), "writer");
   const dds_entity_t r_cs = check(dds_create_reader(pp, t_cs, calibration, NULL), "reader");
   const dds_entity_t r_ct = check(dds_create_reader(pp, t_ct, command, NULL), "reader");
-  const int ros = argc == 6;
+  const int ros = argc >= 6 && strcmp(argv[5], "-") != 0;
   dds_entity_t w_ros_js = 0, r_ros_pose = 0;
   dds_qos_t* ros_default = dds_create_qos(); /* ROS 2's default: reliable, volatile, keep last 10 */
   dds_qset_reliability(ros_default, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
@@ -148,10 +174,19 @@ int main(int argc, char** argv) {
     w_ros_js = check(dds_create_writer(pp, t_ros_js, ros_default, NULL), "writer");
     r_ros_pose = check(dds_create_reader(pp, t_ros_pose, ros_default, NULL), "reader");
   }
+  dds_entity_t r_description = 0;
+  if (argc == 7) {
+    const dds_entity_t t_description =
+        check(dds_create_topic(pp, &std_msgs_msg_dds__String__desc, argv[6], NULL, NULL), "topic");
+    r_description = check(dds_create_reader(pp, t_description, calibration, NULL), "reader");
+  }
+  /* An empty input file: a late joiner, it only listens. */
+  const int listen_only = fgetc(in) == EOF;
+  rewind(in);
 
   /* Readers first: a best-effort sample sent before discovery is lost. */
   const int64_t wait_end = now_ns(CLOCK_MONOTONIC) + 20000000000LL;
-  for (;;) {
+  for (; !listen_only;) {
     dds_publication_matched_status_t a, b, c;
     dds_get_publication_matched_status(ros ? w_ros_js : w_js, &a);
     dds_get_publication_matched_status(w_tp, &b);
@@ -164,7 +199,7 @@ int main(int argc, char** argv) {
     }
     dds_sleepfor(DDS_MSECS(20));
   }
-  dds_sleepfor(DDS_MSECS(500));
+  if (!listen_only) dds_sleepfor(DDS_MSECS(500));
 
   static counts_t counts; /* large: not on the stack */
   uint64_t seq = 0, n_js = 0, n_tp = 0, n_tg = 0, n_ros_js = 0;
@@ -173,7 +208,7 @@ int main(int argc, char** argv) {
   long long t_ns;
   while (fscanf(in, "%1s %lld %64s", kind, &t_ns, id) == 3) {
     while (now_ns(CLOCK_MONOTONIC) < t0 + t_ns) {
-      drain(r_cs, r_ct, r_ros_pose, &counts);
+      drain(r_cs, r_ct, r_ros_pose, r_description, &counts);
       dds_sleepfor(DDS_USECS(500));
     }
     ++seq;
@@ -258,10 +293,11 @@ int main(int argc, char** argv) {
   fclose(in);
   const int64_t linger_end = now_ns(CLOCK_MONOTONIC) + (int64_t)(linger_s * 1e9);
   while (now_ns(CLOCK_MONOTONIC) < linger_end) {
-    drain(r_cs, r_ct, r_ros_pose, &counts);
+    drain(r_cs, r_ct, r_ros_pose, r_description, &counts);
+    if (listen_only && r_description > 0 && counts.descriptions > 0) break; /* the late joiner has what it came for */
     dds_sleepfor(DDS_MSECS(10));
   }
-  drain(r_cs, r_ct, r_ros_pose, &counts);
+  drain(r_cs, r_ct, r_ros_pose, r_description, &counts);
 
   FILE* out = fopen(argv[4], "w");
   if (!out) {
@@ -282,10 +318,25 @@ int main(int argc, char** argv) {
           ", \"ros_joint_state\": %" PRIu64 "}, \"received\": {\"calibration_state\": %" PRIu64
           ", \"max_version\": %" PRIu64 ", \"compensated_target\": %" PRIu64 ", \"applied\": %" PRIu64
           ", \"last_reason\": \"%s\", \"pose_stamped\": %" PRIu64 ", \"last_frame_id\": \"%s\""
-          ", \"pose_max_diff\": %.17g}}\n",
+          ", \"pose_max_diff\": %.17g, \"robot_description\": %" PRIu64 ", \"ok_version\": %" PRIu64
+          ", \"ok_values\": [",
           n_js, n_tp, n_tg, n_ros_js, counts.states, counts.max_version, counts.compensated, counts.applied,
-          counts.last_reason, counts.poses, counts.last_frame_id, pose_max_diff);
+          counts.last_reason, counts.poses, counts.last_frame_id, pose_max_diff, counts.descriptions, counts.ok_version);
+  for (uint32_t k = 0; k < counts.ok_n; ++k) fprintf(out, "%s%.17g", k ? ", " : "", counts.ok_values[k]);
+  fprintf(out, "]}}\n");
   fclose(out);
+  if (counts.last_description) {
+    char path[4096];
+    snprintf(path, sizeof path, "%s.urdf", argv[4]);
+    FILE* u = fopen(path, "w");
+    if (!u) {
+      fprintf(stderr, "cyclone_peer: cannot write %s\n", path);
+      return 1;
+    }
+    fputs(counts.last_description, u);
+    fclose(u);
+    free(counts.last_description);
+  }
   dds_delete_qos(sensor);
   dds_delete_qos(command);
   dds_delete_qos(calibration);

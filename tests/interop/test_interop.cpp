@@ -5,12 +5,14 @@
 #include <gtest/gtest.h>
 
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <random>
 
 #include "cell/cell_test_support.hpp"
 #include "cellcal/components/convert.hpp"
+#include "cellcal/core/files/urdf.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/lab/sim_program.hpp"
 
@@ -41,6 +43,25 @@ void trackerLine(std::ostream& in, std::int64_t t_ms, const Observation& reading
   for (double v : r.orientation_xyzw()) in << ' ' << v;
   for (double v : r.covariance()) in << ' ' << v;
   in << '\n';
+}
+
+// A stand-still per configuration after the first, 100 ms apart: a move, two settled joint states, the tracker
+// reading, two more (J and T lines).
+void standStillLines(std::ostream& in, const SimulatedCell& sim, std::mt19937_64& rng, const std::vector<Eigen::VectorXd>& qs) {
+  auto joints = [&](std::int64_t t_ms, const Eigen::VectorXd& q, bool settled) {
+    in << "J " << t_ms * 1000000 << " tx60 " << (settled ? 1 : 0) << ' ' << q.size();
+    for (int i = 0; i < q.size(); ++i) in << ' ' << std::setprecision(17) << q[i];
+    in << '\n';
+  };
+  for (size_t k = 0; k + 1 < qs.size(); ++k) {
+    const std::int64_t t = 100LL * static_cast<std::int64_t>(k);
+    joints(t, qs[k] + 0.5 * (qs[k + 1] - qs[k]), false);
+    joints(t + 40, qs[k + 1], true);
+    joints(t + 50, qs[k + 1], true);
+    trackerLine(in, t + 55, sim.measure(qs[k + 1], 0.0, rng));
+    joints(t + 60, qs[k + 1], true);
+    joints(t + 70, qs[k + 1], true);
+  }
 }
 
 // `targets` targets the nominal model reaches, 50 ms apart from t_ms, the controller's joints for each as the solver's
@@ -75,20 +96,7 @@ TEST(Interop, CycloneDdsFeedsTheEngineAndReceivesCalibrationsAndCompensatedTarge
   const int poses = 40, targets = 20;
   const auto qs = sim.randomConfigurations(poses + 1, rng);
   std::ofstream in(dir + "/inputs.txt");
-  auto joints = [&](std::int64_t t_ms, const Eigen::VectorXd& q, bool settled) {
-    in << "J " << t_ms * 1000000 << " tx60 " << (settled ? 1 : 0) << ' ' << q.size();
-    for (int i = 0; i < q.size(); ++i) in << ' ' << std::setprecision(17) << q[i];
-    in << '\n';
-  };
-  for (int k = 0; k < poses; ++k) {
-    const std::int64_t t = 100LL * k;
-    joints(t, qs[k] + 0.5 * (qs[k + 1] - qs[k]), false);
-    joints(t + 40, qs[k + 1], true);
-    joints(t + 50, qs[k + 1], true);
-    trackerLine(in, t + 55, sim.measure(qs[k + 1], 0.0, rng));
-    joints(t + 60, qs[k + 1], true);
-    joints(t + 70, qs[k + 1], true);
-  }
+  standStillLines(in, sim, rng, qs);
   targetLines(in, sim, rng, 100LL * poses + 1000, targets);  // 1 s after the last reading: calibrated by then
   in.close();
 
@@ -215,6 +223,108 @@ TEST(Interop, Ros2JointStatesInCorrectedPosesOut) {
               ros_lines, faulty, ros_rx, a["extra"]["ros2_skipped"].get<int>(),
               p["received"]["max_version"].get<int>(), tracker_rx, targets, p["received"]["applied"].get<int>(),
               p["received"]["pose_stamped"].get<int>());
+}
+
+// A ROS 2 cell's robot_description: the cell's robot is the ROS-Industrial TX60 URDF; the compensation publisher
+// (--ros-description-topic /robot_description) publishes that URDF with the calibrated joint origins after each new ok
+// calibration, which the Cyclone DDS peer reads as RViz does (rt/robot_description, std_msgs::msg::dds_::String_,
+// reliable, transient local). The last description is that of the last ok calibration the peer received: the same
+// text as core's export of those parameters, only joint origins changed from the nominal file, and, read back as a
+// robot, its tool0 carries the target where the calibration puts it. A peer that joins after the last update gets
+// it at once (transient local).
+TEST(Interop, Ros2RobotDescriptionFollowsTheCalibration) {
+  namespace fs = std::filesystem;
+  const fs::path urdf = fs::path(CELLCAL_CONFIG_DIR) / "../../shared/robots/ros-industrial/staubli/tx60.urdf";
+  if (!fs::exists(urdf)) GTEST_SKIP() << urdf << " missing";
+  const std::string dir = testDir();
+  const int domain = domainForTest();
+  const std::uint64_t seed = testSeed();
+  RobotEntry robot{"tx60", "tx60_target", "../../../shared/robots/ros-industrial/staubli/tx60.urdf"};
+  const std::string cfg = writeCell(dir, domain, seed, {robot}, "", "", ", type_information: false");
+  const CellConfig cell = loadCellConfig(cfg);
+  std::mt19937_64 rng(seed);
+  const SimulatedCell sim = simulatedRobot(cell, seed);
+  const int poses = 30;
+  const auto qs = sim.randomConfigurations(poses + 1, rng);
+  std::ofstream in(dir + "/inputs.txt");
+  standStillLines(in, sim, rng, qs);
+  in.close();
+  std::ofstream(dir + "/nothing.txt").close();
+
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
+  Process compensation(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg, "--ros-description-topic",
+                                             "/robot_description", "--stats-json", dir + "/compensation.json"});
+  std::ofstream(dir + "/cyclone.xml") << kCycloneLoopback;
+  ::setenv("CYCLONEDDS_URI", ("file://" + dir + "/cyclone.xml").c_str(), 1);
+  Process peer(dir, "cyclone_peer", {"cyclone_peer", std::to_string(domain), dir + "/inputs.txt", "2", dir + "/peer.json",
+                                     "-", "rt/robot_description"});
+  ASSERT_EQ(peer.wait(60), 0) << peer.log() << engine.log() << compensation.log();
+  Process late(dir, "late_peer", {"cyclone_peer", std::to_string(domain), dir + "/nothing.txt", "20", dir + "/late.json",
+                                  "-", "rt/robot_description"});
+  const auto late_start = std::chrono::steady_clock::now();
+  ASSERT_EQ(late.wait(40), 0) << late.log();
+  const double late_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - late_start).count();
+  EXPECT_EQ(engine.stop(SIGINT), 0) << engine.log();
+  EXPECT_EQ(compensation.stop(SIGINT), 0) << compensation.log();
+  const auto p = readJson(dir + "/peer.json");
+  const auto l = readJson(dir + "/late.json");
+  const auto c = readJson(dir + "/compensation.json");
+  ASSERT_FALSE(p.is_discarded()) << peer.log();
+  ASSERT_FALSE(l.is_discarded()) << late.log();
+  ASSERT_FALSE(c.is_discarded()) << compensation.log();
+  EXPECT_NE(compensation.log().find("the calibrated URDF of"), std::string::npos) << compensation.log();
+  const std::uint64_t ok_version = p["received"]["ok_version"];
+  ASSERT_GE(ok_version, static_cast<std::uint64_t>(poses / 2)) << p.dump() << engine.log();
+  const auto& d = c["extra"]["descriptions"]["tx60"];
+  EXPECT_GE(d["published"].get<int>(), 1) << c.dump();
+  EXPECT_EQ(d["failed"].get<int>(), 0) << c.dump() << compensation.log();
+  EXPECT_EQ(d["last_version"].get<std::uint64_t>(), ok_version) << c.dump();
+  EXPECT_GE(p["received"]["robot_description"].get<int>(), 1) << p.dump();
+  const std::string got = readTextFile(dir + "/peer.json.urdf");
+  ASSERT_FALSE(got.empty());
+  // Named by its version; without that comment line, core's export of the calibration's parameters to the byte.
+  const std::string tag = "<!-- cellcal: tx60, calibration v" + std::to_string(ok_version) + " (";
+  const size_t comment = got.find(tag);
+  ASSERT_NE(comment, std::string::npos) << got.substr(0, 400);
+  std::string without = got;
+  without.erase(comment, got.find('\n', comment) + 1 - comment);
+  const std::string nominal_xml = readTextFile(urdf.string());
+  const UrdfImport nominal = importUrdf(nominal_xml, urdf.string());
+  const RobotModel& m = cell.robots[0].model;
+  ASSERT_EQ(p["received"]["ok_values"].size(), static_cast<size_t>(m.numParams())) << p.dump();
+  Eigen::VectorXd params(m.numParams());
+  for (int i = 0; i < m.numParams(); ++i) params[i] = p["received"]["ok_values"][static_cast<size_t>(i)];
+  auto frame = [](const Eigen::VectorXd& v, int first) {
+    return poseFromXyzRpy(v[first], v[first + 1], v[first + 2], v[first + 3], v[first + 4], v[first + 5]);
+  };
+  const int tool = m.toolParam(FrameParam::kX), base = m.baseParam(FrameParam::kX);
+  const Pose target_nominal = frame(m.nominal, tool);
+  EXPECT_EQ(without, exportUrdf(nominal_xml, urdf.string(), nominal, params, frame(params, tool) * target_nominal.inverse()));
+  // Only joint origins changed, and some did (it is calibrated).
+  std::istringstream a(nominal_xml), b(without);
+  int changed = 0, other = 0;
+  for (std::string la, lb; std::getline(a, la) && std::getline(b, lb);)
+    if (la != lb) (la.find("<origin") != std::string::npos && lb.find("<origin") != std::string::npos ? changed : other)++;
+  EXPECT_GT(changed, 0);
+  EXPECT_EQ(other, 0);
+  // Read back as a robot: its tool0 with the target at its nominal place is the calibrated model's target (in the base).
+  const UrdfImport back = importUrdf(got, "robot_description");
+  KinematicsData kb(back.model), kc(m);
+  double worst_m = 0;
+  for (const auto& q : sim.randomConfigurations(200, rng)) {
+    const Pose want = frame(params, base).inverse() * forwardKinematics(m, kc, params, q);
+    const Pose have = forwardKinematics(back.model, kb, back.model.nominal, q) * target_nominal;
+    worst_m = std::max(worst_m, (want.translation() - have.translation()).norm());
+  }
+  EXPECT_LT(worst_m, 1e-9);
+  // A late joiner gets the last description (transient local) once it has discovered the publisher.
+  EXPECT_EQ(l["received"]["robot_description"].get<int>(), 1) << l.dump();
+  EXPECT_EQ(readTextFile(dir + "/late.json.urdf"), got);
+  std::printf("  robot_description: %d published by the compensation publisher (last v%llu), %d received by the peer, "
+              "the last with %d joint origins changed; read back, tool0 within %.2g m of the calibrated model; a late joiner had "
+              "it after %.1f s\n",
+              d["published"].get<int>(), static_cast<unsigned long long>(ok_version),
+              p["received"]["robot_description"].get<int>(), changed, worst_m, late_s);
 }
 
 }  // namespace

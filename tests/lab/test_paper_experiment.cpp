@@ -1,10 +1,14 @@
 // The paper experiment on fresh random robots: the published targets hold.
-// Measured rates (cellcal experiment paper --seeds 300 --seed 1000, 2026-11-29): every continuous RLS update within
-// 1.5x the noise floor for 99.7% of robots with 20 poses and 93.3% with 15 random poses; when RLS chooses its poses,
-// 100% and 99.3%. The test draws 10 robots per run and asserts counts whose chance of failing by bad luck is
-// below 4e-4 at those rates (binomial) while a real regression fails them. (From d78b375 to 9d8d77e the rates were
-// 97.7 / 88.3 / 100 / 97.3 %: the drift of the parameters dropped for the tool frame was lost, see RlsDrift in
-// test_rls.cpp; the 5-robot counts of that time failed a CI run, CELLCAL_TEST_SEED=18191186204246796854.)
+// Measured rates over 5,300 robots (cellcal experiment paper --seeds N --seed S, 2026-12-02: S = 1000 (300 robots),
+// 7000000 (2,000), 13286945441070000000 (2,000), 13286945441074123000 (1,000)): every continuous RLS update within
+// 1.5x the noise floor for 99.2-99.7 % of robots with 20 poses and 91.7-93.3 % with 15 random poses; when RLS chooses
+// its poses, 99.5-100 % and 98.8-99.3 %. The test draws 30 robots per run and asserts counts whose chance of failing by
+// bad luck is below 1e-4 each at slightly worse rates than measured (0.75 %, 8 %, 0.2 %, 1.2 % of robots outside;
+// binomial) while a real regression fails them. (10 robots with at most one outside failed a CI run by chance:
+// CELLCAL_TEST_SEED=13286945441074123106 has two robots of 10 at 1.52x with 20 chosen poses; the robots around it
+// have 0.5 % outside.) (From d78b375 to 9d8d77e the rates were 97.7 / 88.3 / 100 / 97.3 %: the drift of the
+// parameters dropped for the tool frame was lost, see RlsDrift in test_rls.cpp; the 5-robot counts of that time failed
+// a CI run, CELLCAL_TEST_SEED=18191186204246796854.)
 #include <gtest/gtest.h>
 
 #include "cellcal/lab/paper_experiment.hpp"
@@ -16,7 +20,7 @@ namespace {
 TEST(PaperExperiment, ContinuousCalibrationStaysNearTheNoiseFloor) {
   const std::uint64_t seed = test::testSeed();
   const RobotModel robot = test::robot("staubli_tx60");
-  const int robots = 10;
+  const int robots = 30;
   int within15 = 0, within20 = 0, selected15 = 0, selected20 = 0;
   for (int k = 0; k < robots; ++k) {
     PaperExperimentConfig cfg;
@@ -59,12 +63,14 @@ TEST(PaperExperiment, ContinuousCalibrationStaysNearTheNoiseFloor) {
     EXPECT_EQ(continuous_rls, 2 * static_cast<int>(cfg.continuous_poses.size()));  // random and chosen poses
     EXPECT_GT(r.rls_time_per_pose_s, 0);
   }
-  // P(fail by chance) at the measured rates: within20 >= 9 of 10 at 99.7 %: 4e-4; within15 >= 6 at 93.3 %: 4e-4;
-  // selected20 >= 9 (300 of 300 measured; at 99.7 %: 4e-4); selected15 >= 8 at 99.3 %: 4e-5.
-  EXPECT_GE(within20, robots - 1) << "robots whose every 20-pose update stayed within 1.5x the floor";
-  EXPECT_GE(within15, robots - 4) << "robots whose every 15-pose update stayed within 1.5x the floor";
-  EXPECT_GE(selected20, robots - 1) << "same with 20 chosen poses";
-  EXPECT_GE(selected15, robots - 2) << "same with 15 chosen poses";
+  // P(fail by chance), binomial over 30 robots at the rates above: at most 3 outside at 0.75 %: 7e-5; at most 9 at
+  // 8 %: 7e-5; at most 2 at 0.2 %: 3e-5; at most 4 at 1.2 %: 3e-5.
+  EXPECT_GE(within20, robots - 3) << "robots whose every 20-pose update stayed within 1.5x the floor";
+  EXPECT_GE(within15, robots - 9) << "robots whose every 15-pose update stayed within 1.5x the floor";
+  EXPECT_GE(selected20, robots - 2) << "same with 20 chosen poses";
+  EXPECT_GE(selected15, robots - 4) << "same with 15 chosen poses";
+  std::printf("  %d robots: every update within 1.5x the floor for %d (20 poses), %d (15), %d (20 chosen), %d (15 chosen)\n",
+              robots, within20, within15, selected20, selected15);
 }
 
 TEST(PaperExperiment, InvalidConfigIsReported) {

@@ -8,9 +8,13 @@
 # that wait for a running cell, `foxglove`), benchmarks (`bench-cell`: minutes, `make bench`), commands that need root
 # and change this host (`sudo`, files under /etc), a Docker engine or a systemd journal. Commands that read
 # ../shared need the dataset: without it the rest of that file is skipped; with nothing run the test is skipped (77).
+# A ```output block right after a command quotes what it prints (```output tol=0.05: figures within 5 %; without it,
+# within one unit of their last digit): each quoted line must be printed (match_output.awk), so a figure the code no
+# longer gives fails the walk.
 #   walk_docs.sh <repository root> FILE.md|FOLDER...   (a folder: its *.md not named before it, in name order)
 set -u
 root=${1:?repository root}
+here=$(cd "$(dirname "$0")" && pwd)
 shift
 cd "$root" || exit 2
 [ -x build/bin/cellcal ] || { echo "walk_docs: build/bin/cellcal not built here"; exit 77; }
@@ -52,11 +56,32 @@ done
 for doc in "${docs[@]}"; do
   script="$work/$(basename "$doc").sh"
   {
-    echo "ran=0 failed=0 log=$work/cmd.log"
+    echo "ran=0 failed=0 log=$work/cmd.log work_last=$work/last.log"
     echo "cd '$PWD'"
   } > "$script"
-  acc="" no_shared=""
+  acc="" no_shared="" last_ran="" expect="" n_expect=0
   while IFS= read -r line; do
+    # A quoted output: ```output [tol=F] after the command whose output it quotes (match_output.awk compares).
+    if [[ "$line" == "#<<output"*">>" ]]; then
+      n_expect=$((n_expect + 1))
+      expect="$work/expect_$(basename "$doc")_$n_expect.txt"
+      : > "$expect"
+      tol=$(sed -nE 's/.*tol=([0-9.]+).*/\1/p' <<<"$line")
+      tol=${tol:-0}
+      continue
+    fi
+    if [[ "$line" == "#<<expect>>"* ]]; then printf '%s\n' "${line#\#<<expect>>}" >> "$expect"; continue; fi
+    if [ "$line" = "#<<end of output>>" ]; then
+      if [ -n "$last_ran" ]; then
+        printf 'echo %q\n' "walk_docs: $doc: output of: $last_ran" >> "$script"
+        printf 'if awk -v tol=%s -f %q %q "$work_last"; then echo "walk_docs:   figures as quoted"; ran=$((ran + 1));\n' \
+          "$tol" "$here/match_output.awk" "$expect" >> "$script"
+        printf 'else echo "walk_docs:   FAILED: the quoted output is stale"; failed=$((failed + 1)); fi\n' >> "$script"
+      else
+        printf 'echo %q\n' "walk_docs: $doc: output not checked (its command was not run)" >> "$script"
+      fi
+      continue
+    fi
     if [ "$line" = "#<<end of block>>" ]; then acc=""; continue; fi
     acc+="${acc:+$'\n'}$line"
     [[ "$line" == *\\ ]] && continue
@@ -73,17 +98,23 @@ for doc in "${docs[@]}"; do
     [ -n "$no_shared" ] && [ -z "$why" ] && why="../shared/datasets missing (it and what follows from it)"
     if [ -n "$why" ]; then
       printf 'echo %q\n' "walk_docs: $doc: not run ($why): $first" >> "$script"
+      last_ran=""
       continue
     fi
+    last_ran=$first
     {
       printf 'echo %q\n' "walk_docs: $doc: run: $first"
       echo 'start=$SECONDS'
       printf '{\n%s\n} > "$log" 2>&1\n' "$cmd"
       echo 'rc=$?'
+      echo 'cp "$log" "$work_last"'
       printf 'if [ $rc -eq %s ]; then echo "walk_docs:   ok ($((SECONDS - start)) s)"; ran=$((ran + 1));\n' "$want"
       printf 'else echo "walk_docs:   FAILED: exit $rc (want %s):"; tail -20 "$log"; failed=$((failed + 1)); fi\n' "$want"
     } >> "$script"
-  done < <(awk '/^```sh/{f=1;next} /^```/{if(f)print "#<<end of block>>"; f=0} f' "$doc")
+  done < <(awk '/^```sh/{f=1;next}
+                /^```output/{o=1; t=$0; sub(/^```output */, "", t); print "#<<output " t ">>"; next}
+                /^```/{if(f)print "#<<end of block>>"; if(o)print "#<<end of output>>"; f=0; o=0; next}
+                f{print} o{print "#<<expect>>" $0}' "$doc")
   echo 'echo "$ran $failed" > '"'$work/result'" >> "$script"
   bash "$script"
   read -r ran failed < "$work/result"

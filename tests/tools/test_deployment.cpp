@@ -203,7 +203,8 @@ TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
   const std::vector<std::string> commands = {
       "cellcal experiment paper", "cellcal cell", "cellcal bench-cell", "cellcal calibrate", "cellcal import ipa",
       "cellcal import csv", "cellcal diagnose", "cellcal continuous", "cellcal record", "cellcal replay",
-      "cellcal validate", "cellcal export", "cellcal status", "cellcal foxglove", "cellcal_tracker_adapter",
+      "cellcal validate", "cellcal export", "cellcal status", "cellcal foxglove", "cellcal robot import",
+      "cellcal robot export", "cellcal_tracker_adapter",
       "cellcal_joint_state_adapter", "cellcal_calibration_engine", "cellcal_compensation_publisher"};
   std::set<std::string> pages;
   for (const auto& e : fs::directory_iterator(kRepo / "docs" / "man")) pages.insert(e.path().stem().string());

@@ -448,7 +448,7 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
                       {"split", a.input.split},        {"model", modelLabel(pr.extensions)}};
     saveRobotFile(a.save_robot, robot.withParams(fit.params[last]), &cal,
                   "Calibrated " + robot.name + ": written by `cellcal calibrate` from " + std::to_string(files.size()) +
-                      " set-ups (" + all + "); base and tool frames of " + files[last]);
+                      " set-ups (" + all + "); base and tool frames of " + files[last], &ins.front().source);
     std::printf("calibrated robot file: %s (frames of set-up %zu)\n", a.save_robot.c_str(), last + 1);
   }
   return 0;
@@ -738,7 +738,7 @@ int runCalibrate(const CalibrateArgs& a) {
     }();
     saveRobotFile(a.save_robot, robot.withParams(after.params), &cal,
                   "Calibrated " + robot.name + ": written by `cellcal calibrate" + (a.frames_only ? " --frames-only" : "") +
-                      "` from " + a.input.data + " (docs/robot-file.md, calibrated robot files)");
+                      "` from " + a.input.data + " (docs/robot-file.md, calibrated robot files)", &in.source);
     std::printf("calibrated robot file: %s\n", a.save_robot.c_str());
   }
   return 0;

@@ -469,8 +469,9 @@ class CellJudge {
       for (size_t k = j->landed_reported; k < j->compensated_error_mm.size(); ++k) sum += j->compensated_error_mm[k];
       const size_t n = j->compensated_error_mm.size() - j->landed_reported;
       char buf[160];
-      std::snprintf(buf, sizeof buf, "compensation v%llu: %zu targets landed %.4f mm from where they were wanted",
-                    static_cast<unsigned long long>(j->applied_version), n, sum / static_cast<double>(n));
+      std::snprintf(buf, sizeof buf, "compensation v%llu: %zu target%s landed %.4f mm from where %s wanted",
+                    static_cast<unsigned long long>(j->applied_version), n, n == 1 ? "" : "s",
+                    sum / static_cast<double>(n), n == 1 ? "it was" : "they were");
       comp = buf;
       j->landed_reported = j->compensated_error_mm.size();
     }
@@ -637,6 +638,9 @@ int runCell(const CellArgs& a) {
               cell.dds.domain_id, cell.dds.participant_profile.c_str(), cell.time_compression, cell.robots.size(),
               a.work_dir.c_str());
   for (const auto& c : children) std::printf("cell:   %-24s pid %d\n", c.name.c_str(), c.process.pid());
+  for (size_t i = 0; i < cell.robots.size(); ++i)
+    std::printf("cell: %s: simulating %s\n", cell.robots[i].robot_id.c_str(),
+                simulatedRobotText(makeSimulatedCell(cell.robots[i], cell.simulation, static_cast<int>(i))).c_str());
   std::fflush(stdout);
 
   const auto period = std::chrono::duration<double>(1.0 / a.targets_hz);

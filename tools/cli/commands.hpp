@@ -41,6 +41,8 @@ Runner addContinuousCommand(CLI::App& app);
 Runner addStatusCommand(CLI::App& app);
 // cmd_foxglove.cpp: the live cell over the Foxglove WebSocket protocol.
 Runner addFoxgloveCommand(CLI::App& app);
+// cmd_robot.cpp: `robot import` (a URDF as a robot file) and `robot export` (URDF, UR kinematics YAML, DH table).
+Runner addRobotCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.<format> (png or svg);
 // the script sees the data file as `datafile`. Returns false with a message in *error when gnuplot is missing or fails.

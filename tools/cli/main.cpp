@@ -92,7 +92,7 @@ int main(int argc, char** argv) {
       {"continuous", addContinuousCommand(app)}, {"record", addRecordCommand(app)},
       {"replay", addReplayCommand(app)},         {"validate", addValidateCommand(app)},
       {"export", addExportCommand(app)},         {"status", addStatusCommand(app)},
-      {"foxglove", addFoxgloveCommand(app)}};
+      {"foxglove", addFoxgloveCommand(app)},     {"robot", addRobotCommand(app)}};
   // A mistyped command: named, with the nearest one (CLI11 alone says only "A subcommand is required").
   if (argc >= 2 && argv[1][0] != '-') {
     const std::string given = argv[1];

@@ -108,6 +108,7 @@ LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile 
   in.name = name;
   in.robot = std::move(rf.model);
   in.calibration = std::move(rf.calibration);
+  in.source = rf.source;
   in.file = std::move(file);
   in.kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
   const auto& rows = in.file.rows;

@@ -28,6 +28,7 @@ struct LoadedInput {
   std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column
   RobotModel robot;
   std::optional<RobotCalibration> calibration;  // the robot file's calibration section (a calibrated robot file)
+  std::vector<std::pair<std::string, std::string>> source;  // the robot file's source (a URDF's), kept when saved
   MeasurementFile file;
   MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D when no row used has an orientation
   int oriented_rows = 0, position_rows = 0;          // rows used as 6D poses / as points

@@ -237,9 +237,12 @@ void CalibrationEngine::addDriftSinceFile(std::int64_t stamp_ns) {
   rls_ = std::make_unique<RlsCalibrator>(m, rls_->params(), est, rls_->extensions(), rls_->extensionParams(),
                                          rls_->estimatedExtension(), P);
   std::ostringstream note;
-  note << "first reading " << std::fixed << std::setprecision(1) << age_h
-       << " h after the calibration file's date (by its stamp): the drift model widened the file's covariance over "
-          "that time";
+  if (stamp_ns <= date_ns)
+    note << "first reading at or before the calibration file's date (by its stamp): no drift added";
+  else
+    note << "first reading " << std::fixed << std::setprecision(1) << age_h
+         << " h after the calibration file's date (by its stamp): the drift model widened the file's covariance over "
+            "that time";
   if (capped) note << ", " << capped << " parameters at most as wide as the uncalibrated prior";
   notes_.push_back(note.str());
   ++state_revision_;
@@ -438,6 +441,15 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   bool changed = false;
   const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
   if (settings_->outlier_gate_nis_per_row > 0) {
+    // After a silence longer than the drift model's period (a tracker link down for hours of cell time), the gate's
+    // window describes the robot as it was: its innovations are judged afresh (once per silence), so a robot that
+    // drifted further than the model allows is followed after a few poses (and the drift alarm says so) instead of
+    // every pose after the silence being gated against the old window.
+    if (snap_.last_update_stamp_ns > 0 && gate_cleared_after_ns_ != snap_.last_update_stamp_ns &&
+        (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0 > settings_->drift_per_h) {
+      gate_window_.clear();
+      gate_cleared_after_ns_ = snap_.last_update_stamp_ns;
+    }
     const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
     const int rows = p.observation.rows();
     // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate

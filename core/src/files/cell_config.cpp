@@ -338,7 +338,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   const Section s = section(r, root, "simulation",
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
-                             "hidden_effect", "tracker_clock_offset_ms"});
+                             "hidden_effect", "tracker_clock_offset_ms", "true_robot_file"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -357,6 +357,24 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   s.num("tracker_clock_offset_ms", c.simulation.tracker_clock_offset_s, 1e-3);
   if (std::abs(c.simulation.tracker_clock_offset_s) > 10)
     r.fail(s.node["tracker_clock_offset_ms"], s.f("tracker_clock_offset_ms"), "must be within +-10000 ms");
+  if (s.has("true_robot_file")) {
+    const std::string ft = s.f("true_robot_file");
+    c.simulation.true_robot_file = resolve(base_dir, r.string(s.node["true_robot_file"], ft));
+    try {
+      c.simulation.true_robot = loadRobotFile(c.simulation.true_robot_file);
+    } catch (const ConfigError& e) {
+      r.fail(s.node["true_robot_file"], ft, e.what());
+    }
+    for (const auto& rb : c.robots) {
+      const RobotModel& t = c.simulation.true_robot->model;
+      bool same = t.numParams() == rb.model.numParams();
+      for (int i = 0; same && i < t.numParams(); ++i) same = t.paramName(i) == rb.model.paramName(i);
+      if (!same)
+        r.fail(s.node["true_robot_file"], ft,
+               c.simulation.true_robot_file + " is not of the structure of " + rb.robot_id + "'s robot_file " +
+                   rb.robot_file + " (another joint layout)");
+    }
+  }
   if (s.has("hidden_effect")) {
     const YAML::Node h = s.node["hidden_effect"];
     const std::string fh = "simulation.hidden_effect";

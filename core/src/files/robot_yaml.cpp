@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/files/urdf.hpp"
 #include "cellcal/core/model/se3.hpp"
 #include "yaml_reader.hpp"
 
@@ -225,7 +226,8 @@ bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) cons
   return true;
 }
 
-std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, const std::string& header) {
+std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, const std::string& header,
+                          const std::vector<std::pair<std::string, std::string>>* source) {
   std::string err;
   if (!m.IsValid(&err)) throw std::invalid_argument("robotFileText: " + err);
   if (cal && !cal->IsValid(m, &err)) throw std::invalid_argument("robotFileText: " + err);
@@ -258,6 +260,22 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
   };
   frame("base_in_tracker", m.baseParam(FrameParam::kX));
   frame("tool_in_flange", m.toolParam(FrameParam::kX));
+  auto fixed = [&](const char* key, const Eigen::Matrix<double, 6, 1>& v) {
+    o << key << ": { x_mm: " << num(v[0] * 1e3) << ", y_mm: " << num(v[1] * 1e3) << ", z_mm: " << num(v[2] * 1e3)
+      << ", roll_deg: " << num(radToDeg(v[3])) << ", pitch_deg: " << num(radToDeg(v[4])) << ", yaw_deg: "
+      << num(radToDeg(v[5])) << " }\n";
+  };
+  if (m.hasMount()) fixed("mount", m.mount);
+  if (m.hasFlange()) fixed("flange", m.flange);
+  if (!m.joint_names.empty()) {
+    o << "joint_names: [";
+    for (size_t k = 0; k < m.joint_names.size(); ++k) o << (k ? ", " : "") << quoted(m.joint_names[k]);
+    o << "]\n";
+  }
+  if (source && !source->empty()) {
+    o << "source:\n";
+    for (const auto& [k, v] : *source) o << "  " << k << ": " << quoted(v) << "\n";
+  }
   if (!cal) return o.str();
   o << "calibration:\n";
   if (!cal->provenance.empty()) {
@@ -304,8 +322,8 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
 }
 
 void saveRobotFile(const std::string& path, const RobotModel& model, const RobotCalibration* calibration,
-                   const std::string& header) {
-  const std::string text = robotFileText(model, calibration, header);
+                   const std::string& header, const std::vector<std::pair<std::string, std::string>>* source) {
+  const std::string text = robotFileText(model, calibration, header, source);
   const std::string tmp = path + ".tmp." + std::to_string(::getpid());
   {
     std::ofstream out(tmp, std::ios::binary);
@@ -329,7 +347,7 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
   const YAML::Node root = r.load(yaml_text);
   if (!root.IsMap()) r.fail(root, "<document>", "expected a mapping with name, joints, ...");
   r.checkKeys(root, "", {"name", "joints", "links", "gravity_in_base_mps2", "base_in_tracker", "tool_in_flange",
-                         "calibration"});
+                         "mount", "flange", "joint_names", "source", "calibration"});
 
   RobotModel m;
   const YAML::Node name = r.required(root, "name", "name");
@@ -396,6 +414,30 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
     readFrame(r, b, "base_in_tracker", m, m.baseParam(FrameParam::kX));
   if (const YAML::Node t = root["tool_in_flange"]; t.IsDefined() && !t.IsNull())
     readFrame(r, t, "tool_in_flange", m, m.toolParam(FrameParam::kX));
+  // A URDF's fixed transforms around the DH chain (robot import), its joint names, where it came from.
+  for (const char* key : {"mount", "flange"})
+    if (const YAML::Node f = root[key]; f.IsDefined() && !f.IsNull()) {
+      double v[6];
+      r.frame(f, key, v);
+      (std::string(key) == "mount" ? m.mount : m.flange) = Eigen::Map<Eigen::Matrix<double, 6, 1>>(v);
+    }
+  if (const YAML::Node names = root["joint_names"]; names.IsDefined() && !names.IsNull()) {
+    if (!names.IsSequence() || static_cast<int>(names.size()) != n)
+      r.fail(names, "joint_names", "expected one name per joint (" + std::to_string(n) + ")");
+    for (size_t k = 0; k < names.size(); ++k) {
+      if (!names[k].IsScalar() || names[k].Scalar().empty())
+        r.fail(names[k], "joint_names[" + std::to_string(k) + "]", "expected a name");
+      m.joint_names.push_back(names[k].Scalar());
+    }
+  }
+  std::vector<std::pair<std::string, std::string>> source_info;
+  if (const YAML::Node src = root["source"]; src.IsDefined() && !src.IsNull()) {
+    r.requireMap(src, "source");
+    for (const auto& kv : src) {
+      if (!kv.second.IsScalar()) r.fail(kv.second, "source." + kv.first.Scalar(), "expected a plain value");
+      source_info.emplace_back(kv.first.Scalar(), kv.second.Scalar());
+    }
+  }
 
   // Wrong units: the smallest industrial arms reach ~300 mm; link lengths adding up to under 50 mm are metres
   // written in the _mm fields.
@@ -417,7 +459,7 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
       const std::string f = "joints[" + std::to_string(j) + "]";
       for (const char* key : {"d_mm", "a_mm"}) {
         const double v_mm = m.nominal[m.jointParam(j, key[0] == 'd' ? JointParam::kD : JointParam::kA)] * 1e3;
-        if (v_mm != 0.0 && std::abs(v_mm) < 1.0 && longest_mm >= 100.0)
+        if (std::abs(v_mm) > 1e-6 && std::abs(v_mm) < 1.0 && longest_mm >= 100.0)
           r.fail(joints[j][key], f + "." + key,
                  num(v_mm) + " mm beside lengths of up to " + num(longest_mm) +
                      " mm: metres written where millimetres are expected? (a nominal length is 0 or many millimetres)");
@@ -435,7 +477,7 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
   }
   std::string err;
   if (!m.IsValid(&err)) throw ConfigError(source + ": " + err);
-  RobotFile file{m, std::nullopt};
+  RobotFile file{m, std::nullopt, source_info};
   if (const YAML::Node c = root["calibration"]; c.IsDefined() && !c.IsNull()) file.calibration = readCalibration(r, c, m);
   return file;
 } catch (const YAML::Exception& e) {
@@ -446,6 +488,10 @@ RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source
 RobotModel loadRobotModel(const std::string& path) { return loadRobotFile(path).model; }
 
 RobotFile loadRobotFile(const std::string& path) {
+  if (isUrdfPath(path)) {  // a URDF: converted as `cellcal robot import` converts it (root link to tool0)
+    const UrdfImport u = importUrdfFile(path);
+    return RobotFile{u.model, std::nullopt, {{"urdf", path}, {"base_link", u.base_link}, {"tip_link", u.tip_link}}};
+  }
   return parseRobotFile(detail::readConfigFile(path, "robot file"), path);
 }
 

@@ -10,9 +10,11 @@ const Pose& forwardKinematics(const RobotModel& model, KinematicsData& data, con
   PoseT<double> X;
   detail::walkChain<double>(model, params.data(), q_rad.data(), [&](int i, bool rot, int axis, double v) {
     // The axis of a motion about/along its own local axis is the same before and after it.
-    data.axis[i] = X.R.col(axis);
-    data.origin[i] = X.p;
-    data.is_rotation[i] = rot;
+    if (i >= 0) {
+      data.axis[i] = X.R.col(axis);
+      data.origin[i] = X.p;
+      data.is_rotation[i] = rot;
+    }
     if (rot)
       detail::rotateLocal(X, axis, v);
     else

@@ -146,7 +146,10 @@ std::vector<Pose> chainFrames(const RobotModel& model, const Eigen::VectorXd& pa
       detail::rotateLocal(X, axis, v);
     else
       detail::translateLocal(X, axis, v);
-    if (index == base_last || index == tool_last || (index < 5 * n && index % 5 == 4)) push();
+    // Frame 0 after the base (and the mount, when there is one), frame j after joint j, the tool after the flange.
+    if ((index == base_last && !model.hasMount()) || index == detail::kMountEnd || index == tool_last ||
+        (index >= 0 && index < 5 * n && index % 5 == 4))
+      push();
   });
   return F;
 }

@@ -23,6 +23,13 @@ SimulatedCell::SimulatedCell(const RobotModel& nominal, const SimulationConfig& 
   for (int i : model_.canonicalParams())
     true0_[i] += model_.isLength(i) ? signed_uniform(config.length_error_min_m, config.length_error_max_m)
                                     : signed_uniform(config.angle_error_min_rad, config.angle_error_max_rad);
+  if (config.true_params) {  // a given true robot: its joints, its frames when given too
+    if (config.true_params->size() != model_.numParams())
+      throw std::invalid_argument("SimulatedCell: the true robot has another parameter layout");
+    const int frames = model_.baseParam(FrameParam::kX);
+    true0_.head(frames) = config.true_params->head(frames);
+    if (config.true_frames) true0_.tail(12) = config.true_params->tail(12);
+  }
   const int n = model_.numJoints();
   zero_drift_per_K_.resize(n);
   zero_wear_per_h_.resize(n);

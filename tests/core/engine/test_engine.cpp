@@ -404,6 +404,48 @@ TEST_F(EngineFixture, ACalibrationFileOfAnotherSetUpIsRefusedAtTheFirstPoses) {
               verifyError(cell, keeping.snapshot().params, 0.0, seed + 5) * 1e3, nominal * 1e3);
 }
 
+// simulation.true_robot_file: the simulated cell's robot is the calibrated file's (its joints and frames), so an engine
+// started from that file predicts its first poses at the readings' noise and keeps it; a random robot of the same
+// kind (what the cell simulated before: the nominal with random errors) is not the file's robot, and the engine says
+// so at its first poses instead of ending worse than uncalibrated.
+TEST_F(EngineFixture, ACellSimulatesTheTrueRobotItIsGivenAndTheEngineKeepsItsFile) {
+  CellRobot robot = config.robots[0];
+  const SimulatedCell campaign_cell = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  std::mt19937_64 campaign_rng(seed + 1);
+  test::Stream probe{campaign_cell, rng};
+  robot.calibration_file =
+      savedCampaign(robot, campaign_cell, campaign_rng, config.engine.state_dir, probe.t_ns / 1'000'000'000 - 60);
+  robot.start = loadRobotFile(robot.calibration_file);
+  SimulationSettings given = config.simulation, random = config.simulation;
+  given.true_robot_file = robot.calibration_file;
+  given.true_robot = robot.start;
+  random.seed += 12345;  // another random robot
+  const SimulatedCell true_cell = makeSimulatedCell(robot, given, 0), random_cell = makeSimulatedCell(robot, random, 0);
+  EXPECT_NE(simulatedRobotText(true_cell).find("the true robot is"), std::string::npos) << simulatedRobotText(true_cell);
+  EXPECT_NE(simulatedRobotText(random_cell).find("a random"), std::string::npos) << simulatedRobotText(random_cell);
+  EXPECT_LT((true_cell.trueParams(0.0) - robot.start->model.nominal).cwiseAbs().maxCoeff(), 1e-15);
+  for (int k = 0; k < 2; ++k) {
+    const SimulatedCell& cell = k == 0 ? true_cell : random_cell;
+    CalibrationEngine engine(robot, config.engine, 1.0);
+    test::Stream stream{cell, rng};
+    for (const auto& q : cell.randomConfigurations(12, rng)) {
+      stream.advance(60);
+      stream.feed(engine, q, stream.reading(q));
+    }
+    const CalibrationSnapshot& snap = engine.snapshot();
+    std::printf("  %s: a-priori mean %.4f mm over 12 poses, %s\n", k == 0 ? "the file's robot" : "a random robot",
+                snap.verification_mean_position_m * 1e3, snap.start_warning.empty() ? "kept" : "refused");
+    if (k == 0) {
+      EXPECT_TRUE(snap.start_warning.empty()) << snap.start_warning;
+      EXPECT_EQ(snap.health, Health::kOk) << snap.health_reason;
+      EXPECT_LT(snap.verification_mean_position_m, 0.1e-3);
+    } else {
+      EXPECT_NE(snap.start_warning.find("does not fit this cell"), std::string::npos);
+    }
+  }
+}
+
 // A pause in the robot program is not a stale tracker: while the robot works (moving, or standing at places the
 // tracker does not measure fewer than stale_stand_stills times in a row) the tracker is not called stale; after that
 // many stand-stills without a reading it is, and a reading clears it. tracker_silence_s adds a plain time limit.

@@ -43,6 +43,11 @@ class SimRobotProgram {
 
 // The simulated cell of robot number `index` of the cell file: seeded from simulation.seed and the index, with the
 // cell's registered base and tool frames as the nominal ones.
+// With simulation.true_robot_file, its true robot is that file's (SimulationSettings::true_robot).
 SimulatedCell makeSimulatedCell(const CellRobot& robot, const SimulationSettings& settings, int index);
+
+// Which robot a simulated cell simulates: "the true robot of <file> (<name>): its joints and frames" or "a random
+// <name>: the robot file's nominal with 0.1-0.5 mm and 0.01-0.05 deg errors on every parameter (seed N)".
+std::string simulatedRobotText(const SimulatedCell& cell);
 
 }  // namespace cellcal

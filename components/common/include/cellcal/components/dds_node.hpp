@@ -50,9 +50,11 @@ CELLCAL_TOPIC(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "co
 CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream")
 // ROS 2 messages (ros2_msgs.idl): no fixed topic, the user names it (ros2.hpp turns "/joint_states" into
 // "rt/joint_states"); QoS profile "ros2": readers best effort (they match reliable and best-effort publishers),
-// writers reliable, volatile, keep last 10 (ROS 2's default).
+// writers reliable, volatile, keep last 10 (ROS 2's default). std_msgs/String carries robot_description: profile
+// "ros2_latched" (reliable, transient local, keep last 1, as robot_state_publisher).
 CELLCAL_TOPIC(sensor_msgs::msg::dds_::JointState_, "", "ros2")
 CELLCAL_TOPIC(geometry_msgs::msg::dds_::PoseStamped_, "", "ros2")
+CELLCAL_TOPIC(std_msgs::msg::dds_::String_, "", "ros2_latched")
 #undef CELLCAL_TOPIC
 
 struct TopicCounters {

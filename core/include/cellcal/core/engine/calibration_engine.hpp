@@ -215,6 +215,7 @@ class CalibrationEngine {
   std::optional<Good> last_good_;
   int consecutive_outliers_ = 0;
   std::deque<double> gate_window_;  // NIS per row of the recent new stand-stills, gated or not
+  std::int64_t gate_cleared_after_ns_ = 0;  // the update after which a silence cleared gate_window_
   Eigen::VectorXd gated_q_;
   std::int64_t gated_joint_stamp_ns_ = 0;
   std::vector<Eigen::VectorXd> reference_q_;

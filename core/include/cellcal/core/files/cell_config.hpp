@@ -152,6 +152,11 @@ struct SimulationSettings {
   Cause effect = Cause::kNone;
   int effect_joint = -1;                       // 0-based
   double effect_size_rad = 0.0;
+  // The true robot of every simulated robot of this structure (key true_robot_file, a robot file or URDF, relative to
+  // the cell file): its joints exactly, its base and tool frames too when it is a calibrated robot file (else the
+  // cell's registration with the usual random frame errors). Empty: nominal plus random errors (SimulationConfig).
+  std::string true_robot_file;
+  std::optional<RobotFile> true_robot;
 };
 
 struct CellConfig {

@@ -41,6 +41,9 @@ struct RobotCalibration {
 struct RobotFile {
   RobotModel model;
   std::optional<RobotCalibration> calibration;
+  // Where the robot description came from (`cellcal robot import`: urdf, sha256, base_link, tip_link, ...); empty for
+  // a file written by hand.
+  std::vector<std::pair<std::string, std::string>> source;
 };
 
 // The calibration section of a fit and its prediction model (prediction.hpp): the fit's extensions and their values,
@@ -53,9 +56,12 @@ RobotFile loadRobotFile(const std::string& path);
 RobotFile parseRobotFile(const std::string& yaml_text, const std::string& source);
 
 // The file's text: `header` as comment lines, then the model (mm, deg) and the calibration section if given.
-std::string robotFileText(const RobotModel& model, const RobotCalibration* calibration, const std::string& header);
+// `source`, when given: the file's source section.
+std::string robotFileText(const RobotModel& model, const RobotCalibration* calibration, const std::string& header,
+                          const std::vector<std::pair<std::string, std::string>>* source = nullptr);
 // Writes robotFileText to path through a temporary file and rename. Throws std::runtime_error naming the path.
 void saveRobotFile(const std::string& path, const RobotModel& model, const RobotCalibration* calibration,
-                   const std::string& header);
+                   const std::string& header,
+                   const std::vector<std::pair<std::string, std::string>>* source = nullptr);
 
 }  // namespace cellcal

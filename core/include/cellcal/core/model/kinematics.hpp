@@ -63,7 +63,10 @@ template <typename T>
 void translateLocal(PoseT<T>& X, int axis, const T& d) {
   X.p += X.R.col(axis) * d;
 }
-// Visits the chain as elementary motions: f(param_index, is_rotation, local_axis, value).
+// The index walkChain gives the fixed motions of the mount and the flange (not parameters), and of their last.
+constexpr int kMountMotion = -1, kMountEnd = -2, kFlangeMotion = -3, kFlangeEnd = -4;
+// Visits the chain as elementary motions: f(param_index, is_rotation, local_axis, value). The mount's and the flange's
+// motions (when the model has them) come with the negative indices above.
 template <typename T, typename F>
 void walkChain(const RobotModel& model, const T* params, const double* q_rad, F&& f) {
   const int n = model.numJoints();
@@ -75,7 +78,16 @@ void walkChain(const RobotModel& model, const T* params, const double* q_rad, F&
     f(first + 4, true, 1, params[first + 4]);  // pitch
     f(first + 3, true, 0, params[first + 3]);  // roll
   };
+  auto fixed = [&](const Eigen::Matrix<double, 6, 1>& v, int motion, int end) {
+    f(motion, false, 0, T(v[0]));
+    f(motion, false, 1, T(v[1]));
+    f(motion, false, 2, T(v[2]));
+    f(motion, true, 2, T(v[5]));
+    f(motion, true, 1, T(v[4]));
+    f(end, true, 0, T(v[3]));
+  };
   frame(5 * n);
+  if (model.hasMount()) fixed(model.mount, kMountMotion, kMountEnd);
   for (int j = 0; j < n; ++j) {
     const int b = 5 * j;
     f(b + 0, true, 2, params[b + 0] + T(q_rad[j]));
@@ -84,6 +96,7 @@ void walkChain(const RobotModel& model, const T* params, const double* q_rad, F&
     f(b + 3, true, 0, params[b + 3]);
     f(b + 4, true, 1, params[b + 4]);
   }
+  if (model.hasFlange()) fixed(model.flange, kFlangeMotion, kFlangeEnd);
   frame(5 * n + 6);
 }
 }  // namespace detail

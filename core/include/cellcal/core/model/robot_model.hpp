@@ -9,7 +9,8 @@
 // For a joint that is parallel_to_next, d is not a model parameter (fixed at 0, Hayati's modification uses beta);
 // for the other joints beta is not (fixed at 0, classic DH). Those two are "non-canonical": the Jacobian still has
 // their columns, but identification never estimates them (they are exactly redundant with canonical ones).
-// Frames: T = Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll); pose = base_in_tracker * A_1 ... A_n * tool_in_flange.
+// Frames: T = Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll); pose = base_in_tracker * mount * A_1 ... A_n * flange *
+// tool_in_flange, where mount and flange are fixed transforms (not parameters; zero for a robot written as DH).
 #pragma once
 
 #include <Eigen/Core>
@@ -40,6 +41,15 @@ class RobotModel {
   std::vector<LinkInertia> links;       // empty, or one per joint
   Eigen::Vector3d gravity_in_base_mps2 = Eigen::Vector3d(0, 0, -9.81);
   Eigen::VectorXd nominal;              // kinematic parameter vector, layout above
+  // Fixed transforms around the DH chain, x, y, z, roll, pitch, yaw (SI, as the frames): mount from the robot's base
+  // link to DH frame 0, flange from DH frame n to its flange link. Zero for a robot file written as DH; a URDF's
+  // joint axes and rotated origins can leave them (files/urdf.hpp), so that base_in_tracker stays the base link in the
+  // tracker frame and tool_in_flange the target on the flange link. Never identified.
+  Eigen::Matrix<double, 6, 1> mount = Eigen::Matrix<double, 6, 1>::Zero();
+  Eigen::Matrix<double, 6, 1> flange = Eigen::Matrix<double, 6, 1>::Zero();
+  std::vector<std::string> joint_names;  // empty, or one per joint (a URDF's joint names)
+  bool hasMount() const { return !mount.isZero(0.0); }
+  bool hasFlange() const { return !flange.isZero(0.0); }
 
   int numJoints() const { return static_cast<int>(parallel_to_next.size()); }
   int numParams() const { return 5 * numJoints() + 12; }

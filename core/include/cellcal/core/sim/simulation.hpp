@@ -6,6 +6,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <optional>
 #include <random>
 #include <vector>
 
@@ -89,6 +90,11 @@ struct SimulationConfig {
   double pose_min_radius_m = 0.2;
   double ambient_temperature_c = 20.0;  // temperature = ambient + rise
   HiddenJointEffect hidden;              // none by default
+  // The true robot's kinematics (the layout of the nominal model's vector), instead of nominal plus the random errors
+  // above: its joints; its frames too when true_frames (else the registration plus the random frame errors).
+  std::optional<Eigen::VectorXd> true_params;
+  bool true_frames = false;
+  std::string true_robot_name;  // what the true robot is, for the cell to say ("" for a random robot)
 };
 
 class SimulatedCell {

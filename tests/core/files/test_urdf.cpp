@@ -1,0 +1,521 @@
+// URDF in and out (core/files/urdf.hpp), judged by KDL (Debian's liborocos-kdl with kdl_parser), which shares no code
+// with cellcal's kinematics: every arm of ../shared/robots/ros-industrial as cellcal's model gives KDL's tip pose on
+// random configurations within the limits, through the robot file too; an export of the model, uncalibrated and with
+// every joint's parameters perturbed and the tip moved, gives KDL on the exported file the model's poses; bad URDFs
+// are refused naming the file and the element.
+#include <gtest/gtest.h>
+
+#include <kdl/chainfksolverpos_recursive.hpp>
+#include <kdl/tree.hpp>
+#include <kdl_parser/kdl_parser.hpp>
+#include <tinyxml.h>
+#include <yaml-cpp/yaml.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/files/urdf.hpp"
+#include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "test_support.hpp"
+
+namespace cellcal {
+namespace {
+
+namespace fs = std::filesystem;
+
+const fs::path kArms = fs::path(CELLCAL_CONFIG_DIR) / "../../shared/robots/ros-industrial";
+
+std::vector<fs::path> arms() {
+  std::vector<fs::path> out;
+  if (!fs::is_directory(kArms)) return out;
+  for (const auto& e : fs::recursive_directory_iterator(kArms))
+    if (e.path().extension() == ".urdf") out.push_back(e.path());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::string readText(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// KDL's pose of `tip` relative to `base` at q (the chain's joints in order).
+struct KdlChain {
+  KDL::Chain chain;
+  std::unique_ptr<KDL::ChainFkSolverPos_recursive> fk;
+  KdlChain(const std::string& xml, const std::string& base, const std::string& tip) {
+    KDL::Tree tree;
+    EXPECT_TRUE(kdl_parser::treeFromString(xml, tree));
+    EXPECT_TRUE(tree.getChain(base, tip, chain)) << base << " -> " << tip;
+    fk = std::make_unique<KDL::ChainFkSolverPos_recursive>(chain);
+  }
+  Pose at(const Eigen::VectorXd& q) const {
+    KDL::JntArray j(chain.getNrOfJoints());
+    for (unsigned i = 0; i < chain.getNrOfJoints(); ++i) j(i) = q[i];
+    KDL::Frame f;
+    fk->JntToCart(j, f);
+    Pose T = Pose::Identity();
+    for (int r = 0; r < 3; ++r) {
+      T.translation()[r] = f.p(r);
+      for (int c = 0; c < 3; ++c) T.linear()(r, c) = f.M(r, c);
+    }
+    return T;
+  }
+};
+
+Eigen::VectorXd randomQ(const RobotModel& m, std::mt19937_64& rng) {
+  Eigen::VectorXd q(m.numJoints());
+  for (int j = 0; j < m.numJoints(); ++j)
+    q[j] = std::uniform_real_distribution<double>(m.limits[j].lower_rad, m.limits[j].upper_rad)(rng);
+  return q;
+}
+
+// Largest position (m) and rotation (rad) difference of two poses.
+std::pair<double, double> difference(const Pose& a, const Pose& b) {
+  return {(a.translation() - b.translation()).norm(), logSO3(a.linear().transpose() * b.linear()).norm()};
+}
+
+TEST(Urdf, EveryArmGivesKdlsPoseOnRandomConfigurations) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  EXPECT_EQ(files.size(), 11u);
+  std::mt19937_64 rng(test::testSeed());
+  for (const auto& f : files) {
+    SCOPED_TRACE(f.string());
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    EXPECT_EQ(u.tip_link, "tool0");
+    EXPECT_EQ(m.numJoints(), 6);
+    EXPECT_EQ(static_cast<int>(m.joint_names.size()), m.numJoints());
+    const KdlChain kdl(xml, u.base_link, u.tip_link);
+    ASSERT_EQ(static_cast<int>(kdl.chain.getNrOfJoints()), m.numJoints());
+    // Through the robot file too (the text in mm and deg, read back).
+    const RobotModel back = parseRobotFile(robotFileText(m, nullptr, "test"), "back.yaml").model;
+    KinematicsData data(m), data_back(back);
+    double worst_m = 0, worst_rad = 0, worst_back = 0;
+    for (int k = 0; k < 1000; ++k) {
+      const Eigen::VectorXd q = randomQ(m, rng);
+      const Pose ref = kdl.at(q);
+      const auto [dp, dr] = difference(forwardKinematics(m, data, m.nominal, q), ref);
+      worst_m = std::max(worst_m, dp);
+      worst_rad = std::max(worst_rad, dr);
+      worst_back = std::max(worst_back, difference(forwardKinematics(back, data_back, back.nominal, q), ref).first);
+    }
+    std::printf("  %-28s %s; worst |p - KDL| %.2g m, rotation %.2g rad (robot file: %.2g m)\n",
+                f.filename().c_str(), u.notes[1].c_str(), worst_m, worst_rad, worst_back);
+    EXPECT_LT(worst_m, 1e-9);
+    EXPECT_LT(worst_rad, 1e-9);
+    EXPECT_LT(worst_back, 1e-9);
+  }
+}
+
+// Export: the nominal model gives back poses equal to the file's; a calibrated one (every joint's canonical parameters
+// moved 0.1-0.5 mm / 0.01-0.05 deg, the tip moved by a random small transform) gives KDL on the exported file the
+// model's poses, with the tip correction; only joint origins changed (the other lines of the file as they were).
+TEST(Urdf, AnExportedModelGivesKdlTheModelsPoses) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signedIn = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1 : 1) * (lo + (hi - lo) * u01(rng)); };
+  for (const auto& f : files) {
+    SCOPED_TRACE(f.string());
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    for (int calibrated = 0; calibrated < 2; ++calibrated) {
+      Eigen::VectorXd p = m.nominal;
+      Pose tip = Pose::Identity();
+      if (calibrated) {
+        for (int i : m.canonicalParams())
+          if (i < 5 * m.numJoints()) p[i] += m.isLength(i) ? signedIn(1e-4, 5e-4) : degToRad(signedIn(0.01, 0.05));
+        tip = poseFromXyzRpy(signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4), degToRad(signedIn(0.01, 0.05)),
+                             degToRad(signedIn(0.01, 0.05)), degToRad(signedIn(0.01, 0.05)));
+      }
+      const std::string out = exportUrdf(xml, f.string(), u, p, tip);
+      const KdlChain kdl(out, u.base_link, u.tip_link);
+      KinematicsData data(m);
+      double worst_m = 0, worst_rad = 0;
+      for (int k = 0; k < 300; ++k) {
+        const Eigen::VectorXd q = randomQ(m, rng);
+        const auto [dp, dr] = difference(forwardKinematics(m, data, p, q) * tip, kdl.at(q));
+        worst_m = std::max(worst_m, dp);
+        worst_rad = std::max(worst_rad, dr);
+      }
+      EXPECT_LT(worst_m, 1e-9) << (calibrated ? "calibrated" : "nominal");
+      EXPECT_LT(worst_rad, 1e-9) << (calibrated ? "calibrated" : "nominal");
+      // Only <origin> lines of the chain's joints differ.
+      std::istringstream a(xml), b(out);
+      std::string la, lb;
+      int changed = 0, other = 0;
+      while (std::getline(a, la) && std::getline(b, lb))
+        if (la != lb) (lb.find("<origin") != std::string::npos ? changed : other)++;
+      EXPECT_EQ(other, 0) << "lines other than joint origins changed";
+      EXPECT_LE(changed, static_cast<int>(u.chain_joints.size()));
+      // The export reads back as the same structure.
+      EXPECT_EQ(importUrdf(out, "exported.urdf").model.numJoints(), m.numJoints());
+    }
+  }
+}
+
+// Arms no vendor made: 3 to 7 revolute joints, each origin moved up to 0.3 m and turned by quarter turns or at random,
+// axes along a signed coordinate axis or in any direction, fixed joints between them, neighbouring axes parallel or
+// 0.1-0.5 deg off parallel (Hayati's side of the 1 deg tolerance), a flange and tool0 at random. Imported, each gives
+// KDL's tool0 on random configurations to 1e-9; exported with every joint moved (and the tip), KDL on the export gives
+// the model's poses to 1e-9.
+std::string randomArm(std::mt19937_64& rng, int* joints_out) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0), u01(0.0, 1.0);
+  const int n = 3 + static_cast<int>(rng() % 5);
+  *joints_out = n;
+  std::ostringstream o;
+  o.precision(17);
+  o << "<?xml version=\"1.0\"?>\n<robot name=\"random_arm\">\n  <link name=\"base_link\"/>\n";
+  std::string parent = "base_link";
+  int links = 0;
+  auto link = [&]() {
+    const std::string name = "link" + std::to_string(++links);
+    o << "  <link name=\"" << name << "\"><inertial><origin xyz=\"" << 0.1 * u(rng) << " " << 0.1 * u(rng) << " "
+      << 0.1 * u(rng) << "\" rpy=\"0 0 0\"/><mass value=\"" << 1 + 5 * u01(rng)
+      << "\"/><inertia ixx=\"1\" ixy=\"0\" ixz=\"0\" iyy=\"1\" iyz=\"0\" izz=\"1\"/></inertial></link>\n";
+    return name;
+  };
+  auto rpy = [&](bool quarter) {
+    std::ostringstream r;
+    r.precision(17);
+    for (int k = 0; k < 3; ++k)
+      r << (k ? " " : "") << (quarter ? 1.5707963267948966 * static_cast<double>(static_cast<int>(rng() % 4) - 1) : 3 * u(rng));
+    return r.str();
+  };
+  Eigen::Vector3d previous_axis = Eigen::Vector3d::UnitZ();
+  for (int j = 1; j <= n; ++j) {
+    const bool fixed_before = u01(rng) < 0.3;
+    if (fixed_before) {  // a fixed joint before this one
+      const std::string child = link();
+      o << "  <joint name=\"fixed" << j << "\" type=\"fixed\"><parent link=\"" << parent << "\"/><child link=\"" << child
+        << "\"/><origin xyz=\"" << 0.2 * u(rng) << " 0 " << 0.2 * u(rng) << "\" rpy=\"" << rpy(u01(rng) < 0.5) << "\"/></joint>\n";
+      parent = child;
+    }
+    const std::string child = link();
+    Eigen::Vector3d axis;
+    std::string origin_rpy;
+    const bool parallel = j > 1 && !fixed_before && u01(rng) < 0.4;
+    if (parallel) {
+      // Parallel to the previous axis in this frame (no turn, no fixed joint between): exactly, or 0.1-0.5 deg off.
+      origin_rpy = "0 0 0";
+      axis = previous_axis;
+      if (u01(rng) < 0.5) {
+        const Eigen::Vector3d off = axis.unitOrthogonal();
+        axis = Eigen::AngleAxisd((0.1 + 0.4 * u01(rng)) * M_PI / 180, off) * axis;
+      }
+    } else {
+      origin_rpy = rpy(u01(rng) < 0.6);
+      if (u01(rng) < 0.6) {
+        axis = Eigen::Vector3d::Zero();
+        axis[static_cast<int>(rng() % 3)] = u01(rng) < 0.5 ? -1 : 1;
+      } else {
+        axis = Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized();
+      }
+    }
+    previous_axis = axis;
+    o << "  <joint name=\"joint" << j << "\" type=\"revolute\"><parent link=\"" << parent << "\"/><child link=\"" << child
+      << "\"/><origin xyz=\"" << 0.3 * u(rng) << " " << 0.3 * u(rng) << " " << 0.3 * u(rng) << "\" rpy=\"" << origin_rpy
+      << "\"/><axis xyz=\"" << axis.x() << " " << axis.y() << " " << axis.z() << "\"/><limit lower=\"" << -2.5 - u01(rng)
+      << "\" upper=\"" << 2.5 + u01(rng) << "\" effort=\"1\" velocity=\"1\"/></joint>\n";
+    parent = child;
+  }
+  o << "  <link name=\"flange\"/>\n  <joint name=\"to_flange\" type=\"fixed\"><parent link=\"" << parent
+    << "\"/><child link=\"flange\"/><origin xyz=\"" << 0.1 * u(rng) << " " << 0.1 * u(rng) << " " << 0.1 * u(rng)
+    << "\" rpy=\"" << rpy(u01(rng) < 0.5) << "\"/></joint>\n  <link name=\"tool0\"/>\n"
+    << "  <joint name=\"to_tool0\" type=\"fixed\"><parent link=\"flange\"/><child link=\"tool0\"/><origin xyz=\"0 0 "
+    << 0.05 * u01(rng) << "\" rpy=\"" << rpy(true) << "\"/></joint>\n</robot>\n";
+  return o.str();
+}
+
+TEST(Urdf, RandomArmsOfThreeToSevenJointsGiveKdlsPoseAndExportBack) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signedIn = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1 : 1) * (lo + (hi - lo) * u01(rng)); };
+  double worst_import = 0, worst_export = 0;
+  int parallel = 0, by_joints[8] = {0};
+  for (int arm_k = 0; arm_k < 60; ++arm_k) {
+    int n = 0;
+    const std::string xml = randomArm(rng, &n);
+    SCOPED_TRACE("arm " + std::to_string(arm_k) + ":\n" + xml);
+    const UrdfImport u = importUrdf(xml, "random_arm.urdf");
+    const RobotModel& m = u.model;
+    ASSERT_EQ(m.numJoints(), n);
+    ++by_joints[n];
+    for (bool b : m.parallel_to_next) parallel += b;
+    const KdlChain kdl(xml, u.base_link, u.tip_link);
+    KinematicsData data(m);
+    Eigen::VectorXd p = m.nominal;
+    for (int i : m.canonicalParams())
+      if (i < 5 * n) p[i] += m.isLength(i) ? signedIn(1e-4, 5e-4) : degToRad(signedIn(0.01, 0.05));
+    const Pose tip = poseFromXyzRpy(signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4),
+                                    degToRad(signedIn(0.01, 0.05)), degToRad(signedIn(0.01, 0.05)), degToRad(signedIn(0.01, 0.05)));
+    const KdlChain exported(exportUrdf(xml, "random_arm.urdf", u, p, tip), u.base_link, u.tip_link);
+    for (int k = 0; k < 100; ++k) {
+      const Eigen::VectorXd q = randomQ(m, rng);
+      const auto [dp, dr] = difference(forwardKinematics(m, data, m.nominal, q), kdl.at(q));
+      worst_import = std::max({worst_import, dp, dr});
+      const auto [ep, er] = difference(forwardKinematics(m, data, p, q) * tip, exported.at(q));
+      worst_export = std::max({worst_export, ep, er});
+    }
+    ASSERT_LT(worst_import, 1e-9);
+    ASSERT_LT(worst_export, 1e-9);
+  }
+  std::printf("  60 random arms (%d, %d, %d, %d, %d of 3..7 joints; %d parallel neighbours): worst |model - KDL| %.2g, "
+              "export %.2g (m or rad)\n",
+              by_joints[3], by_joints[4], by_joints[5], by_joints[6], by_joints[7], parallel, worst_import, worst_export);
+}
+
+// The URDF with every origin of the named joints moved: each coordinate by 0.1-0.5 mm, each of roll, pitch and yaw by
+// 0.01-0.05 deg, random signs (TinyXML edits the attributes; the text's layout is TinyXML's).
+std::string perturbedOrigins(const std::string& xml, const std::vector<std::string>& joints, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signedIn = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1 : 1) * (lo + (hi - lo) * u01(rng)); };
+  TiXmlDocument doc;
+  doc.Parse(xml.c_str());
+  for (TiXmlElement* e = doc.RootElement()->FirstChildElement("joint"); e; e = e->NextSiblingElement("joint")) {
+    if (std::find(joints.begin(), joints.end(), std::string(e->Attribute("name"))) == joints.end()) continue;
+    TiXmlElement* o = e->FirstChildElement("origin");
+    if (!o) o = e->InsertEndChild(TiXmlElement("origin"))->ToElement();
+    double xyz[3] = {0, 0, 0}, rpy[3] = {0, 0, 0};
+    if (const char* a = o->Attribute("xyz")) std::sscanf(a, "%lf %lf %lf", &xyz[0], &xyz[1], &xyz[2]);
+    if (const char* a = o->Attribute("rpy")) std::sscanf(a, "%lf %lf %lf", &rpy[0], &rpy[1], &rpy[2]);
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g", xyz[0] + signedIn(1e-4, 5e-4), xyz[1] + signedIn(1e-4, 5e-4),
+                  xyz[2] + signedIn(1e-4, 5e-4));
+    o->SetAttribute("xyz", buf);
+    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g", rpy[0] + degToRad(signedIn(0.01, 0.05)),
+                  rpy[1] + degToRad(signedIn(0.01, 0.05)), rpy[2] + degToRad(signedIn(0.01, 0.05)));
+    o->SetAttribute("rpy", buf);
+  }
+  TiXmlPrinter printer;
+  doc.Accept(&printer);
+  return printer.CStr();
+}
+
+// Calibration through a URDF: a true robot made by moving every joint origin of a random one of the eleven arms,
+// measured through KDL (a random tracker placement and target, points or 6D, tracker noise), calibrated from the
+// nominal URDF as `calibrate --robot nominal.urdf` does (registration, Gauss-Newton), exported with the target's
+// nominal place: KDL on the exported file (and the calibrated base) predicts held-out readings as well as the other
+// calibration tests ask of a model against the noise floor (mean error within 1.3x the readings' own).
+TEST(Urdf, ACalibrationThroughAUrdfExportsTheCalibratedArm) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int draw = 0; draw < 6; ++draw) {
+    const fs::path f = files[rng() % files.size()];
+    const bool six_d = rng() % 2 == 0;
+    SCOPED_TRACE(f.filename().string() + (six_d ? ", 6D" : ", points"));
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    const std::string truth_xml = perturbedOrigins(xml, u.chain_joints, rng);
+    const KdlChain truth(truth_xml, u.base_link, u.tip_link);
+    // A tracker 1.5-4 m away, any orientation; a target up to 100 mm beside the tip's axis, 0-150 mm out.
+    std::uniform_real_distribution<double> u01(0.0, 1.0);
+    const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    Pose base = Pose::Identity();
+    base.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    base.translation() = (1.5 + 2.5 * u01(rng)) * dir;
+    Pose target = Pose::Identity();
+    target.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    const double side = 0.1 * u01(rng), az = 2 * kPi * u01(rng);
+    target.translation() = Eigen::Vector3d(side * std::cos(az), side * std::sin(az), 0.15 * u01(rng));
+    const double sp = 0.01e-3, so = degToRad(0.001);
+    auto measure = [&](const Eigen::VectorXd& q) {
+      Observation o;
+      o.q_rad = q;
+      o.kind = six_d ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+      o.sigma_position_m = sp;
+      o.sigma_orientation_rad = so;
+      const Pose T = base * truth.at(q) * target;
+      o.measured_in_tracker = T;
+      o.measured_in_tracker.translation() += sp * Eigen::Vector3d(g(rng), g(rng), g(rng));
+      o.measured_in_tracker.linear() = expSO3(so * Eigen::Vector3d(g(rng), g(rng), g(rng))) * T.linear();
+      return std::make_pair(o, T);
+    };
+    // Configurations within 80 % of each joint's range (at most +-180 deg).
+    auto config = [&] {
+      Eigen::VectorXd q(m.numJoints());
+      for (int j = 0; j < m.numJoints(); ++j)
+        q[j] = std::uniform_real_distribution<double>(0.8 * std::max(m.limits[j].lower_rad, -kPi),
+                                                      0.8 * std::min(m.limits[j].upper_rad, kPi))(rng);
+      return q;
+    };
+    std::vector<Observation> ident;
+    for (int k = 0; k < 80; ++k) ident.push_back(measure(config()).first);
+    const RegistrationResult reg = registerFrames(m, m.nominal, ident);
+    const CalibrationResult r = solveGaussNewton(CalibrationProblem{&m, reg.params, ident, std::nullopt, {}, {}});
+    EXPECT_TRUE(r.converged) << r.message;
+    // The export: the target's nominal place is known (the one the readings were made with).
+    const Pose tool_cal = poseFromXyzRpy(r.params[m.toolParam(FrameParam::kX)], r.params[m.toolParam(FrameParam::kY)],
+                                         r.params[m.toolParam(FrameParam::kZ)], r.params[m.toolParam(FrameParam::kRoll)],
+                                         r.params[m.toolParam(FrameParam::kPitch)], r.params[m.toolParam(FrameParam::kYaw)]);
+    const Pose base_cal = poseFromXyzRpy(r.params[m.baseParam(FrameParam::kX)], r.params[m.baseParam(FrameParam::kY)],
+                                         r.params[m.baseParam(FrameParam::kZ)], r.params[m.baseParam(FrameParam::kRoll)],
+                                         r.params[m.baseParam(FrameParam::kPitch)], r.params[m.baseParam(FrameParam::kYaw)]);
+    const std::string exported = exportUrdf(xml, f.string(), u, r.params, tool_cal * target.inverse());
+    const KdlChain calibrated(exported, u.base_link, u.tip_link), nominal(xml, u.base_link, u.tip_link);
+    double floor = 0, after = 0, before = 0;
+    const int held_out = 100;
+    for (int k = 0; k < held_out; ++k) {
+      const auto [o, T] = measure(config());
+      const Eigen::Vector3d p = o.measured_in_tracker.translation();
+      floor += (T.translation() - p).norm() / held_out;
+      after += ((base_cal * calibrated.at(o.q_rad) * target).translation() - p).norm() / held_out;
+      before += ((base_cal * nominal.at(o.q_rad) * target).translation() - p).norm() / held_out;
+    }
+    std::printf("  %-22s %-6s KDL on the exported URDF: held-out %.4f mm (nominal URDF %.4f mm, readings' noise %.4f mm)\n",
+                f.filename().c_str(), six_d ? "6D" : "points", after * 1e3, before * 1e3, floor * 1e3);
+    EXPECT_LT(after, 1.3 * floor) << "nominal " << before * 1e3 << " mm";
+    EXPECT_GT(before, 5 * floor);  // the moved origins are far above the noise
+  }
+}
+
+// Universal Robots' kinematics YAML, composed the way ur_description composes it (a plain reference written from its
+// xacro: base_link -> base_link_inertia turned by pi about z, each joint's origin from its kinematics entry then the
+// joint's turn about z, wrist_3 -> flange and flange -> tool0 fixed): the calibrated model's poses to 1e-9 m when the
+// calibration moved joint 6 only about and along its axis; more than that (its a and alpha) is said, not carried.
+TEST(Urdf, AUrKinematicsFileComposesAsUrDescriptionDoesToTheCalibratedModel) {
+  const fs::path f = kArms / "universal_robots" / (std::mt19937_64(test::testSeed())() % 2 ? "ur10.urdf" : "ur5.urdf");
+  if (!fs::exists(f)) GTEST_SKIP() << f << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signedIn = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1 : 1) * (lo + (hi - lo) * u01(rng)); };
+  const std::string xml = readText(f);
+  const UrdfImport u = importUrdf(xml, f.string());
+  const RobotModel& m = u.model;
+  Eigen::VectorXd p = m.nominal;
+  for (int i : m.canonicalParams()) {
+    if (i >= 5 * m.numJoints()) continue;
+    const bool flange_side = i / 5 == 5 && (i % 5 == 2 || i % 5 == 3);  // joint 6's a and alpha
+    if (!flange_side) p[i] += m.isLength(i) ? signedIn(1e-4, 5e-4) : degToRad(signedIn(0.01, 0.05));
+  }
+  auto compose = [&](const std::string& yaml, const Eigen::VectorXd& q) {
+    const YAML::Node k = YAML::Load(yaml)["kinematics"];
+    Pose T = poseFromXyzRpy(0, 0, 0, 0, 0, kPi);
+    const char* names[] = {"shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"};
+    for (int j = 0; j < 6; ++j) {
+      const YAML::Node e = k[names[j]];
+      T = T * poseFromXyzRpy(e["x"].as<double>(), e["y"].as<double>(), e["z"].as<double>(), e["roll"].as<double>(),
+                             e["pitch"].as<double>(), e["yaw"].as<double>());
+      T.linear() = T.linear() * Eigen::AngleAxisd(q[j], Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    }
+    return T * poseFromXyzRpy(0, 0, 0, 0, -kPi / 2, -kPi / 2) * poseFromXyzRpy(0, 0, 0, kPi / 2, 0, kPi / 2);
+  };
+  double rest_m = 1, rest_rad = 1;
+  const std::string yaml = exportUrKinematics(xml, f.string(), u, p, Pose::Identity(), "calib_123", &rest_m, &rest_rad);
+  EXPECT_LT(rest_m, 1e-12);
+  EXPECT_LT(rest_rad, 1e-12);
+  EXPECT_EQ(YAML::Load(yaml)["kinematics"]["hash"].as<std::string>(), "calib_123");
+  KinematicsData data(m);
+  double worst = 0;
+  for (int k = 0; k < 300; ++k) {
+    const Eigen::VectorXd q = randomQ(m, rng);
+    const auto [dp, dr] = difference(compose(yaml, q), forwardKinematics(m, data, p, q));
+    worst = std::max({worst, dp, dr});
+  }
+  std::printf("  %s: the composed kinematics file against the calibrated model: worst %.2g (m or rad)\n",
+              f.filename().c_str(), worst);
+  EXPECT_LT(worst, 1e-9);
+  // Joint 6's a moved too: not carried, and said.
+  p[m.jointParam(5, JointParam::kA)] += 3e-4;
+  exportUrKinematics(xml, f.string(), u, p, Pose::Identity(), "", &rest_m, &rest_rad);
+  EXPECT_NEAR(rest_m, 3e-4, 1e-6);
+}
+
+std::string errorOf(const std::string& xml, const UrdfImportOptions& o = {}) {
+  try {
+    importUrdf(xml, "arm.urdf", o);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A small arm: `joints` revolute joints about z, x, y in turn, each 0.2 m up, and tool0.
+std::string arm(int joints, const std::string& type3 = "revolute", const std::string& axis2 = "1 0 0") {
+  std::ostringstream o;
+  o << "<?xml version=\"1.0\"?>\n<robot name=\"arm\">\n  <link name=\"base_link\"/>\n";
+  for (int k = 1; k <= joints; ++k) {
+    o << "  <link name=\"l" << k << "\"/>\n";
+    o << "  <joint name=\"j" << k << "\" type=\"" << (k == 3 ? type3 : "revolute") << "\">\n"
+      << "    <parent link=\"" << (k == 1 ? "base_link" : "l" + std::to_string(k - 1)) << "\"/>\n"
+      << "    <child link=\"l" << k << "\"/>\n    <origin xyz=\"0 0 0.2\" rpy=\"0 0 0\"/>\n"
+      << "    <axis xyz=\"" << (k == 2 ? axis2 : k % 3 == 1 ? "0 0 1" : k % 3 == 2 ? "1 0 0" : "0 1 0") << "\"/>\n"
+      << "    <limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/>\n  </joint>\n";
+  }
+  o << "  <link name=\"tool0\"/>\n  <joint name=\"flange\" type=\"fixed\">\n    <parent link=\"l" << joints
+    << "\"/>\n    <child link=\"tool0\"/>\n    <origin xyz=\"0 0 0.1\" rpy=\"0 0 0\"/>\n  </joint>\n</robot>\n";
+  return o.str();
+}
+
+TEST(Urdf, BadInputIsRefusedNamingTheFileAndTheElement) {
+  EXPECT_EQ(errorOf(arm(6)), "");
+  EXPECT_NE(errorOf(arm(6).substr(0, 300)).find("arm.urdf:"), std::string::npos);
+  EXPECT_NE(errorOf(arm(6).substr(0, 300)).find("not well-formed XML"), std::string::npos);
+  const std::string prismatic = errorOf(arm(6, "prismatic"));
+  EXPECT_NE(prismatic.find("<joint name=\"j3\">"), std::string::npos) << prismatic;
+  EXPECT_NE(prismatic.find("neither revolute nor fixed"), std::string::npos) << prismatic;
+  EXPECT_NE(errorOf(arm(6, "continuous")).find("type continuous"), std::string::npos);
+  const std::string zero = errorOf(arm(6, "revolute", "0 0 0"));
+  EXPECT_NE(zero.find("<joint name=\"j2\">"), std::string::npos) << zero;
+  EXPECT_NE(zero.find("<axis> is zero"), std::string::npos) << zero;
+  EXPECT_NE(errorOf(arm(2)).find("has 2 revolute joints"), std::string::npos);
+  EXPECT_NE(errorOf(arm(8)).find("has 8 revolute joints"), std::string::npos);
+  UrdfImportOptions o;
+  o.tip_link = "nope";
+  EXPECT_NE(errorOf(arm(6), o).find("--tip-link nope: no such <link>"), std::string::npos);
+  // A branch and no tool0: two leaves the revolute joints lead to.
+  std::string branch = arm(6);
+  branch.replace(branch.find("tool0"), 5, "flange_link");
+  branch.replace(branch.find("\"tool0\""), 7, "\"flange_link\"");
+  branch.insert(branch.find("</robot>"),
+                "  <link name=\"side\"/>\n  <joint name=\"jside\" type=\"revolute\">\n    <parent link=\"l5\"/>\n"
+                "    <child link=\"side\"/>\n    <axis xyz=\"0 0 1\"/>\n"
+                "    <limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/>\n  </joint>\n");
+  const std::string branched = errorOf(branch);
+  EXPECT_NE(branched.find("the chain branches"), std::string::npos) << branched;
+  EXPECT_NE(branched.find("--tip-link"), std::string::npos) << branched;
+  // The line of the element is named.
+  EXPECT_EQ(prismatic.rfind("arm.urdf:", 0), 0u) << prismatic;
+  // Not a tree: a joint to a missing link, two roots, a link with two parents, a loop (each named, with its line).
+  std::string missing = arm(6);
+  missing.replace(missing.find("<child link=\"l4\""), 16, "<child link=\"l9\"");
+  const std::string missed = errorOf(missing);
+  EXPECT_NE(missed.find("<joint name=\"j4\">: <child link=\"l9\">: no such <link>"), std::string::npos) << missed;
+  std::string two_roots = arm(6);
+  two_roots.insert(two_roots.find("</robot>"), "  <link name=\"stray\"/>\n");
+  EXPECT_NE(errorOf(two_roots).find("2 root links (base_link, stray)"), std::string::npos) << errorOf(two_roots);
+  std::string two_parents = arm(6);
+  two_parents.replace(two_parents.find("<child link=\"l5\""), 16, "<child link=\"l4\"");
+  EXPECT_NE(errorOf(two_parents).find("is already the child of another joint"), std::string::npos) << errorOf(two_parents);
+  std::string loop = arm(6);
+  loop.replace(loop.find("<parent link=\"base_link\""), 24, "<parent link=\"l6\"");
+  EXPECT_NE(errorOf(loop).find("loop"), std::string::npos) << errorOf(loop);
+  // An export against another robot's URDF.
+  const UrdfImport six = importUrdf(arm(6), "arm.urdf");
+  std::string other = arm(6);
+  for (auto at = other.find("\"j"); at != std::string::npos; at = other.find("\"j", at + 3)) other.replace(at, 2, "\"k");
+  try {
+    exportUrdf(other, "other.urdf", six, six.model.nominal, Pose::Identity());
+    ADD_FAILURE() << "exported against another robot's URDF";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("<joint name=\"j1\">: not in this URDF"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace cellcal

@@ -1,0 +1,293 @@
+// `cellcal robot import`: a URDF as a robot file. `cellcal robot export`: a calibrated robot file back into the robot
+// stack: the nominal URDF with the chain's joint origins calibrated, the `kinematics:` YAML of Universal Robots'
+// driver, or the calibrated DH table; each says what the format cannot carry and what that costs.
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/files/urdf.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "commands.hpp"
+#include "measurement_input.hpp"
+
+namespace cellcal::cli {
+namespace {
+
+struct ImportArgs {
+  std::string urdf, out, base_link, tip_link;
+};
+
+struct ExportArgs {
+  std::string robot, format = "urdf", urdf, out, json, base_frame_link, ur_hash, target_in_flange;
+};
+
+std::string readText(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw ConfigError(path + ": cannot open");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void writeText(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw std::runtime_error(path + ": cannot write");
+    out << text;
+    if (!out.flush()) throw std::runtime_error(path + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot replace");
+}
+
+int runImport(const ImportArgs& a) {
+  UrdfImportOptions o;
+  o.base_link = a.base_link;
+  o.tip_link = a.tip_link;
+  const UrdfImport u = importUrdfFile(a.urdf, o);
+  const std::vector<std::pair<std::string, std::string>> source = {
+      {"urdf", a.urdf}, {"sha256", fileSha256(a.urdf)}, {"base_link", u.base_link}, {"tip_link", u.tip_link},
+      {"tool", "cellcal robot import"}, {"date_utc", utcNow()}};
+  std::string header = u.model.name + ": converted by `cellcal robot import` from " + a.urdf +
+                       " (docs/robot-file.md, from your URDF to a calibrated URDF)";
+  for (const auto& n : u.notes) header += "\n" + n;
+  saveRobotFile(a.out, u.model, nullptr, header, &source);
+  std::printf("robot import: %s (%s) -> %s\n", a.urdf.c_str(), u.model.name.c_str(), a.out.c_str());
+  for (const auto& n : u.notes) std::printf("  %s\n", n.c_str());
+  return 0;
+}
+
+// x, y, z in mm and roll, pitch, yaw in deg, comma-separated.
+Pose parseFrameMmDeg(const std::string& text, const std::string& option) {
+  std::vector<double> v;
+  std::stringstream ss(text);
+  for (std::string cell; std::getline(ss, cell, ',');) {
+    char* end = nullptr;
+    const double x = std::strtod(cell.c_str(), &end);
+    if (end == cell.c_str() || *end != '\0' || !std::isfinite(x))
+      throw ConfigError(option + ": '" + cell + "' is not a number (expected X,Y,Z,ROLL,PITCH,YAW in mm and deg)");
+    v.push_back(x);
+  }
+  if (v.size() != 6) throw ConfigError(option + ": expected 6 numbers X,Y,Z,ROLL,PITCH,YAW (mm, deg)");
+  return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
+}
+
+Pose frameOf(const Eigen::VectorXd& p, int first) {
+  return poseFromXyzRpy(p[first], p[first + 1], p[first + 2], p[first + 3], p[first + 4], p[first + 5]);
+}
+
+// The held-out error of the full calibrated model and of its geometric part (what the formats carry) on the rows it was
+// calibrated on (provenance data_file, split), when that file is there.
+struct ExportCost {
+  bool measured = false;
+  std::string why;
+  ErrorStats full, geometric;
+};
+
+ExportCost exportCost(const RobotFile& rf) {
+  ExportCost c;
+  if (!rf.calibration) {
+    c.why = "the robot file has no calibration section";
+    return c;
+  }
+  const std::string data = rf.calibration->provenanceValue("data_file"), split = rf.calibration->provenanceValue("split");
+  if (data.empty() || !std::ifstream(data)) {
+    c.why = "its calibration data (" + (data.empty() ? std::string("no data_file in its provenance") : data) +
+            ") is not here";
+    return c;
+  }
+  const MeasurementFile f = readMeasurementCsv(data, rf.model);
+  std::vector<Observation> verify;
+  std::vector<Drivers> drivers;
+  std::vector<Eigen::VectorXd> q;
+  std::vector<std::optional<double>> temperature, stamp;
+  for (const auto& r : f.rows) {
+    q.push_back(r.q_rad);
+    temperature.push_back(r.temperature_c);
+    stamp.push_back(r.stamp_s);
+  }
+  const DriverTable table = driversFromSequence(q, temperature, stamp);
+  for (size_t i = 0; i < f.rows.size(); ++i) {
+    const bool to_verify = split == "halves" ? i >= f.rows.size() / 2 : i % 2 == 1;
+    if (!to_verify) continue;
+    verify.push_back(toObservation(f.rows[i], MeasurementKind::kPose6D, 0.01e-3, 0.001 * kPi / 180));
+    drivers.push_back(table.rows[i]);
+  }
+  ExtendedFit full, geometric;
+  full.params = geometric.params = rf.model.nominal;
+  full.extensions = rf.calibration->extensions;
+  full.extension_params = rf.calibration->extension_params;
+  c.full = errorStats(rf.model, full, verify, drivers);
+  c.geometric = errorStats(rf.model, geometric, verify, drivers);
+  c.measured = true;
+  return c;
+}
+
+int runExport(const ExportArgs& a) {
+  const RobotFile rf = loadRobotFile(a.robot);
+  const RobotModel& m = rf.model;
+  nlohmann::json j = {{"robot", a.robot}, {"format", a.format}, {"out", a.out}};
+  std::vector<std::string> not_carried;
+  if (rf.calibration && !rf.calibration->extensions.empty())
+    not_carried.push_back("the model extensions (" + modelLabel(rf.calibration->extensions) +
+                          "): only the geometric part is exported");
+  // The tip's correction: where the calibrated tool frame puts the target against its nominal place on the flange.
+  Pose tip_correction = Pose::Identity();
+  const Pose tool = frameOf(m.nominal, m.toolParam(FrameParam::kX));
+  if (!a.target_in_flange.empty()) {
+    tip_correction = tool * parseFrameMmDeg(a.target_in_flange, "--target-in-flange").inverse();
+  } else if (rf.calibration) {
+    not_carried.push_back("what the target's frame absorbed of the robot (joint " + std::to_string(m.numJoints()) +
+                          "'s flange-side parameters): give the target's nominal place with --target-in-flange to carry it");
+  }
+  const Eigen::Matrix<double, 6, 1> tc = xyzRpyFromPose(tip_correction);
+  j["tip_correction"] = {{"x_mm", tc[0] * 1e3}, {"y_mm", tc[1] * 1e3}, {"z_mm", tc[2] * 1e3}, {"roll_deg", radToDeg(tc[3])},
+                         {"pitch_deg", radToDeg(tc[4])}, {"yaw_deg", radToDeg(tc[5])}};
+  if (a.format == "urdf" || a.format == "ur-kinematics") {
+    std::string urdf = a.urdf;
+    if (urdf.empty()) {  // the URDF the robot file was imported from
+      std::string why;
+      const std::optional<UrdfOrigin> origin = urdfOriginOf(a.robot, rf.source, &why);
+      if (!origin)
+        throw ConfigError("--format " + a.format + ": --urdf NOMINAL.urdf is needed (the description to calibrate): " + why);
+      urdf = origin->path;
+      std::printf("robot export: the nominal description is %s (the robot file's source)\n", urdf.c_str());
+    }
+    UrdfImportOptions o;  // the chain the robot file was imported with (else the URDF's default chain)
+    for (const auto& [k, v] : rf.source) {
+      if (k == "base_link") o.base_link = v;
+      if (k == "tip_link") o.tip_link = v;
+    }
+    const std::string xml = readText(urdf);
+    const UrdfImport u = importUrdf(xml, urdf, o);
+    // The calibrated file must be of this description: same joints, same fixed transforms around the chain.
+    if (const std::string mismatch = urdfMismatch(u, m); !mismatch.empty())
+      throw ConfigError(urdf + ": not the description " + a.robot + " was calibrated from (" + mismatch +
+                        "): nothing written");
+    std::string out = exportUrdf(xml, urdf, u, m.nominal, tip_correction);
+    // The registered base as a fixed joint from a named link, if asked.
+    if (!a.base_frame_link.empty()) {
+      const Eigen::Matrix<double, 6, 1> b = m.nominal.segment<6>(m.baseParam(FrameParam::kX));
+      char joint[512];
+      std::snprintf(joint, sizeof joint,
+                    "  <link name=\"%s\"/>\n  <joint name=\"%s_to_%s\" type=\"fixed\">\n    <parent link=\"%s\"/>\n"
+                    "    <child link=\"%s\"/>\n    <origin xyz=\"%.17g %.17g %.17g\" rpy=\"%.17g %.17g %.17g\"/>\n  </joint>\n",
+                    a.base_frame_link.c_str(), a.base_frame_link.c_str(), u.base_link.c_str(), a.base_frame_link.c_str(),
+                    u.base_link.c_str(), b[0], b[1], b[2], b[3], b[4], b[5]);
+      const auto end = out.rfind("</robot>");
+      if (end == std::string::npos) throw ConfigError(urdf + ": no </robot>");
+      out.insert(end, joint);
+    }
+    if (a.format == "urdf") {
+      writeText(a.out, out);
+    } else {
+      double rest_m = 0, rest_rad = 0;
+      const std::string y = "# written by `cellcal robot export --format ur-kinematics` from " + a.robot +
+                            "\n# for ur_robot_driver's kinematics_params_file (ur_calibration's format)\n" +
+                            exportUrKinematics(xml, urdf, u, m.nominal, tip_correction, a.ur_hash, &rest_m, &rest_rad);
+      if (rest_m * 1e3 > 1e-6 || radToDeg(rest_rad) > 1e-6) {
+        char buf[300];
+        std::snprintf(buf, sizeof buf,
+                      "%.4f mm and %.4f deg of the flange's calibration beyond joint 6's turn and shift (ur_description's "
+                      "fixed joints after wrist_3 are its own)", rest_m * 1e3, radToDeg(rest_rad));
+        not_carried.push_back(buf);
+      }
+      j["not_carried_beyond_joint6_mm"] = rest_m * 1e3;
+      j["not_carried_beyond_joint6_deg"] = radToDeg(rest_rad);
+      if (a.ur_hash.empty())
+        not_carried.push_back("the controller's calibration hash (--ur-hash): written empty, so the driver cannot check "
+                              "the file against the robot");
+      writeText(a.out, y);
+    }
+  } else if (a.format == "dh-table") {
+    // The calibrated modified-DH table, CSV and JSON, per joint.
+    std::ostringstream csv;
+    csv << "joint,name,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,parallel_to_next,lower_deg,upper_deg\n";
+    nlohmann::json rows = nlohmann::json::array();
+    for (int jn = 0; jn < m.numJoints(); ++jn) {
+      auto v = [&](JointParam p) { return m.toHuman(m.jointParam(jn, p), m.nominal[m.jointParam(jn, p)]); };
+      const std::string name = m.joint_names.empty() ? "joint" + std::to_string(jn + 1) : m.joint_names[static_cast<size_t>(jn)];
+      char buf[400];
+      std::snprintf(buf, sizeof buf, "%d,%s,%.12g,%.12g,%.12g,%.12g,%.12g,%s,%.12g,%.12g\n", jn + 1, name.c_str(),
+                    v(JointParam::kThetaOffset), v(JointParam::kD), v(JointParam::kA), v(JointParam::kAlpha),
+                    v(JointParam::kBeta), m.parallel_to_next[static_cast<size_t>(jn)] ? "true" : "false",
+                    radToDeg(m.limits[static_cast<size_t>(jn)].lower_rad), radToDeg(m.limits[static_cast<size_t>(jn)].upper_rad));
+      csv << buf;
+      rows.push_back({{"joint", jn + 1}, {"name", name}, {"theta_offset_deg", v(JointParam::kThetaOffset)},
+                      {"d_mm", v(JointParam::kD)}, {"a_mm", v(JointParam::kA)}, {"alpha_deg", v(JointParam::kAlpha)},
+                      {"beta_deg", v(JointParam::kBeta)}, {"parallel_to_next", static_cast<bool>(m.parallel_to_next[static_cast<size_t>(jn)])}});
+    }
+    writeText(a.out, csv.str());
+    const auto b = m.nominal.segment<6>(m.baseParam(FrameParam::kX)), t = m.nominal.segment<6>(m.toolParam(FrameParam::kX));
+    j["dh"] = rows;
+    j["base_in_tracker"] = {b[0] * 1e3, b[1] * 1e3, b[2] * 1e3, radToDeg(b[3]), radToDeg(b[4]), radToDeg(b[5])};
+    j["tool_in_flange"] = {t[0] * 1e3, t[1] * 1e3, t[2] * 1e3, radToDeg(t[3]), radToDeg(t[4]), radToDeg(t[5])};
+    if (m.hasMount() || m.hasFlange())
+      not_carried.push_back("the fixed transforms around the chain (mount, flange): a controller's DH table has none; they "
+                            "are in the JSON");
+  } else {
+    throw ConfigError("--format " + a.format + ": expected urdf, ur-kinematics or dh-table");
+  }
+  // What it costs not to carry the extensions: the geometric part against the full model on the calibration rows.
+  const ExportCost cost = exportCost(rf);
+  std::printf("robot export: %s -> %s (%s)\n", a.robot.c_str(), a.out.c_str(), a.format.c_str());
+  for (const auto& n : not_carried) std::printf("  not carried: %s\n", n.c_str());
+  if (cost.measured) {
+    std::printf("  held-out on its calibration rows: full model %.4f mm mean (%.4f RMS), the exported geometric part "
+                "%.4f mm (%.4f RMS)\n",
+                cost.full.mean_mm, cost.full.rms_mm, cost.geometric.mean_mm, cost.geometric.rms_mm);
+    j["verification_full_model"] = errorStatsJson(cost.full);
+    j["verification_exported"] = errorStatsJson(cost.geometric);
+  } else {
+    std::printf("  the cost of the export not measured: %s\n", cost.why.c_str());
+    j["verification_full_model"] = nullptr;
+    j["verification_exported"] = nullptr;
+    j["cost_not_measured"] = cost.why;
+  }
+  j["not_carried"] = not_carried;
+  if (!a.json.empty()) std::ofstream(a.json) << j.dump(2) << "\n";
+  return 0;
+}
+
+}  // namespace
+
+Runner addRobotCommand(CLI::App& app) {
+  CLI::App* robot = app.add_subcommand("robot", "Robot descriptions: a URDF as a robot file, a calibration back into the robot stack");
+  robot->require_subcommand(1);
+  auto imp = std::make_shared<ImportArgs>();
+  CLI::App* i = addSubcommand(*robot, "import");
+  i->add_option("urdf", imp->urdf, "the robot's URDF")->required()->check(CLI::ExistingFile);
+  i->add_option("--out", imp->out, "robot file (YAML) to write")->required()->check(outputFile());
+  i->add_option("--base-link", imp->base_link, "the chain's first link (default: the URDF's root)");
+  i->add_option("--tip-link", imp->tip_link, "the chain's last link (default: tool0, else the one leaf)");
+  auto exp = std::make_shared<ExportArgs>();
+  CLI::App* e = addSubcommand(*robot, "export");
+  e->add_option("--robot", exp->robot, "calibrated robot file (cellcal calibrate --save-robot)")->required()->check(CLI::ExistingFile);
+  e->add_option("--format", exp->format, "urdf | ur-kinematics | dh-table")
+      ->check(CLI::IsMember({"urdf", "ur-kinematics", "dh-table"}))
+      ->capture_default_str();
+  e->add_option("--urdf", exp->urdf,
+                "the nominal URDF the robot file was converted from (urdf, ur-kinematics; default: the robot file's source)")->check(CLI::ExistingFile);
+  e->add_option("--out", exp->out, "file to write")->required()->check(outputFile());
+  e->add_option("--json", exp->json, "also write what was exported and what not, with its cost, as JSON")->check(outputFile());
+  e->add_option("--base-frame-link", exp->base_frame_link,
+                "add this link and a fixed joint from it to the base link at the calibrated base (the tracker frame)");
+  e->add_option("--target-in-flange", exp->target_in_flange,
+                "the target's nominal place on the flange, X,Y,Z,ROLL,PITCH,YAW (mm, deg): what the calibrated tool frame "
+                "moved from it goes into the chain's last origin");
+  e->add_option("--ur-hash", exp->ur_hash, "--format ur-kinematics: the controller's calibration hash");
+  return [=]() -> int {
+    if (*i) return runImport(*imp);
+    if (*e) return runExport(*exp);
+    return 0;
+  };
+}
+
+}  // namespace cellcal::cli
