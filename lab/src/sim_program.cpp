@@ -50,7 +50,14 @@ std::string simulatedRobotText(const SimulatedCell& cell) {
 }
 
 SimRobotProgram::SimRobotProgram(const SimulatedCell& cell, const SimulationSettings& s) : s_(s) {
-  for (int g = 0; g < s.groups; ++g) {
+  if (!s.program.empty()) {  // simulation.program_csv: its rows, in order, instead of the random campaigns
+    for (const auto& q : s.program)
+      if (q.size() != cell.model().numJoints())
+        throw std::invalid_argument("simulation.program_csv: a row of " + std::to_string(q.size()) + " joints for " +
+                                    cell.model().name);
+    campaigns_.push_back(s.program);
+  }
+  for (int g = 0; g < s.groups && s.program.empty(); ++g) {
     const int n = g == 0 ? s.initial_poses : s.poses_per_group;
     if (g > 0 && s.hours_between_groups * 3600.0 < campaignEnd_s(g - 1) - campaignStart_s(g - 1))
       throw std::invalid_argument("simulation: campaigns overlap (hours_between_groups shorter than a campaign)");
@@ -62,10 +69,7 @@ SimRobotProgram::SimRobotProgram(const SimulatedCell& cell, const SimulationSett
 }
 
 double SimRobotProgram::campaignStart_s(int g) const { return g * s_.hours_between_groups * 3600.0; }
-double SimRobotProgram::campaignEnd_s(int g) const {
-  const int n = g == 0 ? s_.initial_poses : s_.poses_per_group;
-  return campaignStart_s(g) + n * s_.pose_time_s;
-}
+double SimRobotProgram::campaignEnd_s(int g) const { return campaignStart_s(g) + posesIn(g) * s_.pose_time_s; }
 
 Eigen::VectorXd SimRobotProgram::workAt(double t) const {
   const double u = t / s_.pose_time_s;

@@ -66,16 +66,7 @@ int runImport(const ImportArgs& a) {
 
 // x, y, z in mm and roll, pitch, yaw in deg, comma-separated.
 Pose parseFrameMmDeg(const std::string& text, const std::string& option) {
-  std::vector<double> v;
-  std::stringstream ss(text);
-  for (std::string cell; std::getline(ss, cell, ',');) {
-    char* end = nullptr;
-    const double x = std::strtod(cell.c_str(), &end);
-    if (end == cell.c_str() || *end != '\0' || !std::isfinite(x))
-      throw ConfigError(option + ": '" + cell + "' is not a number (expected X,Y,Z,ROLL,PITCH,YAW in mm and deg)");
-    v.push_back(x);
-  }
-  if (v.size() != 6) throw ConfigError(option + ": expected 6 numbers X,Y,Z,ROLL,PITCH,YAW (mm, deg)");
+  const std::vector<double> v = parseNumbers(text, 6, option, "X,Y,Z,ROLL,PITCH,YAW in mm and deg");
   return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
 }
 
@@ -106,14 +97,7 @@ ExportCost exportCost(const RobotFile& rf) {
   const MeasurementFile f = readMeasurementCsv(data, rf.model);
   std::vector<Observation> verify;
   std::vector<Drivers> drivers;
-  std::vector<Eigen::VectorXd> q;
-  std::vector<std::optional<double>> temperature, stamp;
-  for (const auto& r : f.rows) {
-    q.push_back(r.q_rad);
-    temperature.push_back(r.temperature_c);
-    stamp.push_back(r.stamp_s);
-  }
-  const DriverTable table = driversFromSequence(q, temperature, stamp);
+  const DriverTable table = driversOf(f);
   for (size_t i = 0; i < f.rows.size(); ++i) {
     const bool to_verify = split == "halves" ? i >= f.rows.size() / 2 : i % 2 == 1;
     if (!to_verify) continue;

@@ -43,6 +43,10 @@ Runner addStatusCommand(CLI::App& app);
 Runner addFoxgloveCommand(CLI::App& app);
 // cmd_robot.cpp: `robot import` (a URDF as a robot file) and `robot export` (URDF, UR kinematics YAML, DH table).
 Runner addRobotCommand(CLI::App& app);
+// cmd_iso9283.cpp: ISO 9283 pose and distance figures of a measured test.
+Runner addIso9283Command(CLI::App& app);
+// cmd_plan.cpp: `plan iso9283` (the standard's test program).
+Runner addPlanCommand(CLI::App& app);
 
 // Writes a gnuplot script and data next to each other in dir and renders it to <dir>/<name>.<format> (png or svg);
 // the script sees the data file as `datafile`. Returns false with a message in *error when gnuplot is missing or fails.

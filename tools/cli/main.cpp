@@ -92,7 +92,8 @@ int main(int argc, char** argv) {
       {"continuous", addContinuousCommand(app)}, {"record", addRecordCommand(app)},
       {"replay", addReplayCommand(app)},         {"validate", addValidateCommand(app)},
       {"export", addExportCommand(app)},         {"status", addStatusCommand(app)},
-      {"foxglove", addFoxgloveCommand(app)},     {"robot", addRobotCommand(app)}};
+      {"foxglove", addFoxgloveCommand(app)},     {"robot", addRobotCommand(app)},
+      {"plan", addPlanCommand(app)},             {"iso9283", addIso9283Command(app)}};
   // A mistyped command: named, with the nearest one (CLI11 alone says only "A subcommand is required").
   if (argc >= 2 && argv[1][0] != '-') {
     const std::string given = argv[1];

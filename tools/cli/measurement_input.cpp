@@ -1,6 +1,8 @@
 #include "commands.hpp"
 #include "measurement_input.hpp"
 
+#include "cellcal/core/files/cell_config.hpp"
+
 #include <algorithm>
 
 #include <openssl/evp.h>
@@ -112,14 +114,7 @@ LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile 
   in.file = std::move(file);
   in.kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
   const auto& rows = in.file.rows;
-  std::vector<Eigen::VectorXd> q;
-  std::vector<std::optional<double>> temperature, stamp;
-  for (const auto& r : rows) {
-    q.push_back(r.q_rad);
-    temperature.push_back(r.temperature_c);
-    stamp.push_back(r.stamp_s);
-  }
-  const DriverTable drivers = driversFromSequence(q, temperature, stamp);
+  const DriverTable drivers = driversOf(in.file);
   in.data.has_thermal = drivers.has_thermal;
   in.data.thermal_source = drivers.thermal_source;
   for (size_t i = 0; i < rows.size(); ++i) {
@@ -305,6 +300,57 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
       ->capture_default_str();
   cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_flag("--no-register", a.no_register, "trust the robot file's base and tool frames as the start");
+}
+
+}  // namespace cellcal::cli
+
+namespace cellcal::cli {
+
+void addRobotOrCellOptions(CLI::App& cmd, std::string& robot, std::string& config, std::string& robot_id,
+                           const std::string& robot_help) {
+  cmd.add_option("--robot", robot, robot_help)->check(CLI::ExistingFile);
+  cmd.add_option("--config", config, "instead of --robot: a cell file, its robot with the cell's registration")
+      ->check(CLI::ExistingFile);
+  cmd.add_option("--robot-id", robot_id, "with --config: which robot (when the cell has several)");
+}
+
+std::vector<double> parseNumbers(const std::string& text, size_t count, const std::string& option,
+                                 const std::string& expected) {
+  std::vector<double> v;
+  std::stringstream ss(text);
+  for (std::string cell; std::getline(ss, cell, ',');) {
+    char* end = nullptr;
+    const double x = std::strtod(cell.c_str(), &end);
+    if (end == cell.c_str() || *end != '\0' || !std::isfinite(x))
+      throw ConfigError(option + ": '" + cell + "' is not a number (expected " + expected + ")");
+    v.push_back(x);
+  }
+  if (v.size() != count) throw ConfigError(option + ": expected " + std::to_string(count) + " numbers " + expected);
+  return v;
+}
+
+RobotFile robotOrCellRobot(const std::string& robot, const std::string& config, const std::string& robot_id,
+                           std::string* label) {
+  if (robot.empty() == config.empty())
+    throw ConfigError("give either --robot (a robot file with its frames) or --config (a cell file: its robot and "
+                      "registration)");
+  if (!robot.empty()) {
+    if (label) *label = robot;
+    return loadRobotFile(robot);
+  }
+  const CellConfig cell = loadCellConfig(config);
+  std::string ids;
+  for (const auto& r : cell.robots) {
+    ids += (ids.empty() ? "" : ", ") + r.robot_id;
+    if (r.robot_id == robot_id || (robot_id.empty() && cell.robots.size() == 1)) {
+      if (label) *label = r.robot_id + " of " + config;
+      RobotFile f = loadRobotFile(r.robot_file);
+      f.model = r.model;  // the robot file with the cell's registration
+      return f;
+    }
+  }
+  throw ConfigError(config + ": " + (robot_id.empty() ? "several robots (" + ids + "): name one with --robot-id"
+                                                      : "no robot '" + robot_id + "' (" + ids + ")"));
 }
 
 }  // namespace cellcal::cli

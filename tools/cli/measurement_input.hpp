@@ -76,6 +76,22 @@ nlohmann::json heldJson(const std::vector<ExcitationDeficit>& held);
 // {"<prefix>mean_mm", "<prefix>rms_mm", "<prefix>max_mm"} and, with 6D rows, the same in _deg.
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix = "");
 
+// --robot FILE, or --config CELL (with --robot-id ID when it has several robots): what robotOrCellRobot takes.
+void addRobotOrCellOptions(CLI::App& cmd, std::string& robot, std::string& config, std::string& robot_id,
+                           const std::string& robot_help);
+
+// The numbers of an option's comma-separated value ("500,0,400"): exactly `count` finite numbers, else ConfigError
+// naming the option and what it expects (e.g. "X,Y,Z in mm").
+std::vector<double> parseNumbers(const std::string& text, size_t count, const std::string& option,
+                                 const std::string& expected);
+
+// The robot file of --robot, or of robot `robot_id` of the cell file `config` with that cell's registration (its
+// base_in_tracker and tool_in_flange: the frames a tracker user sets up before an acceptance test); robot_id may be
+// empty when the cell has one robot. *label names where it came from. Throws ConfigError when neither or both are
+// given, or the cell has no such robot.
+RobotFile robotOrCellRobot(const std::string& robot, const std::string& config, const std::string& robot_id,
+                           std::string* label);
+
 // SHA-256 of a file, hex; throws std::runtime_error naming the file when it cannot be read.
 std::string fileSha256(const std::string& path);
 // Now as 2026-11-28T21:50:07Z.

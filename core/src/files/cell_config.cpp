@@ -1,5 +1,7 @@
 #include "cellcal/core/files/cell_config.hpp"
 
+#include "cellcal/core/files/measurement_csv.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -338,7 +340,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   const Section s = section(r, root, "simulation",
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
-                             "hidden_effect", "tracker_clock_offset_ms", "true_robot_file"});
+                             "hidden_effect", "tracker_clock_offset_ms", "true_robot_file", "program_csv"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -373,6 +375,21 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
         r.fail(s.node["true_robot_file"], ft,
                c.simulation.true_robot_file + " is not of the structure of " + rb.robot_id + "'s robot_file " +
                    rb.robot_file + " (another joint layout)");
+    }
+  }
+  if (s.has("program_csv")) {
+    const std::string fp = s.f("program_csv");
+    c.simulation.program_csv = resolve(base_dir, r.string(s.node["program_csv"], fp));
+    MeasurementCsvOptions po;
+    po.joints_only = true;
+    for (const auto& rb : c.robots) {
+      try {
+        const MeasurementFile program = readMeasurementCsv(c.simulation.program_csv, rb.model, po);
+        if (c.simulation.program.empty())
+          for (const auto& row : program.rows) c.simulation.program.push_back(row.q_rad);
+      } catch (const ConfigError& e) {
+        r.fail(s.node["program_csv"], fp, std::string(e.what()) + " (robot " + rb.robot_id + ")");
+      }
     }
   }
   if (s.has("hidden_effect")) {

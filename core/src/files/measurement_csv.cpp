@@ -209,14 +209,15 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     qcol.push_back(col[name]);
   }
   for (const char* req : {"x_mm", "y_mm", "z_mm"})
-    if (!col.count(req))
+    if (!col.count(req) && !options.joints_only)
       throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: missing column " + req);
-  const bool has_q = col.count("qw") || col.count("qx") || col.count("qy") || col.count("qz");
+  const bool has_q = !options.joints_only && (col.count("qw") || col.count("qx") || col.count("qy") || col.count("qz"));
   if (has_q && !(col.count("qw") && col.count("qx") && col.count("qy") && col.count("qz")))
     throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: orientation needs all of qw, qx, qy, qz");
   std::map<std::string, bool> known = {{"x_mm", 1}, {"y_mm", 1}, {"z_mm", 1}, {"qw", 1}, {"qx", 1}, {"qy", 1},
                                        {"qz", 1}, {"stamp_s", 1}, {"group", 1}, {"temperature_c", 1}, {"payload_kg", 1},
-                                       {"sigma_position_mm", 1}, {"sigma_orientation_deg", 1}, {"setup", 1}};
+                                       {"sigma_position_mm", 1}, {"sigma_orientation_deg", 1}, {"setup", 1},
+                                       {"pose", 1}, {"cycle", 1}};
   for (int j = 1; j <= n; ++j) known["q" + std::to_string(j) + unit] = true;
   for (const auto& h : header)
     if (!known.count(h)) f.ignored_columns.push_back(h);
@@ -261,7 +262,7 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
                              (!deg && std::abs(v) > 2 * kPi ? ": degrees written where radians are expected?" : "")};
       }
     }
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < 3 && !options.joints_only; ++k) {
       double v = 0;
       if (number(col[std::string(1, "xyz"[k]) + "_mm"], true, &v)) row.position_m[k] = v * 1e-3;
     }
@@ -294,12 +295,17 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
         else if (std::string(name) == "sigma_position_mm") row.sigma_position_m = v * 1e-3;
         else row.sigma_orientation_rad = v * kPi / 180;
       }
-    if (col.count("setup") && !err && !cell(col["setup"]).empty()) {
-      const std::string label = cell(col["setup"]);
-      if (label.size() > 64) err = RowError{col["setup"] + 1, "setup", "a set-up label has at most 64 characters"};
+    for (const char* name : {"setup", "pose"}) {
+      if (!col.count(name) || err || cell(col[name]).empty()) continue;
+      const std::string label = cell(col[name]), what = std::string(name) == "setup" ? "a set-up label" : "a pose name";
+      if (label.size() > 64) err = RowError{col[name] + 1, name, what + " has at most 64 characters"};
       else if (label.find_first_of("\"'") != std::string::npos)
-        err = RowError{col["setup"] + 1, "setup", "a set-up label may not contain quotes"};
-      else row.setup = label;
+        err = RowError{col[name] + 1, name, what + " may not contain quotes"};
+      else (std::string(name) == "setup" ? row.setup : row.pose) = label;
+    }
+    if (col.count("cycle") && number(col["cycle"], false, &v)) {
+      if (v != std::floor(v)) err = RowError{col["cycle"] + 1, "cycle", "expected an integer"};
+      else row.cycle = static_cast<long long>(v);
     }
     if (col.count("group") && number(col["group"], false, &v)) {
       if (v != std::floor(v)) err = RowError{col["group"] + 1, "group", "expected an integer"};
@@ -318,6 +324,10 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
   if (f.rows.empty())
     throw ConfigError(source + ":" + std::to_string(header_line) + ": no data rows after the header" +
                       (f.skipped_rows ? " (" + std::to_string(f.skipped_rows) + " bad rows skipped)" : std::string()));
+  if (options.joints_only) {
+    if (deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(qcol[0] + 1));
+    return f;
+  }
   checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["x_mm"] + 1));
   if (deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(qcol[0] + 1));
   if (has_q) checkQuaternionOrder(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["qw"] + 1));
@@ -331,6 +341,17 @@ MeasurementFile readMeasurementCsv(const std::string& path, const RobotModel& ro
   std::stringstream ss;
   ss << in.rdbuf();
   return parseMeasurementCsv(ss.str(), path, robot, options);
+}
+
+DriverTable driversOf(const MeasurementFile& file) {
+  std::vector<Eigen::VectorXd> q;
+  std::vector<std::optional<double>> temperature, stamp;
+  for (const auto& r : file.rows) {
+    q.push_back(r.q_rad);
+    temperature.push_back(r.temperature_c);
+    stamp.push_back(r.stamp_s);
+  }
+  return driversFromSequence(q, temperature, stamp);
 }
 
 Observation toObservation(const MeasurementRow& row, MeasurementKind kind, double sigma_position_m,
@@ -348,8 +369,10 @@ Observation toObservation(const MeasurementRow& row, MeasurementKind kind, doubl
 
 void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints, const std::string& comment) {
   bool oriented = false, stamped = false, grouped = false, temp = false, payload = false, sp = false, so = false,
-       setups = false;
+       setups = false, poses = false, cycles = false;
   for (const auto& r : f.rows) {
+    poses |= r.pose.has_value();
+    cycles |= r.cycle.has_value();
     oriented |= r.orientation.has_value();
     stamped |= r.stamp_s.has_value();
     grouped |= r.group.has_value();
@@ -372,6 +395,8 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
   if (sp) out << ",sigma_position_mm";
   if (so) out << ",sigma_orientation_deg";
   if (setups) out << ",setup";
+  if (poses) out << ",pose";
+  if (cycles) out << ",cycle";
   out << "\n" << std::setprecision(12);
   for (const auto& r : f.rows) {
     for (int j = 0; j < joints; ++j) out << r.q_rad[j] << ",";
@@ -394,6 +419,8 @@ void writeMeasurementCsv(std::ostream& out, const MeasurementFile& f, int joints
     opt(sp, r.sigma_position_m ? std::optional<double>(*r.sigma_position_m * 1e3) : std::nullopt);
     opt(so, r.sigma_orientation_rad ? std::optional<double>(*r.sigma_orientation_rad * 180 / kPi) : std::nullopt);
     opt(setups, r.setup);
+    opt(poses, r.pose);
+    opt(cycles, r.cycle);
     out << "\n";
   }
 }

@@ -85,6 +85,43 @@ TEST(MeasurementCsv, SetupLabelsRoundTrip) {
             std::string::npos);
 }
 
+// The ISO 9283 columns: each row's test pose and cycle, read, written and read back; a robot program is the joint
+// columns with them and no readings (joints_only), refused as measurements; bad values named.
+TEST(MeasurementCsv, PoseAndCycleRoundTripAndAProgramHasNoReadings) {
+  const RobotModel m = test::robot("staubli_tx60");
+  const std::string text = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,pose,cycle\n"
+                           "10,20,30,40,50,60,1000,2000,300,P1,1\n"
+                           "11,21,31,41,51,61,1010,2010,310,P5,1\n"
+                           "12,22,32,42,52,62,1020,2020,320,P1,2\n";
+  const auto f = parseMeasurementCsv(text, "m.csv", m);
+  ASSERT_EQ(f.rows.size(), 3u);
+  EXPECT_EQ(f.rows[1].pose.value_or("?"), "P5");
+  EXPECT_EQ(f.rows[2].cycle.value_or(-1), 2);
+  EXPECT_TRUE(f.ignored_columns.empty());
+  std::ostringstream out;
+  writeMeasurementCsv(out, f, 6, "");
+  const auto back = parseMeasurementCsv(out.str(), "back.csv", m);
+  for (size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(back.rows[i].pose, f.rows[i].pose);
+    EXPECT_EQ(back.rows[i].cycle, f.rows[i].cycle);
+  }
+  const std::string program = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,pose,cycle\n10,20,30,40,50,60,P1,1\n"
+                              "11,21,31,41,51,61,P5,1\n";
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const auto p = parseMeasurementCsv(program, "program.csv", m, po);
+  ASSERT_EQ(p.rows.size(), 2u);
+  EXPECT_NEAR(p.rows[1].q_rad[5], degToRad(61), 1e-15);
+  EXPECT_EQ(p.rows[1].pose.value_or("?"), "P5");
+  EXPECT_NE(errorOf(program).find("m.csv:1:1: header: missing column x_mm"), std::string::npos) << errorOf(program);
+  EXPECT_NE(errorOf("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,pose,cycle\n10,20,30,40,50,60,1,2,3,P1,1.5\n")
+                .find("m.csv:2:11: cycle: expected an integer"),
+            std::string::npos);
+  EXPECT_NE(errorOf("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,pose\n10,20,30,40,50,60,1,2,3,\"P1\"\n")
+                .find("m.csv:2:10: pose: a pose name may not contain quotes"),
+            std::string::npos);
+}
+
 TEST(MeasurementCsv, MetresInMillimetreColumnsAreCalledOut) {
   std::mt19937_64 rng(test::testSeed());
   for (int trial = 0; trial < 20; ++trial) {

@@ -157,6 +157,11 @@ struct SimulationSettings {
   // cell's registration with the usual random frame errors). Empty: nominal plus random errors (SimulationConfig).
   std::string true_robot_file;
   std::optional<RobotFile> true_robot;
+  // A robot program to run instead of the random campaigns (key program_csv, relative to the cell file: CSV v1's joint
+  // columns, with pose and cycle as `cellcal plan iso9283` writes them): one stand-still per row, in order, pose_time_s
+  // each, from t = 0; then the robot works. Every simulated robot runs it (it must fit each one's joints and limits).
+  std::string program_csv;
+  std::vector<Eigen::VectorXd> program;
 };
 
 struct CellConfig {

@@ -1,0 +1,183 @@
+// `cellcal plan iso9283` and `cellcal iso9283` as a user runs them: the test program planned for a random robot of a
+// simulated cell, run by the simulated robot (hidden errors, the tracker's noise and the robot's repeatability), the
+// figures against the nominal model and against a model calibrated on other poses of the same robot; rows named by
+// the program instead of a pose column give the same figures; bad input named with exit 2.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "cell/cell_test_support.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/sim/simulation.hpp"
+#include "core/identification/hidden_effect.hpp"
+
+namespace cellcal {
+namespace {
+
+using namespace cellcal::test;
+namespace fs = std::filesystem;
+
+nlohmann::json readJsonFile(const std::string& path) { return nlohmann::json::parse(std::ifstream(path)); }
+
+TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  std::mt19937_64 rng(seed);
+  RandomDraw d = randomDraw(rng);
+  d.kind = MeasurementKind::kPose6D;
+  const SimulatedCell cell(robot(d.name), d.sc);
+  const RobotModel& m = cell.model();
+  SCOPED_TRACE(d.name);
+  // The robot file the user has: the nominal model with the cell's registration.
+  saveRobotFile(dir + "/robot.yaml", m, nullptr, "the nominal " + m.name + " with this cell's registration");
+
+  Process plan(dir, "plan", {"cellcal", "plan", "iso9283", "--robot", dir + "/robot.yaml", "--cycles", "10",
+                             "--candidates", "15", "--seed", std::to_string(seed % 100000), "--out", dir + "/program.csv",
+                             "--json", dir + "/plan.json"});
+  ASSERT_EQ(plan.wait(120), 0) << plan.log();
+  EXPECT_NE(plan.log().find("cube edge"), std::string::npos) << plan.log();
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const MeasurementFile program = readMeasurementCsv(dir + "/program.csv", m, po);
+  ASSERT_EQ(program.rows.size(), 50u);
+  const char* order[] = {"P1", "P5", "P4", "P3", "P2"};
+  for (size_t i = 0; i < program.rows.size(); ++i) {
+    EXPECT_EQ(*program.rows[i].pose, order[i % 5]);
+    EXPECT_EQ(*program.rows[i].cycle, static_cast<long long>(i / 5 + 1));
+  }
+  // The planned joints reach the planned poses (forward kinematics of the file's model, base frame) to 1e-6 mm.
+  const auto pj = readJsonFile(dir + "/plan.json");
+  KinematicsData data(m);
+  Eigen::VectorXd p0 = m.nominal;
+  p0.segment<6>(m.baseParam(FrameParam::kX)).setZero();
+  for (const auto& pose : pj["poses"]) {
+    Eigen::VectorXd q(m.numJoints());
+    for (int j = 0; j < m.numJoints(); ++j) q[j] = degToRad(pose["joints_deg"][static_cast<size_t>(j)].get<double>());
+    const Eigen::Vector3d want(pose["base_mm"][0].get<double>(), pose["base_mm"][1].get<double>(), pose["base_mm"][2].get<double>());
+    // joints_deg in the JSON are rounded by the printing of doubles only (17 digits): compare to 1e-6 mm.
+    EXPECT_LT((forwardKinematics(m, data, p0, q).translation() * 1e3 - want).norm(), 1e-6) << pose.dump();
+  }
+
+  // The robot runs it; the tracker reads each visit.
+  MeasurementFile f;
+  for (const auto& r : program.rows) {
+    const Observation o = cell.measure(r.q_rad, 0.0, rng, d.kind);
+    MeasurementRow row;
+    row.q_rad = r.q_rad;
+    row.position_m = o.measured_in_tracker.translation();
+    row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    row.pose = r.pose;
+    row.cycle = r.cycle;
+    f.rows.push_back(row);
+  }
+  {
+    std::ofstream out(dir + "/test.csv");
+    writeMeasurementCsv(out, f, m.numJoints(), "ISO 9283 test of a simulated " + m.name);
+  }
+  // A calibration of the same robot on 150 other poses (random), saved.
+  MeasurementFile c;
+  for (const auto& q : cell.randomConfigurations(150, rng)) {
+    const Observation o = cell.measure(q, 0.0, rng, d.kind);
+    MeasurementRow row;
+    row.q_rad = q;
+    row.position_m = o.measured_in_tracker.translation();
+    row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    c.rows.push_back(row);
+  }
+  {
+    std::ofstream out(dir + "/campaign.csv");
+    writeMeasurementCsv(out, c, m.numJoints(), "calibration campaign");
+  }
+  Process cal(dir, "calibrate", {"cellcal", "calibrate", "--robot", dir + "/robot.yaml", "--data", dir + "/campaign.csv",
+                                 "--save-robot", dir + "/cal.yaml"});
+  ASSERT_EQ(cal.wait(120), 0) << cal.log();
+
+  Process iso(dir, "iso9283", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/test.csv",
+                               "--model-robot", dir + "/cal.yaml", "--json", dir + "/iso.json", "--report", dir + "/report"});
+  ASSERT_EQ(iso.wait(60), 0) << iso.log();
+  const auto j = readJsonFile(dir + "/iso.json");
+  ASSERT_EQ(j["poses"].size(), 5u) << j.dump();
+  const Eigen::VectorXd truth = cell.trueParams(0.0);
+  const int b = m.baseParam(FrameParam::kX);
+  const Pose base = poseFromXyzRpy(m.nominal[b], m.nominal[b + 1], m.nominal[b + 2], m.nominal[b + 3], m.nominal[b + 4],
+                                   m.nominal[b + 5]);
+  double before = 0, after = 0;
+  for (size_t k = 0; k < 5; ++k) {
+    const auto& p = j["poses"][k];
+    EXPECT_EQ(p["n"], 10);
+    for (const char* key : {"AP_mm", "AP_a_deg", "AP_b_deg", "AP_c_deg", "RP_mm", "RP_a_deg", "RP_b_deg", "RP_c_deg"})
+      EXPECT_TRUE(p[key].is_number()) << key << " " << p.dump();
+    // Against the nominal model: the truth's error at the pose's joints (in the base frame), within what noise leaves
+    // in a 10-visit barycentre (6 sigma of 30 um per axis over sqrt(10)).
+    const int idx = std::stoi(p["name"].get<std::string>().substr(1)) - 1;
+    const Eigen::VectorXd& q = program.rows[static_cast<size_t>(idx == 0 ? 0 : 5 - idx)].q_rad;
+    const Eigen::Vector3d want = base.inverse() * forwardKinematics(m, data, truth, q).translation() -
+                                 base.inverse() * forwardKinematics(m, data, m.nominal, q).translation();
+    EXPECT_NEAR(p["AP_mm"].get<double>(), want.norm() * 1e3, 6 * 0.03 / std::sqrt(10.0)) << p.dump();
+    before += p["AP_mm"].get<double>() / 5;
+    after += j["after"]["poses"][k]["AP_mm"].get<double>() / 5;
+    EXPECT_NEAR(j["after"]["poses"][k]["RP_mm"].get<double>(), p["RP_mm"].get<double>(), 1e-9) << "RP is the robot's";
+  }
+  EXPECT_TRUE(j["AD_mm"].is_number());
+  EXPECT_TRUE(j["RD_mm"].is_number());
+  EXPECT_EQ(j["distances"][0]["from"], "P2");
+  EXPECT_LT(after, 0.3 * before) << "compensation with the calibrated model leaves less than a third";
+  EXPECT_NE(iso.log().find("what compensation with it would leave"), std::string::npos) << iso.log();
+  EXPECT_TRUE(fs::exists(dir + "/report/report.md"));
+  EXPECT_TRUE(isGnuplotFigure(dir + "/report/clouds.png"));
+  EXPECT_TRUE(isGnuplotFigure(dir + "/report/ap_rp.png"));
+  std::printf("  %s: cube %.0f mm; mean AP_p %.4f mm against the nominal model, %.4f mm against the calibrated one\n",
+              d.name.c_str(), pj["cube"]["edge_mm"].get<double>(), before, after);
+
+  // Rows named by the program (no pose column): the same figures.
+  MeasurementFile unnamed = f;
+  for (auto& r : unnamed.rows) {
+    r.pose.reset();
+    r.cycle.reset();
+  }
+  {
+    std::ofstream out(dir + "/unnamed.csv");
+    writeMeasurementCsv(out, unnamed, m.numJoints(), "the same test without pose names");
+  }
+  Process named(dir, "by_program", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/unnamed.csv",
+                                    "--program", dir + "/program.csv", "--json", dir + "/named.json"});
+  ASSERT_EQ(named.wait(60), 0) << named.log();
+  const auto n = readJsonFile(dir + "/named.json");
+  for (size_t k = 0; k < 5; ++k) {
+    EXPECT_EQ(n["poses"][k]["name"], j["poses"][k]["name"]);
+    EXPECT_NEAR(n["poses"][k]["AP_mm"].get<double>(), j["poses"][k]["AP_mm"].get<double>(), 1e-9);
+    EXPECT_NEAR(n["poses"][k]["RP_mm"].get<double>(), j["poses"][k]["RP_mm"].get<double>(), 1e-9);
+  }
+
+  // Bad input, exit 2 and named: a pose with one cycle; a row without a pose; --register on the five coplanar poses;
+  // a cube out of reach.
+  MeasurementFile one = f;
+  one.rows.resize(6);  // P1 twice, P5 .. P2 once: P2 is named first (poses in the order of their names)
+  {
+    std::ofstream out(dir + "/one.csv");
+    writeMeasurementCsv(out, one, m.numJoints(), "one cycle");
+  }
+  Process short_test(dir, "one_cycle", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/one.csv"});
+  EXPECT_EQ(short_test.wait(60), 2) << short_test.log();
+  EXPECT_NE(short_test.log().find("test pose P2: 1 visit(s)"), std::string::npos) << short_test.log();
+  Process no_pose(dir, "no_pose", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/unnamed.csv"});
+  EXPECT_EQ(no_pose.wait(60), 2) << no_pose.log();
+  EXPECT_NE(no_pose.log().find("unnamed.csv:"), std::string::npos) << no_pose.log();
+  EXPECT_NE(no_pose.log().find("pose: a row without a test pose name"), std::string::npos) << no_pose.log();
+  Process reg(dir, "register", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/test.csv", "--register"});
+  EXPECT_EQ(reg.wait(60), 2) << reg.log();
+  EXPECT_NE(reg.log().find("--register"), std::string::npos) << reg.log();
+  Process far(dir, "far", {"cellcal", "plan", "iso9283", "--robot", dir + "/robot.yaml", "--cube-centre-mm", "5000,0,500",
+                           "--candidates", "3", "--out", dir + "/far.csv"});
+  EXPECT_EQ(far.wait(60), 2) << far.log();
+  EXPECT_NE(far.log().find("P1 (the centre)"), std::string::npos) << far.log();
+  EXPECT_NE(far.log().find("closest pose found is"), std::string::npos) << far.log();
+  EXPECT_FALSE(fs::exists(dir + "/far.csv"));
+}
+
+}  // namespace
+}  // namespace cellcal
