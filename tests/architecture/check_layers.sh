@@ -24,39 +24,45 @@ rules=(
   "recording/|core/ lab/ components/ mcap/ foxglove/ recording/|yes"
 )
 
-violations=0
 files=$(find core lab components recording -type f \( -name '*.hpp' -o -name '*.cpp' -o -name '*.h' \) | sort)
 [ -n "$files" ] || { echo "check_layers: no sources under $root"; exit 2; }
-for f in $files; do
-  rule=""
-  for r in "${rules[@]}"; do
-    for prefix in ${r%%|*}; do
-      case "$f" in "$prefix"*) rule=$r; break 2 ;; esac
-    done
-  done
-  [ -n "$rule" ] || continue
-  rest=${rule#*|}
-  allowed=${rest%%|*}
-  dds=${rest##*|}
-  while IFS=: read -r line text; do
-    inc=$(sed -E 's/.*#include[[:space:]]*[<"]([^">]+)[">].*/\1/' <<<"$text")
-    ok=no
-    case "$inc" in
-      cellcal/*)
-        for a in $allowed; do
-          case "$inc" in "cellcal/$a"*) ok=yes ;; esac
-        done ;;
-      fastdds/*|fastrtps/*|fastcdr/*|cellcal_msgs*) [ "$dds" = yes ] && ok=yes ;;
-      *) ok=yes ;;
-    esac
-    if [ "$ok" = no ]; then
-      echo "$f:$line: $inc (${rule%%|*} may include: cellcal/{${allowed// /,}}$([ "$dds" = yes ] && echo ', DDS'))"
-      violations=$((violations + 1))
-    fi
-  done < <(grep -n '^[[:space:]]*#[[:space:]]*include' "$f")
-done
-if [ "$violations" -gt 0 ]; then
-  echo "check_layers: $violations include(s) against the layers (docs/ARCHITECTURE.md)"
-  exit 1
-fi
-echo "check_layers: $(wc -w <<<"$files") files follow the layers"
+# One pass of awk over every file (a process per include line took 40 s on a busy 2-core machine).
+# shellcheck disable=SC2086
+awk -v rules="$(printf '%s\n' "${rules[@]}")" -v nfiles="$(wc -w <<<"$files")" '
+BEGIN {
+  n = split(rules, R, "\n")
+  for (i = 1; i <= n; ++i) {
+    split(R[i], part, "|")
+    prefixes[i] = part[1]; allowed[i] = part[2]; dds[i] = part[3]
+    shown = allowed[i]; gsub(/ /, ",", shown)
+    say[i] = "(" part[1] " may include: cellcal/{" shown "}" (part[3] == "yes" ? ", DDS" : "") ")"
+  }
+}
+FNR == 1 {
+  rule = 0
+  for (i = 1; i <= n && !rule; ++i) {
+    np = split(prefixes[i], P, " ")
+    for (k = 1; k <= np; ++k) if (index(FILENAME, P[k]) == 1) { rule = i; break }
+  }
+}
+rule && /^[[:space:]]*#[[:space:]]*include/ {
+  inc = $0
+  sub(/.*#[[:space:]]*include[[:space:]]*[<"]/, "", inc)
+  sub(/[">].*/, "", inc)
+  ok = 1
+  if (inc ~ /^cellcal\//) {
+    ok = 0
+    na = split(allowed[rule], A, " ")
+    for (k = 1; k <= na; ++k) if (index(inc, "cellcal/" A[k]) == 1) ok = 1
+  } else if (inc ~ /^(fastdds|fastrtps|fastcdr)\// || inc ~ /^cellcal_msgs/) {
+    ok = dds[rule] == "yes"
+  }
+  if (!ok) { print FILENAME ":" FNR ": " inc " " say[rule]; ++violations }
+}
+END {
+  if (violations > 0) {
+    print "check_layers: " violations " include(s) against the layers (docs/ARCHITECTURE.md)"
+    exit 1
+  }
+  print "check_layers: " nfiles " files follow the layers"
+}' $files

@@ -9,8 +9,10 @@
 #include <nlohmann/json.hpp>
 
 #include "cell/cell_test_support.hpp"
+#include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/identification/pose_plan.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "core/identification/hidden_effect.hpp"
@@ -177,6 +179,52 @@ TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
   EXPECT_NE(far.log().find("P1 (the centre)"), std::string::npos) << far.log();
   EXPECT_NE(far.log().find("closest pose found is"), std::string::npos) << far.log();
   EXPECT_FALSE(fs::exists(dir + "/far.csv"));
+}
+
+}  // namespace
+}  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+// `cellcal plan poses` beside a cell file: the tracker at the registration's tracker frame origin; every chosen
+// configuration within the limits and seen by the tracker; the chosen set's indices and predicted error beside random
+// ones; a range no configuration falls in is refused with what was refused, nothing written.
+TEST(CliPlanPoses, ChosenConfigurationsTheTrackerSeesWithTheirIndices) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  const std::string cell = std::string(CELLCAL_CONFIG_DIR) + "/cell.yaml";
+  Process plan(dir, "plan_poses", {"cellcal", "plan", "poses", "--config", cell, "--count", "20", "--candidates", "600",
+                                   "--seed", std::to_string(seed % 1000000), "--range-mm", "1000,6000", "--out",
+                                   dir + "/poses.csv", "--json", dir + "/poses.json"});
+  ASSERT_EQ(plan.wait(120), 0) << plan.log();
+  for (const char* line : {"O1 (Borm and Menq)", "O2 (inverse condition number)", "O3 (smallest singular value)",
+                           "O4 (noise amplification)", "the registration's tracker frame origin"})
+    EXPECT_NE(plan.log().find(line), std::string::npos) << line << "\n" << plan.log();
+  const auto j = nlohmann::json::parse(std::ifstream(dir + "/poses.json"));
+  EXPECT_EQ(j["chosen"]["joints_deg"].size(), 20u);
+  EXPECT_LT(j["chosen"]["predicted_rms_mm"].get<double>(), j["random"]["predicted_rms_mm"].get<double>()) << j.dump();
+  EXPECT_GT(j["chosen"]["indices"]["O1"].get<double>(), j["random"]["indices"]["O1"].get<double>()) << j.dump();
+  const CellConfig c = loadCellConfig(cell);
+  const RobotModel& m = c.robots[0].model;
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const MeasurementFile program = readMeasurementCsv(dir + "/poses.csv", m, po);
+  ASSERT_EQ(program.rows.size(), 20u);
+  TrackerSetup t;
+  const int b = m.baseParam(FrameParam::kX);
+  t.position_in_base_m = poseFromXyzRpy(m.nominal[b], m.nominal[b + 1], m.nominal[b + 2], m.nominal[b + 3], m.nominal[b + 4],
+                                        m.nominal[b + 5])
+                             .inverse()
+                             .translation();
+  t.min_range_m = 1.0;
+  t.max_range_m = 6.0;
+  for (const auto& r : program.rows) EXPECT_EQ(visibility(m, m.nominal, r.q_rad, t), Visibility::kVisible);
+  Process none(dir, "no_pose", {"cellcal", "plan", "poses", "--config", cell, "--count", "5", "--candidates", "100",
+                                "--range-mm", "10000,12000", "--out", dir + "/none.csv"});
+  EXPECT_EQ(none.wait(60), 2) << none.log();
+  EXPECT_NE(none.log().find("out of the tracker's range"), std::string::npos) << none.log();
+  EXPECT_FALSE(fs::exists(dir + "/none.csv"));
 }
 
 }  // namespace

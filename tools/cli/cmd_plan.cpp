@@ -1,6 +1,8 @@
 // `cellcal plan iso9283`: the ISO 9283 test program for a robot (core/accuracy/iso9283_plan.hpp): the cube, the
 // test plane and its five poses, reached with one tool orientation, as joint configurations in the standard's cycle
-// order, for the robot program (or the simulated cell, simulation.program_csv) to run.
+// order, for the robot program (or the simulated cell, simulation.program_csv) to run. `cellcal plan poses`: the K
+// configurations a calibration campaign should measure (core/identification/pose_plan.hpp), with their observability
+// indices beside K random ones.
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -8,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cellcal/core/accuracy/iso9283_plan.hpp"
+#include "cellcal/core/identification/pose_plan.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/registration.hpp"
@@ -27,6 +30,30 @@ struct PlanIsoArgs {
 Eigen::Vector3d parseXyzMm(const std::string& text, const std::string& option) {
   const std::vector<double> v = parseNumbers(text, 3, option, "X,Y,Z in mm");
   return Eigen::Vector3d(v[0], v[1], v[2]) * 1e-3;
+}
+
+// A robot program (CSV v1's joint columns in radians to the last digit, pose, and cycle when given), written whole.
+struct ProgramRow {
+  const Eigen::VectorXd* q;
+  std::string pose;
+  int cycle = 0;  // 0: no cycle column
+};
+void writeProgram(const std::string& path, const std::string& comment, int joints, const std::vector<ProgramRow>& rows) {
+  std::ostringstream csv;
+  std::istringstream lines(comment);
+  for (std::string line; std::getline(lines, line);) csv << "# " << line << "\n";
+  for (int j = 1; j <= joints; ++j) csv << "q" << j << "_rad,";
+  const bool cycles = !rows.empty() && rows.front().cycle > 0;
+  csv << (cycles ? "pose,cycle\n" : "pose\n");
+  csv.precision(17);
+  for (const auto& r : rows) {
+    for (int j = 0; j < joints; ++j) csv << (*r.q)[j] << ",";
+    csv << r.pose;
+    if (cycles) csv << "," << r.cycle;
+    csv << "\n";
+  }
+  std::ofstream out(path);
+  if (!out || !(out << csv.str()) || !out.flush()) throw std::runtime_error(path + ": cannot write");
 }
 
 void addIsoOptions(CLI::App& cmd, PlanIsoArgs& a) {
@@ -95,24 +122,15 @@ int runPlanIso(const PlanIsoArgs& a) {
     for (int j = 0; j < m.numJoints(); ++j) std::printf(" %8.3f", radToDeg(plan.q_rad[static_cast<size_t>(k)][j]));
     std::printf(" deg\n");
   }
-  // The program: cycles of P1, P5, P4, P3, P2; joints in radians to the last digit.
-  std::ostringstream csv;
-  csv << "# ISO 9283 test program of " << robot_label << " (cellcal plan iso9283)\n# cube edge " << plan.cube.edge_m * 1e3
-      << " mm, centre " << c.x() << " " << c.y() << " " << c.z() << " mm (base frame), plane " << plan.plane << " ("
-      << kPlanes[plan.plane - 1] << "), " << a.cycles << " cycles of P1 P5 P4 P3 P2\n";
-  for (int j = 1; j <= m.numJoints(); ++j) csv << "q" << j << "_rad,";
-  csv << "pose,cycle\n";
-  csv.precision(17);
+  // The program: cycles of P1, P5, P4, P3, P2.
+  std::ostringstream comment;
+  comment << "ISO 9283 test program of " << robot_label << " (cellcal plan iso9283)\ncube edge " << plan.cube.edge_m * 1e3
+          << " mm, centre " << c.x() << " " << c.y() << " " << c.z() << " mm (base frame), plane " << plan.plane << " ("
+          << kPlanes[plan.plane - 1] << "), " << a.cycles << " cycles of P1 P5 P4 P3 P2";
+  std::vector<ProgramRow> rows;
   for (int cy = 1; cy <= a.cycles; ++cy)
-    for (int k : kIsoCycleOrder) {
-      for (int j = 0; j < m.numJoints(); ++j) csv << plan.q_rad[static_cast<size_t>(k)][j] << ",";
-      csv << "P" << k + 1 << "," << cy << "\n";
-    }
-  {
-    std::ofstream out(a.out);
-    if (!out) throw std::runtime_error(a.out + ": cannot write");
-    out << csv.str();
-  }
+    for (int k : kIsoCycleOrder) rows.push_back({&plan.q_rad[static_cast<size_t>(k)], "P" + std::to_string(k + 1), cy});
+  writeProgram(a.out, comment.str(), m.numJoints(), rows);
   std::printf("  %d cycles, %d rows -> %s; the planned joints reach the poses to %.1g mm and %.1g deg\n", a.cycles,
               5 * a.cycles, a.out.c_str(), plan.worst_position_error_m * 1e3, radToDeg(plan.worst_orientation_error_rad));
   if (!a.json.empty()) {
@@ -134,14 +152,148 @@ int runPlanIso(const PlanIsoArgs& a) {
   return 0;
 }
 
+struct PlanPosesArgs {
+  std::string robot, config, robot_id, out, json, tracker_mm, range_mm, measurement = "6d";
+  int count = 25, candidates = 2000;
+  double link_radius_mm = 60, acceptance_deg = 0, sigma_position_mm = 0.015, sigma_orientation_deg = 0.005;
+  std::uint64_t seed = 1;
+};
+
+void addPosesOptions(CLI::App& cmd, PlanPosesArgs& a) {
+  addRobotOrCellOptions(cmd, a.robot, a.config, a.robot_id,
+                        "robot file or URDF, with the cell's registration (the tracker sits at the tracker frame's origin)");
+  cmd.add_option("--count", a.count, "how many configurations to measure")->check(CLI::Range(1, 100000))->capture_default_str();
+  cmd.add_option("--candidates", a.candidates, "random configurations within the limits to choose from")
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  cmd.add_option("--tracker-mm", a.tracker_mm,
+                 "the tracker's position X,Y,Z in the robot's base frame (default: the tracker frame's origin, when the "
+                 "robot file or cell has a registration)");
+  cmd.add_option("--range-mm", a.range_mm, "the tracker's range MIN,MAX (default: 0, unlimited)");
+  cmd.add_option("--link-radius-mm", a.link_radius_mm, "the beam keeps this far from every link but the last two")
+      ->check(nonNegative())
+      ->capture_default_str();
+  cmd.add_option("--acceptance-deg", a.acceptance_deg,
+                 "the target's z axis within this of the direction to the tracker (0: not checked)")
+      ->check(nonNegative())
+      ->capture_default_str();
+  cmd.add_option("--measurement", a.measurement, "points or 6d")->check(CLI::IsMember({"points", "6d"}))->capture_default_str();
+  cmd.add_option("--sigma-position-mm", a.sigma_position_mm, "the tracker's 1-sigma per axis")->check(positive())->capture_default_str();
+  cmd.add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "the tracker's orientation 1-sigma")
+      ->check(positive())
+      ->capture_default_str();
+  cmd.add_option("--seed", a.seed, "seed of the candidates")->capture_default_str();
+  cmd.add_option("--out", a.out, "the chosen configurations: joint columns (CSV v1) plus pose, in the order chosen")
+      ->required()
+      ->check(outputFile());
+  cmd.add_option("--json", a.json, "write the configurations, the indices and the predicted errors as JSON")->check(outputFile());
+}
+
+int runPlanPoses(const PlanPosesArgs& a) {
+  std::string robot_label;
+  const RobotFile rf = robotOrCellRobot(a.robot, a.config, a.robot_id, &robot_label);
+  const RobotModel& m = rf.model;
+  PosePlanOptions o;
+  o.count = a.count;
+  o.candidates = std::max(a.candidates, a.count);
+  o.kind = a.measurement == "points" ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+  o.sigma_position_m = a.sigma_position_mm * 1e-3;
+  o.sigma_orientation_rad = degToRad(a.sigma_orientation_deg);
+  o.seed = a.seed;
+  const Eigen::Matrix<double, 6, 1> b = m.nominal.segment<6>(m.baseParam(FrameParam::kX));
+  std::string tracker_from;
+  if (!a.tracker_mm.empty() || !b.isZero(0.0)) {
+    TrackerSetup t;
+    if (!a.tracker_mm.empty()) {
+      const auto v = parseNumbers(a.tracker_mm, 3, "--tracker-mm", "X,Y,Z in mm");
+      t.position_in_base_m = Eigen::Vector3d(v[0], v[1], v[2]) * 1e-3;
+      tracker_from = "--tracker-mm";
+    } else {
+      t.position_in_base_m = poseFromXyzRpy(b[0], b[1], b[2], b[3], b[4], b[5]).inverse().translation();
+      tracker_from = "the registration's tracker frame origin";
+    }
+    if (!a.range_mm.empty()) {
+      const auto r = parseNumbers(a.range_mm, 2, "--range-mm", "MIN,MAX in mm");
+      if (!(r[0] >= 0 && r[1] > r[0])) throw ConfigError("--range-mm " + a.range_mm + ": expected 0 <= MIN < MAX");
+      t.min_range_m = r[0] * 1e-3;
+      t.max_range_m = r[1] * 1e-3;
+    }
+    t.link_radius_m = a.link_radius_mm * 1e-3;
+    t.acceptance_rad = degToRad(a.acceptance_deg);
+    o.tracker = t;
+  } else if (!a.range_mm.empty() || a.acceptance_deg > 0) {
+    throw ConfigError("--range-mm / --acceptance-deg: the tracker's place is not known: give --tracker-mm, or a robot "
+                      "file or cell with its registration");
+  }
+  PosePlan plan;
+  try {
+    plan = planPoses(m, m.nominal, o);
+  } catch (const std::invalid_argument& e) {
+    throw ConfigError(robot_label + ": " + e.what());
+  }
+  if (o.tracker) {
+    const Eigen::Vector3d t = o.tracker->position_in_base_m * 1e3;
+    std::printf("plan poses: %s: tracker at (%.0f, %.0f, %.0f) mm in the base frame (%s), range %.0f-%s mm; %d of %d "
+                "random configurations within the limits can be measured (%d out of range, %d with the beam crossing "
+                "the robot, %d facing away, %d within 200 mm of joint 1's axis)\n",
+                m.name.c_str(), t.x(), t.y(), t.z(), tracker_from.c_str(), o.tracker->min_range_m * 1e3,
+                std::isfinite(o.tracker->max_range_m) ? std::to_string(static_cast<int>(o.tracker->max_range_m * 1e3)).c_str() : "inf",
+                plan.feasible, plan.drawn, plan.out_of_range, plan.occluded, plan.facing_away, plan.near_axis);
+  } else {
+    std::printf("plan poses: %s: no tracker placement (no registration, no --tracker-mm): %d of %d random configurations "
+                "within the limits, range and line of sight not checked\n", m.name.c_str(), plan.feasible, plan.drawn);
+  }
+  std::printf("  %d chosen to minimise the predicted position error over them (%s, %d greedy choices exchanged "
+              "afterwards), beside %d at random:\n",
+              a.count, o.kind == MeasurementKind::kPose6D ? "6D" : "points", plan.exchanges, a.count);
+  std::printf("  %-44s %12s %12s\n", "observability (larger is better)", "chosen", "random");
+  const std::pair<const char*, double ObservabilityIndices::*> rows[] = {
+      {"O1 (Borm and Menq)", &ObservabilityIndices::O1}, {"O2 (inverse condition number)", &ObservabilityIndices::O2},
+      {"O3 (smallest singular value)", &ObservabilityIndices::O3}, {"O4 (noise amplification)", &ObservabilityIndices::O4}};
+  for (const auto& [name, field] : rows) std::printf("  %-44s %12.4g %12.4g\n", name, plan.chosen.*field, plan.random.*field);
+  std::printf("  %-44s %9.4f mm %9.4f mm\n", "predicted position error (1 sigma, RMS)", plan.chosen_predicted_rms_m * 1e3,
+              plan.random_predicted_rms_m * 1e3);
+  std::vector<std::string> names;
+  std::vector<ProgramRow> program;
+  for (size_t k = 0; k < plan.chosen_q.size(); ++k) names.push_back("C" + std::to_string(k + 1));
+  for (size_t k = 0; k < plan.chosen_q.size(); ++k) program.push_back({&plan.chosen_q[k], names[k], 0});
+  writeProgram(a.out,
+               std::to_string(a.count) + " configurations of " + robot_label + " to measure (cellcal plan poses), in the "
+               "order chosen; predicted position error after them " + std::to_string(plan.chosen_predicted_rms_m * 1e3) + " mm",
+               m.numJoints(), program);
+  std::printf("  -> %s\n", a.out.c_str());
+  if (!a.json.empty()) {
+    auto indices = [](const ObservabilityIndices& i) { return nlohmann::json{{"O1", i.O1}, {"O2", i.O2}, {"O3", i.O3}, {"O4", i.O4}}; };
+    nlohmann::json qs = nlohmann::json::array();
+    for (const auto& q : plan.chosen_q) {
+      std::vector<double> deg;
+      for (int j = 0; j < q.size(); ++j) deg.push_back(radToDeg(q[j]));
+      qs.push_back(deg);
+    }
+    const nlohmann::json j = {{"robot", robot_label},
+                              {"count", a.count},
+                              {"measurement", a.measurement},
+                              {"candidates", plan.drawn},
+                              {"feasible", plan.feasible},
+                              {"chosen", {{"joints_deg", qs}, {"indices", indices(plan.chosen)},
+                                          {"predicted_rms_mm", plan.chosen_predicted_rms_m * 1e3}}},
+                              {"random", {{"indices", indices(plan.random)}, {"predicted_rms_mm", plan.random_predicted_rms_m * 1e3}}},
+                              {"program", a.out}};
+    std::ofstream(a.json) << j.dump(2) << "\n";
+  }
+  return 0;
+}
+
 }  // namespace
 
 Runner addPlanCommand(CLI::App& app) {
-  CLI::App* plan = app.add_subcommand("plan", "What to measure: the ISO 9283 test program");
+  CLI::App* plan = app.add_subcommand("plan", "What to measure: the ISO 9283 test program, informative calibration poses");
   plan->require_subcommand(1);
   const Runner iso = addCommand(*plan, "iso9283", addIsoOptions, runPlanIso);
-  return [plan, iso]() -> int {
+  const Runner poses = addCommand(*plan, "poses", addPosesOptions, runPlanPoses);
+  return [plan, iso, poses]() -> int {
     if (plan->got_subcommand("iso9283")) return iso();
+    if (plan->got_subcommand("poses")) return poses();
     return 2;
   };
 }
