@@ -42,6 +42,7 @@ bench: build
 	$(BUILD_DIR)/bin/cellcal_bench
 	$(BUILD_DIR)/bin/cellcal_ik_sweep --seeds 5000
 	bash tools/bench/diagnose_speed.sh $(BUILD_DIR)
+	bash tools/bench/hot_path.sh $(BUILD_DIR) 20
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
 	bash tools/bench/foxglove_bench.sh $(BUILD_DIR) 20
 	bash tools/bench/engine_saturation.sh $(BUILD_DIR) 10

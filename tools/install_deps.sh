@@ -17,6 +17,7 @@ PACKAGES=(
   cyclonedds-dev cyclonedds-tools   # tests/interop (a Cyclone DDS peer from cellcal's IDL)
   fastdds-tools iproute2            # tests/netns: the Discovery Server (fastdds discovery), network namespaces (ip)
   gnuplot-nox
+  python3                           # make bench: tools/bench/*.sh read bench-cell's --json
   clang libclang-rt-14-dev          # tools/fuzz.sh (libFuzzer + sanitizers)
 )
 

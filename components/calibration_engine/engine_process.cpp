@@ -70,8 +70,9 @@ EngineProcess::EngineProcess(const Options& options)
 }
 
 void EngineProcess::publishState(EngineHost::Robot& r) {
-  auto m = toCalibrationState(*r.robot, r.engine->snapshot(), wallNs(), ++published_[r.robot->robot_id].state_seq);
-  state_writer_.write(m);
+  Published& p = published_[r.robot->robot_id];
+  fillCalibrationState(*r.robot, r.engine->snapshot(), wallNs(), ++p.state_seq, p.state);
+  state_writer_.write(p.state);
 }
 
 // Per stream: nothing received for engine.stale_input_s, or no writer left (a killed adapter is unmatched when its
@@ -193,7 +194,7 @@ void EngineProcess::stopAndReport() {
                   {"health", healthName(snap.health)},
                   {"recent_nis_per_row", snap.recent_nis_per_row},
                   {"drift_alarm", snap.drift_alarm},
-                  {"condition_number", snap.condition_number},
+                  {"condition_number", r.engine->conditionNumber()},
                   {"health_reason", snap.health_reason},
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
                   {"persist_failures", r.persist_failures},

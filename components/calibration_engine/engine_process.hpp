@@ -56,6 +56,9 @@ class EngineProcess {
   struct Published {  // per robot: the sequence numbers of what it published, the last warnings printed
     std::uint64_t state_seq = 0, diag_seq = 0;
     std::string reported;
+    // The robot's CalibrationState sample, filled again for every publish (fillCalibrationState: no construction,
+    // the names kept).
+    msg::CalibrationState state;
   };
   void onUpdate(EngineHost::Robot& r);
   void publishState(EngineHost::Robot& r);

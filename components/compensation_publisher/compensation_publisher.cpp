@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <ctime>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -18,8 +20,13 @@ CompensationPublisher::CompensationPublisher(const Options& options)
     : options_(options),
       cell_(loadCell(options.process)),
       node_(cell_, "cellcal_compensation_publisher", identity::kCompensationPublisher),
-      writer_(node_.writer<msg::CompensatedTarget>()) {
-  for (const auto& r : cell_.robots) robots_[r.robot_id].robot = &r;
+      writer_(node_.writer<msg::CompensatedTarget>()),
+      servo_writer_(node_.writer<msg::ServoCorrection>()),
+      engine_writers_(node_.matchedWritersCount<msg::CalibrationState>()) {
+  for (const auto& r : cell_.robots) {
+    robots_[r.robot_id].robot = &r;
+    robots_[r.robot_id].servo.emplace(r.model, cell_.compensation, cell_.compensation.blend_s);
+  }
   if (!options_.ros_pose_topic.empty()) {
     for (auto& [id, r] : robots_) {
       const std::string ros_name = robots_.size() == 1 ? options_.ros_pose_topic : options_.ros_pose_topic + "/" + id;
@@ -38,6 +45,7 @@ CompensationPublisher::CompensationPublisher(const Options& options)
       [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
   waitForCalibrations();
   node_.reader<msg::TargetPose>([this](const msg::TargetPose& t, const fdds::SampleInfo&) { onTarget(t); });
+  node_.reader<msg::ServoSetpoint>([this](const msg::ServoSetpoint& sp, const fdds::SampleInfo&) { onServoSetpoint(sp); });
   std::cerr << "compensation_publisher: " << robots_.size() << " robot(s), bound "
             << cell_.compensation.max_correction_m * 1e3 << " mm / " << cell_.compensation.max_correction_rad * 180 / kPi
             << " deg, domain " << node_.domainId() << "\n";
@@ -71,8 +79,13 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
   }
   if (c->health == msg::HEALTH_OK && r.calibration && r.calibration->health != msg::HEALTH_OK)
     std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " is ok again: applying it\n";
-  if (c->health == msg::HEALTH_OK) r.last_ok = *c;
+  if (c->health == msg::HEALTH_OK) {
+    r.last_ok = *c;
+    r.applied_model = IdentifiedModel{c->params, c->extensions, c->extension_params, c->estimated, c->covariance};
+    r.servo->setCalibration(c->version, *r.applied_model);
+  }
   r.calibration = std::move(c);
+  refreshNote(r);
   if (r.description && r.last_ok &&
       (r.last_ok->version != r.description->version || r.last_ok->last_measurement_stamp_ns != r.description->stamp_ns))
     publishDescription(it->first, r);
@@ -157,7 +170,25 @@ void CompensationPublisher::onDiagnostics(const msg::CalibrationDiagnostics& d) 
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = robots_.find(d.robot_id().to_string());
   if (it == robots_.end()) return;
-  it->second.engine_warning = d.stale_inputs().size() == 0 ? "" : "engine input stale: " + d.stale_inputs().to_string();
+  std::string warning = d.stale_inputs().size() == 0 ? "" : "engine input stale: " + d.stale_inputs().to_string();
+  if (warning == it->second.engine_warning) return;
+  it->second.engine_warning = std::move(warning);
+  refreshNote(it->second);
+}
+
+// Said in `reason` even when applied: what the operator should know about the calibration used.
+void CompensationPublisher::refreshNote(Robot& r) {
+  r.note.clear();
+  if (!r.last_ok || !r.calibration) return;
+  const std::string use = "v" + std::to_string(r.last_ok->version);
+  if (r.calibration->health != msg::HEALTH_OK)
+    r.note = "applying " + use + ": the engine's v" + std::to_string(r.calibration->version) + " is " +
+             healthText(r.calibration->health);
+  if (!r.engine_warning.empty()) r.note += (r.note.empty() ? "" : "; ") + r.engine_warning;
+  // The engine gone (killed, its host down): its participant's lease expired, no CalibrationState writer is left.
+  if (r.engine_gone)
+    r.note += (r.note.empty() ? "" : "; ") + std::string("engine not seen (no CalibrationState writer): applying ") + use +
+              ", the last ok calibration it published";
 }
 
 // Targets are taken only once every robot's calibration is here (TRANSIENT_LOCAL delivers the latest at once on
@@ -176,12 +207,104 @@ void CompensationPublisher::waitForCalibrations() {
   }
 }
 
+namespace {
+double threadCpuUs() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+}
+}  // namespace
+
+void CompensationPublisher::CpuHistogram::add(double us) {
+  ++bins[std::min(bins.size() - 1, static_cast<size_t>(std::max(0.0, us)))];
+  sum_us += us;
+  max_us = std::max(max_us, us);
+  ++n;
+}
+
+nlohmann::json CompensationPublisher::CpuHistogram::json() const {
+  auto quantile = [&](double p) {
+    const auto want = static_cast<std::uint64_t>(std::ceil(p * static_cast<double>(n)));
+    std::uint64_t seen = 0;
+    for (size_t b = 0; b < bins.size(); ++b)
+      if ((seen += bins[b]) >= want && want > 0) return static_cast<double>(b) + 0.5;
+    return 0.0;
+  };
+  return {{"samples", n}, {"mean", n ? sum_us / static_cast<double>(n) : 0.0}, {"p50", quantile(0.5)},
+          {"p99", quantile(0.99)}, {"max", max_us}};
+}
+
 void CompensationPublisher::onTarget(const msg::TargetPose& t) {
+  const double cpu0_us = threadCpuUs();
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = robots_.find(t.robot_id().to_string());
   if (it == robots_.end()) return;
+  answer(t, it->second);
+  target_cpu_.add(threadCpuUs() - cpu0_us);
+}
+
+// A servo loop's setpoint: answered at once (best effort, keep last 1 both ways: an older setpoint than the last
+// answered is dropped, and the writer never waits for a reader), blended between calibration versions on the
+// setpoints' own stamps.
+void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
+  const double cpu0_us = threadCpuUs();
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = robots_.find(sp.robot_id().to_string());
+  if (it == robots_.end()) return;
   Robot& r = it->second;
-  msg::CompensatedTarget out;
+  if (sp.sequence_number() <= r.servo_last_sequence) {
+    ++servo_out_of_order_;
+    return;
+  }
+  r.servo_last_sequence = sp.sequence_number();
+  if (const bool gone = engine_writers_.load(std::memory_order_relaxed) == 0; gone != r.engine_gone) {
+    r.engine_gone = gone;
+    refreshNote(r);
+  }
+  const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(sp.joint_position_rad().data(),
+                                                              static_cast<Eigen::Index>(sp.joint_position_rad().size()));
+  const auto stamp = static_cast<std::int64_t>(sp.cycle_stamp_ns());
+  ServoAnswer a;
+  bool finite = true;
+  for (double v : sp.position_m()) finite = finite && std::isfinite(v);
+  for (double v : sp.orientation_xyzw()) finite = finite && std::isfinite(v);
+  const auto& o = sp.orientation_xyzw();
+  if (sp.cartesian() && (!finite || std::abs(std::sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + o[3] * o[3]) - 1.0) > 1e-6)) {
+    a.q_rad = q;
+    a.reason = "setpoint rejected: non-finite position or non-unit quaternion";
+  } else {
+    a = sp.cartesian() ? r.servo->answerPose(stamp, toPose(sp.position_m(), sp.orientation_xyzw()), q)
+                       : r.servo->answerJoints(stamp, q);
+  }
+  msg::ServoCorrection& out = servo_out_;
+  out.robot_id(sp.robot_id());
+  out.cycle_stamp_ns(sp.cycle_stamp_ns());
+  out.sequence_number(++r.servo_seq);
+  out.setpoint_sequence(sp.sequence_number());
+  out.applied(a.applied);
+  out.joint_position_rad().assign(a.q_rad.data(), a.q_rad.data() + a.q_rad.size());
+  if (a.applied || !sp.cartesian()) {
+    fromPose(a.commanded, out.position_m(), out.orientation_xyzw());
+  } else {
+    out.position_m(sp.position_m());
+    out.orientation_xyzw(sp.orientation_xyzw());
+  }
+  out.calibration_version(a.version);
+  out.blend_from_version(a.from_version);
+  out.blend_weight(a.weight);
+  if (a.reason.empty() && r.note.empty()) out.reason("");
+  else out.reason((a.reason.empty() ? r.note : r.note.empty() ? a.reason : a.reason + "; " + r.note).substr(0, 127));
+  out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
+  servo_writer_.write(out);
+  ++servo_answered_;
+  if (a.applied) ++servo_applied_;
+  servo_cpu_.add(threadCpuUs() - cpu0_us);
+}
+
+// Per target only what depends on the target: the model was prepared when its version arrived, the note when the
+// state changed; the samples are reused.
+void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
+  msg::CompensatedTarget& out = out_;
   out.robot_id(t.robot_id());
   out.sequence_number(++r.seq);
   out.target_sequence(t.sequence_number());
@@ -189,8 +312,17 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
   out.desired_orientation_xyzw(t.orientation_xyzw());
   out.corrected_position_m(t.position_m());
   out.corrected_orientation_xyzw(t.orientation_xyzw());
+  out.joint_position_rad().clear();
+  out.correction_position_m(0);
+  out.correction_orientation_rad(0);
+  out.calibration_version(0);
   out.applied(false);
   out.clamped(false);
+  out.reason("");
+  if (const bool gone = engine_writers_.load(std::memory_order_relaxed) == 0; gone != r.engine_gone) {
+    r.engine_gone = gone;
+    refreshNote(r);
+  }
   bool finite = true;
   for (double v : t.position_m()) finite = finite && std::isfinite(v);
   for (double v : t.orientation_xyzw()) finite = finite && std::isfinite(v);
@@ -205,41 +337,31 @@ void CompensationPublisher::onTarget(const msg::TargetPose& t) {
     out.reason("calibration v" + std::to_string(r.calibration->version) + " is " + healthText(r.calibration->health) +
                " and no earlier one was ok");
   } else {
-    const ReceivedCalibration& use = *r.last_ok;
-    out.calibration_version(use.version);
-    // Said in `reason` even when applied: what the operator should know about the calibration used.
-    std::string note;
-    if (r.calibration->health != msg::HEALTH_OK)
-      note = "applying v" + std::to_string(use.version) + ": the engine's v" + std::to_string(r.calibration->version) +
-             " is " + healthText(r.calibration->health);
-    if (!r.engine_warning.empty()) note += (note.empty() ? "" : "; ") + r.engine_warning;
-    // The engine gone (killed, its host down): its participant's lease expired, no CalibrationState writer is left.
-    if (node_.matchedWriters<msg::CalibrationState>() == 0)
-      note += (note.empty() ? "" : "; ") + std::string("engine not seen (no CalibrationState writer): applying v") +
-              std::to_string(use.version) + ", the last ok calibration it published";
+    out.calibration_version(r.last_ok->version);
     Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
                                                              static_cast<Eigen::Index>(t.seed_position_rad().size()));
     if (seed.size() == 0 && !r.path.empty()) seed = r.path.back();
     // With model extensions, backlash's play is that of the path through the previous compensated targets.
-    const IdentifiedModel identified{use.params, use.extensions, use.extension_params, use.estimated, use.covariance};
-    const CompensationResult c = compensate(r.robot->model, identified, toPose(t.position_m(), t.orientation_xyzw()),
-                                            seed, cell_.compensation, r.path);
+    const CompensationResult c = compensate(r.robot->model, *r.applied_model,
+                                            toPose(t.position_m(), t.orientation_xyzw()), seed, cell_.compensation, r.path);
+    ++outcomes_[static_cast<size_t>(c.outcome)];
     out.applied(c.applied);
     out.clamped(c.clamped);
-    out.reason((c.reason.empty() ? note : note.empty() ? c.reason : c.reason + "; " + note).substr(0, 255));
+    if (!c.reason.empty() || !r.note.empty())
+      out.reason((c.reason.empty() ? r.note : r.note.empty() ? c.reason : c.reason + "; " + r.note).substr(0, 255));
     out.correction_position_m(c.correction_position_m);
     out.correction_orientation_rad(c.correction_orientation_rad);
     if (c.applied) {
       fromPose(c.corrected_in_tracker, out.corrected_position_m(), out.corrected_orientation_xyzw());
-      out.joint_position_rad(std::vector<double>(c.q_rad.data(), c.q_rad.data() + c.q_rad.size()));
+      out.joint_position_rad().assign(c.q_rad.data(), c.q_rad.data() + c.q_rad.size());
+      if (r.path.size() >= static_cast<size_t>(kPlayHistory)) r.path.erase(r.path.begin());
       r.path.push_back(c.q_rad);
-      if (r.path.size() > static_cast<size_t>(kPlayHistory)) r.path.erase(r.path.begin());
     }
   }
   out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
   writer_.write(out);
   if (r.ros_pose && out.applied()) {
-    geometry_msgs::msg::dds_::PoseStamped_ ps;
+    geometry_msgs::msg::dds_::PoseStamped_& ps = ros_sample_;
     const std::uint64_t stamp = t.source_stamp_ns() > 0 ? t.source_stamp_ns() : out.source_stamp_ns();
     ps.header().stamp().sec(static_cast<std::int32_t>(stamp / 1000000000ULL));
     ps.header().stamp().nanosec(static_cast<std::uint32_t>(stamp % 1000000000ULL));
@@ -270,13 +392,20 @@ int CompensationPublisher::run() {
       descriptions[id] = {{"published", r.description->published}, {"failed", r.description->failed},
                           {"last_version", r.description->version}};
   }
+  nlohmann::json outcomes = nlohmann::json::object();
+  for (int k = 0; k < kNumCompensationOutcomes; ++k)
+    if (outcomes_[static_cast<size_t>(k)] > 0)
+      outcomes[outcomeName(static_cast<CompensationOutcome>(k))] = outcomes_[static_cast<size_t>(k)];
   writeJsonFile(options_.process.stats_json,
                 {{"name", "compensation_publisher"},
                  {"pid", ::getpid()},
                  {"topics", node_.stats()},
                  {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
                             {"bad_calibration_states", bad_states_}, {"calibration_versions", versions},
-                            {"descriptions", descriptions}}}});
+                            {"descriptions", descriptions}, {"outcomes", outcomes},
+                            {"target_cpu_us", target_cpu_.json()},
+                            {"servo", {{"answered", servo_answered_}, {"applied", servo_applied_},
+                                       {"out_of_order", servo_out_of_order_}, {"cpu_us", servo_cpu_.json()}}}}}});
   std::cerr << "compensation_publisher: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
             << "): " << applied_ << " targets corrected, " << refused_ << " passed through uncorrected (" << clamped_
             << " clamped)\n";

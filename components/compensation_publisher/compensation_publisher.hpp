@@ -19,12 +19,21 @@
 // tool_in_flange) is where the calibrated tool frame's change is measured from, so the exported tip is the robot's
 // (core/files/urdf.hpp exportUrdf). Model extensions are not carried (said once).
 //
+// A servo loop streams setpoints on cellcal/servo_setpoint (one per controller cycle; joints, or a pose with a seed)
+// and reads each answer on cellcal/servo_correction (best effort, keep last 1 both ways: an older setpoint than the
+// last answered is dropped, and the writer never waits for a slow reader). A new ok calibration is blended in over
+// compensation.blend_s of the setpoints' own stamps (core/engine/servo.hpp), so no cycle steps.
+// Per target and setpoint only what depends on it: the model is prepared when its version arrives, the note for the
+// operator when the state changes, the samples are reused; --stats-json has each callback's CPU time and the outcomes.
+//
 // Lifetime: the constructor joins the domain, creates the writer and the calibration readers, waits for every
 // robot's calibration (at most --wait-for-calibration-s), then takes targets; run() returns on SIGINT/SIGTERM or after
 // the duration, having left the domain and written --stats-json.
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <mutex>
@@ -35,6 +44,8 @@
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/core/engine/compensation.hpp"
+#include "cellcal/core/engine/servo.hpp"
 #include "cellcal/core/files/urdf.hpp"
 
 namespace cellcal::components {
@@ -70,23 +81,51 @@ class CompensationPublisher {
     std::vector<Eigen::VectorXd> path;
     std::uint64_t seq = 0;
     std::string engine_warning;                      // from the engine's diagnostics: stale inputs
+    // Prepared once per ok calibration version (what every target is solved with), and the note said with every
+    // answer, rebuilt only when the health, the engine's warning or its presence changes.
+    std::optional<IdentifiedModel> applied_model;
+    std::string note;
+    bool engine_gone = false;
+    // cellcal/servo_setpoint: the stream's compensator (blends between versions) and the last setpoint answered.
+    std::optional<ServoCompensator> servo;
+    std::uint64_t servo_last_sequence = 0, servo_seq = 0;
     std::optional<Writer<geometry_msgs::msg::dds_::PoseStamped_>> ros_pose;  // --ros-pose-topic
     std::optional<Description> description;                                // --ros-description-topic
   };
   void onCalibrationState(const msg::CalibrationState& m);
   void onDiagnostics(const msg::CalibrationDiagnostics& d);
   void onTarget(const msg::TargetPose& t);
+  void onServoSetpoint(const msg::ServoSetpoint& sp);
   void openDescription(const std::string& id, Robot& r);
   void publishDescription(const std::string& id, Robot& r);
   void waitForCalibrations();
+  void refreshNote(Robot& r);
+  // The answer to one target in out_ (reused: fastddsgen's constructors re-register the IDL's types, tens of us).
+  void answer(const msg::TargetPose& t, Robot& r);
 
   Options options_;
   CellConfig cell_;
   std::mutex mutex_;  // robots_ and the counters, between the readers
   std::map<std::string, Robot> robots_;
   std::uint64_t applied_ = 0, refused_ = 0, clamped_ = 0, bad_states_ = 0;
+  std::array<std::uint64_t, kNumCompensationOutcomes> outcomes_{};  // targets the compensation answered, per outcome
+  // The CPU time of a callback (take to write) per sample: a histogram of 1 us bins to 10 ms.
+  struct CpuHistogram {
+    std::vector<std::uint32_t> bins = std::vector<std::uint32_t>(10001, 0);
+    double sum_us = 0, max_us = 0;
+    std::uint64_t n = 0;
+    void add(double us);
+    nlohmann::json json() const;  // {"samples", "mean", "p50", "p99", "max"} in us
+  };
+  CpuHistogram target_cpu_, servo_cpu_;
+  std::uint64_t servo_answered_ = 0, servo_applied_ = 0, servo_out_of_order_ = 0;
   DdsNode node_;
   Writer<msg::CompensatedTarget> writer_;
+  Writer<msg::ServoCorrection> servo_writer_;
+  const std::atomic<int>& engine_writers_;  // CalibrationState writers matched: 0 when the engine is gone
+  msg::CompensatedTarget out_;
+  msg::ServoCorrection servo_out_;
+  geometry_msgs::msg::dds_::PoseStamped_ ros_sample_;
 };
 
 }  // namespace cellcal::components

@@ -284,6 +284,102 @@ TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   EXPECT_GT(first.correction_position_m(), 1e-5);  // the hidden errors are corrected
 }
 
+// A servo loop streams joint setpoints at 500 Hz (the robot holding one configuration, so each answer's change from
+// the last is the blending alone) while the engine's campaign makes new versions: every answer comes in order
+// (setpoint_sequence rising), most setpoints are answered (best effort), the versions named rise, and between two
+// answers the commanded joints move by no more than the blend allows: the range they cover over the run times the
+// cycles between the two over blend_s (0.5 s here) -- where a switch at once would step by the whole change. A second
+// reader of the corrections that sleeps 20 ms in each callback does not hold the stream up.
+TEST(CellProcesses, AServoStreamIsAnsweredInOrderAndBlendsBetweenVersions) {
+  const std::string dir = testDir();
+  const int domain = domainForTest();
+  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}},
+                                    "  initial_poses: 30\n  groups: 1\n", "compensation:\n  blend_s: 0.5\n");
+  const CellConfig cell = loadCellConfig(cfg);
+  ASSERT_EQ(cell.compensation.blend_s, 0.5);
+  Probe probe(cell);
+  struct Answer {
+    std::uint64_t sequence, cycle_ns, version, from;
+    double weight;
+    bool applied;
+    Eigen::VectorXd q;
+  };
+  std::mutex mutex;
+  std::vector<Answer> answers;
+  probe.node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection& c, const components::fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    answers.push_back({c.setpoint_sequence(), c.cycle_stamp_ns(), c.calibration_version(), c.blend_from_version(),
+                       c.blend_weight(), c.applied(),
+                       Eigen::Map<const Eigen::VectorXd>(c.joint_position_rad().data(),
+                                                         static_cast<Eigen::Index>(c.joint_position_rad().size()))});
+  });
+  components::DdsNode slow_node(cell, "cellcal_test_slow_reader", components::identity::kObserver);
+  std::atomic<int> slow{0};
+  slow_node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection&, const components::fdds::SampleInfo&) {
+    ++slow;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  });
+  Process comp(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg, "--wait-for-calibration-s", "0"});
+  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
+  Process tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg});
+  Process joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--wait-for-readers", "1"});
+  auto setpoints = probe.node.writer<msg::ServoSetpoint>();
+  const RobotModel& m = cell.robots[0].model;
+  const Eigen::VectorXd q = Eigen::VectorXd::Constant(m.numJoints(), 0.3);
+  msg::ServoSetpoint sp;
+  sp.robot_id("tx60");
+  sp.cartesian(false);
+  sp.joint_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+  // Stream until the campaign's last version has been blended in (the campaign ends after ~1.3 s; then nothing new
+  // for 2 s), at most 30 s.
+  const std::int64_t dt_ns = 2'000'000;
+  std::uint64_t seq = 0, last_version = 0;
+  auto next = std::chrono::steady_clock::now();
+  auto last_new = next;
+  const auto give_up = next + std::chrono::seconds(30);
+  while (std::chrono::steady_clock::now() < give_up) {
+    sp.sequence_number(++seq);
+    sp.cycle_stamp_ns(1'000'000'000ULL + seq * dt_ns);
+    sp.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
+    setpoints.write(sp);
+    const std::uint64_t v = probe.latestVersion("tx60");
+    if (v != last_version) last_version = v, last_new = std::chrono::steady_clock::now();
+    if (last_version >= 20 && std::chrono::steady_clock::now() - last_new > std::chrono::seconds(2)) break;
+    std::this_thread::sleep_until(next += std::chrono::nanoseconds(dt_ns));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  std::lock_guard<std::mutex> l(mutex);
+  ASSERT_GE(last_version, 20u) << engine.log();
+  ASSERT_FALSE(answers.empty()) << comp.log();
+  std::vector<Answer> applied;
+  for (size_t k = 0; k < answers.size(); ++k) {
+    if (k > 0) {
+      EXPECT_GT(answers[k].sequence, answers[k - 1].sequence) << "out of order at " << k;
+      EXPECT_GE(answers[k].version, answers[k - 1].version);
+    }
+    EXPECT_GE(answers[k].weight, 0.0);
+    EXPECT_LE(answers[k].weight, 1.0);
+    if (answers[k].applied) applied.push_back(answers[k]);
+  }
+  ASSERT_GT(applied.size(), 100u) << comp.log();
+  double range = 0, worst = 0;
+  for (const auto& a : applied) range = std::max(range, (a.q - applied.front().q).cwiseAbs().maxCoeff());
+  for (size_t k = 1; k < applied.size(); ++k) {
+    const double cycles = static_cast<double>(applied[k].cycle_ns - applied[k - 1].cycle_ns) / dt_ns;
+    worst = std::max(worst, (applied[k].q - applied[k - 1].q).cwiseAbs().maxCoeff() / cycles);
+  }
+  const double allowed = 2 * range * dt_ns * 1e-9 / cell.compensation.blend_s;  // two blends' worth, per cycle
+  std::printf("  %llu setpoints, %zu answered (%zu applied), versions up to %llu; joints moved over %.3g rad, at most "
+              "%.3g rad a cycle (the blend allows %.3g); the slow reader took %d\n",
+              static_cast<unsigned long long>(seq), answers.size(), applied.size(),
+              static_cast<unsigned long long>(answers.back().version), range, worst, allowed, slow.load());
+  EXPECT_GE(answers.size(), seq / 2) << "best effort on loopback: most setpoints answered";
+  EXPECT_GT(range, 1e-5) << "the versions changed the correction";
+  EXPECT_LE(worst, allowed);
+  EXPECT_EQ(answers.back().version, answers.back().from) << "the last blend finished";
+  EXPECT_LT(slow.load() * 5, static_cast<int>(answers.size())) << "the slow reader got as many as the fast one";
+}
+
 // The tracker adapter is SIGKILLed at a random moment: the engine's diagnostics name the stale stream within
 // stale_input_s (3 s) + one republish period, and the compensation publisher keeps applying the last good
 // calibration, saying in each answer that the engine's input is stale.

@@ -53,6 +53,48 @@ TEST_F(Convert, CalibrationStateCarriesTheCovariance) {
       << error;
 }
 
+// The engine fills one sample per robot again for every publish: whatever the sample held before (another robot's
+// state, other extensions, more correlations), it serializes to the bytes of a fresh toCalibrationState.
+TEST_F(Convert, AReusedCalibrationStateSampleIsAFreshOne) {
+  auto bytes = [](cellcal::msg::CalibrationState& m) {
+    cellcal::msg::CalibrationStatePubSubType type;
+    eprosima::fastrtps::rtps::SerializedPayload_t payload(type.getSerializedSizeProvider(&m)());
+    EXPECT_TRUE(type.serialize(&m, &payload));
+    return std::vector<unsigned char>(payload.data, payload.data + payload.length);
+  };
+  auto snapshot = [&](std::vector<cellcal::Extension> ext, int estimated) {
+    cellcal::CalibrationSnapshot s;
+    s.version = static_cast<std::uint64_t>(estimated);
+    s.params = m.nominal + 1e-4 * Eigen::VectorXd::Random(m.numParams());
+    for (int i = 0; i < estimated; ++i) s.estimated.push_back(i);
+    s.extensions = std::move(ext);
+    s.extension_params = 1e-5 * Eigen::VectorXd::Random(cellcal::numExtensionParams(m, s.extensions));
+    for (int e = 0; e < s.extension_params.size(); e += 2) s.estimated_extension.push_back(e);
+    const auto n = static_cast<Eigen::Index>(s.estimated.size() + s.estimated_extension.size());
+    const Eigen::MatrixXd A = Eigen::MatrixXd::Random(n, n);
+    s.covariance = 1e-8 * (A * A.transpose() + 0.1 * Eigen::MatrixXd::Identity(n, n));
+    return s;
+  };
+  cellcal::CellRobot other = robot;
+  other.robot_id = "another_robot";
+  const std::vector<std::pair<const cellcal::CellRobot*, cellcal::CalibrationSnapshot>> sequence = {
+      {&robot, snapshot({{cellcal::Cause::kCyclicTransmission, 2}}, 12)},
+      {&robot, snapshot({{cellcal::Cause::kCyclicTransmission, 2}}, 5)},  // fewer correlations
+      {&robot, snapshot({}, 20)},                                          // extensions dropped
+      {&other, snapshot({}, 20)},                                          // another robot, the same names
+      {&robot, snapshot({{cellcal::Cause::kJointCompliance, 1}, {cellcal::Cause::kCyclicTransmission, 3}}, 8)},
+      {&robot, snapshot({{cellcal::Cause::kCyclicTransmission, 3}, {cellcal::Cause::kJointCompliance, 1}}, 8)},
+  };
+  cellcal::msg::CalibrationState reused;
+  std::uint64_t seq = 0;
+  for (const auto& [r, s] : sequence) {
+    ++seq;
+    cellcal::components::fillCalibrationState(*r, s, 7, seq, reused);
+    auto fresh = cellcal::components::toCalibrationState(*r, s, 7, seq);
+    EXPECT_EQ(bytes(reused), bytes(fresh)) << "step " << seq;
+  }
+}
+
 TEST_F(Convert, CalibrationStateCarriesModelExtensions) {
   // The engine's snapshot with extensions -> wire -> what the compensation publisher rebuilds: the same model.
   cellcal::CalibrationSnapshot s;

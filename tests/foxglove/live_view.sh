@@ -37,7 +37,7 @@ client=$!
 for _ in $(seq 100); do [ -e "$run/stop.ready" ] && break; sleep 0.1; done
 [ -e "$run/stop.ready" ] || { echo "FAIL: the client did not subscribe"; exit 1; }
 
-"$bin_dir/cellcal" cell --duration-s 15 --domain-id $domain --work-dir "$run/cell" --record "$run/cell.mcap" \
+"$bin_dir/cellcal" cell --duration-s 15 --servo --domain-id $domain --work-dir "$run/cell" --record "$run/cell.mcap" \
   --summary-json "$run/cell.json" > "$run/cell.out" 2>&1 &
 cell=$!
 pids+=($cell)

@@ -8,6 +8,7 @@
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/engine/state_file.hpp"
 #include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/files/cell_config.hpp"
@@ -133,6 +134,32 @@ void BM_InverseKinematics(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_InverseKinematics)->Unit(benchmark::kMicrosecond);
+
+// One target through the compensation, as the compensation publisher answers it: the identified model (the truth,
+// with the covariance of an RLS estimate over 50 poses for the predicted-error guard) solved from the controller's
+// joints, the nominal model's pose of the answer, the correction and its bound. Beside BM_InverseKinematics: what the
+// compensation adds around the solve (issue #36: within 4x in the process).
+void BM_Compensate(benchmark::State& state) {
+  const auto& f = fx();
+  const RobotModel& m = f.cell.model();
+  const Eigen::VectorXd truth = f.cell.trueParams(0.0);
+  RlsCalibrator rls(m, m.nominal, diagonalPrior(m, m.nominal, m.canonicalParams(), 1e-3, 1.7e-3),
+                    MeasurementKind::kPose6D);
+  for (int k = 0; k < 50; ++k) rls.addObservation(f.obs[static_cast<size_t>(k)]);
+  const IdentifiedModel identified{truth, {}, {}, rls.estimated(), rls.covariance()};
+  std::vector<Pose> targets;
+  for (const auto& o : f.obs) targets.push_back(forwardKinematics(m, m.nominal, o.q_rad));
+  const CompensationSettings settings;
+  size_t i = 0, applied = 0;
+  for (auto _ : state) {
+    const size_t k = i++ % 200;
+    const CompensationResult r = compensate(m, identified, targets[k], f.obs[k].q_rad, settings);
+    applied += r.applied;
+    benchmark::DoNotOptimize(r.q_rad.data());
+  }
+  state.counters["applied"] = static_cast<double>(applied) / static_cast<double>(i);
+}
+BENCHMARK(BM_Compensate)->Unit(benchmark::kMicrosecond);
 
 // `cellcal calibrate` on N poses without knowing where the robot stands: registration of base and tool, then
 // Gauss-Newton over every identifiable parameter, as `cellcal calibrate` does (issue target: 400 poses < 100 ms).

@@ -47,6 +47,8 @@ struct BenchArgs {
   std::string json;
   std::string record;  // MCAP file of a recorder running beside the cell
   std::string series_csv;  // once a second: RSS of the processes, calibration error against the truth
+  std::string dds_profile = "cellcal_loopback";
+  bool servo = false;  // the targets as a servo stream (ServoSetpoint -> ServoCorrection)
 };
 
 void addOptions(CLI::App& cmd, BenchArgs& a) {
@@ -55,6 +57,13 @@ void addOptions(CLI::App& cmd, BenchArgs& a) {
   cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses per second and robot")->check(positive())->capture_default_str();
   cmd.add_option("--duration-s", a.duration_s, "measuring time")->check(positive())->capture_default_str();
   cmd.add_option("--domain-id", a.domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
+  cmd.add_flag("--servo", a.servo,
+               "send the targets as a servo loop's stream instead (cellcal/servo_setpoint, joint setpoints stamped "
+               "with the cycle, best effort; answered on cellcal/servo_correction)");
+  cmd.add_option("--dds-profile", a.dds_profile,
+                 "participant profile of every process (config/dds/cellcal_qos.xml): cellcal_loopback (UDP on "
+                 "127.0.0.1), cellcal_loopback_shm (shared memory first)")
+      ->capture_default_str();
   cmd.add_option("--seed", a.seed, "seed of the simulated robots (hidden errors), their poses and the tracker noise")
       ->capture_default_str();
   cmd.add_option("--json", a.json, "write the figures as JSON")->check(outputFile());
@@ -96,7 +105,7 @@ std::string writeBenchCellFile(const fs::path& dir, const BenchArgs& a) {
   const std::string cfg = (dir / "cell.yaml").string();
   std::ofstream y(cfg);
   y << "dds: { domain_id: " << a.domain_id << ", profiles_file: " << configDir()
-    << "/dds/cellcal_qos.xml, participant_profile: cellcal_loopback }\nrobots:\n";
+    << "/dds/cellcal_qos.xml, participant_profile: " << a.dds_profile << " }\nrobots:\n";
   for (int i = 0; i < a.robots; ++i)
     y << "  - { robot_id: r" << i << ", target_id: t" << i << ", robot_file: " << configDir()
       << "/robots/staubli_tx60.yaml, base_in_tracker: { x_mm: 2200, y_mm: " << 400 + 1500 * i
@@ -218,6 +227,7 @@ void waitForReaders(const std::vector<fdds::DataWriter*>& writers, int readers, 
 // rate/targets_hz ticks; samples memory and error once a second.
 BenchPlayed play(const BenchArgs& a, const CellConfig& cell, const BenchRobots& robots, BenchReceived& rx,
                  Writer<msg::JointState>& js, Writer<msg::TrackerPose>& tp, Writer<msg::TargetPose>& tg,
+                 Writer<msg::ServoSetpoint>& sv,
                  const BenchProcesses& p) {
   BenchPlayed out;
   std::mt19937_64 rng(a.seed * 1000003ULL + 5);
@@ -260,7 +270,20 @@ BenchPlayed play(const BenchArgs& a, const CellConfig& cell, const BenchRobots& 
       Observation o = robots.sims[i].measure(q, 0.0, rng);
       auto r = toTrackerPose(cell.robots[i].target_id, now, seq, o);
       tp.write(r);
-      if (tick % target_every == static_cast<std::int64_t>(i % target_every)) {
+      if (a.servo && tick % target_every == static_cast<std::int64_t>(i % target_every)) {
+        static thread_local msg::ServoSetpoint sp;  // reused: the generated constructor registers the IDL's types
+        sp.robot_id(cell.robots[i].robot_id);
+        sp.sequence_number(++out.target_seq);
+        sp.cycle_stamp_ns(static_cast<std::uint64_t>(now));
+        sp.source_stamp_ns(static_cast<std::uint64_t>(now));
+        sp.cartesian(false);
+        sp.joint_position_rad().assign(to.data(), to.data() + to.size());
+        {
+          std::lock_guard<std::mutex> l(rx.mutex);
+          rx.target_sent[out.target_seq] = wallNs();
+        }
+        sv.write(sp);
+      } else if (tick % target_every == static_cast<std::int64_t>(i % target_every)) {
         msg::TargetPose t;
         t.robot_id(cell.robots[i].robot_id);
         t.sequence_number(++out.target_seq);
@@ -366,6 +389,10 @@ void reportRecorder(const fs::path& dir, const BenchArgs& a, std::uint64_t publi
 }
 
 int runBench(const BenchArgs& a) {
+  // Targets go out on the streams' ticks: at most one per tick, every rate/targets ticks.
+  if (a.targets_hz > a.rate_hz)
+    throw ConfigError("--targets-hz " + std::to_string(a.targets_hz) + " above --rate-hz " + std::to_string(a.rate_hz) +
+                      ": targets are sent on the streams' ticks (at most one per tick and robot); raise --rate-hz");
   installStopHandlers();
   const fs::path dir = fs::temp_directory_path() / ("cellcal_bench_cell_" + std::to_string(::getpid()));
   fs::create_directories(dir);
@@ -396,7 +423,13 @@ int runBench(const BenchArgs& a) {
     std::lock_guard<std::mutex> l(rx.mutex);
     rx.comps.emplace_back(now, m.target_sequence());
   });
-  waitForReaders({js.entity(), tp.entity(), tg.entity()}, recorder > 0 ? 2 : 1, dir);
+  auto sv = node.writer<msg::ServoSetpoint>();
+  node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    std::lock_guard<std::mutex> l(rx.mutex);
+    rx.comps.emplace_back(now, m.setpoint_sequence());
+  });
+  waitForReaders({js.entity(), tp.entity(), a.servo ? sv.entity() : tg.entity()}, recorder > 0 ? 2 : 1, dir);
 
   const CpuMeter cpu_engine(engine), cpu_comp(comp), cpu_self(::getpid()), cpu_recorder(recorder);
   // Datagrams the kernel drops for a full socket buffer (this network namespace; the processes here dominate it).
@@ -405,7 +438,7 @@ int runBench(const BenchArgs& a) {
   std::printf("bench-cell: %d robots, joint states and tracker readings at %.0f Hz each per robot, targets at %.0f Hz "
               "per robot, %.0f s...\n", a.robots, a.rate_hz, a.targets_hz, a.duration_s);
   std::fflush(stdout);
-  const BenchPlayed played = play(a, cell, robots, rx, js, tp, tg, p);
+  const BenchPlayed played = play(a, cell, robots, rx, js, tp, tg, sv, p);
   const double wall = played.wall_s;
   const auto kernel_drops1 = udpReceiveBufferErrors();
   const auto rmem_max = readKernelLimit("/proc/sys/net/core/rmem_max");
@@ -443,11 +476,30 @@ int runBench(const BenchArgs& a) {
   writeSeriesCsv(a.series_csv, played.series);
   std::printf("                                     p50 us    p99 us   samples\n");
   std::printf("tracker reading -> CalibrationState %8.0f  %8.0f  %8zu\n", percentile(l.state_us, 0.5), percentile(l.state_us, 0.99), l.state_us.size());
-  std::printf("TargetPose -> CompensatedTarget     %8.0f  %8.0f  %8zu\n", percentile(l.comp_us, 0.5), percentile(l.comp_us, 0.99), l.comp_us.size());
+  std::printf("%s %8.0f  %8.0f  %8zu\n", a.servo ? "ServoSetpoint -> ServoCorrection   " : "TargetPose -> CompensatedTarget    ", percentile(l.comp_us, 0.5), percentile(l.comp_us, 0.99), l.comp_us.size());
   std::printf("engine received %llu of %llu joint states and %llu of %llu tracker readings; %llu updates for %llu stand-stills\n",
               static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(l.versions), static_cast<unsigned long long>(played.standstills));
+  // The compensation publisher's own figures: the CPU of a target's callback (take, compensate, write) against the
+  // process's CPU per target (the rest: DDS's receive and event threads, the kernel's UDP path, wake-ups).
+  const auto cs = nlohmann::json::parse(std::ifstream((dir / "comp.json").string()), nullptr, false);
+  if (!cs.is_discarded() && cs["extra"].contains("target_cpu_us")) {
+    const auto& tc = a.servo ? cs["extra"]["servo"]["cpu_us"] : cs["extra"]["target_cpu_us"];
+    const double sent = static_cast<double>(played.target_seq);
+    const double process_us = sent > 0 ? cpu_c * wall / sent * 1e6 : 0.0;
+    const nlohmann::json outcomes = a.servo ? nlohmann::json{{"applied", cs["extra"]["servo"]["applied"]},
+                                                             {"answered", cs["extra"]["servo"]["answered"]},
+                                                             {"out_of_order", cs["extra"]["servo"]["out_of_order"]}}
+                                            : cs["extra"]["outcomes"];
+    std::printf("compensation per %s: callback CPU mean %.1f us, p99 %.0f us, max %.0f us; process CPU %.0f us "
+                "a %s; answered %zu of %llu; outcomes %s\n",
+                a.servo ? "setpoint" : "target", tc.value("mean", 0.0), tc.value("p99", 0.0), tc.value("max", 0.0),
+                process_us, a.servo ? "setpoint" : "target", l.comp_us.size(),
+                static_cast<unsigned long long>(played.target_seq), outcomes.dump().c_str());
+    out["compensation"] = {{"stream", a.servo ? "servo" : "target"}, {"target_callback_cpu_us", tc},
+                           {"process_cpu_us_per_target", process_us}, {"outcomes", outcomes}};
+  }
   if (!es.is_discarded() && es["extra"].contains("input_queue")) {
     const auto& iq = es["extra"]["input_queue"];
     std::printf("engine input queue (samples waiting for its worker): peak %llu, refused %llu (bound %llu)\n",

@@ -14,6 +14,7 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <atomic>
 #include <optional>
 #include <set>
 #include <thread>
@@ -43,6 +44,7 @@ struct CellArgs {
   std::string work_dir = "cellcal-cell";
   bool resume = false;
   double targets_hz = 20;
+  bool servo = false;  // also a servo stream: a joint setpoint per robot with each target
   int holdout_poses = 100;
   bool quiet = false;
   bool in_process_reference = true;
@@ -67,6 +69,9 @@ void addOptions(CLI::App& cmd, CellArgs& a) {
   cmd.add_option("--targets-hz", a.targets_hz, "TargetPoses published per second and robot")
       ->check(positive())
       ->capture_default_str();
+  cmd.add_flag("--servo", a.servo,
+               "also stream a joint setpoint per robot with each target (cellcal/servo_setpoint, answered on "
+               "cellcal/servo_correction), as a servo loop would at its controller's rate");
   cmd.add_flag("--quiet", a.quiet, "no line per update");
   cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
   cmd.add_option("--shards", a.shards,
@@ -292,6 +297,13 @@ class CellJudge {
       std::lock_guard<std::mutex> lock(mutex_);
       compensated_in_.emplace_back(now, m);
     });
+    if (a.servo) {
+      servo_.emplace(node_.writer<msg::ServoSetpoint>());
+      node_.reader<msg::ServoCorrection>([this](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
+        ++servo_answered_;
+        if (m.applied()) ++servo_applied_;
+      });
+    }
   }
 
   double elapsed() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count(); }
@@ -319,6 +331,16 @@ class CellJudge {
       t.source_stamp_ns(static_cast<std::uint64_t>(now));
       j.sent[j.target_seq] = {now, q};
       targets_.write(t);
+      if (servo_) {  // the robot holding the target's joints, one setpoint per cycle
+        servo_sample_.robot_id(j.robot->robot_id);
+        servo_sample_.sequence_number(target_seq_servo_[j.robot->robot_id] += 1);
+        servo_sample_.source_stamp_ns(static_cast<std::uint64_t>(now));
+        servo_sample_.cycle_stamp_ns(static_cast<std::uint64_t>(now));
+        servo_sample_.cartesian(false);
+        servo_sample_.joint_position_rad().assign(q.data(), q.data() + q.size());
+        servo_->write(servo_sample_);
+        ++servo_sent_;
+      }
     }
   }
 
@@ -403,6 +425,12 @@ class CellJudge {
                 "p50 %.0f us, p99 %.0f us\n",
                 percentile(tracker_to_state_us_, 0.5), percentile(tracker_to_state_us_, 0.99),
                 percentile(target_to_compensated_us_, 0.5), percentile(target_to_compensated_us_, 0.99));
+    if (servo_) {
+      s["servo"] = {{"sent", servo_sent_}, {"answered", servo_answered_.load()}, {"applied", servo_applied_.load()}};
+      std::printf("cell: servo stream: %llu joint setpoints, %llu answered on cellcal/servo_correction (%llu applied)\n",
+                  static_cast<unsigned long long>(servo_sent_), static_cast<unsigned long long>(servo_answered_.load()),
+                  static_cast<unsigned long long>(servo_applied_.load()));
+    }
     // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it.
     for (const auto& j : judges_) {
       if (!j.refused) continue;
@@ -526,8 +554,13 @@ class CellJudge {
   std::vector<std::pair<std::int64_t, msg::CalibrationState>> states_in_;
   std::vector<std::pair<std::int64_t, msg::CompensatedTarget>> compensated_in_;
   std::vector<double> tracker_to_state_us_, target_to_compensated_us_;
+  std::atomic<std::uint64_t> servo_answered_{0}, servo_applied_{0};  // --servo: corrections received
   DdsNode node_;  // after the state its callbacks use: deleted (and its callbacks stopped) before it
   Writer<msg::TargetPose> targets_;
+  std::optional<Writer<msg::ServoSetpoint>> servo_;  // --servo
+  msg::ServoSetpoint servo_sample_;
+  std::map<std::string, std::uint64_t> target_seq_servo_;
+  std::uint64_t servo_sent_ = 0;
   std::mt19937_64 target_rng_;
 };
 

@@ -76,8 +76,20 @@ std::array<double, 36> readingCovariance(double sigma_position_m, double sigma_o
 
 msg::CalibrationState toCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
                                          std::uint64_t sequence) {
-  const RobotModel& model = robot.model;
   msg::CalibrationState m;
+  fillCalibrationState(robot, s, stamp_ns, sequence, m);
+  return m;
+}
+
+void fillCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
+                          std::uint64_t sequence, msg::CalibrationState& m) {
+  const RobotModel& model = robot.model;
+  // The names (about 40 strings) only when they change: another robot, other extensions.
+  bool same_names = m.robot_id().to_string() == robot.robot_id && m.model_extensions().size() == s.extensions.size() &&
+                    m.parameter_names().size() == static_cast<size_t>(model.numParams() +
+                                                                     numExtensionParams(model, s.extensions));
+  for (size_t k = 0; same_names && k < s.extensions.size(); ++k)
+    same_names = m.model_extensions()[k].to_string() == extensionSpec(s.extensions[k]);
   m.robot_id(robot.robot_id);
   m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
   m.sequence_number(sequence);
@@ -88,23 +100,29 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
   Eigen::VectorXd sigma = Eigen::VectorXd::Zero(model.numParams());
   for (size_t k = 0; k < s.estimated.size(); ++k)
     sigma[s.estimated[k]] = std::sqrt(std::max(0.0, s.covariance(static_cast<Eigen::Index>(k), static_cast<Eigen::Index>(k))));
+  m.parameter_values().clear();
+  m.parameter_stddevs().clear();
+  m.parameter_correlations().clear();
+  if (!same_names) {
+    m.parameter_names().clear();
+    m.model_extensions().clear();
+    for (int i = 0; i < model.numParams(); ++i) m.parameter_names().push_back(model.paramName(i));
+    for (const auto& e : s.extensions) m.model_extensions().push_back(extensionSpec(e));
+    for (const auto& name : extensionParamNames(model, s.extensions)) m.parameter_names().push_back(name);
+  }
   for (int i = 0; i < model.numParams(); ++i) {
-    m.parameter_names().push_back(model.paramName(i));
     m.parameter_values().push_back(s.params[i]);
     m.parameter_stddevs().push_back(sigma[i]);
   }
-  for (const auto& e : s.extensions) m.model_extensions().push_back(extensionSpec(e));
-  const std::vector<std::string> ext_names = extensionParamNames(model, s.extensions);
   Eigen::VectorXd ext_sigma = Eigen::VectorXd::Zero(s.extension_params.size());
   const auto nk = static_cast<Eigen::Index>(s.estimated.size());
   for (size_t k = 0; k < s.estimated_extension.size(); ++k) {
     const auto c = nk + static_cast<Eigen::Index>(k);
     ext_sigma[s.estimated_extension[k]] = std::sqrt(std::max(0.0, s.covariance(c, c)));
   }
-  for (size_t k = 0; k < ext_names.size(); ++k) {
-    m.parameter_names().push_back(ext_names[k]);
-    m.parameter_values().push_back(s.extension_params[static_cast<Eigen::Index>(k)]);
-    m.parameter_stddevs().push_back(ext_sigma[static_cast<Eigen::Index>(k)]);
+  for (Eigen::Index k = 0; k < s.extension_params.size(); ++k) {
+    m.parameter_values().push_back(s.extension_params[k]);
+    m.parameter_stddevs().push_back(ext_sigma[k]);
   }
   // Correlations over the parameters with a stddev, in wire order: the estimated kinematic ones by index, then the
   // estimated extension ones by index; each with its row of the snapshot's covariance.
@@ -125,7 +143,6 @@ msg::CalibrationState toCalibrationState(const CellRobot& robot, const Calibrati
   m.verification_mean_position_m(s.verification_mean_position_m);
   m.last_measurement_stamp_ns(static_cast<std::uint64_t>(s.last_measurement_stamp_ns));
   m.robot_model(model.name);
-  return m;
 }
 
 msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r, const std::string& stale_inputs,
@@ -155,7 +172,7 @@ msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r,
   d.persist_failures(r.persist_failures);
   d.persist_error(r.persist_error.substr(0, 255));
   d.identifiable_parameters(static_cast<std::uint32_t>(snap.estimated.size()));
-  d.condition_number(snap.condition_number);
+  d.condition_number(r.engine->conditionNumber());
   d.pairing_latency_p99_ns(p99(r.pairing_ns));
   d.update_latency_p99_ns(p99(r.update_ns));
   d.joint_states_received(c.joint_states);

@@ -541,11 +541,11 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
 bool CalibrationEngine::applyPose(const Pending& pending) {
   const PairedReading& p = pending.reading;
   const Drivers* drivers = rls_->extensions().empty() ? nullptr : &pending.drivers;
-  const RlsCalibrator before_update = *rls_;  // for a roll-back (a 30x30 covariance: cheap beside the update)
+  rls_->save(rollback_);  // for a roll-back
   // Random walk of the parameters over the cell time since the previous update.
   if (snap_.last_update_stamp_ns > 0 && p.tracker_stamp_ns > snap_.last_update_stamp_ns) {
     const double dt_h = (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0;
-    rls_->addProcessNoise(drift_sigma_ * std::sqrt(dt_h / settings_->drift_per_h), robot_->measurement);
+    rls_->addProcessNoise(drift_sigma_, robot_->measurement, dt_h / settings_->drift_per_h);
   }
   const Observation& o = p.observation;
   const Pose before = rls_->predict(o.q_rad, drivers);
@@ -553,7 +553,7 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
   const Pose after = rls_->predict(o.q_rad, drivers);
   if (!std::isfinite(nis) || !rls_->params().allFinite() || !rls_->extensionParams().allFinite() ||
       !rls_->covariance().allFinite() || !after.matrix().allFinite()) {
-    *rls_ = before_update;
+    rls_->restore(rollback_);
     std::ostringstream m;
     m << robot_->target_id << " tracker reading #" << p.tracker_sequence
       << ": the update made the estimate non-finite; rolled back to version " << snap_.version;
@@ -587,13 +587,39 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
   ++state_revision_;
 }
 
-// Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state.
-double CalibrationEngine::predictionSigma() const {
-  KinematicsData data(robot_->model);
+// Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state,
+// with J at the nominal parameters (the linearization the predicted error needs: the estimate's corrections change it
+// by their relative size, 1e-3). The rows are the RLS estimator's tracked variances: each update brings them up to
+// date at a cost of the update's rank (6) instead of the state's size, and each configuration's variance is the sum
+// of its three. The engine test checks it against kinematicPositionSigma.
+double CalibrationEngine::predictionSigma() {
+  const RobotModel& m = robot_->model;
+  const std::vector<int>& estimated = rls_->estimated();
+  const auto refs = static_cast<Eigen::Index>(reference_q_.size());
+  const Eigen::Index state = rls_->covariance().rows();
+  if (refs == 0) return 0.0;
+  if (sigma_rows_.rows() != 3 * refs || sigma_rows_.cols() != state || sigma_rows_estimated_ != estimated) {
+    KinematicsData data(m);
+    Eigen::MatrixXd J(6, m.numParams());
+    sigma_rows_ = Eigen::MatrixXd::Zero(3 * refs, state);
+    for (Eigen::Index r = 0; r < refs; ++r) {
+      forwardKinematics(m, data, m.nominal, reference_q_[static_cast<size_t>(r)]);
+      computePoseJacobian(m, data, J);
+      for (size_t k = 0; k < estimated.size(); ++k)
+        sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(k)) = J.col(estimated[k]).head<3>();
+    }
+    sigma_rows_estimated_ = estimated;
+  }
+  if (rls_->estimator().trackedRows().rows() != sigma_rows_.rows() ||
+      rls_->estimator().trackedRows().cols() != sigma_rows_.cols() || rls_->estimator().trackedRows() != sigma_rows_)
+    rls_->trackVariances(sigma_rows_);
+  const Eigen::VectorXd& v = rls_->estimator().trackedVariances();
   double worst = 0;
-  for (const auto& q : reference_q_)
-    worst = std::max(worst, kinematicPositionSigma(robot_->model, data, rls_->params(), rls_->estimated(),
-                                                   rls_->covariance(), q));
+  for (Eigen::Index r = 0; r < refs; ++r) {
+    const double var = v.segment<3>(3 * r).sum();
+    if (!std::isfinite(var)) return std::numeric_limits<double>::infinity();
+    worst = std::max(worst, std::sqrt(std::max(0.0, var)));
+  }
   return worst;
 }
 
@@ -666,13 +692,15 @@ void CalibrationEngine::refreshStatistics() {
   snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
   snap_.recent_nis_per_row = recent_.empty() ? 0.0 : nis / n;
   snap_.drift_alarm = recent_.size() >= 10 && snap_.recent_nis_per_row > settings_->drift_alarm_nis_per_row;
+}
+
+double CalibrationEngine::conditionNumber() const {
   const Eigen::MatrixXd& P = rls_->covariance();
-  if (P.rows() > 0) {
-    const Eigen::VectorXd d = P.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
-    const Eigen::MatrixXd corr = d.asDiagonal() * P * d.asDiagonal();
-    const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(corr, Eigen::EigenvaluesOnly).eigenvalues();
-    snap_.condition_number = ev.minCoeff() > 0 ? ev.maxCoeff() / ev.minCoeff() : std::numeric_limits<double>::infinity();
-  }
+  if (P.rows() == 0) return 0.0;
+  const Eigen::VectorXd d = P.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+  const Eigen::MatrixXd corr = d.asDiagonal() * P * d.asDiagonal();
+  const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(corr, Eigen::EigenvaluesOnly).eigenvalues();
+  return ev.minCoeff() > 0 ? ev.maxCoeff() / ev.minCoeff() : std::numeric_limits<double>::infinity();
 }
 
 EngineState CalibrationEngine::exportState() const {

@@ -325,11 +325,13 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   }
 
   const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm",
-                                                       "max_predicted_sigma_mm"});
+                                                       "max_predicted_sigma_mm", "blend_s", "max_joint_correction_deg"});
   cp.num("max_correction_mm", c.compensation.max_correction_m, 1e-3, 0, true);
   cp.num("max_correction_deg", c.compensation.max_correction_rad, kDeg, 0, true);
   cp.num("max_ik_error_mm", c.compensation.max_ik_error_m, 1e-3, 0, true);
   cp.num("max_predicted_sigma_mm", c.compensation.max_predicted_sigma_m, 1e-3, 0, false);
+  cp.num("blend_s", c.compensation.blend_s, 1, 0, false);
+  cp.num("max_joint_correction_deg", c.compensation.max_joint_correction_rad, kDeg, 0, true);
   if (cp.has("on_exceed")) {
     const std::string a = r.string(cp.node["on_exceed"], cp.f("on_exceed"));
     if (a == "refuse") c.compensation.on_exceed = ExceedAction::kRefuse;

@@ -56,21 +56,70 @@ void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>&
   // P -= (P A^T L^-T)(P A^T L^-T)^T  (symmetric rank-r downdate, lower triangle only)
   llt.matrixU().solveInPlace<Eigen::OnTheRight>(PA_);
   P_.selfadjointView<Eigen::Lower>().rankUpdate(PA_, -1.0);
+  if (track_G_.rows() > 0) {  // g (P - W W^T) g^T = v - |g W|^2
+    track_GW_.noalias() = track_G_ * PA_;
+    track_v_ -= track_GW_.rowwise().squaredNorm();
+    // A downdate subtracts nearly equal numbers once the estimate converges: the rounding of each stays in v. Every
+    // kTrackRefresh updates v is computed from P again (amortized: 1/64 of G P G^T per update).
+    if (++track_updates_ % kTrackRefresh == 0) track_refresh_due_ = true;
+  }
   if (lambda < 1.0) {
     double inflate = 1.0 / lambda;
     if (options_.max_covariance_diag.size())
       for (Eigen::Index i = 0; i < P_.rows(); ++i)
         inflate = std::min(inflate, options_.max_covariance_diag[i] / P_(i, i));
-    if (inflate > 1.0) P_.triangularView<Eigen::Lower>() *= inflate;
+    if (inflate > 1.0) {
+      P_.triangularView<Eigen::Lower>() *= inflate;
+      track_v_ *= inflate;
+    }
   }
   P_.triangularView<Eigen::StrictlyUpper>() = P_.transpose();
+  if (track_refresh_due_) {
+    track_v_ = (track_G_ * P_).cwiseProduct(track_G_).rowwise().sum();
+    track_refresh_due_ = false;
+  }
 }
 
-void RlsEstimator::addProcessNoise(const Eigen::VectorXd& q_diag) { P_.diagonal() += q_diag; }
+void RlsEstimator::addProcessNoise(const Eigen::VectorXd& q_diag) {
+  P_.diagonal() += q_diag;
+  if (track_G_.rows() > 0) track_v_.noalias() += track_G_.cwiseAbs2() * q_diag;
+}
 
 void RlsEstimator::addProcessNoise(const Eigen::MatrixXd& Q) {
   if (Q.rows() != P_.rows() || Q.cols() != P_.cols()) throw std::invalid_argument("RlsEstimator: Q size mismatch");
-  P_ += 0.5 * (Q + Q.transpose());
+  const Eigen::MatrixXd Qs = 0.5 * (Q + Q.transpose());
+  P_ += Qs;
+  if (track_G_.rows() > 0) track_v_ += (track_G_ * Qs).cwiseProduct(track_G_).rowwise().sum();
+}
+
+void RlsEstimator::addScaledProcessNoise(const Eigen::MatrixXd& Q, double scale) {
+  if (Q.rows() != P_.rows() || Q.cols() != P_.cols()) throw std::invalid_argument("RlsEstimator: Q size mismatch");
+  if (!(scale >= 0)) throw std::invalid_argument("RlsEstimator: negative process noise scale");
+  P_.noalias() += scale * Q;
+  if (track_G_.rows() == 0) return;
+  if (track_Q_.rows() != Q.rows() || track_Q_.cols() != Q.cols() || track_Q_ != Q) {
+    track_Q_ = Q;
+    track_Qv_ = (track_G_ * Q).cwiseProduct(track_G_).rowwise().sum();
+  }
+  track_v_ += scale * track_Qv_;
+}
+
+void RlsEstimator::restore(const Checkpoint& c) {
+  if (c.x.size() != x_.size() || c.v.size() != track_v_.size())
+    throw std::invalid_argument("RlsEstimator::restore: a checkpoint of another estimator");
+  x_ = c.x;
+  P_ = c.P;
+  track_v_ = c.v;
+  track_updates_ = c.updates;
+  last_nis_ = c.nis;
+}
+
+void RlsEstimator::trackVariances(const Eigen::MatrixXd& G) {
+  if (G.cols() != P_.rows()) throw std::invalid_argument("RlsEstimator::trackVariances: G has the wrong width");
+  track_G_ = G;
+  track_v_ = (G * P_).cwiseProduct(G).rowwise().sum();
+  track_Q_.resize(0, 0);
+  track_Qv_.resize(0);
 }
 
 namespace {
@@ -157,6 +206,21 @@ Eigen::VectorXd RlsCalibrator::rowParams(const Eigen::VectorXd& q_rad, const Dri
 }
 
 int RlsCalibrator::linearize(const Observation& obs, const Drivers* drivers) {
+  if (drivers == nullptr && estimated_extension_.empty() && lin_obs_ == &obs && lin_q_ == obs.q_rad &&
+      lin_measured_ == obs.measured_in_tracker.matrix())
+    return lin_rows_;
+  lin_obs_ = nullptr;
+  const int rows = linearizeAnew(obs, drivers);
+  if (drivers == nullptr && estimated_extension_.empty()) {
+    lin_obs_ = &obs;
+    lin_q_ = obs.q_rad;
+    lin_measured_ = obs.measured_in_tracker.matrix();
+    lin_rows_ = rows;
+  }
+  return rows;
+}
+
+int RlsCalibrator::linearizeAnew(const Observation& obs, const Drivers* drivers) {
   const Eigen::VectorXd p = rowParams(obs.q_rad, drivers);
   const int rows = whitenedResidual(*model_, data_, p, obs, r_, &J_);
   const auto ne = static_cast<Eigen::Index>(estimated_.size());
@@ -169,7 +233,21 @@ int RlsCalibrator::linearize(const Observation& obs, const Drivers* drivers) {
   return rows;
 }
 
+void RlsCalibrator::save(Checkpoint& c) const {
+  rls_.save(c.rls);
+  c.params = params_;
+  c.extension_params = extension_params_;
+}
+
+void RlsCalibrator::restore(const Checkpoint& c) {
+  lin_obs_ = nullptr;
+  rls_.restore(c.rls);
+  params_ = c.params;
+  extension_params_ = c.extension_params;
+}
+
 void RlsCalibrator::writeBack() {
+  lin_obs_ = nullptr;  // the parameters move: a linearization at the old ones is stale
   const auto ne = estimated_.size();
   for (size_t k = 0; k < ne; ++k) params_[estimated_[k]] = rls_.x()[k];
   for (size_t k = 0; k < estimated_extension_.size(); ++k) extension_params_[estimated_extension_[k]] = rls_.x()[ne + k];
@@ -192,7 +270,7 @@ Pose RlsCalibrator::predict(const Eigen::VectorXd& q_rad, const Drivers* drivers
   return forwardKinematics(*model_, data_, rowParams(q_rad, drivers), q_rad);
 }
 
-void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind) {
+void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind, double variance_scale) {
   if (sigma_full.size() != model_->numParams()) throw std::invalid_argument("RlsCalibrator: sigma has the wrong size");
   const auto ne = static_cast<Eigen::Index>(estimated_.size());
   if (drift_map_.rows() != ne || drift_kind_ != kind) {
@@ -200,10 +278,15 @@ void RlsCalibrator::addProcessNoise(const Eigen::VectorXd& sigma_full, Measureme
     // run that saved it.
     drift_map_ = structuralAbsorption(*model_, model_->nominal, kind, estimated_);
     drift_kind_ = kind;
+    noise_sigma_.resize(0);
   }
-  Eigen::MatrixXd Q = Eigen::MatrixXd::Zero(rls_.x().size(), rls_.x().size());
-  Q.topLeftCorner(ne, ne) = drift_map_ * sigma_full.cwiseAbs2().asDiagonal() * drift_map_.transpose();
-  rls_.addProcessNoise(Q);
+  if (noise_sigma_.size() != sigma_full.size() || noise_sigma_ != sigma_full || noise_Q_.rows() != rls_.x().size()) {
+    noise_Q_ = Eigen::MatrixXd::Zero(rls_.x().size(), rls_.x().size());
+    noise_Q_.topLeftCorner(ne, ne) = drift_map_ * sigma_full.cwiseAbs2().asDiagonal() * drift_map_.transpose();
+    noise_Q_ = 0.5 * (noise_Q_ + noise_Q_.transpose()).eval();
+    noise_sigma_ = sigma_full;
+  }
+  rls_.addScaledProcessNoise(noise_Q_, variance_scale);
 }
 
 Eigen::VectorXd DriftModel::sigmas(const RobotModel& model) const {

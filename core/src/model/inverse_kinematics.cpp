@@ -164,7 +164,7 @@ IkResult solveInverseKinematics(const RobotModel& model, const Eigen::VectorXd& 
   // it was still descending goes on from where it stopped, with ten times the budget, before anyone is told that the
   // target is out of reach.
   if (!(best.pos < options.position_tolerance_m && best.ori < options.orientation_tolerance_rad) &&
-      best.still_descending) {
+      best.still_descending && options.extend_when_descending) {
     Attempt a = descend(model, data, params, target_in_tracker, best.q, options, 10 * options.max_iterations);
     res.iterations += a.iterations;
     if (a.pos + options.orientation_weight_m * a.ori < best.pos + options.orientation_weight_m * best.ori) best = a;

@@ -75,8 +75,26 @@ TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
               config.engine.drift_alarm_nis_per_row);
   EXPECT_LT(engine.snapshot().recent_nis_per_row, config.engine.drift_alarm_nis_per_row);
   EXPECT_FALSE(engine.snapshot().drift_alarm);
-  EXPECT_GT(engine.snapshot().condition_number, 1.0);
-  EXPECT_TRUE(std::isfinite(engine.snapshot().condition_number));
+  EXPECT_GT(engine.conditionNumber(), 1.0);
+  EXPECT_TRUE(std::isfinite(engine.conditionNumber()));
+  // The engine's predicted error (variances the RLS tracks through its updates, at the nominal parameters' Jacobians)
+  // against the plain reference: the worst of kinematicPositionSigma at each reference configuration, with the
+  // Jacobians at the nominal parameters (to rounding, after 80 updates) and at the estimate (within 1 %).
+  {
+    const CalibrationSnapshot& snap = engine.snapshot();
+    KinematicsData data(robot.model);
+    double at_nominal = 0, at_estimate = 0;
+    for (const auto& q : engine.referenceConfigurations()) {
+      at_nominal = std::max(at_nominal, kinematicPositionSigma(robot.model, data, robot.model.nominal, snap.estimated,
+                                                               snap.covariance, q));
+      at_estimate = std::max(at_estimate, kinematicPositionSigma(robot.model, data, snap.params, snap.estimated,
+                                                                 snap.covariance, q));
+    }
+    ASSERT_EQ(engine.referenceConfigurations().size(), 16u);
+    EXPECT_GT(at_nominal, 0.0);
+    EXPECT_NEAR(snap.prediction_sigma_position_m, at_nominal, 1e-9 * at_nominal);
+    EXPECT_NEAR(snap.prediction_sigma_position_m, at_estimate, 1e-2 * at_estimate);
+  }
   EXPECT_LT(engine.snapshot().residual_rms_position_m, 0.1e-3);
 }
 

@@ -116,6 +116,85 @@ TEST(RlsForgetting, BoundStopsWindupOfUnexcitedDirections) {
   EXPECT_TRUE(a.x().allFinite());
 }
 
+// The tracked variances diag(G P G^T) (the engine's predicted error) follow every change of P without recomputing
+// G P G^T: after a long random sequence of updates on the real kinematic Jacobian's blocks (3 or 6 rows), forgetting
+// with its bound, diagonal, full and scaled process noise (the scaled noise's shape changing now and then), and
+// tracking started midway, they equal the plain G P G^T, to rounding.
+TEST(RlsTrackedVariances, FollowEveryChangeOfTheCovariance) {
+  const std::uint64_t seed = test::testSeed();
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const LinearProblem lp = kinematicLinearProblem(seed, 400, u(rng) < 0.5 ? MeasurementKind::kPose6D
+                                                                           : MeasurementKind::kPosition3D);
+  const auto n = lp.x_true.size();
+  RlsOptions options;
+  if (u(rng) < 0.5) {
+    options.forgetting = 0.95 + 0.05 * u(rng);
+    options.max_covariance_diag = Eigen::VectorXd::Constant(n, 1e2);
+  }
+  RlsEstimator rls(Eigen::VectorXd::Zero(n), 1e2 * Eigen::MatrixXd::Identity(n, n), options);
+  const int k = 3 + static_cast<int>(u(rng) * 60);
+  Eigen::MatrixXd G(k, n);
+  for (Eigen::Index i = 0; i < G.size(); ++i) G.data()[i] = g(rng);
+  auto randomSpd = [&](double scale) {
+    Eigen::MatrixXd F(n, n / 2 + 1);
+    for (Eigen::Index i = 0; i < F.size(); ++i) F.data()[i] = g(rng);
+    return Eigen::MatrixXd(scale * F * F.transpose());
+  };
+  Eigen::MatrixXd shape = randomSpd(1e-6);
+  const int start = static_cast<int>(u(rng) * 100);
+  double worst = 0;
+  for (size_t p = 0; p < lp.A.size(); ++p) {
+    if (static_cast<int>(p) == start) rls.trackVariances(G);
+    rls.update(lp.A[p], lp.b[p]);
+    const double what = u(rng);
+    if (what < 0.2) rls.addProcessNoise(Eigen::VectorXd(1e-6 * Eigen::VectorXd::Random(n).cwiseAbs()));
+    else if (what < 0.3) rls.addProcessNoise(randomSpd(1e-7));
+    else if (what < 0.8) rls.addScaledProcessNoise(shape, 3 * u(rng));
+    if (u(rng) < 0.02) shape = randomSpd(1e-6);
+    if (static_cast<int>(p) >= start) {
+      const Eigen::VectorXd plain = (G * rls.P()).cwiseProduct(G).rowwise().sum();
+      worst = std::max(worst, ((rls.trackedVariances() - plain).array().abs() / plain.array()).maxCoeff());
+    }
+  }
+  EXPECT_EQ(rls.trackedRows(), G);
+  EXPECT_LT(worst, 1e-9) << "seed " << seed << ", " << k << " rows, forgetting " << options.forgetting;
+  EXPECT_THROW(rls.trackVariances(Eigen::MatrixXd::Ones(2, n + 1)), std::invalid_argument);
+  EXPECT_THROW(rls.addScaledProcessNoise(shape, -1.0), std::invalid_argument);
+}
+
+// The engine rolls back an update that made the estimate non-finite from a checkpoint (not a copy of the calibrator):
+// after process noise and an update, restore gives back the parameters, covariance and tracked variances bit for bit,
+// and the next update equals that of a calibrator that never took the rolled-back one.
+TEST(RlsCheckpoint, RestoreUndoesAnUpdate) {
+  const std::uint64_t seed = test::testSeed();
+  SimulationConfig sc;
+  sc.seed = seed;
+  SimulatedCell cell(test::robot("staubli_tx60"), sc);
+  const RobotModel& m = cell.model();
+  std::mt19937_64 rng(seed);
+  const auto qs = cell.randomConfigurations(3, rng);
+  const GaussianPrior prior = diagonalPrior(m, m.nominal, m.canonicalParams(), 1e-3, 1.7e-3);
+  RlsCalibrator a(m, m.nominal, prior, MeasurementKind::kPose6D), b(m, m.nominal, prior, MeasurementKind::kPose6D);
+  Eigen::MatrixXd G = Eigen::MatrixXd::Random(6, a.covariance().rows());
+  a.trackVariances(G);
+  b.trackVariances(G);
+  const DriftModel drift;
+  RlsCalibrator::Checkpoint c;
+  a.save(c);
+  a.addProcessNoise(drift.sigmas(m), MeasurementKind::kPose6D, 2.5);
+  a.addObservation(cell.measure(qs[0], 0.0, rng));
+  a.restore(c);
+  EXPECT_EQ(a.params(), b.params());
+  EXPECT_EQ(a.covariance(), b.covariance());
+  EXPECT_EQ(a.estimator().trackedVariances(), b.estimator().trackedVariances());
+  const Observation next = cell.measure(qs[1], 0.0, rng);
+  EXPECT_EQ(a.addObservation(next), b.addObservation(next));
+  EXPECT_EQ(a.params(), b.params());
+  EXPECT_EQ(a.estimator().trackedVariances(), b.estimator().trackedVariances());
+}
+
 TEST(RlsForgetting, TracksAStepChangeFasterThanLambdaOne) {
   std::mt19937_64 rng(test::testSeed());
   std::normal_distribution<double> g(0.0, 1.0);

@@ -43,6 +43,8 @@ void forEachTopicType(F&& f) {
   f(Tag<msg::CalibrationDiagnostics>{});
   f(Tag<msg::TargetPose>{});
   f(Tag<msg::CompensatedTarget>{});
+  f(Tag<msg::ServoSetpoint>{});
+  f(Tag<msg::ServoCorrection>{});
   f(Tag<sim::RobotTruth>{});
 }
 

@@ -30,6 +30,11 @@ std::array<double, 36> readingCovariance(double sigma_position_m, double sigma_o
 
 msg::CalibrationState toCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
                                          std::uint64_t sequence);
+// The same into a sample kept per robot for every publish (the engine's path): its sequences keep their capacity and
+// the parameter names are rebuilt only when the robot or the model extensions differ from the sample's. Equal on the
+// wire to toCalibrationState's, whatever the sample held before.
+void fillCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, std::int64_t stamp_ns,
+                          std::uint64_t sequence, msg::CalibrationState& m);
 
 // A robot's diagnostics as the engine publishes them: rejections by reason (and `inputs_refused` samples the engine's
 // full input queue refused before any robot could be told), health, the stale inputs (`stale_inputs`, empty when

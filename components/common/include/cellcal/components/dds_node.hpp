@@ -47,6 +47,8 @@ CELLCAL_TOPIC(cellcal::msg::CalibrationState, "cellcal/calibration_state", "cali
 CELLCAL_TOPIC(cellcal::msg::CalibrationDiagnostics, "cellcal/calibration_diagnostics", "calibration_state")
 CELLCAL_TOPIC(cellcal::msg::TargetPose, "cellcal/target_pose", "command")
 CELLCAL_TOPIC(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "command")
+CELLCAL_TOPIC(cellcal::msg::ServoSetpoint, "cellcal/servo_setpoint", "servo")
+CELLCAL_TOPIC(cellcal::msg::ServoCorrection, "cellcal/servo_correction", "servo")
 CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream")
 // ROS 2 messages (ros2_msgs.idl): no fixed topic, the user names it (ros2.hpp turns "/joint_states" into
 // "rt/joint_states"); QoS profile "ros2": readers best effort (they match reliable and best-effort publishers),
@@ -151,6 +153,11 @@ class DdsNode {
   template <class M>
   int matchedWriters() {
     return counters(TopicOf<M>::name)->matched_writers.load();
+  }
+  // The same count as a value to read on a hot path (no lookup): valid as long as the node.
+  template <class M>
+  const std::atomic<int>& matchedWritersCount() {
+    return counters(TopicOf<M>::name)->matched_writers;
   }
   fdds::DomainParticipant* participant() const { return participant_; }
   int domainId() const { return domain_id_; }

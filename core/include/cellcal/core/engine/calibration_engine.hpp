@@ -38,6 +38,7 @@
 #include "cellcal/core/engine/pairing.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/identification/rls.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
 
@@ -67,8 +68,6 @@ struct CalibrationSnapshot {
   // robot moves faster than the drift model allows, or the model misses an effect -> drift_alarm.
   double recent_nis_per_row = 0;
   bool drift_alarm = false;
-  // Condition number of the estimate's correlation matrix (scale-free): large = parameters hard to separate.
-  double condition_number = 0;
   // Predicted 1-sigma position error of the estimate (worst of the reference configurations), m.
   double prediction_sigma_position_m = 0;
   // Why health is not ok (empty when it is), e.g. "holding v52: 5 poses in a row beyond the outlier gate".
@@ -122,6 +121,12 @@ class CalibrationEngine {
   bool process(std::int64_t now_ns);
 
   const CalibrationSnapshot& snapshot() const { return snap_; }
+  // Condition number of the estimate's correlation matrix (scale-free): large = parameters hard to separate; 0 before
+  // there is an estimate. Computed on each call (an eigen-decomposition of the state's size: for the diagnostics'
+  // period, not for every pose).
+  double conditionNumber() const;
+  // The fixed configurations over which snapshot().prediction_sigma_position_m is the worst predicted error.
+  const std::vector<Eigen::VectorXd>& referenceConfigurations() const { return reference_q_; }
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
@@ -164,7 +169,7 @@ class CalibrationEngine {
   static int capVariances(Eigen::MatrixXd& P, const Eigen::VectorXd& sd);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
-  double predictionSigma() const;
+  double predictionSigma();
   void decideHealth();
   void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
   void startFromCalibration(const RobotFile& file, const std::string& path);
@@ -219,6 +224,11 @@ class CalibrationEngine {
   Eigen::VectorXd gated_q_;
   std::int64_t gated_joint_stamp_ns_ = 0;
   std::vector<Eigen::VectorXd> reference_q_;
+  // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters
+  // over the state (the estimated kinematic columns; zero for extension columns), for the estimated set they are of.
+  Eigen::MatrixXd sigma_rows_;
+  RlsCalibrator::Checkpoint rollback_;  // applyPose's, reused
+  std::vector<int> sigma_rows_estimated_;
   std::int64_t last_update_duration_ns_ = 0;
   std::deque<AppliedReading> applied_readings_;
   Eigen::VectorXd last_joint_q_, used_q_;

@@ -33,9 +33,28 @@
 
 namespace cellcal {
 
+// What became of a target, as a code (counted per code by the compensation publisher; the text is in `reason`,
+// built only when the target is not applied in full).
+enum class CompensationOutcome {
+  kApplied,
+  kClamped,              // applied, scaled down to the bound
+  kUnusableModel,        // the identified parameters are the wrong size or not finite
+  kUnreachable,          // the identified model's joints for the target were not found from the seed
+  kNotSettled,           // with model extensions: the fixed point q = IK(params(q)) did not settle
+  kOutsideCalibration,   // predicted 1-sigma error above max_predicted_sigma_m
+  kOverBound,            // correction above the bound, refused
+  kClampUnreachable,     // correction above the bound, and the clamped pose unreachable
+  kJointJump,            // a servo setpoint's joints corrected by more than max_joint_correction_rad (servo.hpp)
+};
+constexpr int kNumCompensationOutcomes = 9;
+// "applied", "clamped", "unusable_model", "unreachable", "not_settled", "outside_calibration", "over_bound",
+// "clamp_unreachable", "joint_jump".
+const char* outcomeName(CompensationOutcome o);
+
 struct CompensationResult {
   bool applied = false;
   bool clamped = false;
+  CompensationOutcome outcome = CompensationOutcome::kUnusableModel;
   std::string reason;                      // why not applied / clamped; empty when applied in full
   Pose corrected_in_tracker = Pose::Identity();
   Eigen::VectorXd q_rad;                   // joint solution the robot will move to (empty when refused)

@@ -129,6 +129,14 @@ struct CompensationSettings {
   // The model's predicted 1-sigma position error at the target's joints above this: passed through uncorrected (the
   // target lies where the calibration poses did not pin the model down). 0 = off.
   double max_predicted_sigma_m = 1e-3;
+  // A servo stream (cellcal/servo_setpoint) moves to a new calibration version over this much of the setpoints' own
+  // time (servo.hpp); 0 = at once.
+  double blend_s = 2.0;
+  // A servo setpoint whose joints the correction moves by more than this (any joint) is passed through: near a wrist
+  // or elbow singularity the identified model reaches the pose along another branch (the wrist turned by a radian
+  // with the same pose), which a servo loop must never be commanded. A calibration moves joints by hundredths of a
+  // degree away from singularities, by degrees within ten degrees of a wrist singularity.
+  double max_joint_correction_rad = 5.0 * 3.14159265358979323846 / 180.0;
 };
 
 // The simulated cell behind the `sim` sources (and the launcher's hold-out check).

@@ -18,6 +18,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,28 @@ class RlsEstimator {
                             const Eigen::Ref<const Eigen::VectorXd>& innovation);
   void addProcessNoise(const Eigen::VectorXd& q_diag);
   void addProcessNoise(const Eigen::MatrixXd& Q);  // symmetric, state size
+  // P += scale Q (Q symmetric, state size; scale >= 0): the same noise shape scaled by the time since the last update.
+  // With tracked variances, the tracked form of Q is computed once per distinct Q.
+  void addScaledProcessNoise(const Eigen::MatrixXd& Q, double scale);
+
+  // Tracked variances: for the rows g_i of G (k x state size), v_i = g_i P g_i^T, kept current through every change
+  // of P (the rank-r downdate of an update, the forgetting's inflation, process noise) at O(k n r) per update instead
+  // of O(k n^2) for G P G^T, and computed from P again every 64th update (the downdates' rounding would otherwise
+  // stay). Exact up to rounding (the tests check it against G P G^T after long random sequences).
+  // Replaces any earlier tracking; v is computed from P here.
+  void trackVariances(const Eigen::MatrixXd& G);
+  const Eigen::MatrixXd& trackedRows() const { return track_G_; }    // 0 x 0 when nothing is tracked
+  const Eigen::VectorXd& trackedVariances() const { return track_v_; }
+
+  // What an update changes (state, covariance, tracked variances), to undo one: save before, restore after.
+  struct Checkpoint {
+    Eigen::VectorXd x, v;
+    Eigen::MatrixXd P;
+    std::uint64_t updates = 0;
+    double nis = 0;
+  };
+  void save(Checkpoint& c) const { c = Checkpoint{x_, track_v_, P_, track_updates_, last_nis_}; }
+  void restore(const Checkpoint& c);
 
   const Eigen::VectorXd& x() const { return x_; }
   Eigen::VectorXd& mutableX() { return x_; }
@@ -60,6 +83,11 @@ class RlsEstimator {
   RlsOptions options_;
   double last_nis_ = 0;
   Eigen::MatrixXd PA_, S_;  // workspaces
+  Eigen::MatrixXd track_G_, track_GW_, track_Q_;  // tracked rows, G W workspace, the last scaled noise shape
+  Eigen::VectorXd track_v_, track_Qv_;            // tracked variances; diag(G Q G^T) of track_Q_
+  static constexpr std::uint64_t kTrackRefresh = 64;
+  std::uint64_t track_updates_ = 0;
+  bool track_refresh_due_ = false;
 };
 
 // How much each kind of parameter may change between two calibration updates (1 sigma, random walk).
@@ -110,7 +138,18 @@ class RlsCalibrator {
   // parameters also take the drift of the parameters they stand for (structuralAbsorption for `kind` at the nominal
   // parameters, computed once):
   // a joint 6 zero that drifts moves the tool yaw that stands for it.
-  void addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind);
+  // `variance_scale` multiplies the noise's covariance (the hours since the last update over the drift's period): the
+  // covariance of sigma_full is computed once per distinct sigma_full.
+  void addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind, double variance_scale = 1.0);
+  // The estimator's tracked variances (RlsEstimator::trackVariances) over the state.
+  void trackVariances(const Eigen::MatrixXd& G) { rls_.trackVariances(G); }
+  // What addObservation and addProcessNoise change, to roll an update back (cheaper than a copy of the calibrator).
+  struct Checkpoint {
+    RlsEstimator::Checkpoint rls;
+    Eigen::VectorXd params, extension_params;
+  };
+  void save(Checkpoint& c) const;
+  void restore(const Checkpoint& c);
 
   const Eigen::VectorXd& params() const { return params_; }
   const std::vector<int>& estimated() const { return estimated_; }
@@ -124,8 +163,11 @@ class RlsCalibrator {
  private:
   RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& params, const IdentifiabilityReport& structural,
                 const GaussianPrior& prior, const RlsCalibratorOptions& options);
-  // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows.
+  // Whitened residual and state Jacobian of one observation into r_ / A_; returns its rows. The engine gates a pose
+  // (normalizedInnovation) and then adds it: the second call for the same observation at unchanged parameters (no
+  // update in between, no extension) reuses the first's.
   int linearize(const Observation& obs, const Drivers* drivers);
+  int linearizeAnew(const Observation& obs, const Drivers* drivers);
   Eigen::VectorXd rowParams(const Eigen::VectorXd& q_rad, const Drivers* drivers);
   void writeBack();
 
@@ -140,7 +182,13 @@ class RlsCalibrator {
   KinematicsData data_;
   Eigen::MatrixXd J_, A_;
   Eigen::Matrix<double, 6, 1> r_;
+  const Observation* lin_obs_ = nullptr;  // what r_ / A_ hold (nullptr: nothing reusable)
+  Eigen::VectorXd lin_q_;
+  Eigen::Matrix4d lin_measured_;
+  int lin_rows_ = 0;
   Eigen::MatrixXd drift_map_;  // structuralAbsorption over estimated_ at the nominal parameters, for drift_kind_
+  Eigen::VectorXd noise_sigma_;  // the sigma_full whose process noise covariance (over the state) is noise_Q_
+  Eigen::MatrixXd noise_Q_;
   MeasurementKind drift_kind_ = MeasurementKind::kPose6D;
 };
 

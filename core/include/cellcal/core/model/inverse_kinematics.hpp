@@ -26,6 +26,9 @@ struct IkOptions {
   double orientation_tolerance_rad = 1e-9;
   double damping = 1e-12;            // smallest Levenberg damping (m^2); it adapts upward on failed steps
   double orientation_weight_m = 0.5; // a radian of orientation error counts as this many metres
+  // An attempt the budget stopped while still descending goes on with ten times the budget (near a singularity the
+  // descent is linear). False bounds the cost: a caller answering a stream (compensation) refuses such a target.
+  bool extend_when_descending = true;
   bool IsValid(std::string* error) const;
 };
 
