@@ -255,8 +255,13 @@ void RlsCalibrator::writeBack() {
 
 double RlsCalibrator::normalizedInnovation(const Observation& obs, const Drivers* drivers) {
   const int rows = linearize(obs, drivers);
-  const Eigen::MatrixXd S = A_ * rls_.P() * A_.transpose() + Eigen::MatrixXd::Identity(rows, rows);
-  return r_.head(rows).dot(S.ldlt().solve(r_.head(rows)));
+  // S = A P A^T + I (at most 6 x 6: no heap), P A^T into a workspace.
+  gate_PA_.noalias() = rls_.P().selfadjointView<Eigen::Lower>() * A_.transpose();
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 6, 6> S(rows, rows);
+  S.noalias() = A_ * gate_PA_;
+  S.diagonal().array() += 1.0;
+  const Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 6, 1> r = r_.head(rows);
+  return r.dot(S.ldlt().solve(r));
 }
 
 double RlsCalibrator::addObservation(const Observation& obs, const Drivers* drivers) {

@@ -180,7 +180,7 @@ class RlsCalibrator {
   RlsEstimator rls_;
   Eigen::MatrixXd B_;
   KinematicsData data_;
-  Eigen::MatrixXd J_, A_;
+  Eigen::MatrixXd J_, A_, gate_PA_;
   Eigen::Matrix<double, 6, 1> r_;
   const Observation* lin_obs_ = nullptr;  // what r_ / A_ hold (nullptr: nothing reusable)
   Eigen::VectorXd lin_q_;
