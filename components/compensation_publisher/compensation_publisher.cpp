@@ -176,6 +176,14 @@ void CompensationPublisher::onDiagnostics(const msg::CalibrationDiagnostics& d) 
   refreshNote(it->second);
 }
 
+// The engine's presence, read per request from an atomic: the note changes when it comes or goes.
+void CompensationPublisher::noticeEngine(Robot& r) {
+  const bool gone = engine_writers_.load(std::memory_order_relaxed) == 0;
+  if (gone == r.engine_gone) return;
+  r.engine_gone = gone;
+  refreshNote(r);
+}
+
 // Said in `reason` even when applied: what the operator should know about the calibration used.
 void CompensationPublisher::refreshNote(Robot& r) {
   r.note.clear();
@@ -208,6 +216,19 @@ void CompensationPublisher::waitForCalibrations() {
 }
 
 namespace {
+// A pose on the wire the compensation can take: finite, and a unit quaternion (to 1e-6).
+bool usablePose(const std::array<double, 3>& p, const std::array<double, 4>& q) {
+  bool finite = true;
+  for (double v : p) finite = finite && std::isfinite(v);
+  for (double v : q) finite = finite && std::isfinite(v);
+  return finite && std::abs(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) <= 1e-6;
+}
+
+// An answer's reason: what the compensation said, then the operator's note, cut to the wire's bound.
+std::string withNote(const std::string& reason, const std::string& note, size_t max_chars) {
+  return (reason.empty() ? note : note.empty() ? reason : reason + "; " + note).substr(0, max_chars);
+}
+
 double threadCpuUs() {
   timespec ts{};
   ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
@@ -257,19 +278,12 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
     return;
   }
   r.servo_last_sequence = sp.sequence_number();
-  if (const bool gone = engine_writers_.load(std::memory_order_relaxed) == 0; gone != r.engine_gone) {
-    r.engine_gone = gone;
-    refreshNote(r);
-  }
+  noticeEngine(r);
   const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(sp.joint_position_rad().data(),
                                                               static_cast<Eigen::Index>(sp.joint_position_rad().size()));
   const auto stamp = static_cast<std::int64_t>(sp.cycle_stamp_ns());
   ServoAnswer a;
-  bool finite = true;
-  for (double v : sp.position_m()) finite = finite && std::isfinite(v);
-  for (double v : sp.orientation_xyzw()) finite = finite && std::isfinite(v);
-  const auto& o = sp.orientation_xyzw();
-  if (sp.cartesian() && (!finite || std::abs(std::sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + o[3] * o[3]) - 1.0) > 1e-6)) {
+  if (sp.cartesian() && !usablePose(sp.position_m(), sp.orientation_xyzw())) {
     a.q_rad = q;
     a.reason = "setpoint rejected: non-finite position or non-unit quaternion";
   } else {
@@ -292,8 +306,7 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   out.calibration_version(a.version);
   out.blend_from_version(a.from_version);
   out.blend_weight(a.weight);
-  if (a.reason.empty() && r.note.empty()) out.reason("");
-  else out.reason((a.reason.empty() ? r.note : r.note.empty() ? a.reason : a.reason + "; " + r.note).substr(0, 127));
+  out.reason(withNote(a.reason, r.note, 127));
   out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
   servo_writer_.write(out);
   ++servo_answered_;
@@ -319,16 +332,8 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
   out.applied(false);
   out.clamped(false);
   out.reason("");
-  if (const bool gone = engine_writers_.load(std::memory_order_relaxed) == 0; gone != r.engine_gone) {
-    r.engine_gone = gone;
-    refreshNote(r);
-  }
-  bool finite = true;
-  for (double v : t.position_m()) finite = finite && std::isfinite(v);
-  for (double v : t.orientation_xyzw()) finite = finite && std::isfinite(v);
-  const auto& q = t.orientation_xyzw();
-  const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-  if (!finite || std::abs(qn - 1.0) > 1e-6) {
+  noticeEngine(r);
+  if (!usablePose(t.position_m(), t.orientation_xyzw())) {
     out.reason("target rejected: non-finite position or non-unit quaternion");
   } else if (!r.calibration) {
     out.reason("no calibration received yet");
@@ -347,8 +352,7 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     ++outcomes_[static_cast<size_t>(c.outcome)];
     out.applied(c.applied);
     out.clamped(c.clamped);
-    if (!c.reason.empty() || !r.note.empty())
-      out.reason((c.reason.empty() ? r.note : r.note.empty() ? c.reason : c.reason + "; " + r.note).substr(0, 255));
+    out.reason(withNote(c.reason, r.note, 255));
     out.correction_position_m(c.correction_position_m);
     out.correction_orientation_rad(c.correction_orientation_rad);
     if (c.applied) {

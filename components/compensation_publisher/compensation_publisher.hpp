@@ -100,6 +100,7 @@ class CompensationPublisher {
   void publishDescription(const std::string& id, Robot& r);
   void waitForCalibrations();
   void refreshNote(Robot& r);
+  void noticeEngine(Robot& r);
   // The answer to one target in out_ (reused: fastddsgen's constructors re-register the IDL's types, tens of us).
   void answer(const msg::TargetPose& t, Robot& r);
 

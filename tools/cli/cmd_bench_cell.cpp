@@ -270,32 +270,32 @@ BenchPlayed play(const BenchArgs& a, const CellConfig& cell, const BenchRobots& 
       Observation o = robots.sims[i].measure(q, 0.0, rng);
       auto r = toTrackerPose(cell.robots[i].target_id, now, seq, o);
       tp.write(r);
-      if (a.servo && tick % target_every == static_cast<std::int64_t>(i % target_every)) {
-        static thread_local msg::ServoSetpoint sp;  // reused: the generated constructor registers the IDL's types
-        sp.robot_id(cell.robots[i].robot_id);
-        sp.sequence_number(++out.target_seq);
-        sp.cycle_stamp_ns(static_cast<std::uint64_t>(now));
-        sp.source_stamp_ns(static_cast<std::uint64_t>(now));
-        sp.cartesian(false);
-        sp.joint_position_rad().assign(to.data(), to.data() + to.size());
+      if (tick % target_every == static_cast<std::int64_t>(i % target_every)) {
+        const std::uint64_t target_seq = ++out.target_seq;
+        const std::int64_t sent_ns = wallNs();
         {
           std::lock_guard<std::mutex> l(rx.mutex);
-          rx.target_sent[out.target_seq] = wallNs();
+          rx.target_sent[target_seq] = sent_ns;
         }
-        sv.write(sp);
-      } else if (tick % target_every == static_cast<std::int64_t>(i % target_every)) {
-        msg::TargetPose t;
-        t.robot_id(cell.robots[i].robot_id);
-        t.sequence_number(++out.target_seq);
-        fromPose(forwardKinematics(cell.robots[i].model, kd, cell.robots[i].model.nominal, to), t.position_m(),
-                 t.orientation_xyzw());
-        t.seed_position_rad(std::vector<double>(to.data(), to.data() + to.size()));
-        t.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
-        {
-          std::lock_guard<std::mutex> l(rx.mutex);
-          rx.target_sent[out.target_seq] = static_cast<std::int64_t>(t.source_stamp_ns());
+        if (a.servo) {
+          static thread_local msg::ServoSetpoint sp;  // reused: the generated constructor registers the IDL's types
+          sp.robot_id(cell.robots[i].robot_id);
+          sp.sequence_number(target_seq);
+          sp.cycle_stamp_ns(static_cast<std::uint64_t>(now));
+          sp.source_stamp_ns(static_cast<std::uint64_t>(now));
+          sp.cartesian(false);
+          sp.joint_position_rad().assign(to.data(), to.data() + to.size());
+          sv.write(sp);
+        } else {
+          msg::TargetPose t;
+          t.robot_id(cell.robots[i].robot_id);
+          t.sequence_number(target_seq);
+          fromPose(forwardKinematics(cell.robots[i].model, kd, cell.robots[i].model.nominal, to), t.position_m(),
+                   t.orientation_xyzw());
+          t.seed_position_rad(std::vector<double>(to.data(), to.data() + to.size()));
+          t.source_stamp_ns(static_cast<std::uint64_t>(sent_ns));
+          tg.write(t);
         }
-        tg.write(t);
       }
     }
   }

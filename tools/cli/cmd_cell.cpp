@@ -333,7 +333,7 @@ class CellJudge {
       targets_.write(t);
       if (servo_) {  // the robot holding the target's joints, one setpoint per cycle
         servo_sample_.robot_id(j.robot->robot_id);
-        servo_sample_.sequence_number(target_seq_servo_[j.robot->robot_id] += 1);
+        servo_sample_.sequence_number(j.target_seq);  // one setpoint per target: the same count
         servo_sample_.source_stamp_ns(static_cast<std::uint64_t>(now));
         servo_sample_.cycle_stamp_ns(static_cast<std::uint64_t>(now));
         servo_sample_.cartesian(false);
@@ -559,7 +559,6 @@ class CellJudge {
   Writer<msg::TargetPose> targets_;
   std::optional<Writer<msg::ServoSetpoint>> servo_;  // --servo
   msg::ServoSetpoint servo_sample_;
-  std::map<std::string, std::uint64_t> target_seq_servo_;
   std::uint64_t servo_sent_ = 0;
   std::mt19937_64 target_rng_;
 };

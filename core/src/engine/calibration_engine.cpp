@@ -598,7 +598,9 @@ double CalibrationEngine::predictionSigma() {
   const auto refs = static_cast<Eigen::Index>(reference_q_.size());
   const Eigen::Index state = rls_->covariance().rows();
   if (refs == 0) return 0.0;
-  if (sigma_rows_.rows() != 3 * refs || sigma_rows_.cols() != state || sigma_rows_estimated_ != estimated) {
+  // Rebuilt when the state changes shape; tracked again by each new estimator (a new rls_ tracks nothing).
+  const bool rebuild = sigma_rows_.rows() != 3 * refs || sigma_rows_.cols() != state || sigma_rows_estimated_ != estimated;
+  if (rebuild) {
     KinematicsData data(m);
     Eigen::MatrixXd J(6, m.numParams());
     sigma_rows_ = Eigen::MatrixXd::Zero(3 * refs, state);
@@ -610,9 +612,7 @@ double CalibrationEngine::predictionSigma() {
     }
     sigma_rows_estimated_ = estimated;
   }
-  if (rls_->estimator().trackedRows().rows() != sigma_rows_.rows() ||
-      rls_->estimator().trackedRows().cols() != sigma_rows_.cols() || rls_->estimator().trackedRows() != sigma_rows_)
-    rls_->trackVariances(sigma_rows_);
+  if (rebuild || rls_->estimator().trackedRows().rows() == 0) rls_->trackVariances(sigma_rows_);
   const Eigen::VectorXd& v = rls_->estimator().trackedVariances();
   double worst = 0;
   for (Eigen::Index r = 0; r < refs; ++r) {

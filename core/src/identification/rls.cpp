@@ -75,7 +75,7 @@ void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>&
   }
   P_.triangularView<Eigen::StrictlyUpper>() = P_.transpose();
   if (track_refresh_due_) {
-    track_v_ = (track_G_ * P_).cwiseProduct(track_G_).rowwise().sum();
+    track_v_ = trackedForm(P_);
     track_refresh_due_ = false;
   }
 }
@@ -89,7 +89,7 @@ void RlsEstimator::addProcessNoise(const Eigen::MatrixXd& Q) {
   if (Q.rows() != P_.rows() || Q.cols() != P_.cols()) throw std::invalid_argument("RlsEstimator: Q size mismatch");
   const Eigen::MatrixXd Qs = 0.5 * (Q + Q.transpose());
   P_ += Qs;
-  if (track_G_.rows() > 0) track_v_ += (track_G_ * Qs).cwiseProduct(track_G_).rowwise().sum();
+  if (track_G_.rows() > 0) track_v_ += trackedForm(Qs);
 }
 
 void RlsEstimator::addScaledProcessNoise(const Eigen::MatrixXd& Q, double scale) {
@@ -99,7 +99,7 @@ void RlsEstimator::addScaledProcessNoise(const Eigen::MatrixXd& Q, double scale)
   if (track_G_.rows() == 0) return;
   if (track_Q_.rows() != Q.rows() || track_Q_.cols() != Q.cols() || track_Q_ != Q) {
     track_Q_ = Q;
-    track_Qv_ = (track_G_ * Q).cwiseProduct(track_G_).rowwise().sum();
+    track_Qv_ = trackedForm(Q);
   }
   track_v_ += scale * track_Qv_;
 }
@@ -114,10 +114,14 @@ void RlsEstimator::restore(const Checkpoint& c) {
   last_nis_ = c.nis;
 }
 
+Eigen::VectorXd RlsEstimator::trackedForm(const Eigen::MatrixXd& M) const {
+  return (track_G_ * M).cwiseProduct(track_G_).rowwise().sum();
+}
+
 void RlsEstimator::trackVariances(const Eigen::MatrixXd& G) {
   if (G.cols() != P_.rows()) throw std::invalid_argument("RlsEstimator::trackVariances: G has the wrong width");
   track_G_ = G;
-  track_v_ = (G * P_).cwiseProduct(G).rowwise().sum();
+  track_v_ = trackedForm(P_);
   track_Q_.resize(0, 0);
   track_Qv_.resize(0);
 }

@@ -227,8 +227,8 @@ class CalibrationEngine {
   // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters
   // over the state (the estimated kinematic columns; zero for extension columns), for the estimated set they are of.
   Eigen::MatrixXd sigma_rows_;
-  RlsCalibrator::Checkpoint rollback_;  // applyPose's, reused
   std::vector<int> sigma_rows_estimated_;
+  RlsCalibrator::Checkpoint rollback_;  // applyPose's, reused
   std::int64_t last_update_duration_ns_ = 0;
   std::deque<AppliedReading> applied_readings_;
   Eigen::VectorXd last_joint_q_, used_q_;

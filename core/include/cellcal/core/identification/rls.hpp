@@ -83,6 +83,7 @@ class RlsEstimator {
   RlsOptions options_;
   double last_nis_ = 0;
   Eigen::MatrixXd PA_, S_;  // workspaces
+  Eigen::VectorXd trackedForm(const Eigen::MatrixXd& M) const;  // diag(G M G^T) over the tracked rows G
   Eigen::MatrixXd track_G_, track_GW_, track_Q_;  // tracked rows, G W workspace, the last scaled noise shape
   Eigen::VectorXd track_v_, track_Qv_;            // tracked variances; diag(G Q G^T) of track_Q_
   static constexpr std::uint64_t kTrackRefresh = 64;
