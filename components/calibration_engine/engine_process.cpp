@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <iostream>
 
@@ -49,8 +50,20 @@ EngineProcess::EngineProcess(const Options& options)
       host_(cell_, {}, [this](EngineHost::Robot& r) { onUpdate(r); }),
       node_(cell_, "cellcal_calibration_engine", identity::kCalibrationEngine),
       state_writer_(node_.writer<msg::CalibrationState>()),
-      diag_writer_(node_.writer<msg::CalibrationDiagnostics>()) {
+      diag_writer_(node_.writer<msg::CalibrationDiagnostics>()),
+      request_writer_(node_.writer<msg::PoseRequest>()) {
   reportStart(host_);
+  const PoseRequestSettings& prs = cell_.engine.pose_requests;
+  for (auto& [id, r] : host_.robots()) {
+    Requests& q = requests_[id];
+    if (prs.count == 0) continue;
+    try {
+      q.requester = std::make_unique<PoseRequester>(*r.robot, prs, poseRequestSeed(r.robot->index));
+      std::cerr << "calibration_engine: " << id << ": " << poseRequesterText(*q.requester, prs) << "\n";
+    } catch (const std::invalid_argument& e) {  // a cell whose tracker sees too little: calibrate all the same
+      std::cerr << "calibration_engine: " << id << ": warning: no pose requests: " << e.what() << "\n";
+    }
+  }
   inputs_ = std::make_unique<WorkQueue<Input>>(
       kMaxQueuedInputs, [this](std::vector<Input>& batch) { handle(batch); }, EngineHost::kTickPeriod, [this] {
         std::lock_guard<std::mutex> lock(mutex_);
@@ -125,6 +138,34 @@ void EngineProcess::onUpdate(EngineHost::Robot& r) {
               << snap.verification_mean_position_m * 1e3 << " mm\n";
 }
 
+std::vector<std::pair<std::string, CalibrationSnapshot>> EngineProcess::dueProposals(std::chrono::steady_clock::time_point now) {
+  std::vector<std::pair<std::string, CalibrationSnapshot>> due;
+  const auto period = std::chrono::duration<double>(cell_.engine.pose_requests.min_period_s);
+  for (auto& [id, q] : requests_) {
+    if (!q.requester) continue;
+    const CalibrationSnapshot& snap = host_.robots().at(id).engine->snapshot();
+    if (q.proposed && (snap.version == q.version || now - q.at < period)) continue;
+    q.proposed = true;
+    q.version = snap.version;
+    q.at = now;
+    due.emplace_back(id, snap);
+  }
+  return due;
+}
+
+void EngineProcess::propose(const std::string& robot_id, const CalibrationSnapshot& snap) {
+  Requests& q = requests_.at(robot_id);
+  const auto t0 = std::chrono::steady_clock::now();
+  const PoseProposal p = q.requester->propose(snap);
+  q.compute_ns.push_back(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count());
+  if (q.compute_ns.size() > 1000) q.compute_ns.pop_front();
+  if (p.q_rad.empty()) return;
+  q.last_sigma_now_m = p.predicted_sigma_now_m;
+  q.last_sigma_after_m = p.predicted_sigma_after_m;
+  auto m = toPoseRequest(robot_id, p, q.requester->candidates().q.size(), wallNs(), ++q.seq);
+  request_writer_.write(m);
+}
+
 // The worker: every sample in arrival order.
 void EngineProcess::handle(std::vector<Input>& batch) {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -162,17 +203,22 @@ int EngineProcess::run() {
                 << kMaxQueuedInputs << " were waiting for the worker (stalled on the disk?)\n";
       refused_reported = refused;
     }
-    std::lock_guard<std::mutex> lock(mutex_);
-    inputs_refused_ = refused;
-    const std::int64_t now = wallNs();
-    to_sync = host_.takeUnsynced();
-    if (std::chrono::steady_clock::now() >= next_republish) {
-      next_republish += period;
-      for (auto& [id, r] : host_.robots()) {
-        publishState(r);
-        publishDiagnostics(r, now);
+    std::vector<std::pair<std::string, CalibrationSnapshot>> due;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      inputs_refused_ = refused;
+      const std::int64_t now = wallNs();
+      to_sync = host_.takeUnsynced();
+      if (std::chrono::steady_clock::now() >= next_republish) {
+        next_republish += period;
+        for (auto& [id, r] : host_.robots()) {
+          publishState(r);
+          publishDiagnostics(r, now);
+        }
       }
+      due = dueProposals(std::chrono::steady_clock::now());
     }
+    for (const auto& [id, snap] : due) propose(id, snap);  // outside the lock: the worker goes on updating
   }
   stopAndReport();
   return 0;
@@ -201,6 +247,12 @@ void EngineProcess::stopAndReport() {
                   {"rejected", rej},
                   // the readings applied, in order (the last 4096): [tracker sequence number, stamp_ns]
                   {"applied_readings", appliedReadingsJson(r.engine->appliedReadings())},
+                  {"pose_requests",
+                   {{"published", requests_[id].seq},
+                    {"choose_p50_ns", percentileNs(requests_[id].compute_ns, 0.5)},
+                    {"choose_max_ns", requests_[id].compute_ns.empty() ? 0 : *std::max_element(requests_[id].compute_ns.begin(), requests_[id].compute_ns.end())},
+                    {"last_predicted_sigma_now_m", requests_[id].last_sigma_now_m},
+                    {"last_predicted_sigma_after_m", requests_[id].last_sigma_after_m}}},
                   {"pairing_latency_p99_ns", p99(r.pairing_ns)},
                   {"reading_received_p50_ns", percentileNs(r.reading_received_ns, 0.5)},
                   {"reading_received_p99_ns", p99(r.reading_received_ns)},

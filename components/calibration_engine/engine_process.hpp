@@ -2,8 +2,10 @@
 //
 // Threads: the DDS listeners only convert and queue each sample (WorkQueue); one worker feeds them to the host in
 // arrival order (pairing, update, state file, publication of cellcal/calibration_state) and, with nothing queued for
-// EngineHost::kTickPeriod, ticks it; the main loop (run()) fsyncs the state files and republishes the state and the
-// diagnostics every engine.republish_period_s. A slow disk delays updates instead of making the kernel drop readings.
+// EngineHost::kTickPeriod, ticks it; the main loop (run()) fsyncs the state files, republishes the state and the
+// diagnostics every engine.republish_period_s, and proposes the poses to measure next (cellcal/pose_request, after a
+// new version, at most every engine.pose_requests.min_period_s; the choice runs on a copy of the estimate, outside
+// the lock, so it never delays an update). A slow disk delays updates instead of making the kernel drop readings.
 //
 // Lifetime (as the Fast DDS examples): the constructor resumes the engines, joins the domain, creates the writers,
 // the worker and then the readers, and publishes where each robot stands; run() returns on SIGINT/SIGTERM or after
@@ -23,6 +25,7 @@
 #include "cellcal/components/engine_host.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/components/work_queue.hpp"
+#include "cellcal/core/engine/pose_requests.hpp"
 
 namespace cellcal::components {
 
@@ -66,6 +69,10 @@ class EngineProcess {
   void logNotes(EngineHost::Robot& r);
   std::string staleInputs(EngineHost::Robot& r, std::int64_t now);
   void handle(std::vector<Input>& batch);
+  // The robots whose proposal is due (a version not proposed yet, min_period_s since the last): their estimates,
+  // copied under the lock.
+  std::vector<std::pair<std::string, CalibrationSnapshot>> dueProposals(std::chrono::steady_clock::time_point now);
+  void propose(const std::string& robot_id, const CalibrationSnapshot& snap);
   void stopAndReport();
 
   Options options_;
@@ -73,10 +80,20 @@ class EngineProcess {
   std::mutex mutex_;  // the host and what is published, between the worker and the main loop
   EngineHost host_;
   std::map<std::string, Published> published_;
+  struct Requests {  // per robot: its PoseRequester (null: none proposed) and what it proposed
+    std::unique_ptr<PoseRequester> requester;
+    bool proposed = false;
+    std::uint64_t version = 0, seq = 0;
+    std::chrono::steady_clock::time_point at{};
+    std::deque<std::int64_t> compute_ns;  // recent proposals' time to choose
+    double last_sigma_now_m = 0, last_sigma_after_m = 0;
+  };
+  std::map<std::string, Requests> requests_;  // main loop only
   std::uint64_t inputs_refused_ = 0;  // samples the full queue refused, as of the last main-loop round
   DdsNode node_;
   Writer<msg::CalibrationState> state_writer_;
   Writer<msg::CalibrationDiagnostics> diag_writer_;
+  Writer<msg::PoseRequest> request_writer_;
   std::unique_ptr<WorkQueue<Input>> inputs_;
 };
 

@@ -24,6 +24,28 @@ void JointStateAdapter::runSim() {
   for (const auto& c : cells) programs.emplace_back(c, cell_.simulation);
   for (size_t i = 0; i < cells.size(); ++i)
     std::cerr << "joint_state_adapter: " << cell_.robots[i].robot_id << ": simulating " << simulatedRobotText(cells[i]) << "\n";
+  // simulation.follow_pose_requests: the program takes its poses from the engine's newest proposals.
+  const bool follow = cell_.simulation.follow_pose_requests;
+  std::mutex program_mutex;
+  std::uint64_t requests_received = 0, requests_refused = 0;
+  if (follow) {
+    node_.reader<msg::PoseRequest>([&](const msg::PoseRequest& m, const fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> lock(program_mutex);
+      ++requests_received;
+      for (size_t i = 0; i < cell_.robots.size(); ++i) {
+        if (cell_.robots[i].robot_id != m.robot_id().to_string()) continue;
+        std::string why;
+        auto qs = fromPoseRequest(m, cell_.robots[i].model.numJoints(), &why);
+        if (!qs) {
+          ++requests_refused;
+          std::cerr << "joint_state_adapter: ignored: " << why << "\n";
+          return;
+        }
+        programs[i].offer(std::move(*qs));
+      }
+    });
+    std::cerr << "joint_state_adapter: the simulated program follows the engine's pose requests (cellcal/pose_request)\n";
+  }
   if (options_.wait_for_readers > 0) {
     // Start the program only once someone listens: JointState matched by >= 1 reader (the engine) and
     // RobotTruth by >= N (the simulated tracker, and the launcher when it watches). At most 10 s.
@@ -62,7 +84,13 @@ void JointStateAdapter::runSim() {
     const std::int64_t now = wallNs();
     ++seq;
     for (size_t i = 0; i < cell_.robots.size(); ++i) {
-      const SimRobotState st = programs[i].at(cell_time);
+      SimRobotState st;
+      if (follow) {
+        std::lock_guard<std::mutex> lock(program_mutex);
+        st = programs[i].advance(cell_time);
+      } else {
+        st = programs[i].at(cell_time);
+      }
       auto m = toJointState(cell_.robots[i].robot_id, now, seq, st.q_rad, st.settled);
       joints_.write(m);
       sim::RobotTruth t;
@@ -79,8 +107,25 @@ void JointStateAdapter::runSim() {
     }
     ++ticks;
   }
+  node_.shutdown();  // no pose request after this point
   extra_["ticks"] = ticks;
   extra_["ticks_skipped_late"] = late;
+  if (follow) {
+    // Per robot, [pose id, joints...] of each pose taken from a proposal: what the launcher's reference replays.
+    nlohmann::json followed = nlohmann::json::object();
+    for (size_t i = 0; i < programs.size(); ++i) {
+      nlohmann::json list = nlohmann::json::array();
+      for (const auto& [id, q] : programs[i].followed()) {
+        nlohmann::json row = {id};
+        for (Eigen::Index j = 0; j < q.size(); ++j) row.push_back(q[j]);
+        list.push_back(row);
+      }
+      followed[cell_.robots[i].robot_id] = list;
+    }
+    extra_["followed_poses"] = followed;
+    extra_["pose_requests_received"] = requests_received;
+    extra_["pose_requests_refused"] = requests_refused;
+  }
 }
 
 void JointStateAdapter::runCsv() {

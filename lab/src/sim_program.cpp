@@ -68,6 +68,33 @@ SimRobotProgram::SimRobotProgram(const SimulatedCell& cell, const SimulationSett
   work_ = cell.randomConfigurations(kWorkPoints, rng);
 }
 
+void SimRobotProgram::offer(std::vector<Eigen::VectorXd> proposal) { proposal_ = std::move(proposal); }
+
+SimRobotState SimRobotProgram::advance(double t) {
+  if (decided_.empty()) decided_.assign(campaigns_.size(), 0);
+  long long before = 0;
+  for (int g = 0; g < campaigns(); ++g) {
+    const double t0 = campaignStart_s(g);
+    if (t >= t0 && t < campaignEnd_s(g)) {
+      const int k = std::min(posesIn(g) - 1, static_cast<int>(std::floor((t - t0) / s_.pose_time_s)));
+      for (int& d = decided_[static_cast<size_t>(g)]; d <= k; ++d) {
+        for (const auto& q : proposal_) {
+          if (q.size() != campaigns_[g][d].size()) break;
+          bool visited = false;
+          for (int j = 0; j < d && !visited; ++j) visited = (campaigns_[g][j] - q).cwiseAbs().maxCoeff() < 1e-9;
+          if (visited) continue;
+          campaigns_[g][d] = q;
+          followed_[before + d] = q;
+          break;
+        }
+      }
+      break;
+    }
+    before += posesIn(g);
+  }
+  return at(t);
+}
+
 double SimRobotProgram::campaignStart_s(int g) const { return g * s_.hours_between_groups * 3600.0; }
 double SimRobotProgram::campaignEnd_s(int g) const { return campaignStart_s(g) + posesIn(g) * s_.pose_time_s; }
 

@@ -60,6 +60,53 @@ TEST(CellProcesses, ConvergesEndToEndThroughFourProcesses) {
     EXPECT_GT(s["latency_us"][k].get<double>(), 0) << k;
 }
 
+// simulation.follow_pose_requests: the simulated program takes each pose from the engine's newest proposal
+// (cellcal/pose_request); every pose it took is one the engine proposed (the test's own reader hears every
+// proposal), the tracker measured it, and the in-process engine fed the same configurations reaches the same error.
+TEST(CellProcesses, TheSimulatedProgramFollowsTheEnginesPoseRequests) {
+  const std::string dir = testDir();
+  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}},
+                                    std::string(kShortProgram) + "  follow_pose_requests: true\n",
+                                    "  pose_requests: { count: 5, candidates: 300, min_period_s: 0 }\n");
+  const CellConfig cell = loadCellConfig(cfg);
+  const int joints = cell.robots[0].model.numJoints();
+  components::DdsNode node(cell, "cellcal_test_pose_requests", components::identity::kObserver);
+  std::mutex mutex;
+  std::vector<Eigen::VectorXd> proposed;
+  std::uint64_t requests = 0;
+  node.reader<msg::PoseRequest>([&](const msg::PoseRequest& m, const components::fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    ++requests;
+    const auto qs = fromPoseRequest(m, joints, nullptr);
+    if (qs) proposed.insert(proposed.end(), qs->begin(), qs->end());
+  });
+  const auto s = runCell(dir, cfg, "9");
+  ASSERT_FALSE(s.is_discarded());
+  node.shutdown();
+  expectEveryTopicFlowed(s);
+  EXPECT_GT(s["topics"]["cellcal/pose_request"]["published"].get<int>(), 0);
+  EXPECT_GE(s["calibration_updates"].get<int>(), 52) << s["engine"].dump();
+  const auto& r = s["robots"][0];
+  // Each pose is decided when the robot starts moving to it; only the very first may come before any proposal.
+  const auto followed = s["joint_adapters"]["joint_state_adapter"]["followed_poses"]["tx60"];
+  EXPECT_GE(followed.size(), s["calibration_updates"].get<std::size_t>() - 1);
+  EXPECT_EQ(r["poses_followed"].get<std::size_t>(), followed.size());
+  std::lock_guard<std::mutex> l(mutex);
+  EXPECT_GT(requests, 10u);
+  for (const auto& row : followed) {
+    const auto v = row.get<std::vector<double>>();
+    ASSERT_EQ(v.size(), static_cast<std::size_t>(joints) + 1);
+    const Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(v.data() + 1, joints);
+    bool found = false;
+    for (const auto& p : proposed) found = found || (p - q).cwiseAbs().maxCoeff() < 1e-12;
+    EXPECT_TRUE(found) << "pose " << v[0] << " was not proposed";
+  }
+  EXPECT_EQ(r["in_process_inputs"], "applied_readings");
+  const double at_update = s["verify_after_last_update_mm"], after = s["verify_after_mm"], ref = s["in_process_verify_after_mm"];
+  EXPECT_LT(at_update, 0.05);
+  EXPECT_LT(after, 1.05 * ref) << "in-process " << ref;
+}
+
 TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
   // The simulated robot has a joint compliance (joint, size and sign drawn at random); the cell file names the
   // extension, as after `cellcal diagnose`. The engine estimates it, CalibrationState carries it, the compensation

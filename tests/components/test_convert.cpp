@@ -133,4 +133,37 @@ TEST_F(Convert, CalibrationStateCarriesModelExtensions) {
   EXPECT_NE(error.find("model_extensions: 'thermal_drift' does not apply"), std::string::npos) << error;
 }
 
+// A proposal crosses the wire row-major with its joint count; what does not fit the robot is refused, named.
+TEST_F(Convert, PoseRequestCarriesTheConfigurationsInOrder) {
+  cellcal::PoseProposal p;
+  p.version = 7;
+  p.predicted_sigma_now_m = 3e-5;
+  p.predicted_sigma_after_m = 2e-5;
+  for (int k = 0; k < 4; ++k) p.q_rad.push_back(Eigen::VectorXd::LinSpaced(m.numJoints(), 0.1 * k, 0.1 * k + 1));
+  const cellcal::msg::PoseRequest w = roundTrip<cellcal::msg::PoseRequestPubSubType>(
+      cellcal::components::toPoseRequest("tx60", p, 278, 123, 5));
+  EXPECT_EQ(w.robot_id(), "tx60");
+  EXPECT_EQ(w.calibration_version(), 7u);
+  EXPECT_EQ(w.candidates(), 278u);
+  EXPECT_EQ(w.predicted_sigma_after_m(), 2e-5);
+  std::string error;
+  const auto back = cellcal::components::fromPoseRequest(w, m.numJoints(), &error);
+  ASSERT_TRUE(back) << error;
+  ASSERT_EQ(back->size(), 4u);
+  for (size_t k = 0; k < 4; ++k) EXPECT_EQ((*back)[k], p.q_rad[k]);
+  EXPECT_FALSE(cellcal::components::fromPoseRequest(w, m.numJoints() + 1, &error));
+  EXPECT_NE(error.find("pose_request of tx60 #5: 6 joints per configuration for a robot of 7"), std::string::npos) << error;
+  cellcal::msg::PoseRequest bad = w;
+  bad.configurations_rad().pop_back();
+  EXPECT_FALSE(cellcal::components::fromPoseRequest(bad, m.numJoints(), &error));
+  EXPECT_NE(error.find("are not whole configurations"), std::string::npos) << error;
+  bad = w;
+  bad.configurations_rad()[8] = std::nan("");
+  EXPECT_FALSE(cellcal::components::fromPoseRequest(bad, m.numJoints(), &error));
+  EXPECT_NE(error.find("configuration 1 is not finite"), std::string::npos) << error;
+  // More than the IDL's 1024 values: the most informative kept, whole configurations only.
+  p.q_rad.assign(200, Eigen::VectorXd::Zero(m.numJoints()));
+  EXPECT_EQ(cellcal::components::toPoseRequest("tx60", p, 1, 1, 1).configurations_rad().size(), 1020u);
+}
+
 }  // namespace

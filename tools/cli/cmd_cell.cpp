@@ -3,6 +3,7 @@
 // cellcal_joint_state_adapter (sim) as separate processes, and joins the domain itself as the cell's application
 // and its judge: it publishes TargetPoses, and scores every published calibration against the simulator's truth
 // on a hold-out pose set (the engine never sees the truth).
+#include <array>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -144,6 +145,8 @@ struct Judge {
   std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last
   size_t landed_reported = 0;           // compensated_error_mm up to here is in a printed line
   std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
+  // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
+  std::vector<std::array<double, 4>> history;
 
   double verify(const IdentifiedModel& m, double t_h) const {
     const RobotModel& model = sim.model();
@@ -179,8 +182,11 @@ struct Reference {
   std::string inputs;  // "applied_readings" or "program"
   std::string why_program;  // when readings were given and could not be used
 };
+// `followed`: the poses the simulated program took from the engine's proposals (pose id -> joints; the joint-state
+// adapter's followed_poses), in place of the program's own.
 Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int index, double cell_time_end_s,
-                             const Judge& judge, const ReadingsApplied* readings) {
+                             const Judge& judge, const ReadingsApplied* readings,
+                             const std::map<long long, Eigen::VectorXd>& followed) {
   const SimulatedCell sim = makeSimulatedCell(robot, cell.simulation, index);
   const SimRobotProgram program(sim, cell.simulation);
   EngineSettings es = cell.engine;
@@ -190,17 +196,27 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   auto wall = [&](double t) { return epoch + static_cast<std::int64_t>(t / cell.time_compression * 1e9); };
   const double pt = cell.simulation.pose_time_s, sf = cell.simulation.settle_fraction;
   std::vector<std::pair<int, int>> pose_at;  // pose id -> (campaign, index)
+  std::vector<Eigen::VectorXd> joints_of;   // pose id -> joints
   for (int g = 0; g < program.campaigns(); ++g)
-    for (int k = 0; k < program.posesIn(g); ++k) pose_at.emplace_back(g, k);
+    for (int k = 0; k < program.posesIn(g); ++k) {
+      const auto f = followed.find(static_cast<long long>(pose_at.size()));
+      joints_of.push_back(f != followed.end() ? f->second : program.campaignConfigurations(g)[k]);
+      pose_at.emplace_back(g, k);
+    }
   // Cell time of the tracker's reading of pose (g, k).
   auto readAt_s = [&](int g, int k) {
     return program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
+  };
+  auto poseId = [&](int g, int k) {
+    long long id = k;
+    for (int h = 0; h < g; ++h) id += program.posesIn(h);
+    return id;
   };
   std::uint64_t seq = 0;
   // One reading of pose (g, k): fed stamped `stamp_ns` (0: by cell time), or only drawn (nullopt).
   auto reading = [&](int g, int k, std::optional<std::int64_t> stamp_ns) {
     const double t_read = readAt_s(g, k);
-    const Eigen::VectorXd& q = program.campaignConfigurations(g)[k];
+    const Eigen::VectorXd& q = joints_of[static_cast<size_t>(poseId(g, k))];
     const Observation obs = sim.measure(q, t_read / 3600.0, rng, robot.measurement);
     ++seq;
     if (!stamp_ns) return;
@@ -264,6 +280,21 @@ std::optional<ReadingsApplied> readingsApplied(const nlohmann::json& summary, co
       return out;
     }
   return std::nullopt;
+}
+
+// The poses the simulated program took from the engine's proposals (the joint-state adapter's followed_poses).
+std::map<long long, Eigen::VectorXd> followedPoses(const nlohmann::json& summary, const std::string& robot_id) {
+  std::map<long long, Eigen::VectorXd> out;
+  const nlohmann::json adapters = summary.value("joint_adapters", nlohmann::json::object());
+  for (const auto& [name, j] : adapters.items()) {
+    if (!j.contains("followed_poses") || !j["followed_poses"].contains(robot_id)) continue;
+    for (const auto& row : j["followed_poses"][robot_id]) {
+      const auto v = row.get<std::vector<double>>();
+      if (v.size() < 2) continue;
+      out[static_cast<long long>(v[0])] = Eigen::Map<const Eigen::VectorXd>(v.data() + 1, static_cast<Eigen::Index>(v.size() - 1));
+    }
+  }
+  return out;
 }
 
 // The launcher's own participant: the cell's application (TargetPoses at --targets-hz) and its judge (scores every
@@ -374,8 +405,9 @@ class CellJudge {
       const double t_h = j.cell_time_s / 3600.0;
       const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
       const std::optional<ReadingsApplied> readings = readingsApplied(*summary, j.robot->robot_id);
+      const std::map<long long, Eigen::VectorXd> followed = followedPoses(*summary, j.robot->robot_id);
       const Reference r = a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j,
-                                                                       readings ? &*readings : nullptr)
+                                                                       readings ? &*readings : nullptr, followed)
                                                   : Reference{};
       if (!r.why_program.empty())
         std::printf("cell: %s: the in-process engine replays the program, not the readings applied: %s\n",
@@ -395,6 +427,9 @@ class CellJudge {
                         {"in_process_verify_after_mm", ref},
                         {"in_process_poses", r.poses},    // the poses it applied
                         {"in_process_inputs", r.inputs},  // applied_readings: the engine's; program: every pose by then
+                        {"poses_followed", followed.size()},  // taken from the engine's proposals
+                        // [version, poses used, cell time h, hold-out error mm] of each calibration received
+                        {"holdout_by_version", j.history},
                         {"targets_applied", j.applied},
                         {"targets_refused", j.refused},
                         {"targets_refused_why", refusedWhyJson(j)},
@@ -431,6 +466,10 @@ class CellJudge {
                   static_cast<unsigned long long>(servo_sent_), static_cast<unsigned long long>(servo_answered_.load()),
                   static_cast<unsigned long long>(servo_applied_.load()));
     }
+    if (cell_.simulation.follow_pose_requests)
+      for (const auto& r : robots)
+        std::printf("cell: %s: %llu poses of the program taken from the engine's proposals (cellcal/pose_request)\n",
+                    r["robot_id"].get<std::string>().c_str(), r["poses_followed"].get<unsigned long long>());
     // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it.
     for (const auto& j : judges_) {
       if (!j.refused) continue;
@@ -486,6 +525,7 @@ class CellJudge {
     j->verify_mm = j->verify(j->identified, t_h);
     j->nominal_mm = j->verifyNominal(t_h);
     j->health = healthName(static_cast<Health>(static_cast<int>(m.health())));
+    j->history.push_back({static_cast<double>(c->version), static_cast<double>(c->poses_used), t_h, j->verify_mm});
     if (a_.quiet) return;
     // The calibration as published (its health in capitals when it is not ok: the engine degraded or holds an older
     // version) and what compensation did since the last line: the version it applied, where those targets landed.
@@ -649,6 +689,7 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
     }
     if (c.name == "recorder") s["recorder"] = p["extra"];
     if (c.name.rfind("tracker_adapter", 0) == 0) s["trackers"][c.name] = p["extra"];
+    if (c.name.rfind("joint_state_adapter", 0) == 0) s["joint_adapters"][c.name] = p["extra"];
   }
   s["topics"] = topics;
   s["calibration_updates"] = calibration_updates;

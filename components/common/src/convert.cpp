@@ -283,4 +283,44 @@ void fromPose(const Pose& T, std::array<double, 3>& p, std::array<double, 4>& q)
   q = {qn.x(), qn.y(), qn.z(), qn.w()};
 }
 
+msg::PoseRequest toPoseRequest(const std::string& robot_id, const PoseProposal& p, std::size_t candidates,
+                               std::int64_t stamp_ns, std::uint64_t sequence) {
+  msg::PoseRequest m;
+  m.robot_id(robot_id);
+  m.source_stamp_ns(static_cast<std::uint64_t>(stamp_ns));
+  m.sequence_number(sequence);
+  m.calibration_version(p.version);
+  const auto joints = p.q_rad.empty() ? 0 : p.q_rad.front().size();
+  m.joints(static_cast<std::uint32_t>(joints));
+  std::vector<double>& v = m.configurations_rad();
+  v.reserve(p.q_rad.size() * static_cast<std::size_t>(joints));
+  for (const auto& q : p.q_rad) {
+    if (v.size() + static_cast<std::size_t>(q.size()) > 1024) break;  // the IDL bound: the most informative kept
+    v.insert(v.end(), q.data(), q.data() + q.size());
+  }
+  m.predicted_sigma_position_m(p.predicted_sigma_now_m);
+  m.predicted_sigma_after_m(p.predicted_sigma_after_m);
+  m.candidates(static_cast<std::uint32_t>(candidates));
+  return m;
+}
+
+std::optional<std::vector<Eigen::VectorXd>> fromPoseRequest(const msg::PoseRequest& m, int joints, std::string* error) {
+  const auto fail = [&](const std::string& why) -> std::optional<std::vector<Eigen::VectorXd>> {
+    if (error) *error = "pose_request of " + m.robot_id().to_string() + " #" + std::to_string(m.sequence_number()) + ": " + why;
+    return std::nullopt;
+  };
+  if (static_cast<int>(m.joints()) != joints)
+    return fail(std::to_string(m.joints()) + " joints per configuration for a robot of " + std::to_string(joints));
+  const auto& v = m.configurations_rad();
+  if (joints <= 0 || v.size() % static_cast<std::size_t>(joints) != 0)
+    return fail(std::to_string(v.size()) + " values are not whole configurations of " + std::to_string(joints) + " joints");
+  std::vector<Eigen::VectorXd> out;
+  for (std::size_t k = 0; k < v.size(); k += static_cast<std::size_t>(joints)) {
+    Eigen::VectorXd q = Eigen::Map<const Eigen::VectorXd>(v.data() + k, joints);
+    if (!q.allFinite()) return fail("configuration " + std::to_string(k / static_cast<std::size_t>(joints)) + " is not finite");
+    out.push_back(std::move(q));
+  }
+  return out;
+}
+
 }  // namespace cellcal::components

@@ -281,7 +281,7 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
                             {"mode", "batch_poses", "state_dir", "durability", "max_pairing_skew_ms", "settle_tolerance_deg",
                              "max_sample_age_s", "stale_input_s", "stale_stand_stills", "tracker_silence_s", "republish_period_s", "outlier_gate_nis_per_row", "outlier_hold_after",
                              "hold_prediction_sigma_mm", "drift_alarm_nis_per_row",
-                             "prior_length_mm", "prior_angle_deg", "drift"});
+                             "prior_length_mm", "prior_angle_deg", "drift", "pose_requests"});
   if (e.has("mode")) {
     const std::string m = r.string(e.node["mode"], e.f("mode"));
     if (m == "continuous") c.engine.mode = EngineMode::kContinuous;
@@ -323,6 +323,32 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
     ds.num("frame_angle_deg", c.engine.drift_frame_angle_rad, kDeg, 0);
     ds.num("per_h", c.engine.drift_per_h, 1, 0, true);
   }
+  if (e.has("pose_requests")) {
+    const YAML::Node d = e.node["pose_requests"];
+    r.requireMap(d, "engine.pose_requests");
+    r.checkKeys(d, "engine.pose_requests",
+                {"count", "candidates", "min_period_s", "range_mm", "link_radius_mm", "acceptance_deg", "min_radius_mm",
+                 "sigma_position_mm", "sigma_orientation_deg"});
+    const Section ps{r, d, "engine.pose_requests"};
+    PoseRequestSettings& pr = c.engine.pose_requests;
+    ps.integer("count", pr.count, 0, 64);
+    ps.integer("candidates", pr.candidates, 1, 100000);
+    if (pr.count > pr.candidates) r.fail(d["count"], ps.f("count"), "more than the candidates (" + std::to_string(pr.candidates) + ")");
+    ps.num("min_period_s", pr.min_period_s, 1, 0);
+    ps.num("link_radius_mm", pr.link_radius_m, 1e-3, 0);
+    ps.num("acceptance_deg", pr.acceptance_rad, kDeg, 0);
+    ps.num("min_radius_mm", pr.min_radius_m, 1e-3, 0);
+    ps.num("sigma_position_mm", pr.sigma_position_m, 1e-3, 0, true);
+    ps.num("sigma_orientation_deg", pr.sigma_orientation_rad, kDeg, 0, true);
+    if (ps.has("range_mm")) {
+      const YAML::Node rn = d["range_mm"];
+      if (!rn.IsSequence() || rn.size() != 2) r.fail(rn, ps.f("range_mm"), "expected [MIN, MAX] in mm");
+      const double lo = r.number(rn[0], ps.f("range_mm")) * 1e-3, hi = r.number(rn[1], ps.f("range_mm")) * 1e-3;
+      if (!(lo >= 0 && hi > lo)) r.fail(rn, ps.f("range_mm"), "expected 0 <= MIN < MAX");
+      pr.min_range_m = lo;
+      pr.max_range_m = hi;
+    }
+  }
 
   const Section cp = section(r, root, "compensation", {"max_correction_mm", "max_correction_deg", "on_exceed", "max_ik_error_mm",
                                                        "max_predicted_sigma_mm", "blend_s", "max_joint_correction_deg"});
@@ -342,7 +368,8 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   const Section s = section(r, root, "simulation",
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
-                             "hidden_effect", "tracker_clock_offset_ms", "true_robot_file", "program_csv"});
+                             "hidden_effect", "tracker_clock_offset_ms", "true_robot_file", "program_csv",
+                             "follow_pose_requests"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -361,6 +388,10 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
   s.num("tracker_clock_offset_ms", c.simulation.tracker_clock_offset_s, 1e-3);
   if (std::abs(c.simulation.tracker_clock_offset_s) > 10)
     r.fail(s.node["tracker_clock_offset_ms"], s.f("tracker_clock_offset_ms"), "must be within +-10000 ms");
+  if (s.has("follow_pose_requests"))
+    c.simulation.follow_pose_requests = r.boolean(s.node["follow_pose_requests"], s.f("follow_pose_requests"));
+  if (c.simulation.follow_pose_requests && c.engine.pose_requests.count == 0)
+    r.fail(s.node["follow_pose_requests"], s.f("follow_pose_requests"), "engine.pose_requests.count is 0: nothing to follow");
   if (s.has("true_robot_file")) {
     const std::string ft = s.f("true_robot_file");
     c.simulation.true_robot_file = resolve(base_dir, r.string(s.node["true_robot_file"], ft));
@@ -394,6 +425,9 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
       }
     }
   }
+  if (c.simulation.follow_pose_requests && !c.simulation.program.empty())
+    r.fail(s.node["follow_pose_requests"], s.f("follow_pose_requests"),
+           "the program of program_csv is fixed: follow the engine's proposals or run a program, not both");
   if (s.has("hidden_effect")) {
     const YAML::Node h = s.node["hidden_effect"];
     const std::string fh = "simulation.hidden_effect";

@@ -234,14 +234,20 @@ bool PosePlanOptions::IsValid(std::string* error) const {
   return true;
 }
 
-PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& o) {
-  std::string error;
-  if (!o.IsValid(&error)) throw std::invalid_argument("PosePlanOptions: " + error);
-  PosePlan plan;
+std::string CandidateSet::tooFewText(int count, double min_radius_m) const {
+  return "only " + std::to_string(q.size()) + " of " + std::to_string(drawn) + " random configurations can be measured (" +
+         std::to_string(near_axis) + " within " + std::to_string(static_cast<int>(min_radius_m * 1e3)) +
+         " mm of joint 1's axis, " + std::to_string(out_of_range) + " out of the tracker's range, " +
+         std::to_string(occluded) + " with the beam crossing the robot, " + std::to_string(facing_away) +
+         " facing away): fewer than the " + std::to_string(count) + " asked; place the tracker elsewhere, widen its "
+         "range or draw more candidates";
+}
+
+CandidateSet measurableCandidates(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& o) {
+  CandidateSet set;
   std::mt19937_64 rng(o.seed);
   const Eigen::VectorXd p0 = inBase(model, params);
   KinematicsData data(model);
-  std::vector<Eigen::VectorXd> feasible;
   const int n = model.numJoints();
   for (int k = 0; k < o.candidates; ++k) {
     Eigen::VectorXd q(n);
@@ -250,29 +256,39 @@ PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const
       const double hi = std::min(model.limits[static_cast<size_t>(j)].upper_rad, kPi) * o.range_fraction;
       q[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
     }
-    ++plan.drawn;
+    ++set.drawn;
     if (forwardKinematics(model, data, p0, q).translation().head<2>().norm() < o.min_radius_m) {
-      ++plan.near_axis;
+      ++set.near_axis;
       continue;
     }
     if (o.tracker) {
       const Visibility v = visibility(model, params, q, *o.tracker);
-      if (v == Visibility::kOutOfRange) ++plan.out_of_range;
-      if (v == Visibility::kOccluded) ++plan.occluded;
-      if (v == Visibility::kFacingAway) ++plan.facing_away;
+      if (v == Visibility::kOutOfRange) ++set.out_of_range;
+      if (v == Visibility::kOccluded) ++set.occluded;
+      if (v == Visibility::kFacingAway) ++set.facing_away;
       if (v != Visibility::kVisible) continue;
     }
-    feasible.push_back(q);
+    set.q.push_back(q);
   }
-  plan.feasible = static_cast<int>(feasible.size());
-  if (plan.feasible < o.count)
-    throw std::invalid_argument(
-        "only " + std::to_string(plan.feasible) + " of " + std::to_string(plan.drawn) + " random configurations can be measured (" +
-        std::to_string(plan.near_axis) + " within " + std::to_string(static_cast<int>(o.min_radius_m * 1e3)) +
-        " mm of joint 1's axis, " + std::to_string(plan.out_of_range) + " out of the tracker's range, " +
-        std::to_string(plan.occluded) + " with the beam crossing the robot, " + std::to_string(plan.facing_away) +
-        " facing away): fewer than the " + std::to_string(o.count) + " asked; place the tracker elsewhere, widen its "
-        "range or draw more candidates");
+  return set;
+}
+
+PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& o) {
+  std::string error;
+  if (!o.IsValid(&error)) throw std::invalid_argument("PosePlanOptions: " + error);
+  PosePlan plan;
+  CandidateSet set = measurableCandidates(model, params, o);
+  plan.drawn = set.drawn;
+  plan.near_axis = set.near_axis;
+  plan.out_of_range = set.out_of_range;
+  plan.occluded = set.occluded;
+  plan.facing_away = set.facing_away;
+  plan.feasible = static_cast<int>(set.q.size());
+  if (plan.feasible < o.count) throw std::invalid_argument(set.tooFewText(o.count, o.min_radius_m));
+  const std::vector<Eigen::VectorXd>& feasible = set.q;
+  // The random comparison set is drawn after the candidates, from the same seed's stream as before.
+  std::mt19937_64 rng(o.seed);
+  rng.discard(static_cast<unsigned long long>(set.drawn) * static_cast<unsigned long long>(model.numJoints()));
   // The uncalibrated robot's prior over what these measurements identify.
   const GaussianPrior prior = diagonalPrior(model, params, model.canonicalParams(), o.prior_length_m, o.prior_angle_rad);
   const RlsCalibrator rls(model, params, prior, o.kind);
@@ -296,8 +312,7 @@ PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const
   plan.chosen_predicted_rms_m = predictedPositionRms(model, params, plan.estimated, P0, plan.chosen_q, feasible, o);
   plan.random_predicted_rms_m = predictedPositionRms(model, params, plan.estimated, P0, plan.random_q, feasible, o);
   plan.prior_covariance = P0;
-  plan.feasible = static_cast<int>(feasible.size());
-  plan.feasible_q = feasible;
+  plan.feasible_q = std::move(set.q);
   return plan;
 }
 

@@ -12,7 +12,7 @@ namespace cellcal {
 std::vector<int> selectInformativePoses(const RobotModel& model, const Eigen::VectorXd& params,
                                         const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
                                         const std::vector<Eigen::VectorXd>& candidates_q_rad, int count,
-                                        const PoseSelectionOptions& options) {
+                                        const PoseSelectionOptions& options, SelectionFigures* figures) {
   const auto m = static_cast<Eigen::Index>(estimated.size());
   if (covariance.rows() != m || covariance.cols() != m)
     throw std::invalid_argument("selectInformativePoses: covariance must be |estimated| x |estimated|");
@@ -37,6 +37,8 @@ std::vector<int> selectInformativePoses(const RobotModel& model, const Eigen::Ve
   }
   const bool d_optimal = options.criterion == SelectionCriterion::kDOptimal;
   Eigen::MatrixXd P = covariance;
+  const double per_candidate = A.empty() ? 0.0 : 1.0 / static_cast<double>(A.size());
+  if (figures) figures->mean_position_variance_before_m2 = (M * P).trace() * per_candidate;
   std::vector<bool> used(A.size(), false);
   std::vector<int> chosen;
   const int n = std::min<int>(count, static_cast<int>(A.size()));
@@ -64,6 +66,7 @@ std::vector<int> selectInformativePoses(const RobotModel& model, const Eigen::Ve
     S.diagonal().array() += 1.0;
     P -= PA * S.llt().solve(PA.transpose());
   }
+  if (figures) figures->mean_position_variance_after_m2 = (M * P).trace() * per_candidate;
   return chosen;
 }
 

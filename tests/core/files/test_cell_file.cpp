@@ -235,5 +235,43 @@ TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
             std::string::npos);
 }
 
+// engine.pose_requests and simulation.follow_pose_requests: read in the file's units, bad values named with line and
+// field, following without proposals or beside a fixed program refused.
+TEST(CellFile, PoseRequestsAreChecked) {
+  const std::string robot = "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/ur10.yaml }\n";
+  const CellConfig d = parseCellConfig(robot, "cell.yaml", CELLCAL_CONFIG_DIR);
+  EXPECT_EQ(d.engine.pose_requests.count, 10);
+  EXPECT_FALSE(d.simulation.follow_pose_requests);
+  const CellConfig c = parseCellConfig(
+      robot + "engine:\n  pose_requests: { count: 4, candidates: 50, min_period_s: 2, range_mm: [500, 6000], "
+              "link_radius_mm: 80, acceptance_deg: 30, sigma_position_mm: 0.02 }\nsimulation:\n  follow_pose_requests: true\n",
+      "cell.yaml", CELLCAL_CONFIG_DIR);
+  const PoseRequestSettings& p = c.engine.pose_requests;
+  EXPECT_EQ(p.count, 4);
+  EXPECT_EQ(p.candidates, 50);
+  EXPECT_EQ(p.min_period_s, 2);
+  EXPECT_NEAR(p.min_range_m, 0.5, 1e-15);
+  EXPECT_NEAR(p.max_range_m, 6.0, 1e-15);
+  EXPECT_NEAR(p.link_radius_m, 0.08, 1e-15);
+  EXPECT_NEAR(p.acceptance_rad, 30 * kPi / 180, 1e-15);
+  EXPECT_NEAR(p.sigma_position_m, 2e-5, 1e-18);
+  EXPECT_TRUE(c.simulation.follow_pose_requests);
+  EXPECT_EQ(errorOf(robot + "engine:\n  pose_requests: { count: 80 }\n"),
+            "cell.yaml:4:27: engine.pose_requests.count: must be in [0, 64]");
+  EXPECT_NE(errorOf(robot + "engine:\n  pose_requests: { count: 20, candidates: 10 }\n").find("more than the candidates (10)"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "engine:\n  pose_requests: { range_mm: [6000, 500] }\n")
+                .find("engine.pose_requests.range_mm: expected 0 <= MIN < MAX"),
+            std::string::npos);
+  EXPECT_NE(errorOf(robot + "engine:\n  pose_requests: { count: 0 }\nsimulation:\n  follow_pose_requests: true\n")
+                .find("simulation.follow_pose_requests: engine.pose_requests.count is 0: nothing to follow"),
+            std::string::npos);
+  const std::string tx60 = "robots:\n  - { robot_id: a, target_id: t, robot_file: robots/staubli_tx60.yaml }\n"
+                           "simulation:\n  follow_pose_requests: true\n  program_csv: examples/iso9283_program.csv\n";
+  EXPECT_NE(errorOf(tx60).find("follow the engine's proposals or run a program, not both"), std::string::npos) << errorOf(tx60);
+  EXPECT_NE(errorOf(robot + "engine:\n  pose_requests: { count: 3, spread: 2 }\n").find("engine.pose_requests.spread: unknown key"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace cellcal

@@ -41,6 +41,7 @@ void forEachTopicType(F&& f) {
   f(Tag<msg::TrackerPose>{});
   f(Tag<msg::CalibrationState>{});
   f(Tag<msg::CalibrationDiagnostics>{});
+  f(Tag<msg::PoseRequest>{});
   f(Tag<msg::TargetPose>{});
   f(Tag<msg::CompensatedTarget>{});
   f(Tag<msg::ServoSetpoint>{});

@@ -10,6 +10,7 @@
 #include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/engine/pairing.hpp"
+#include "cellcal/core/engine/pose_requests.hpp"
 #include "cellcal/core/model/se3.hpp"
 #include "cellcal_msgs.h"
 
@@ -42,6 +43,12 @@ void fillCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, 
 msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& robot, const std::string& stale_inputs,
                                                      std::uint64_t inputs_refused, std::int64_t stamp_ns,
                                                      std::uint64_t sequence);
+
+// The engine's proposal on the wire (configurations row-major; at most 1024 values: 64 configurations of 16 joints).
+msg::PoseRequest toPoseRequest(const std::string& robot_id, const PoseProposal& p, std::size_t candidates,
+                               std::int64_t stamp_ns, std::uint64_t sequence);
+// The configurations of a PoseRequest; nullopt + error when it does not fit a robot of `joints` joints.
+std::optional<std::vector<Eigen::VectorXd>> fromPoseRequest(const msg::PoseRequest& m, int joints, std::string* error);
 
 // What a consumer needs of a CalibrationState: the full parameter vector of the robot's model (nominal values for
 // parameters the message does not name). nullopt + error when the message does not fit the model.

@@ -80,6 +80,22 @@ struct CellRobot {
   std::vector<std::string> ros2_joint_names;
 };
 
+// The poses the engine proposes to measure next (cellcal/pose_request, core/engine/pose_requests.hpp): after each new
+// version (at most once per min_period_s of wall time), the `count` most informative of `candidates` configurations
+// drawn once within the joint limits where the cell's tracker (the registration's tracker frame origin) sees the
+// target. count 0: none proposed.
+struct PoseRequestSettings {
+  int count = 10;
+  int candidates = 400;
+  double min_period_s = 1.0;
+  double min_range_m = 0, max_range_m = 0;  // the tracker's range; max 0: not checked
+  double link_radius_m = 0.06;              // the beam keeps this far from every link but the last two
+  double acceptance_rad = 0;                // > 0: the target's z axis within this of the direction to the tracker
+  double min_radius_m = 0.2;                // the target this far from joint 1's axis at least
+  // The tracker's 1-sigma noise, for the choice's whitening and the predicted figures.
+  double sigma_position_m = 15e-6, sigma_orientation_rad = 8.7e-5;
+};
+
 struct EngineSettings {
   EngineMode mode = EngineMode::kContinuous;
   int batch_poses = 15;                        // periodic mode: poses per update
@@ -117,6 +133,7 @@ struct EngineSettings {
   double drift_frame_length_m = 0.01e-3;
   double drift_frame_angle_rad = 0.001 * 3.14159265358979323846 / 180.0;
   double drift_per_h = 2.0;
+  PoseRequestSettings pose_requests;
 };
 
 enum class ExceedAction { kRefuse, kClamp };
@@ -170,6 +187,10 @@ struct SimulationSettings {
   // each, from t = 0; then the robot works. Every simulated robot runs it (it must fit each one's joints and limits).
   std::string program_csv;
   std::vector<Eigen::VectorXd> program;
+  // The simulated robot program visits the engine's proposed poses (cellcal/pose_request) instead of its own random
+  // ones, wherever a proposal has arrived: each pose of a campaign the first proposed configuration it has not
+  // visited in that campaign (lab/sim_program.hpp).
+  bool follow_pose_requests = false;
 };
 
 struct CellConfig {

@@ -88,6 +88,16 @@ struct PosePlan {
   int exchanges = 0;  // greedy choices swapped for better ones afterwards
 };
 
+// The configurations planPoses chooses from: `options.candidates` drawn at random within the limits (options.seed),
+// kept where the target is `min_radius_m` from joint 1's axis and the tracker (when given) can measure it.
+struct CandidateSet {
+  std::vector<Eigen::VectorXd> q;
+  int drawn = 0, out_of_range = 0, occluded = 0, facing_away = 0, near_axis = 0;
+  // "only 12 of 2000 random configurations can be measured (...): fewer than the 25 asked; ..." for `count`.
+  std::string tooFewText(int count, double min_radius_m) const;
+};
+CandidateSet measurableCandidates(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& options);
+
 // Throws std::invalid_argument when fewer feasible candidates than `count` were found (the message says why they
 // were refused: range, line of sight, acceptance angle).
 PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& options);

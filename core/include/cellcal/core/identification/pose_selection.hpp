@@ -27,10 +27,16 @@ struct PoseSelectionOptions {
   double sigma_orientation_rad = 8.7e-5;
 };
 
+// The predicted position variance over the candidates (the working volume), mean over them of trace(B_j P B_j^T)
+// (m^2: x, y and z summed), from `covariance` and after measuring the chosen ones.
+struct SelectionFigures {
+  double mean_position_variance_before_m2 = 0, mean_position_variance_after_m2 = 0;
+};
+
 // Returns the indices of `count` candidates in the order chosen (count is clipped to the number of candidates).
 std::vector<int> selectInformativePoses(const RobotModel& model, const Eigen::VectorXd& params,
                                         const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
                                         const std::vector<Eigen::VectorXd>& candidates_q_rad, int count,
-                                        const PoseSelectionOptions& options = {});
+                                        const PoseSelectionOptions& options = {}, SelectionFigures* figures = nullptr);
 
 }  // namespace cellcal
