@@ -17,6 +17,7 @@
 #include "cellcal/core/identification/setups.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/identification/residual_map.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 #include "progress.hpp"
@@ -31,7 +32,58 @@ struct CalibrateArgs {
   double excitation_ratio = DiagnosisOptions{}.excitation_ratio;
   std::string save_robot;
   bool frames_only = false;
+  bool residual_map = false;
+  double residual_map_distance = ResidualMapOptions{}.max_distance;
 };
+
+// --residual-map: the map of the identification rows' residuals under `fit`, judged on the verification rows: the
+// held-out mean with the map where it applies against without it on the same rows, and over every row. Printed; JSON.
+nlohmann::json judgeResidualMap(const RobotModel& robot, const ExtendedFit& fit, const std::vector<Observation>& ident,
+                                const std::vector<Drivers>& idr, const std::vector<Observation>& verify,
+                                const std::vector<Drivers>& vdr, const CalibrateArgs& a) {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<Eigen::VectorXd> q;
+  for (const auto& o : ident) q.push_back(o.q_rad);
+  ResidualMapOptions o;
+  o.max_distance = a.residual_map_distance;
+  const ResidualMap map = fitResidualMap(q, positionResiduals(robot, fit, ident, idr), o);
+  const double fit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const std::vector<Eigen::Vector3d> rv = positionResiduals(robot, fit, verify, vdr);
+  double near_with = 0, near_without = 0, all_with = 0, all_without = 0, sigma = 0;
+  int near = 0;
+  for (size_t i = 0; i < verify.size(); ++i) {
+    const ResidualMap::Prediction p = map.predict(verify[i].q_rad, true);
+    const double without = rv[i].norm() * 1e3, with = (rv[i] - p.correction_m).norm() * 1e3;
+    all_without += without;
+    all_with += with;
+    if (!p.applies) continue;
+    ++near;
+    near_with += with;
+    near_without += without;
+    sigma += p.sigma_m * 1e3;
+  }
+  const double n = static_cast<double>(std::max<size_t>(1, verify.size())), m = std::max(1, near);
+  std::string scales;
+  for (Eigen::Index j = 0; j < map.lengthScales_rad().size(); ++j)
+    scales += (j ? " " : "") + std::to_string(static_cast<int>(std::lround(map.lengthScales_rad()[j] * 180 / kPi)));
+  std::printf("residual map: %zu identification rows, length scales %s deg (joints 1-%d), signal %.4f mm, noise %.4f mm "
+              "(%.1f s)\n", map.rows(), scales.c_str(), static_cast<int>(map.lengthScales_rad().size()),
+              map.signalSigma_m() * 1e3, map.noiseSigma_m() * 1e3, fit_s);
+  std::printf("  verification rows within %.2g length scales of an identification row: %d of %zu; their held-out mean "
+              "%.4f mm with the map, %.4f mm without (the map's 1 sigma there %.4f mm per axis)\n",
+              map.maxDistance(), near, verify.size(), near_with / m, near_without / m, sigma / m);
+  std::printf("  every verification row (the map where it applies): %.4f mm, without the map %.4f mm\n", all_with / n,
+              all_without / n);
+  return {{"rows", map.rows()}, {"fit_time_s", fit_s}, {"max_distance", map.maxDistance()},
+          {"length_scales_deg", [&] {
+             std::vector<double> v;
+             for (Eigen::Index j = 0; j < map.lengthScales_rad().size(); ++j) v.push_back(map.lengthScales_rad()[j] * 180 / kPi);
+             return v;
+           }()},
+          {"signal_sigma_mm", map.signalSigma_m() * 1e3}, {"noise_sigma_mm", map.noiseSigma_m() * 1e3},
+          {"verification_rows_near", near}, {"near_mean_with_mm", near_with / m}, {"near_mean_without_mm", near_without / m},
+          {"near_sigma_mean_mm", sigma / m}, {"all_mean_with_mm", all_with / n}, {"all_mean_without_mm", all_without / n}};
+}
 
 void addOptions(CLI::App& cmd, CalibrateArgs& a) {
   addInputOptions(&cmd, a.input);
@@ -49,6 +101,14 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
   cmd.add_flag("--frames-only", a.frames_only,
                "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
                "base and tool frames on the identification rows: the tracker or the target was moved");
+  cmd.add_flag("--residual-map", a.residual_map,
+               "learn what the calibrated model leaves at the identification rows (a Gaussian process over the joints, "
+               "residual_map.hpp) and judge it on the verification rows: applied only within "
+               "--residual-map-distance length scales of an identification row, never beyond");
+  cmd.add_option("--residual-map-distance", a.residual_map_distance,
+                 "the residual map corrects only this near an identification row (in its fitted length scales)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   cmd.add_option("--excitation-ratio", a.excitation_ratio,
                  "hold (and name) a parameter whose excitation on the identification rows is below this fraction of "
                  "its largest on a verification row; 0: off")
@@ -640,6 +700,9 @@ int runCalibrate(const CalibrateArgs& a) {
   for (const auto& w : implausible)
     std::printf("implausible: %s: a target offset or frame the robot file does not have (a gauge with its own frame?), "
                 "or too little excitation\n", w.c_str());
+  // What the model leaves, learnt at the identification rows and applied to the verification rows near them.
+  nlohmann::json residual_map_json = nullptr;
+  if (a.residual_map) residual_map_json = judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, a);
   if (!r.identifiability.dropped.empty()) {
     std::printf("not identifiable from these data (held at their start value):");
     for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramNameHuman(d.index).c_str());
@@ -691,6 +754,7 @@ int runCalibrate(const CalibrateArgs& a) {
                                         {"verification_rows_outside_calibrated_region", trust.extrapolated}}},
                         {"frames_variance_factor", a.frames_only ? nlohmann::json(frames_variance_factor) : nlohmann::json(nullptr)},
                         {"implausible", implausible},
+                        {"residual_map", residual_map_json},
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }

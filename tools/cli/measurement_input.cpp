@@ -117,11 +117,26 @@ LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile 
   const DriverTable drivers = driversOf(in.file);
   in.data.has_thermal = drivers.has_thermal;
   in.data.thermal_source = drivers.thermal_source;
+  // 'positions': rows measured within kPositionRadiusMm of a position's first row are that position (in row order);
+  // even positions identify, odd ones verify, so no verification row has an identification row that near.
+  std::vector<int> position_of(rows.size(), 0);
+  if (a.split == "positions") {
+    std::vector<Eigen::Vector3d> first;
+    for (size_t i = 0; i < rows.size(); ++i) {
+      const Eigen::Vector3d p = rows[i].position_m;
+      size_t k = 0;
+      while (k < first.size() && (first[k] - p).norm() > kPositionRadiusMm * 1e-3) ++k;
+      if (k == first.size()) first.push_back(p);
+      position_of[i] = static_cast<int>(k);
+    }
+  }
   for (size_t i = 0; i < rows.size(); ++i) {
     const Observation o =
         toObservation(rows[i], in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180);
     (o.kind == MeasurementKind::kPose6D ? in.oriented_rows : in.position_rows)++;
-    const bool to_verify = a.split == "alternate" ? (i % 2 == 1) : (i >= rows.size() / 2);
+    const bool to_verify = a.split == "alternate" ? (i % 2 == 1)
+                           : a.split == "positions" ? (position_of[i] % 2 == 1)
+                                                    : (i >= rows.size() / 2);
     (to_verify ? in.data.verification : in.data.identification).push_back(o);
     (to_verify ? in.data.verification_drivers : in.data.identification_drivers).push_back(drivers.rows[i]);
     (to_verify ? in.verification_lines : in.identification_lines).push_back(rows[i].line);
@@ -289,7 +304,12 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
         if (a.data.empty()) a.data = f;
         else a.more_data.push_back(f);
       });
-  cmd->add_option("--split", a.split, "alternate | halves")->check(CLI::IsMember({"alternate", "halves"}))->capture_default_str();
+  cmd->add_option("--split", a.split,
+                  "alternate (even rows identify, odd rows verify) | halves (the first half identifies) | positions "
+                  "(rows measured within 20 mm of a position's first row are that position; alternate positions "
+                  "identify: the verification rows are positions the identification never saw)")
+      ->check(CLI::IsMember({"alternate", "halves", "positions"}))
+      ->capture_default_str();
   cmd->add_option("--sigma-position-mm", a.sigma_position_mm, "1-sigma position noise of a reading")->check(positive())->capture_default_str();
   cmd->add_option("--sigma-orientation-deg", a.sigma_orientation_deg, "1-sigma orientation noise")->check(positive())->capture_default_str();
   cmd->add_flag("--position-only", a.position_only, "use positions only, even where orientations are given");

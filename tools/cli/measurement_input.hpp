@@ -55,7 +55,9 @@ struct LoadedInput {
 // --outlier-threshold as options (0: screening off); throws std::runtime_error on a bad value.
 OutlierOptions outlierOptions(const InputArgs& a);
 
-// Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies.
+// Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies;
+// 'positions': rows within kPositionRadiusMm of a position's first row form that position, alternate positions identify.
+constexpr double kPositionRadiusMm = 20.0;
 // Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
 // Every set-up of every --data file (a file with a setup column gives one per label, in order of appearance), each
