@@ -38,15 +38,16 @@ struct CalibrateArgs {
 
 // --residual-map: the map of the identification rows' residuals under `fit`, judged on the verification rows: the
 // held-out mean with the map where it applies against without it on the same rows, and over every row. Printed; JSON.
+// `map` receives the map (saved with --save-robot).
 nlohmann::json judgeResidualMap(const RobotModel& robot, const ExtendedFit& fit, const std::vector<Observation>& ident,
                                 const std::vector<Drivers>& idr, const std::vector<Observation>& verify,
-                                const std::vector<Drivers>& vdr, const CalibrateArgs& a) {
+                                const std::vector<Drivers>& vdr, const CalibrateArgs& a, std::optional<ResidualMap>* out) {
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<Eigen::VectorXd> q;
   for (const auto& o : ident) q.push_back(o.q_rad);
   ResidualMapOptions o;
   o.max_distance = a.residual_map_distance;
-  const ResidualMap map = fitResidualMap(q, positionResiduals(robot, fit, ident, idr), o);
+  const ResidualMap& map = out->emplace(fitResidualMap(q, positionResiduals(robot, fit, ident, idr), o));
   const double fit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const std::vector<Eigen::Vector3d> rv = positionResiduals(robot, fit, verify, vdr);
   double near_with = 0, near_without = 0, all_with = 0, all_without = 0, sigma = 0;
@@ -702,7 +703,9 @@ int runCalibrate(const CalibrateArgs& a) {
                 "or too little excitation\n", w.c_str());
   // What the model leaves, learnt at the identification rows and applied to the verification rows near them.
   nlohmann::json residual_map_json = nullptr;
-  if (a.residual_map) residual_map_json = judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, a);
+  std::optional<ResidualMap> residual_map;
+  if (a.residual_map)
+    residual_map_json = judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, a, &residual_map);
   if (!r.identifiability.dropped.empty()) {
     std::printf("not identifiable from these data (held at their start value):");
     for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramNameHuman(d.index).c_str());
@@ -763,6 +766,7 @@ int runCalibrate(const CalibrateArgs& a) {
   if (const int code = failedExit(converged, unusable, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);
+    cal.residual_map = residual_map;
     if (a.frames_only) {  // estimated: the new frames, and what the robot file's own calibration estimated
       for (size_t k = 0; k < cal.columns.size(); ++k) {
         if (cal.estimated[k] || !in.calibration) continue;

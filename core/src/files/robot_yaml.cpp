@@ -51,7 +51,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   const std::string f = "calibration";
   r.requireMap(c, f);
   r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
-                     "correlation"});
+                     "correlation", "residual_map"});
   RobotCalibration cal;
   if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
     r.requireMap(pv, f + ".provenance");
@@ -142,6 +142,45 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       r.fail(cr, f + ".correlation", "not symmetric");
   } else if (c["correlation"].IsDefined()) {
     r.fail(c["correlation"], f + ".correlation", "given without parameters");
+  }
+  if (const YAML::Node rm = c["residual_map"]; rm.IsDefined() && !rm.IsNull()) {
+    const std::string fm = f + ".residual_map";
+    r.requireMap(rm, fm);
+    r.checkKeys(rm, fm, {"length_scales_deg", "signal_mm", "noise_mm", "max_distance", "rows"});
+    const int joints = m.numJoints();
+    ResidualMapKernel k;
+    const YAML::Node ls = r.required(rm, "length_scales_deg", fm + ".length_scales_deg");
+    if (!ls.IsSequence() || static_cast<int>(ls.size()) != joints)
+      r.fail(ls, fm + ".length_scales_deg", "expected " + std::to_string(joints) + " numbers (one per joint)");
+    k.length_rad.resize(joints);
+    for (int j = 0; j < joints; ++j) k.length_rad[j] = r.number(ls[j], fm + ".length_scales_deg") * kPi / 180;
+    k.signal_m = r.number(r.required(rm, "signal_mm", fm + ".signal_mm"), fm + ".signal_mm") * 1e-3;
+    k.noise_m = r.number(r.required(rm, "noise_mm", fm + ".noise_mm"), fm + ".noise_mm") * 1e-3;
+    k.max_distance = r.number(r.required(rm, "max_distance", fm + ".max_distance"), fm + ".max_distance");
+    std::string why;
+    if (!k.IsValid(joints, &why)) r.fail(rm, fm, why);
+    const YAML::Node rows = r.required(rm, "rows", fm + ".rows");
+    if (!rows.IsSequence() || rows.size() == 0) r.fail(rows, fm + ".rows", "expected a list of [joints (deg)..., x, y, z (mm)]");
+    if (rows.size() > 10000) r.fail(rows, fm + ".rows", std::to_string(rows.size()) + " rows: at most 10000 (the map is made again on loading)");
+    std::vector<Eigen::VectorXd> q;
+    std::vector<Eigen::Vector3d> y;
+    for (size_t i = 0; i < rows.size(); ++i) {
+      const std::string fi = fm + ".rows[" + std::to_string(i) + "]";
+      if (!rows[i].IsSequence() || static_cast<int>(rows[i].size()) != joints + 3)
+        r.fail(rows[i], fi, "expected " + std::to_string(joints + 3) + " numbers: " + std::to_string(joints) +
+                                " joints (deg), then x, y, z (mm)");
+      Eigen::VectorXd x(joints);
+      for (int j = 0; j < joints; ++j) x[j] = r.number(rows[i][j], fi) * kPi / 180;
+      Eigen::Vector3d e;
+      for (int a = 0; a < 3; ++a) e[a] = r.number(rows[i][joints + a], fi) * 1e-3;
+      q.push_back(x);
+      y.push_back(e);
+    }
+    try {
+      cal.residual_map = conditionResidualMap(std::move(q), std::move(y), k);
+    } catch (const std::invalid_argument& e) {
+      r.fail(rm, fm, e.what());
+    }
   }
   return cal;
 }
@@ -315,6 +354,24 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
         const double r = i == j ? 1.0 : (sd[i] > 0 && sd[j] > 0 ? cal->covariance(i, j) / (sd[i] * sd[j]) : 0.0);
         o << (j ? ", " : "") << num(std::clamp(r, -1.0, 1.0));
       }
+      o << "]\n";
+    }
+  }
+  if (cal->residual_map) {
+    const ResidualMap& map = *cal->residual_map;
+    const ResidualMapKernel k = map.kernel();
+    o << "  # What the model leaves, learnt at the calibration's rows (calibrate --residual-map): measured minus model\n"
+         "  # target position in the tracker frame of this registration, a Gaussian process over the joints applied only\n"
+         "  # within max_distance length scales of a row (core/identification/residual_map.hpp)\n  residual_map:\n";
+    o << "    length_scales_deg: [";
+    for (Eigen::Index j = 0; j < k.length_rad.size(); ++j) o << (j ? ", " : "") << num(k.length_rad[j] * 180 / kPi);
+    o << "]\n    signal_mm: " << num(k.signal_m * 1e3) << "\n    noise_mm: " << num(k.noise_m * 1e3)
+      << "\n    max_distance: " << num(k.max_distance) << "\n    rows:  # joints (deg), then x, y, z (mm)\n";
+    for (size_t i = 0; i < map.rows(); ++i) {
+      o << "      - [";
+      const Eigen::VectorXd& q = map.rowConfigurations()[i];
+      for (Eigen::Index j = 0; j < q.size(); ++j) o << (j ? ", " : "") << num(q[j] * 180 / kPi);
+      for (int a = 0; a < 3; ++a) o << ", " << num(map.rowResiduals()[i][a] * 1e3);
       o << "]\n";
     }
   }

@@ -85,6 +85,21 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
   EXPECT_LT(worst_cov, 1e-12);
 }
 
+// `good` with its first `from` replaced by `to` is refused, the message naming `what` after the file's name.
+void expectRefused(const std::string& good, const std::string& from, const std::string& to, const std::string& what) {
+  std::string text = good;
+  const auto at = text.find(from);
+  ASSERT_NE(at, std::string::npos) << from;
+  text.replace(at, from.size(), to);
+  try {
+    parseRobotFile(text, "<bad>");
+    ADD_FAILURE() << "accepted: " << to;
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    EXPECT_EQ(std::string(e.what()).rfind("<bad>:", 0), 0u) << e.what();
+  }
+}
+
 TEST(RobotFile, APlainRobotFileHasNoCalibration) {
   const RobotFile f = loadRobotFile(std::string(CELLCAL_CONFIG_DIR) + "/robots/ur10.yaml");
   EXPECT_FALSE(f.calibration.has_value());
@@ -103,23 +118,58 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   const std::string good = robotFileText(m, &cal, "");
   EXPECT_NO_THROW(parseRobotFile(good, "<good>"));
   auto expectError = [&](const std::string& from, const std::string& to, const std::string& what) {
-    std::string text = good;
-    const auto at = text.find(from);
-    ASSERT_NE(at, std::string::npos) << from;
-    text.replace(at, from.size(), to);
-    try {
-      parseRobotFile(text, "<bad>");
-      ADD_FAILURE() << "accepted: " << to;
-    } catch (const ConfigError& e) {
-      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
-      EXPECT_EQ(std::string(e.what()).rfind("<bad>:", 0), 0u) << e.what();
-    }
+    expectRefused(good, from, to, what);
   };
   expectError("joint_compliance:2", "joint_compliance:9", "calibration.extensions[0].spec");
   expectError("name: joint1.theta_offset_deg", "name: joint1.theta_offset_rad", "calibration.parameters[0].name");
   expectError("- [1, 0]", "- [1, 2]", "calibration.correlation[0]");
   expectError("estimated: true", "estimated: maybe", "calibration.parameters[0].estimated");
   expectError("variance_factor_position:", "variance_factorposition:", "unknown key");
+}
+
+// A residual map (calibrate --residual-map) in the calibration section: rows and kernel drawn at random, saved and
+// loaded, predict the same corrections, sigmas and distances; damaged map entries are named.
+TEST(RobotFile, AResidualMapIsSavedAndLoadedAndDamageNamed) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (const char* name : {"ur10", "staubli_tx60"}) {
+    const RobotModel m = test::robot(name);
+    RobotCalibration cal = randomCalibration(m, rng);
+    const int joints = m.numJoints(), rows = 20 + static_cast<int>(rng() % 60);
+    std::vector<Eigen::VectorXd> q;
+    std::vector<Eigen::Vector3d> y;
+    for (int i = 0; i < rows; ++i) {
+      q.push_back(Eigen::VectorXd::NullaryExpr(joints, [&] { return 2.0 * u(rng); }));
+      y.emplace_back(3e-4 * u(rng), 3e-4 * u(rng), 3e-4 * u(rng));
+    }
+    ResidualMapKernel k;
+    k.length_rad = Eigen::VectorXd::NullaryExpr(joints, [&] { return 0.2 + 2.0 * (1 + u(rng)); });
+    k.signal_m = 2e-4 * (1.5 + u(rng));
+    k.noise_m = 3e-5 * (1.5 + u(rng));
+    k.max_distance = 1.0 + u(rng) * 0.5;
+    cal.residual_map = conditionResidualMap(q, y, k);
+    const std::string text = robotFileText(m, &cal, "");
+    const RobotFile back = parseRobotFile(text, "<saved>");
+    ASSERT_TRUE(back.calibration && back.calibration->residual_map);
+    const ResidualMap& a = *cal.residual_map;
+    const ResidualMap& b = *back.calibration->residual_map;
+    ASSERT_EQ(b.rows(), a.rows());
+    for (int t = 0; t < 50; ++t) {
+      const Eigen::VectorXd x = t < 10 ? q[static_cast<size_t>(t)] : Eigen::VectorXd::NullaryExpr(joints, [&] { return 2.0 * u(rng); });
+      const auto pa = a.predict(x, true), pb = b.predict(x, true);
+      EXPECT_EQ(pa.applies, pb.applies);
+      EXPECT_NEAR(pa.distance, pb.distance, 1e-12 * (1 + pa.distance));
+      EXPECT_LT((pa.correction_m - pb.correction_m).norm(), 1e-12 + 1e-9 * pa.correction_m.norm());
+      EXPECT_NEAR(pa.sigma_m, pb.sigma_m, 1e-9 * k.signal_m);
+    }
+    auto expectError = [&](const std::string& from, const std::string& to, const std::string& what) {
+      expectRefused(text, from, to, what);
+    };
+    expectError("length_scales_deg: [", "length_scales_deg: [1, ", "calibration.residual_map.length_scales_deg: expected");
+    expectError("signal_mm: ", "signal_mm: -", "the signal sigma must be finite and > 0");
+    expectError("      - [", "      - [1, ", "calibration.residual_map.rows[0]: expected");
+    expectError("max_distance:", "reach:", "calibration.residual_map.reach: unknown key");
+  }
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/identification/residual_map.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
@@ -30,6 +31,9 @@ struct RobotCalibration {
   double variance_factor_position = 1;   // of the fit (prediction.hpp): scales the readings' position noise
   // Where it came from, in order: date_utc, data_file, data_sha256, rows, split, verification figures, ...
   std::vector<std::pair<std::string, std::string>> provenance;
+  // What the model leaves, learnt at the calibration's identification rows (calibrate --residual-map): measured minus
+  // model target position in the tracker frame of this calibration's registration. Key residual_map.
+  std::optional<ResidualMap> residual_map;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
   // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.
   std::optional<std::int64_t> dateUtcNs() const;

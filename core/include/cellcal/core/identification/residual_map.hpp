@@ -30,6 +30,13 @@ struct ResidualMapOptions {
   bool IsValid(std::string* error) const;
 };
 
+// The kernel of a map: a length scale per joint (rad), signal and noise sigmas (m), and how far it reaches.
+struct ResidualMapKernel {
+  Eigen::VectorXd length_rad;
+  double signal_m = 0, noise_m = 0, max_distance = 1.0;
+  bool IsValid(int joints, std::string* error) const;
+};
+
 class ResidualMap {
  public:
   struct Prediction {
@@ -47,18 +54,31 @@ class ResidualMap {
   double signalSigma_m() const { return signal_m_; }
   double noiseSigma_m() const { return noise_m_; }
   double maxDistance() const { return max_distance_; }
+  ResidualMapKernel kernel() const { return {length_rad_, signal_m_, noise_m_, max_distance_}; }
+  // The rows it is conditioned on: configurations and residuals (what a robot file keeps of it).
+  const std::vector<Eigen::VectorXd>& rowConfigurations() const { return q_; }
+  const std::vector<Eigen::Vector3d>& rowResiduals() const { return y_; }
   // -log marginal likelihood per row of the fit (for reports and tests).
   double negLogLikelihoodPerRow() const { return nll_per_row_; }
 
  private:
+  friend ResidualMap conditionResidualMap(std::vector<Eigen::VectorXd>, std::vector<Eigen::Vector3d>,
+                                          const ResidualMapKernel&);
   friend ResidualMap fitResidualMap(const std::vector<Eigen::VectorXd>&, const std::vector<Eigen::Vector3d>&,
                                     const ResidualMapOptions&);
   std::vector<Eigen::VectorXd> q_;
+  std::vector<Eigen::Vector3d> y_;
   Eigen::MatrixXd alpha_;  // rows x 3: K^-1 y
   Eigen::MatrixXd L_;      // Cholesky factor of K (lower)
   Eigen::VectorXd length_rad_;
   double signal_m_ = 0, noise_m_ = 0, max_distance_ = 1.0, nll_per_row_ = 0;
 };
+
+// The map of these rows with this kernel (what fitResidualMap ends with; a robot file's map is made again from its
+// rows). Throws std::invalid_argument saying why when the sizes disagree, a value is not finite or the kernel is
+// invalid.
+ResidualMap conditionResidualMap(std::vector<Eigen::VectorXd> q_rad, std::vector<Eigen::Vector3d> residual_m,
+                                 const ResidualMapKernel& kernel);
 
 // Throws std::invalid_argument when the sizes disagree, fewer than 10 rows are given, or the options are invalid.
 ResidualMap fitResidualMap(const std::vector<Eigen::VectorXd>& q_rad, const std::vector<Eigen::Vector3d>& residual_m,
