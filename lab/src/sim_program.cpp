@@ -1,5 +1,6 @@
 #include "cellcal/lab/sim_program.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -72,25 +73,21 @@ void SimRobotProgram::offer(std::vector<Eigen::VectorXd> proposal) { proposal_ =
 
 SimRobotState SimRobotProgram::advance(double t) {
   if (decided_.empty()) decided_.assign(campaigns_.size(), 0);
-  long long before = 0;
-  for (int g = 0; g < campaigns(); ++g) {
-    const double t0 = campaignStart_s(g);
-    if (t >= t0 && t < campaignEnd_s(g)) {
-      const int k = std::min(posesIn(g) - 1, static_cast<int>(std::floor((t - t0) / s_.pose_time_s)));
-      for (int& d = decided_[static_cast<size_t>(g)]; d <= k; ++d) {
-        for (const auto& q : proposal_) {
-          if (q.size() != campaigns_[g][d].size()) break;
-          bool visited = false;
-          for (int j = 0; j < d && !visited; ++j) visited = (campaigns_[g][j] - q).cwiseAbs().maxCoeff() < 1e-9;
-          if (visited) continue;
-          campaigns_[g][d] = q;
-          followed_[before + d] = q;
-          break;
-        }
-      }
-      break;
-    }
-    before += posesIn(g);
+  const SimRobotState where = at(t);  // which campaign and pose t falls in
+  if (where.campaign < 0) return where;
+  std::vector<Eigen::VectorXd>& poses = campaigns_[static_cast<size_t>(where.campaign)];
+  const long long first_id = where.pose_id - where.pose;
+  for (int& d = decided_[static_cast<size_t>(where.campaign)]; d <= where.pose; ++d) {
+    const auto visited = [&](const Eigen::VectorXd& q) {
+      return std::any_of(poses.begin(), poses.begin() + d,
+                         [&](const Eigen::VectorXd& p) { return (p - q).cwiseAbs().maxCoeff() < 1e-9; });
+    };
+    const auto next = std::find_if(proposal_.begin(), proposal_.end(), [&](const Eigen::VectorXd& q) {
+      return q.size() == poses[static_cast<size_t>(d)].size() && !visited(q);
+    });
+    if (next == proposal_.end()) continue;  // none yet, or every one visited: the program's own pose
+    poses[static_cast<size_t>(d)] = *next;
+    followed_[first_id + d] = *next;
   }
   return at(t);
 }

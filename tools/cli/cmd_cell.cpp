@@ -195,28 +195,20 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
   const std::int64_t epoch = 1'700'000'000'000'000'000;
   auto wall = [&](double t) { return epoch + static_cast<std::int64_t>(t / cell.time_compression * 1e9); };
   const double pt = cell.simulation.pose_time_s, sf = cell.simulation.settle_fraction;
-  std::vector<std::pair<int, int>> pose_at;  // pose id -> (campaign, index)
-  std::vector<Eigen::VectorXd> joints_of;   // pose id -> joints
+  // Per pose id: its joints (the program's, or the configuration it followed) and the cell time the tracker read it.
+  std::vector<Eigen::VectorXd> joints_of;
+  std::vector<double> read_at_s;
   for (int g = 0; g < program.campaigns(); ++g)
     for (int k = 0; k < program.posesIn(g); ++k) {
-      const auto f = followed.find(static_cast<long long>(pose_at.size()));
+      const auto f = followed.find(static_cast<long long>(joints_of.size()));
       joints_of.push_back(f != followed.end() ? f->second : program.campaignConfigurations(g)[k]);
-      pose_at.emplace_back(g, k);
+      read_at_s.push_back(program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt);
     }
-  // Cell time of the tracker's reading of pose (g, k).
-  auto readAt_s = [&](int g, int k) {
-    return program.campaignStart_s(g) + k * pt + (1 - sf + cell.simulation.tracker_delay_fraction * sf) * pt;
-  };
-  auto poseId = [&](int g, int k) {
-    long long id = k;
-    for (int h = 0; h < g; ++h) id += program.posesIn(h);
-    return id;
-  };
   std::uint64_t seq = 0;
-  // One reading of pose (g, k): fed stamped `stamp_ns` (0: by cell time), or only drawn (nullopt).
-  auto reading = [&](int g, int k, std::optional<std::int64_t> stamp_ns) {
-    const double t_read = readAt_s(g, k);
-    const Eigen::VectorXd& q = joints_of[static_cast<size_t>(poseId(g, k))];
+  // One reading of pose `id`: fed stamped `stamp_ns` (0: by cell time), or only drawn (nullopt).
+  auto reading = [&](std::size_t id, std::optional<std::int64_t> stamp_ns) {
+    const double t_read = read_at_s[id];
+    const Eigen::VectorXd& q = joints_of[id];
     const Observation obs = sim.measure(q, t_read / 3600.0, rng, robot.measurement);
     ++seq;
     if (!stamp_ns) return;
@@ -237,23 +229,20 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
       ref.why_program = "the engine applied reading #" + std::to_string(applied.rbegin()->first) + ", the tracker lists " +
                         std::to_string(made);
     for (const long long id : readings->pose_of_reading)
-      if (ref.why_program.empty() && (id < 0 || id >= static_cast<long long>(pose_at.size())))
+      if (ref.why_program.empty() && (id < 0 || id >= static_cast<long long>(joints_of.size())))
         ref.why_program = "the tracker measured pose " + std::to_string(id) + ", not in the program";
     if (ref.why_program.empty()) {
       for (size_t i = 0; i < made; ++i) {
-        const auto [g, k] = pose_at[static_cast<size_t>(readings->pose_of_reading[i])];
         const auto a = applied.find(i + 1);
-        reading(g, k, a == applied.end() ? std::nullopt : std::optional<std::int64_t>(a->second));
+        reading(static_cast<std::size_t>(readings->pose_of_reading[i]),
+                a == applied.end() ? std::nullopt : std::optional<std::int64_t>(a->second));
       }
       ref.inputs = "applied_readings";
     }
   }
   if (ref.inputs.empty()) {
     ref.inputs = "program";
-    for (const auto& [g, k] : pose_at) {
-      if (readAt_s(g, k) > cell_time_end_s) break;
-      reading(g, k, 0);
-    }
+    for (std::size_t id = 0; id < joints_of.size() && read_at_s[id] <= cell_time_end_s; ++id) reading(id, 0);
   }
   const CalibrationSnapshot& snap = engine.snapshot();
   ref.verify_mm = judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0);
