@@ -317,6 +317,7 @@ DiagnosisResult diagnoseForAuto(const CalibrateArgs& a, const LoadedInput& in, c
                                 const std::string& what) {
   DiagnosisOptions o;
   o.identifiability.rank_tolerance = a.rank_tolerance;
+  o.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
   o.outliers = outliers;
   o.excitation_ratio = a.excitation_ratio;
   ProgressBar bar(what);
@@ -372,6 +373,7 @@ int runCalibrateSetups(const CalibrateArgs& a, std::vector<LoadedInput> ins) {
   SetupsProblem pr;
   pr.model = &robot;
   pr.identifiability.rank_tolerance = a.rank_tolerance;
+  pr.identifiability.prior_sigma = plausibleRanges(a.input, robot);
   if (a.model == "auto")
     pr.extensions = causesNamedInEverySetUp(a, ins);
   else if (a.model != "geometric")
@@ -564,6 +566,7 @@ int runCalibrate(const CalibrateArgs& a) {
         a.excitation_ratio > 0 ? excitationDeficits(robot, start, named, ident, idr, verify, vdr, a.excitation_ratio)
                                : std::vector<ExcitationDeficit>{};
     p.identifiability.rank_tolerance = a.rank_tolerance;
+    p.identifiability.prior_sigma = plausibleRanges(a.input, robot);
     for (const auto& h : held)
       if (h.column < robot.numParams()) p.identifiability.held.push_back(h.column);
     std::string why;
@@ -585,14 +588,17 @@ int runCalibrate(const CalibrateArgs& a) {
         ident_outliers = d.identification_outliers;
       } else {
         IdentifiabilityOptions io = p.identifiability;
+        io.noise_scale = r.identifiability.noise_scale;  // the geometric fit's: what the model leaves counts as noise
         io.held = heldColumns(held);
         after = fitExtendedRobust(robot, start, ident, idr, named, {}, io, &r.params, p.outliers, &ident_outliers);
       }
       model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
-      converged = after.converged;
+      // The extended model stands on the geometric fit (its start, its rows' screen): both must have converged.
+      if (!r.converged) message = "the geometric fit beneath did not converge: " + r.message;
+      converged = r.converged && after.converged;
       iterations = after.iterations;
       estimated = after.estimated.size() + after.estimated_extension.size();
-      message = after.message;
+      if (r.converged) message = after.message;
     }
   }
   const auto t2 = Clock::now();
@@ -706,11 +712,26 @@ int runCalibrate(const CalibrateArgs& a) {
   std::optional<ResidualMap> residual_map;
   if (a.residual_map)
     residual_map_json = judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, a, &residual_map);
-  if (!r.identifiability.dropped.empty()) {
-    std::printf("not identifiable from these data (held at their start value):");
-    for (const auto& d : r.identifiability.dropped) std::printf(" %s", robot.paramNameHuman(d.index).c_str());
-    std::printf("\n");
+  // Held: what the rows do not separate (rank), and what they pin no better than its plausible range.
+  std::string rank_held, prior_held;
+  for (const auto& d : r.identifiability.dropped) {
+    if (!d.below_prior) {
+      rank_held += " " + robot.paramNameHuman(d.index);
+      continue;
+    }
+    char buf[200];
+    if (d.prior_sigma_si > 0 && d.data_sigma_si >= d.prior_sigma_si)
+      std::snprintf(buf, sizeof buf, " %s (+-%.3g, plausible +-%.3g)", robot.paramNameHuman(d.index).c_str(),
+                    std::abs(robot.toHuman(d.index, d.data_sigma_si)), std::abs(robot.toHuman(d.index, d.prior_sigma_si)));
+    else  // pinned itself, but fitted with the kept ones it would loosen one of them beyond its range
+      std::snprintf(buf, sizeof buf, " %s (would loosen a kept parameter beyond its range)", robot.paramNameHuman(d.index).c_str());
+    prior_held += buf;
   }
+  if (!rank_held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", rank_held.c_str());
+  if (!prior_held.empty())
+    std::printf("held at their start value: the data (at %.2fx the readings' sigmas, what the fit leaves) pin them "
+                "no better than their plausible deviation (--plausible-length-mm, --plausible-angle-deg):%s\n",
+                r.identifiability.noise_scale, prior_held.c_str());
   if (!a.json.empty()) {
     // Every model alike: names and values in mm and deg (the unit in the name), stddev from the fit's covariance
     // (reading sigmas), null where the parameter was not estimated.
@@ -746,6 +767,22 @@ int runCalibrate(const CalibrateArgs& a) {
                                       {"threshold_robust_sigmas", p.outliers.threshold}}},
                         {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd},
                         {"held", heldJson(held_after)},
+                        {"identifiability", [&] {
+                           nlohmann::json rank = nlohmann::json::array(), plausible = nlohmann::json::array();
+                           for (const auto& d : r.identifiability.dropped) {
+                             if (!d.below_prior) {
+                               rank.push_back(robot.paramNameHuman(d.index));
+                               continue;
+                             }
+                             plausible.push_back({{"name", robot.paramNameHuman(d.index)},
+                                                  {"data_sigma", std::isfinite(d.data_sigma_si)
+                                                                     ? nlohmann::json(std::abs(robot.toHuman(d.index, d.data_sigma_si)))
+                                                                     : nlohmann::json(nullptr)},
+                                                  {"plausible_sigma", std::abs(robot.toHuman(d.index, d.prior_sigma_si))}});
+                           }
+                           return nlohmann::json{{"noise_scale", r.identifiability.noise_scale},
+                                                 {"not_identifiable", rank}, {"held_within_plausible", plausible}};
+                         }()},
                         {"prediction", nlohmann::json{
                                         {"identification_rms_mm", trust.ident_rms_mm},
                                         {"identification_max_mm", trust.ident_max_mm},

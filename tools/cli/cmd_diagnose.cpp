@@ -52,6 +52,7 @@ nlohmann::json jointsJson(const Extension& e) {
 nlohmann::json fitJson(const CandidateResult& c) {
   nlohmann::json j = errorStatsJson(c.verification, "verify_");
   j.update(errorStatsJson(c.identification, "ident_"));
+  j["converged"] = c.fit.converged;
   return j;
 }
 
@@ -181,6 +182,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   const LoadedInput in = loadInput(a.input);
   DiagnosisOptions options;
   options.outliers = outlierOptions(a.input);
+  options.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
   ProgressBar bar("diagnose", !a.no_progress);
   options.progress = [&bar](int done, int total) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
@@ -236,6 +238,17 @@ int runDiagnose(const DiagnoseArgs& a) {
   std::printf("reading noise: %.4f mm per axis (%.4f mm RMS), estimated from the %s\n", d.noise.sigma_position_mm,
               d.noise_rms_mm, d.noise.source.c_str());
   std::printf("unexplained: %.4f mm RMS beyond that noise (diagnosis %.2f s)\n", d.unexplained_rms_mm, d.solve_time_s);
+  {
+    // Kinematic parameters held at the robot file's value: the rows pin them no better than their plausible range.
+    std::string held;
+    for (int c : in.robot.canonicalParams())
+      if (c < 5 * in.robot.numJoints() && std::find(g.fit.estimated.begin(), g.fit.estimated.end(), c) == g.fit.estimated.end())
+        held += " " + in.robot.paramNameHuman(c);
+    if (!held.empty())
+      std::printf("kinematic parameters held at the robot file's value (not identifiable, or pinned no better than "
+                  "their plausible deviation at %.2fx the readings' sigmas):%s\n",
+                  d.identifiability_noise_scale, held.c_str());
+  }
   for (const auto& h : b.held) std::printf("held: %s\n", deficitText(h).c_str());
   // What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model).
   // Nothing when the model is not usable.
@@ -303,6 +316,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                         {"noise", {{"sigma_position_mm", d.noise.sigma_position_mm}, {"dof", d.noise.dof},
                                    {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
                         {"noise_rms_mm", d.noise_rms_mm},
+                        {"identifiability_noise_scale", d.identifiability_noise_scale},
                         {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s},
                         {"held", heldJson(b.held)},
                         {"unusable", d.unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.unusable)}};

@@ -315,11 +315,26 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
   cmd->add_flag("--position-only", a.position_only, "use positions only, even where orientations are given");
   cmd->add_option("--outlier-threshold", a.outlier_threshold,
                   "a row whose position error exceeds this many robust sigmas (per axis, from the median residual) is a "
-                  "gross error: listed by its line and left out of the fit->check(nonNegative()); 0: no screening")
+                  "gross error: listed by its line and left out of the fit; 0: no screening")
       ->check(CLI::Number)
       ->capture_default_str();
   cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_flag("--no-register", a.no_register, "trust the robot file's base and tool frames as the start");
+  cmd->add_option("--plausible-length-mm", a.plausible_length_mm,
+                  "how far a kinematic length may plausibly lie from the robot file's (1 sigma): a length is estimated "
+                  "only where the data, at the noise the fit leaves, pin it better than this; the others are held at the "
+                  "file's value and named; 0: rank alone decides")
+      ->check(nonNegative())
+      ->capture_default_str();
+  cmd->add_option("--plausible-angle-deg", a.plausible_angle_deg,
+                  "the same for kinematic angles (joint offsets, alpha, beta); 0: rank alone decides")
+      ->check(nonNegative())
+      ->capture_default_str();
+}
+
+Eigen::VectorXd plausibleRanges(const InputArgs& a, const RobotModel& robot) {
+  if (!(a.plausible_length_mm > 0) && !(a.plausible_angle_deg > 0)) return {};
+  return plausibleDeviation(robot, a.plausible_length_mm * 1e-3, a.plausible_angle_deg * kPi / 180);
 }
 
 }  // namespace cellcal::cli

@@ -22,7 +22,12 @@ struct InputArgs {
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
   double outlier_threshold = OutlierOptions{}.threshold;  // robust sigmas; 0: no screening
   bool position_only = false, skip_bad_rows = false, no_register = false;
+  // A kinematic parameter is estimated only where the data pin it better than this (identifiability.hpp); 0: rank only.
+  double plausible_length_mm = kPlausibleLengthM * 1e3, plausible_angle_deg = kPlausibleAngleRad * 180 / kPi;
 };
+
+// The identifiability options' plausible ranges from --plausible-length-mm / --plausible-angle-deg (empty: both 0).
+Eigen::VectorXd plausibleRanges(const InputArgs& a, const RobotModel& robot);
 
 struct LoadedInput {
   std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column

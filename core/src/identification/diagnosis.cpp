@@ -947,6 +947,11 @@ struct Selection {
 
 }  // namespace
 
+namespace {
+DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
+                                const DiagnosisOptions& options, std::chrono::steady_clock::time_point t0);
+}  // namespace
+
 DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
                          const DiagnosisOptions& options) {
   std::string err;
@@ -954,6 +959,24 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
   if (data.identification.size() < 8 || data.verification.empty())
     throw std::invalid_argument("diagnose: needs at least 8 identification and 1 verification observation");
   const auto t0 = std::chrono::steady_clock::now();
+  if (options.identifiability.prior_sigma.size() == 0) return diagnoseAtNoise(model, start, data, options, t0);
+  // With plausible ranges, which parameters every model estimates follows the noise: the residual of a robust
+  // geometric fit on the identification rows (what the geometric model leaves counts as noise), decided once for all.
+  OutlierScreen screen;
+  const ExtendedFit g = fitExtendedRobust(model, start, data.identification, data.identification_drivers, {},
+                                          options.solver, options.identifiability, nullptr, options.outliers, &screen);
+  const std::vector<Observation> kept = subset(data.identification, keptRows(static_cast<int>(data.identification.size()), screen.rows));
+  Eigen::VectorXd r;
+  stackResiduals(model, g.params, kept, r, nullptr);
+  DiagnosisOptions at = options;
+  at.identifiability.noise_scale =
+      std::max(options.identifiability.noise_scale, noiseScaleOf(r, static_cast<int>(g.estimated.size())));
+  return diagnoseAtNoise(model, start, data, at, t0);
+}
+
+namespace {
+DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
+                                const DiagnosisOptions& options, std::chrono::steady_clock::time_point t0) {
   std::vector<Extension> to_try;
   for (Cause cause : options.causes)
     for (int j = cause == Cause::kThermalDrift ? -1 : 0; j < model.numJoints(); ++j)
@@ -1199,8 +1222,10 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
       std::sqrt(std::max(0.0, best.verification.rms_mm * best.verification.rms_mm - out.noise_rms_mm * out.noise_rms_mm));
   if (options.progress) options.progress(fits_total, fits_total);
   out.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  out.identifiability_noise_scale = options.identifiability.noise_scale;
   return out;
 }
+}  // namespace
 
 std::string unusableFit(const ErrorStats& start_held_out, const ErrorStats& held_out, const ErrorStats& identification,
                         double max_ratio) {

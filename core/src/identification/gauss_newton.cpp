@@ -214,8 +214,41 @@ OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, 
   return screenOutliers(pos, ori, options);
 }
 
+namespace {
+CalibrationResult fitAndScreen(const CalibrationProblem& problem, const SolverOptions& options,
+                               CalibrationResult (*solve)(const CalibrationProblem&, const SolverOptions&));
+}  // namespace
+
 CalibrationResult solveScreened(const CalibrationProblem& problem, const SolverOptions& options,
                                 CalibrationResult (*solve)(const CalibrationProblem&, const SolverOptions&)) {
+  const auto t0 = std::chrono::steady_clock::now();
+  CalibrationResult res = fitAndScreen(problem, options, solve);
+  const IdentifiabilityOptions& io = problem.identifiability;
+  if (io.prior_sigma.size() == 0) return res;
+  // With plausible ranges the decision depends on the noise: decided again with the residual the fit leaves (model
+  // error included), which only ever holds more; refit when the estimated set changes.
+  std::vector<Observation> kept;
+  for (int i : keptRows(static_cast<int>(problem.observations.size()), res.outliers.rows))
+    kept.push_back(problem.observations[static_cast<size_t>(i)]);
+  Eigen::VectorXd r;
+  stackResiduals(*problem.model, res.params, kept, r, nullptr);
+  const double scale = noiseScaleOf(r, static_cast<int>(res.estimated.size()));
+  if (!(scale > io.noise_scale)) return res;
+  CalibrationProblem again = problem;
+  again.identifiability.noise_scale = scale;
+  const IdentifiabilityReport rep = analyzeIdentifiability(*problem.model, problem.initial_params, kept, again.identifiability);
+  if (rep.identifiable == res.estimated) {
+    res.identifiability = rep;
+  } else {
+    res = fitAndScreen(again, options, solve);
+  }
+  res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+namespace {
+CalibrationResult fitAndScreen(const CalibrationProblem& problem, const SolverOptions& options,
+                               CalibrationResult (*solve)(const CalibrationProblem&, const SolverOptions&)) {
   const auto t0 = std::chrono::steady_clock::now();
   CalibrationResult res = solve(problem, options);
   res.outliers = screenFit(*problem.model, res.params, problem.observations, problem.outliers);
@@ -235,6 +268,7 @@ CalibrationResult solveScreened(const CalibrationProblem& problem, const SolverO
   res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
 }
+}  // namespace
 
 }  // namespace internal
 

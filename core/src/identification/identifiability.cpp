@@ -15,7 +15,22 @@ bool IdentifiabilityOptions::IsValid(std::string* error) const {
     if (error) *error = "rank_tolerance must be in (0, 1) and conditioning_guard in [0, 1]";
     return false;
   }
+  if (!(noise_scale > 0) || !std::isfinite(noise_scale) || !prior_sigma.allFinite() || (prior_sigma.array() < 0).any()) {
+    if (error) *error = "noise_scale must be > 0 and finite, prior_sigma finite and >= 0";
+    return false;
+  }
   return true;
+}
+
+Eigen::VectorXd plausibleDeviation(const RobotModel& model, double length_m, double angle_rad) {
+  Eigen::VectorXd s = Eigen::VectorXd::Zero(model.numParams());
+  for (int i = 0; i < 5 * model.numJoints(); ++i) s[i] = model.isLength(i) ? length_m : angle_rad;
+  return s;
+}
+
+double noiseScaleOf(const Eigen::VectorXd& r, int estimated) {
+  const double dof = static_cast<double>(r.size()) - estimated;
+  return dof > 0 ? std::max(1.0, std::sqrt(r.squaredNorm() / dof)) : 1.0;
 }
 
 std::vector<int> identificationPriority(const RobotModel& model) {
@@ -29,8 +44,39 @@ std::vector<int> identificationPriority(const RobotModel& model) {
   return canonical;
 }
 
+namespace {
+// The plausible-range test (identifiability.hpp) on columns of J fitted together, from J^T J (formed once).
+struct RangeTest {
+  RangeTest(const Eigen::MatrixXd& J, const IdentifiabilityOptions& o) : options(o) {
+    if (o.prior_sigma.size() > 0) G = J.transpose() * J;
+  }
+  double range(int c) const { return c < options.prior_sigma.size() ? options.prior_sigma[c] : 0.0; }
+  // Whether a least-squares fit of `cols` together pins each of them that has a range better than that range;
+  // `last_sigma`, when given, receives the 1 sigma of cols.back().
+  bool pinned(const std::vector<int>& cols, double* last_sigma = nullptr) const {
+    if (G.size() == 0) return true;
+    const auto n = static_cast<Eigen::Index>(cols.size());
+    Eigen::VectorXd d(n);
+    for (Eigen::Index i = 0; i < n; ++i) d[i] = 1.0 / std::sqrt(G(cols[i], cols[i]));
+    Eigen::MatrixXd N(n, n);
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (Eigen::Index j = 0; j < n; ++j) N(i, j) = G(cols[i], cols[j]) * d[i] * d[j];
+    const Eigen::MatrixXd inv = N.ldlt().solve(Eigen::MatrixXd::Identity(n, n));
+    bool ok = true;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double sigma = options.noise_scale * std::sqrt(inv(i, i)) * d[i];
+      if (i == n - 1 && last_sigma) *last_sigma = std::isfinite(sigma) ? sigma : INFINITY;
+      if (range(cols[i]) > 0 && !(sigma < range(cols[i]))) ok = false;
+    }
+    return ok;
+  }
+  const IdentifiabilityOptions& options;
+  Eigen::MatrixXd G;
+};
+}  // namespace
+
 std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
-                                    const IdentifiabilityOptions& options) {
+                                    const IdentifiabilityOptions& options, std::vector<int>* taken_order) {
   std::string err;
   if (!options.IsValid(&err)) throw std::invalid_argument("IdentifiabilityOptions: " + err);
   const Eigen::Index m = J.rows();
@@ -51,17 +97,25 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
   std::vector<bool> taken(cand.size(), false);
   std::vector<int> kept;
   Eigen::MatrixXd Q(m, std::min(m, nc));
+  // Candidate i may be taken: it leaves the kept span by more than the rank tolerance and, with plausible ranges, the
+  // rows pin it and every kept column fitted together with it better than their ranges.
+  const RangeTest ranges(J, options);
+  auto eligible = [&](Eigen::Index i) {
+    if (taken[static_cast<size_t>(i)] || !(R.col(i).norm() > options.rank_tolerance)) return false;
+    std::vector<int> with = kept;
+    with.push_back(cand[static_cast<size_t>(i)]);
+    return ranges.pinned(with);
+  };
   Eigen::Index k = 0;
   while (k < std::min(m, nc)) {
     double best = 0;
     for (Eigen::Index i = 0; i < nc; ++i)
-      if (!taken[i]) best = std::max(best, R.col(i).norm());
-    if (best <= options.rank_tolerance) break;
+      if (eligible(i)) best = std::max(best, R.col(i).norm());
+    if (!(best > 0)) break;
     // The highest-priority column that is not much closer to the kept span than the best-separated one.
     Eigen::Index pick = -1;
     for (Eigen::Index i = 0; i < nc && pick < 0; ++i)
-      if (!taken[i] && R.col(i).norm() >= options.conditioning_guard * best && R.col(i).norm() > options.rank_tolerance)
-        pick = i;
+      if (eligible(i) && R.col(i).norm() >= options.conditioning_guard * best) pick = i;
     taken[pick] = true;
     kept.push_back(cand[pick]);
     Eigen::VectorXd q = R.col(pick);
@@ -71,6 +125,7 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
     for (Eigen::Index i = 0; i < nc; ++i)
       if (!taken[i]) R.col(i) -= q * q.dot(R.col(i));
   }
+  if (taken_order) *taken_order = kept;
   std::sort(kept.begin(), kept.end());
   return kept;
 }
@@ -147,7 +202,7 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
 
   IdentifiabilityReport rep;
   rep.num_candidates = static_cast<int>(cand.size());
-  rep.identifiable = independentColumns(J, cand, options);
+  rep.identifiable = independentColumns(J, cand, options, &rep.taken);
   const int k = static_cast<int>(rep.identifiable.size());
   std::vector<int> dropped;
   for (int c : cand)
@@ -164,11 +219,22 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
     const auto& s = svd.singularValues();
     rep.condition_number = s(s.size() - 1) > 0 ? s(0) / s(s.size() - 1) : INFINITY;
   }
+  rep.noise_scale = options.noise_scale;
+  const RangeTest ranges(J, options);
   for (int c : dropped) {
     DroppedParameter d;
     d.index = c;
     d.name = model.paramName(c);
     const double norm = J.col(c).norm();
+    d.prior_sigma_si = ranges.range(c);
+    d.data_sigma_si = INFINITY;
+    if (norm > min_norm) {
+      const double outside = k > 0 ? (span.Js * span.qr.solve(J.col(c) / norm) - J.col(c) / norm).norm() : 1.0;
+      if (outside > 0) d.data_sigma_si = options.noise_scale / (norm * outside);
+      std::vector<int> with = rep.identifiable;
+      with.push_back(c);
+      d.below_prior = options.prior_sigma.size() > 0 && outside > options.rank_tolerance && !ranges.pinned(with);
+    }
     if (norm > min_norm && k > 0) {
       const Eigen::VectorXd coef = span.qr.solve(J.col(c) / norm);
       for (int i = 0; i < k; ++i)
@@ -216,7 +282,11 @@ std::string IdentifiabilityReport::summary(const RobotModel& model) const {
   s << rank << " of " << num_candidates << " parameters identifiable, condition number " << condition_number << "\n";
   for (const auto& d : dropped) {
     s << "  fixed " << model.paramName(d.index);
-    if (d.merged_into.empty()) {
+    if (d.below_prior && d.data_sigma_si >= d.prior_sigma_si) {
+      s << " (the data pin it to +-" << d.data_sigma_si << ", no better than its plausible +-" << d.prior_sigma_si << ")";
+    } else if (d.below_prior) {
+      s << " (fitted with the others, they would pin some of them no better than their plausible range)";
+    } else if (d.merged_into.empty()) {
       s << " (not excited by these poses)";
     } else {
       s << " (merged into";

@@ -1,5 +1,6 @@
 #include "cellcal/core/identification/registration.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
@@ -67,25 +68,47 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
   for (const auto& o : obs) flange.push_back(forwardKinematics(model, data, p, o.q_rad));
   std::vector<Eigen::Vector3d> measured;
   for (const auto& o : obs) measured.push_back(o.measured_in_tracker.translation());
+  // The robot file's target offset: kept along any direction of the flange the rows do not turn (a grid measured at
+  // one tool orientation cannot tell the target's offset from the base's position).
+  const Eigen::Vector3d file_tool = initial.segment<3>(t0);
   Eigen::Vector3d tool = Eigen::Vector3d::Zero();
   Eigen::Matrix3d Rb = Eigen::Matrix3d::Identity();
   Eigen::Vector3d tb = Eigen::Vector3d::Zero();
   RegistrationResult out;
+  const double n = static_cast<double>(obs.size());
   for (int it = 0; it < iterations; ++it) {
     std::vector<Eigen::Vector3d> a;
     for (const auto& F : flange) a.push_back(F * tool);
     kabsch(a, measured, Rb, tb);
-    // Linear least squares in (tb, tool) with Rb fixed: m_i = tb + Rb (p_i + R_i tool).
-    Eigen::MatrixXd A(3 * obs.size(), 6);
-    Eigen::VectorXd y(3 * obs.size());
+    double ss = 0;
+    for (size_t i = 0; i < obs.size(); ++i) ss += (Rb * a[i] + tb - measured[i]).squaredNorm();
+    const double noise_m = std::sqrt(ss / (3 * n));
+    // Linear least squares in (tb, tool) with Rb fixed: m_i = tb + Rb (p_i + R_i tool). tb is the mean of what the
+    // tool leaves, so the tool solves the centred rows: (R_i - R_mean) tool = Rb^T (m_i - tb_mean) - p_i centred.
+    Eigen::Matrix3d R_mean = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d y_mean = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3d> y(obs.size());
     for (size_t i = 0; i < obs.size(); ++i) {
-      A.block<3, 3>(3 * i, 0).setIdentity();
-      A.block<3, 3>(3 * i, 3) = Rb * flange[i].linear();
-      y.segment<3>(3 * i) = measured[i] - Rb * flange[i].translation();
+      y[i] = Rb.transpose() * measured[i] - flange[i].translation();
+      R_mean += flange[i].linear() / n;
+      y_mean += y[i] / n;
     }
-    const Eigen::VectorXd x = A.colPivHouseholderQr().solve(y);
-    tb = x.head<3>();
-    tool = x.tail<3>();
+    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    for (size_t i = 0; i < obs.size(); ++i) {
+      const Eigen::Matrix3d D = flange[i].linear() - R_mean;
+      N += D.transpose() * D;
+      g += D.transpose() * (y[i] - y_mean - D * file_tool);
+    }
+    // A direction is solved where the rows pin it to better than 50 mm at the noise the base fit leaves; along the
+    // others the target stays where the robot file puts it.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(N);
+    const double min_eig = noise_m * noise_m / (0.05 * 0.05);
+    tool = file_tool;
+    for (int k = 0; k < 3; ++k)
+      if (es.eigenvalues()[k] > std::max(min_eig, 1e-12 * es.eigenvalues()[2]))
+        tool += es.eigenvectors().col(k) * es.eigenvectors().col(k).dot(g) / es.eigenvalues()[k];
+    tb = Rb * (y_mean - R_mean * tool);
     out.iterations = it + 1;
   }
   // Tool orientation from oriented readings: R_meas = Rb R_flange R_tool.

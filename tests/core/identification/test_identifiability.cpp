@@ -174,6 +174,89 @@ TEST_P(Identifiability, PriorOverEstimatedMapsAndConditions) {
   EXPECT_LT((priorOverEstimated(corr, est_less, T_less) - cond).norm(), 1e-9 * cond.norm());
 }
 
+// Plausible ranges against a plain reference, on random placements with the target 0.05-0.3 mm off the flange axis
+// (joint 6's rotation barely moves it), few poses, points or 6D, and a noise scale drawn at random: a parameter held
+// for its range has, as data_sigma, the plain 1 sigma of that parameter in a least-squares fit of the kept columns and
+// it (the diagonal of the inverted normal matrix), and in that fit it or a kept one is pinned no better than its
+// range; every kept parameter with a range is pinned better than it, fitted with all the others kept and with the
+// columns taken before it (the same plain inversion); the frames, which have no range, are kept as
+// rank alone keeps them; a tiny noise scale keeps what rank alone keeps, a huge one only the frames.
+TEST_P(Identifiability, PlausibleRangesHoldWhatTheRowsPinNoBetter) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0, 1);
+  int held_by_range = 0;
+  for (int trial = 0; trial < 6; ++trial) {
+    SimulationConfig sc = test::randomPlacement(rng);
+    const double off = (0.05 + 0.25 * u(rng)) * 1e-3, dir = 2 * kPi * u(rng);
+    sc.tool_in_flange << off * std::cos(dir), off * std::sin(dir), 0.08 * u(rng), 0, 0, 0;
+    const SimulatedCell cell(test::robot(GetParam()), sc);
+    const RobotModel& m = cell.model();
+    const MeasurementKind kind = trial % 2 ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+    std::vector<Observation> obs;
+    for (const auto& q : cell.randomConfigurations(15 + static_cast<int>(45 * u(rng)), rng))
+      obs.push_back(cell.measure(q, 0.0, rng, kind));
+    Eigen::VectorXd r;
+    Eigen::MatrixXd J;
+    stackResiduals(m, m.nominal, obs, r, &J);
+    IdentifiabilityOptions o;
+    o.prior_sigma = plausibleDeviation(m);
+    o.noise_scale = std::exp(std::log(100.0) * u(rng));  // 1-100
+    const IdentifiabilityReport rep = analyzeIdentifiability(m, J, o);
+    const IdentifiabilityReport rank_only = analyzeIdentifiability(m, J);
+    // The plain 1 sigma of column c fitted together with `cols` (c not among them).
+    auto plainSigma = [&](std::vector<int> cols, int c) {
+      cols.push_back(c);
+      Eigen::MatrixXd A(J.rows(), static_cast<Eigen::Index>(cols.size()));
+      for (size_t i = 0; i < cols.size(); ++i) A.col(static_cast<Eigen::Index>(i)) = J.col(cols[i]);
+      const Eigen::MatrixXd N = A.transpose() * A;
+      return o.noise_scale * std::sqrt(N.inverse()(N.rows() - 1, N.rows() - 1));
+    };
+    for (const auto& d : rep.dropped) {
+      if (!d.below_prior) continue;
+      ++held_by_range;
+      const double ref = plainSigma(rep.identifiable, d.index);
+      EXPECT_NEAR(d.data_sigma_si, ref, 1e-6 * ref) << d.name << "\n" << rep.summary(m);
+      // Fitted with the kept ones, it or one of them (with a range) is pinned no better than its range.
+      std::vector<int> with = rep.identifiable;
+      with.push_back(d.index);
+      bool loose = false;
+      for (int c : with)
+        if (o.prior_sigma[c] > 0) {
+          std::vector<int> others;
+          for (int x : with)
+            if (x != c) others.push_back(x);
+          loose |= plainSigma(others, c) >= o.prior_sigma[c];
+        }
+      EXPECT_TRUE(loose) << d.name << "\n" << rep.summary(m);
+    }
+    // Every kept parameter with a range, fitted with all the others kept, is pinned better than its range.
+    for (int c : rep.identifiable)
+      if (o.prior_sigma[c] > 0) {
+        std::vector<int> others;
+        for (int x : rep.identifiable)
+          if (x != c) others.push_back(x);
+        EXPECT_LT(plainSigma(others, c), o.prior_sigma[c]) << m.paramName(c) << "\n" << rep.summary(m);
+      }
+    ASSERT_EQ(rep.taken.size(), rep.identifiable.size());
+    std::vector<int> before;  // the columns taken before it
+    for (int c : rep.taken) {
+      if (o.prior_sigma[c] > 0) {
+        EXPECT_LT(plainSigma(before, c), o.prior_sigma[c] * (1 + 1e-9)) << m.paramName(c);
+      }
+      before.push_back(c);
+    }
+    for (int c : rank_only.identifiable)
+      if (!(o.prior_sigma[c] > 0)) {
+        EXPECT_TRUE(contains(rep.identifiable, c)) << m.paramName(c) << "\n" << rep.summary(m);
+      }
+    o.noise_scale = 1e-9;
+    EXPECT_EQ(analyzeIdentifiability(m, J, o).identifiable, rank_only.identifiable);
+    o.noise_scale = 1e9;
+    for (int c : analyzeIdentifiability(m, J, o).identifiable) EXPECT_EQ(o.prior_sigma[c], 0) << m.paramName(c);
+  }
+  EXPECT_GT(held_by_range, 0) << "no draw held a parameter for its range: the check above checked nothing";
+}
+
 TEST(IdentifiabilityOptions, RejectsBadTolerance) {
   IdentifiabilityOptions o;
   o.rank_tolerance = 0;

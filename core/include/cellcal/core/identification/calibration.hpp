@@ -7,7 +7,10 @@
 //
 // Which parameters are estimated: without a prior, the set the observations identify (identifiability.hpp); with
 // a prior, the structurally identifiable set (the prior fills directions the data leave open). All others are held
-// at their initial value and listed in result.identifiability.dropped.
+// at their initial value and listed in result.identifiability.dropped. With plausible ranges
+// (identifiability.prior_sigma), the set is decided again at the noise the fit leaves (noise_scale: the root of its
+// variance factor, when above the options'); the fit is made again from the start if that holds more parameters, and
+// result.identifiability.noise_scale says which noise decided.
 // Costs are 1/2 sum |whitened residual|^2 over the data (prior excluded), divided by the number of observations.
 // Gross errors: with `outliers.enabled` (the default) both solvers fit, screen every observation against the fit
 // (outliers.hpp) and refit on the rows kept from the same start, until the flagged set repeats; result.outliers names

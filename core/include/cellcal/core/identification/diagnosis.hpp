@@ -259,6 +259,9 @@ struct DiagnosisResult {
   ErrorStats start_verification;            // the start model (nominal kinematics, registered frames), rows kept
   std::string unusable;                     // why the chosen model cannot be used (unusableFit); empty: it can
   double solve_time_s = 0;
+  // The noise_scale every fit decided its parameters with: with plausible ranges (identifiability.prior_sigma), the
+  // root of the variance factor of a robust geometric fit on the identification rows (at least the options' own).
+  double identifiability_noise_scale = 1.0;
   const CandidateResult& best() const { return selection.empty() ? geometric : selection.back().result; }
 };
 

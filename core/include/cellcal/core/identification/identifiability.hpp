@@ -16,6 +16,17 @@
 // The kept set spans every direction of the candidate columns above rank_tolerance; every dropped parameter lies
 // within rank_tolerance of that span and is reported with the kept parameters it is (nearly) a combination of: it
 // is fixed at its current value, and the ones it merges into absorb its error.
+//
+// Plausible ranges (prior_sigma): rank alone keeps a column the rows separate from the others by a sine of 1e-5, which
+// on real data (a target 0.15 mm off the flange axis, a grid at one tool orientation) leaves joint 5's offset, d, a and
+// alpha free to wander by tens of degrees and millimetres while the fit's cost barely changes. With prior_sigma, a
+// column is taken only if a least-squares fit of it with the columns already kept pins each of them that has a range
+// better than that range (1 sigma noise_scale sqrt of the diagonal of the inverted normal matrix below prior_sigma):
+// a column the rows do not pin, or one that would loosen a kept one beyond its range, is held at its start value (what
+// the robot file says is within its plausible range of the truth; the data say no better) and reported. The pivot rule
+// above chooses among the columns that pass. The readings' sigmas whiten J; noise_scale is by how much the residual exceeds them (the root of a fit's
+// variance factor: model error the geometric model leaves counts as noise here), so the decision follows the data's
+// real noise. Frame parameters have no plausible range (the tracker stands anywhere): only rank decides them.
 #pragma once
 
 #include <Eigen/Core>
@@ -34,13 +45,34 @@ struct IdentifiabilityOptions {
   // Columns never estimated, whatever the data (held at their start value and not reported as unidentifiable):
   // kinematic index, or numParams() + k for extension parameter k. Excitation deficits (prediction.hpp) go here.
   std::vector<int> held;
+  // Plausible deviation of each column from its start (SI, indexed like J's columns; a column beyond its size or with
+  // 0: none, rank alone decides). plausibleDeviation() gives a nominal robot's.
+  Eigen::VectorXd prior_sigma;
+  double noise_scale = 1.0;  // >= 1 in use: the root of the variance factor of a fit on the same rows
   bool IsValid(std::string* error) const;
 };
+
+// What a robot that no one calibrated may plausibly deviate from its nominal model (the robot file's values): every
+// kinematic length by length_m, every kinematic angle by angle_rad (1 sigma); the base and tool frames free (0).
+// The same widths as PredictionOptions' priors.
+constexpr double kPlausibleLengthM = 5e-3;
+constexpr double kPlausibleAngleRad = 0.5 * 3.14159265358979323846 / 180;
+Eigen::VectorXd plausibleDeviation(const RobotModel& model, double length_m = kPlausibleLengthM,
+                                   double angle_rad = kPlausibleAngleRad);
+// The noise_scale a fit implies: the root of its whitened residual's sum of squares over its degrees of freedom
+// (rows - estimated), at least 1 (readings whose sigmas overstate the noise do not make a column easier to keep).
+double noiseScaleOf(const Eigen::VectorXd& whitened_residual, int estimated);
 
 struct DroppedParameter {
   int index = -1;
   std::string name;
   std::vector<std::pair<int, double>> merged_into;  // (kept parameter, coefficient in scaled units), |coef| >= 0.05
+  // Its 1 sigma fitted with the kept parameters (noise_scale applied; SI; infinity where the rows do not move it outside
+  // their span), and its plausible deviation (0: none). below_prior: rank alone would keep it, but fitted with the
+  // kept ones the rows pin it (data_sigma >= prior_sigma) or one of them no better than the plausible range.
+  double data_sigma_si = 0;
+  double prior_sigma_si = 0;
+  bool below_prior = false;
 };
 
 struct IdentifiabilityReport {
@@ -48,7 +80,9 @@ struct IdentifiabilityReport {
   int rank = 0;                     // == identifiable.size()
   double condition_number = 0;      // of the scaled, whitened Jacobian restricted to `identifiable`
   std::vector<int> identifiable;    // parameter indices, ascending
+  std::vector<int> taken;           // the same, in the order the rule took them
   std::vector<DroppedParameter> dropped;
+  double noise_scale = 1.0;         // the options' noise_scale the decision was made with
   // absorptionMap(model, J, identifiable): how the identifiable parameters stand for the dropped ones.
   Eigen::MatrixXd absorption;
   std::string summary(const RobotModel& model) const;
@@ -59,8 +93,9 @@ std::vector<int> identificationPriority(const RobotModel& model);
 
 // The columns of J (indices taken from `order`, highest priority first) that the rule above keeps, ascending.
 // Works on any stacked Jacobian, e.g. kinematic parameters plus the parameters of a model extension.
+// `taken`, when given, receives them in the order they were taken.
 std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<int>& order,
-                                    const IdentifiabilityOptions& options = {});
+                                    const IdentifiabilityOptions& options = {}, std::vector<int>* taken = nullptr);
 
 // To first order, how the `kept` parameters stand for the canonical parameters left out of them. Returns T
 // (kept.size() x model.numParams()): the identity on `kept`; for a left-out canonical column of J within

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/identifiability.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/model/model_extension.hpp"
@@ -27,8 +28,8 @@
 namespace cellcal {
 
 struct PredictionOptions {
-  double prior_length_m = 5e-3;                         // 1 sigma of a length no one calibrated
-  double prior_angle_rad = 0.5 * 3.14159265358979323846 / 180;
+  double prior_length_m = kPlausibleLengthM;            // 1 sigma of a length no one calibrated
+  double prior_angle_rad = kPlausibleAngleRad;
   double extension_joint_error_rad = 0.05 * 3.14159265358979323846 / 180;  // extensionPriorSigma's RMS joint error
   bool IsValid(std::string* error) const;
 };
