@@ -82,6 +82,7 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
   if (c->health == msg::HEALTH_OK) {
     r.last_ok = *c;
     r.applied_model = IdentifiedModel{c->params, c->extensions, c->extension_params, c->estimated, c->covariance};
+    if (r.robot->start) attachResidualMap(*r.robot->start, *r.applied_model);  // teach points (compensation.hpp)
     r.servo->setCalibration(c->version, *r.applied_model);
   }
   r.calibration = std::move(c);
@@ -350,6 +351,7 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     const CompensationResult c = compensate(r.robot->model, *r.applied_model,
                                             toPose(t.position_m(), t.orientation_xyzw()), seed, cell_.compensation, r.path);
     ++outcomes_[static_cast<size_t>(c.outcome)];
+    if (c.applied && c.residual_map_applied) ++residual_map_applied_;
     out.applied(c.applied);
     out.clamped(c.clamped);
     out.reason(withNote(c.reason, r.note, 255));
@@ -405,6 +407,7 @@ int CompensationPublisher::run() {
                  {"pid", ::getpid()},
                  {"topics", node_.stats()},
                  {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
+                            {"residual_map_applied", residual_map_applied_},
                             {"bad_calibration_states", bad_states_}, {"calibration_versions", versions},
                             {"descriptions", descriptions}, {"outcomes", outcomes},
                             {"target_cpu_us", target_cpu_.json()},

@@ -109,6 +109,7 @@ class CompensationPublisher {
   std::mutex mutex_;  // robots_ and the counters, between the readers
   std::map<std::string, Robot> robots_;
   std::uint64_t applied_ = 0, refused_ = 0, clamped_ = 0, bad_states_ = 0;
+  std::uint64_t residual_map_applied_ = 0;  // targets applied with the start file's residual map near measured poses
   std::array<std::uint64_t, kNumCompensationOutcomes> outcomes_{};  // targets the compensation answered, per outcome
   // The CPU time of a callback (take to write) per sample: a histogram of 1 us bins to 10 ms.
   struct CpuHistogram {

@@ -1,6 +1,7 @@
 #include "cellcal/core/engine/compensation.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <sstream>
 
 #include "cellcal/core/identification/prediction.hpp"
@@ -36,6 +37,16 @@ Drivers moveDrivers(const std::vector<Eigen::VectorXd>& path, const Eigen::Vecto
 }
 }  // namespace
 
+void attachResidualMap(const RobotFile& start, IdentifiedModel& model) {
+  if (!start.calibration || !start.calibration->residual_map) return;
+  const int b = start.model.baseParam(FrameParam::kX);
+  auto baseRotation = [b](const Eigen::VectorXd& p) -> Eigen::Matrix3d {
+    return poseFromXyzRpy(p[b], p[b + 1], p[b + 2], p[b + 3], p[b + 4], p[b + 5]).linear();
+  };
+  model.residual_map = &*start.calibration->residual_map;
+  model.residual_map_rotation = baseRotation(model.params) * baseRotation(start.model.nominal).transpose();
+}
+
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
                               const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
   return compensate(nominal, IdentifiedModel{identified, {}, {}}, desired, q_seed, s);
@@ -70,23 +81,37 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   ik_options.restarts = 0;
   ik_options.extend_when_descending = false;
   IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
-  if (!model.extensions.empty() && ik.ok()) {
-    // Fixed point q = IK(params(q)).
+  const bool mapped = model.residual_map && !model.residual_map->empty();
+  // The residual map's correction at q, in this model's tracker frame (zero where it does not apply).
+  auto mapCorrection = [&](const Eigen::VectorXd& q, bool* applies) -> Eigen::Vector3d {
+    const ResidualMap::Prediction p = model.residual_map->predict(q);
+    *applies = p.applies;
+    return model.residual_map_rotation * p.correction_m;
+  };
+  if ((!model.extensions.empty() || mapped) && ik.ok()) {
+    // Fixed point q = IK(params(q), desired - c(q)).
     constexpr int kPasses = 10;
     double moved = 0.0;
     for (int pass = 0; pass < kPasses; ++pass) {
-      const Eigen::VectorXd p = extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
-                                               moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, ik.q_rad));
-      IkResult next = solveInverseKinematics(nominal, p, desired, ik.q_rad, ik_options);
+      const Eigen::VectorXd p =
+          model.extensions.empty()
+              ? identified
+              : extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
+                               moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, ik.q_rad));
+      Pose target = desired;
+      if (mapped) target.translation() -= mapCorrection(ik.q_rad, &out.residual_map_applied);
+      IkResult next = solveInverseKinematics(nominal, p, target, ik.q_rad, ik_options);
       moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
       ik = std::move(next);
       if (!ik.ok() || moved < 1e-10) break;
     }
     if (ik.ok() && moved > 1e-8) {
       out.outcome = CompensationOutcome::kNotSettled;
-      out.reason = "the extended model's joint solution did not settle";
+      out.reason = model.extensions.empty() ? "the joint solution with the residual map did not settle"
+                                            : "the extended model's joint solution did not settle";
       return out;
     }
+    if (mapped && ik.ok()) out.residual_map_correction_m = mapCorrection(ik.q_rad, &out.residual_map_applied);
   }
   if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
     out.outcome = CompensationOutcome::kUnreachable;
@@ -97,6 +122,10 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   if (!model.estimated.empty() && model.covariance.rows() == static_cast<Eigen::Index>(model.estimated.size())) {
     out.predicted_sigma_position_m =
         kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad);
+    if (out.residual_map_applied) {
+      const double map_sigma = model.residual_map->sigmaBound_m(ik.q_rad);
+      out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);
+    }
     if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
       std::ostringstream m;
       m << "predicted error " << out.predicted_sigma_position_m * 1e3 << " mm (1 sigma) at this target above "

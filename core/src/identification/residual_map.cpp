@@ -92,4 +92,20 @@ ResidualMap::Prediction ResidualMap::predict(const Eigen::VectorXd& q, bool with
   return p;
 }
 
+double ResidualMap::sigmaBound_m(const Eigen::VectorXd& q, int nearest) const {
+  if (q_.empty() || q.size() != length_rad_.size() || nearest < 1) return signal_m_;
+  std::vector<std::pair<double, int>> d2(q_.size());
+  for (size_t i = 0; i < q_.size(); ++i) d2[i] = {(q - q_[i]).cwiseQuotient(length_rad_).squaredNorm(), static_cast<int>(i)};
+  const size_t m = std::min(q_.size(), static_cast<size_t>(nearest));
+  std::partial_sort(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(m), d2.end());
+  std::vector<int> rows(m);
+  for (size_t i = 0; i < m; ++i) rows[i] = d2[i].second;
+  const Eigen::MatrixXd Q = scaled(q_, rows, length_rad_);
+  const Eigen::LLT<Eigen::MatrixXd> llt(residual_map_detail::kernel(Q, signal_m_ * signal_m_, noise_m_ * noise_m_));
+  Eigen::VectorXd k(static_cast<Eigen::Index>(m));
+  for (size_t i = 0; i < m; ++i) k[static_cast<Eigen::Index>(i)] = signal_m_ * signal_m_ * std::exp(-0.5 * d2[i].first);
+  const Eigen::VectorXd v = llt.matrixL().solve(k);
+  return std::sqrt(std::max(0.0, signal_m_ * signal_m_ - v.squaredNorm()));
+}
+
 }  // namespace cellcal

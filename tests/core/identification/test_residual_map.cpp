@@ -63,6 +63,9 @@ TEST(ResidualMap, PredictsWhatThePlainFormulasGive) {
       double nearest = 1e300;
       for (const auto& r : q) nearest = std::min(nearest, (x - r).cwiseQuotient(l).norm());
       EXPECT_NEAR(p.distance, nearest, 1e-12 * nearest + 1e-15);
+      // The bounded-cost sigma: the full posterior's with every row, never below it with fewer.
+      EXPECT_NEAR(map.sigmaBound_m(x, n), p.sigma_m, 1e-6 * map.signalSigma_m());
+      EXPECT_GE(map.sigmaBound_m(x, 1 + n / 4), p.sigma_m - 1e-9 * map.signalSigma_m());
     }
   }
 }

@@ -20,6 +20,12 @@
 // (IdentifiedModel::covariance), the predicted 1-sigma position error at q* is sqrt(trace(J P J^T)) over the position
 // rows (the kinematic part, as the engine's hold bound); above CompensationSettings::max_predicted_sigma_m the target
 // is passed through uncorrected (applied = false) with the reason.
+//
+// With a residual map (IdentifiedModel::residual_map: what the calibrated model still leaves where the robot was
+// measured, residual_map.hpp), near those poses the real robot lands at the model's position plus the map's correction
+// c(q): q* is the fixed point of q = IK(model, desired - c(q)) (c changes little with q, as B e does), and the
+// predicted sigma adds the map's own (sqrt(sigma_model^2 + 3 sigma_map^2), sigma_map per axis, ResidualMap::
+// sigmaBound_m). Farther from every measured pose than the map's distance nothing is added: it never extrapolates.
 #pragma once
 
 #include <Eigen/Core>
@@ -27,6 +33,8 @@
 #include <string>
 
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/identification/residual_map.hpp"
 #include "cellcal/core/model/inverse_kinematics.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/se3.hpp"
@@ -62,6 +70,9 @@ struct CompensationResult {
   double correction_orientation_rad = 0;
   // The identified model's predicted 1-sigma position error at q_rad (NaN without a covariance).
   double predicted_sigma_position_m = std::numeric_limits<double>::quiet_NaN();
+  // The residual map's correction at q_rad (in the tracker frame), where it applies.
+  bool residual_map_applied = false;
+  Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
 };
 
 struct IdentifiedModel {
@@ -73,7 +84,18 @@ struct IdentifiedModel {
   // Empty: no such guard.
   std::vector<int> estimated = {};
   Eigen::MatrixXd covariance = Eigen::MatrixXd();
+  // What the calibration still leaves where the robot was measured (a calibrated robot file's residual map; not
+  // owned: it must outlive this model), and the rotation from the tracker frame it was made in into this model's
+  // (identity when the registration is the same).
+  const ResidualMap* residual_map = nullptr;
+  Eigen::Matrix3d residual_map_rotation = Eigen::Matrix3d::Identity();
 };
+
+// The residual map of a calibrated robot file (`calibrate --residual-map --save-robot`; none: nothing changes) attached
+// to `model`: `start` must outlive it. The map was made in the tracker frame of the file's registration; its
+// corrections turn with the base from there into the frame of model.params' base (the cell's registration, or the
+// engine's estimate of it).
+void attachResidualMap(const RobotFile& start, IdentifiedModel& model);
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,

@@ -47,6 +47,9 @@ class ResidualMap {
   };
   // `with_sigma`: also the correction's sigma (a triangular solve over the rows: O(rows^2) per call).
   Prediction predict(const Eigen::VectorXd& q_rad, bool with_sigma = false) const;
+  // An upper bound of predict(q, true).sigma_m at a bounded cost: the posterior sigma given only the `nearest` rows
+  // closest to q (conditioning on fewer rows never lowers the variance), O(nearest^3). Equal to it when nearest >= rows.
+  double sigmaBound_m(const Eigen::VectorXd& q_rad, int nearest = 48) const;
 
   bool empty() const { return q_.empty(); }
   std::size_t rows() const { return q_.size(); }
