@@ -51,9 +51,8 @@ struct RangeTest {
     if (o.prior_sigma.size() > 0) G = J.transpose() * J;
   }
   double range(int c) const { return c < options.prior_sigma.size() ? options.prior_sigma[c] : 0.0; }
-  // Whether a least-squares fit of `cols` together pins each of them that has a range better than that range;
-  // `last_sigma`, when given, receives the 1 sigma of cols.back().
-  bool pinned(const std::vector<int>& cols, double* last_sigma = nullptr) const {
+  // Whether a least-squares fit of `cols` together pins each of them that has a range better than that range.
+  bool pinned(const std::vector<int>& cols) const {
     if (G.size() == 0) return true;
     const auto n = static_cast<Eigen::Index>(cols.size());
     Eigen::VectorXd d(n);
@@ -65,7 +64,6 @@ struct RangeTest {
     bool ok = true;
     for (Eigen::Index i = 0; i < n; ++i) {
       const double sigma = options.noise_scale * std::sqrt(inv(i, i)) * d[i];
-      if (i == n - 1 && last_sigma) *last_sigma = std::isfinite(sigma) ? sigma : INFINITY;
       if (range(cols[i]) > 0 && !(sigma < range(cols[i]))) ok = false;
     }
     return ok;
@@ -107,15 +105,18 @@ std::vector<int> independentColumns(const Eigen::MatrixXd& J, const std::vector<
     return ranges.pinned(with);
   };
   Eigen::Index k = 0;
+  std::vector<bool> can(cand.size());
   while (k < std::min(m, nc)) {
     double best = 0;
-    for (Eigen::Index i = 0; i < nc; ++i)
-      if (eligible(i)) best = std::max(best, R.col(i).norm());
+    for (Eigen::Index i = 0; i < nc; ++i) {
+      can[static_cast<size_t>(i)] = eligible(i);  // once per step: with ranges each test factors a normal matrix
+      if (can[static_cast<size_t>(i)]) best = std::max(best, R.col(i).norm());
+    }
     if (!(best > 0)) break;
     // The highest-priority column that is not much closer to the kept span than the best-separated one.
     Eigen::Index pick = -1;
     for (Eigen::Index i = 0; i < nc && pick < 0; ++i)
-      if (eligible(i) && R.col(i).norm() >= options.conditioning_guard * best) pick = i;
+      if (can[static_cast<size_t>(i)] && R.col(i).norm() >= options.conditioning_guard * best) pick = i;
     taken[pick] = true;
     kept.push_back(cand[pick]);
     Eigen::VectorXd q = R.col(pick);
