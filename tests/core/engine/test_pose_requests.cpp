@@ -181,7 +181,7 @@ TEST(PoseRequests, TooFewMeasurableCandidatesAreRefusedSayingWhy) {
 // predicted position error (RMS over the candidates) of each engine at the end.
 TEST(PoseRequests, FollowingTheProposalsCalibratesBetterThanRandomPoses) {
   std::mt19937_64 rng(test::testSeed());
-  const int draws = 12, poses = 15, repeats = 4;
+  const int draws = 24, poses = 15, repeats = 4;
   int better = 0, predicted_better = 0;
   double sum_follow = 0, sum_random = 0;
   for (int draw = 0; draw < draws; ++draw) {
@@ -244,12 +244,15 @@ TEST(PoseRequests, FollowingTheProposalsCalibratesBetterThanRandomPoses) {
   }
   std::printf("  %d draws: following better in %d (predicted: %d); mean %.4f against %.4f mm (%.2f)\n", draws, better,
               predicted_better, sum_follow / draws * 1e3, sum_random / draws * 1e3, sum_follow / sum_random);
-  // Measured over 180 draws (15 runs): the held-out error lower in 83 % of the draws, the predicted one in 179 of 180;
-  // the mean over a run's draws 0.82-0.91 of random's. At those rates fewer than 7 of 12 (held-out) or 11 of 12
-  // (predicted) have a chance of 0.2 % each; the mean above 0.96 is 3.5 of its run-to-run deviations (0.025) away.
+  // Measured at 12 draws a run over 1,440 draws (120 runs): the held-out error lower in 82.6 % of the draws, the
+  // predicted one in 1,437; a run's mean 0.867 of random's, with a run-to-run deviation of 0.036 (0.026 expected at
+  // 24 draws). At 12 draws and 7 required, 4 runs of 141 failed (fresh-clone CI of 7e6f2d5, seed 239246481125345374):
+  // hence 24 draws. At 82.6 % fewer than 14 of 24 have a chance of 3e-4, fewer than 23 predicted of 24 about 1e-4;
+  // the mean above 0.95 is 3.2 deviations away. Re-measured at 24 draws over 120 runs: 16-24 better, 23-24
+  // predicted better, means 0.80-0.94.
   EXPECT_GE(predicted_better, draws - 1);
-  EXPECT_GE(better, 7);
-  EXPECT_LT(sum_follow, 0.96 * sum_random);
+  EXPECT_GE(better, 14);
+  EXPECT_LT(sum_follow, 0.95 * sum_random);
 }
 
 }  // namespace
