@@ -325,9 +325,13 @@ TEST_F(NetnsCell, SixteenRobotsOnTwoCellServers) {
 
 // The same cell (same robot errors, seed and program) on one host over loopback and across the three hosts: the same
 // calibration, latencies reported for both.
+// Both runs make the same 50 poses (one campaign, done in about 2 s of the 12): with the default four campaigns, 2 h
+// of cell time apart, the second began 10 s in and how much of it fitted into 12 s was the machine's load to decide
+// (fresh-clone CI of 7e6f2d5: 65 updates on one host, 59 across, and so a different calibration).
 TEST_F(NetnsCell, ConvergesAcrossThreeHostsAsOnOneHost) {
   const std::string dir = testDir();
-  const std::string cfg = writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}});
+  const std::string cfg =
+      writeCell(dir, domainForTest(), testSeed(), {{"tx60", "tx60_target"}}, "  initial_poses: 50\n  groups: 1\n");
   const auto one = runCell(dir + "/one", cfg, "12");
   ASSERT_FALSE(one.is_discarded());
   fs::create_directories(dir + "/hosts");
@@ -341,6 +345,8 @@ TEST_F(NetnsCell, ConvergesAcrossThreeHostsAsOnOneHost) {
   // Every reading crossed from tracker-pc and robot-pc to the cell server.
   EXPECT_EQ(hosts["topics"]["cellcal/tracker_pose"]["published"], hosts["topics"]["cellcal/tracker_pose"]["received"]);
   const int n_one = one["calibration_updates"], n_hosts = hosts["calibration_updates"];
+  EXPECT_LE(n_one, 50) << "the program makes 50 poses, an update each at the most";
+  EXPECT_GE(n_one, 45) << "the program's 50 poses did not reach the engine";
   EXPECT_GE(n_hosts, n_one - 2);
   EXPECT_LE(n_hosts, n_one + 2);
   const double e_one = one["verify_after_last_update_mm"], e_hosts = hosts["verify_after_last_update_mm"];

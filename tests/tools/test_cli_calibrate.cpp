@@ -751,6 +751,22 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   for (const char* k : {"verdict", "verdict_text", "noise", "outliers", "causes"}) EXPECT_TRUE(j.contains(k)) << k;
   EXPECT_TRUE(j["geometric"].contains("verify_mean_mm"));
   EXPECT_TRUE(j["extended"].contains("verify_rms_mm"));
+  // The region check judged every cause kept (and the first one left out, if any), and says what it left out.
+  const auto& rc = j["region_check"];
+  ASSERT_TRUE(rc.is_object()) << j.dump();
+  EXPECT_EQ(rc["causes"].size(), j["causes"].size() + (rc["left_out"].empty() ? 0 : 1)) << rc.dump();
+  for (const auto& c : rc["causes"])
+    for (const char* k : {"label", "split", "mean_with_mm", "mean_without_mm", "gain_pct", "z", "transfers"})
+      EXPECT_TRUE(c.contains(k)) << k;
+  if (!j["causes"].empty() || !rc["left_out"].empty()) {
+    Process n(dir, "diagnose-no-region-check", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv",
+                                                "--json", dir + "/n.json", "--no-region-check", "--sigma-position-mm",
+                                                std::to_string(sigma_mm)});
+    ASSERT_EQ(n.wait(120), 0) << n.log();
+    const auto nj = readJson(dir + "/n.json");
+    EXPECT_FALSE(nj["region_check"]["ran"].get<bool>());
+    EXPECT_EQ(nj["causes"].size(), j["causes"].size() + rc["left_out"].size()) << nj.dump();
+  }
 
   // calibrate with the model diagnose named (auto) and with the true cause given by hand.
   if (large && cause != "none") {
@@ -763,6 +779,7 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
       EXPECT_LT(cj["verification_without_outliers"]["after"]["rms_mm"].get<double>(), 1.2 * h.noise_rms_mm)
           << model << "\n" << c.log();
       EXPECT_FALSE(cj["extension_params"].empty()) << c.log();
+      EXPECT_EQ(cj["region_check"].is_object(), model == "auto") << cj["region_check"].dump();
     }
   }
   Process bad(dir, "calibrate-bad", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--model",

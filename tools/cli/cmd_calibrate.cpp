@@ -19,6 +19,7 @@
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/residual_map.hpp"
 #include "commands.hpp"
+#include "diagnosis_output.hpp"
 #include "measurement_input.hpp"
 #include "progress.hpp"
 
@@ -32,7 +33,7 @@ struct CalibrateArgs {
   double excitation_ratio = DiagnosisOptions{}.excitation_ratio;
   std::string save_robot;
   bool frames_only = false;
-  bool residual_map = false;
+  bool residual_map = false, no_region_check = false;
   double residual_map_distance = ResidualMapOptions{}.max_distance;
 };
 
@@ -110,6 +111,9 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
                  "the residual map corrects only this near an identification row (in its fitted length scales)")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
+  cmd.add_flag("--no-region-check", a.no_region_check,
+               "--model auto: keep every cause the selection chose; by default each is fitted again on one half of the "
+               "workspace and judged on the other, and one that does not lower the error there is left out");
   cmd.add_option("--excitation-ratio", a.excitation_ratio,
                  "hold (and name) a parameter whose excitation on the identification rows is below this fraction of "
                  "its largest on a verification row; 0: off")
@@ -320,6 +324,7 @@ DiagnosisResult diagnoseForAuto(const CalibrateArgs& a, const LoadedInput& in, c
   o.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
   o.outliers = outliers;
   o.excitation_ratio = a.excitation_ratio;
+  o.region_check = !a.no_region_check;
   ProgressBar bar(what);
   o.progress = [&bar](int done, int total) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " fits");
@@ -536,6 +541,8 @@ int runCalibrate(const CalibrateArgs& a) {
   std::vector<ExcitationDeficit> held_after;
   OutlierScreen ident_outliers;
   std::string model_label, message;
+  std::string region_text;                       // --model auto: the region check (diagnosis_output.hpp)
+  nlohmann::json region_json = nullptr;
   bool converged = false;
   int iterations = 0;
   size_t estimated = 0;
@@ -583,6 +590,8 @@ int runCalibrate(const CalibrateArgs& a) {
     if (a.model != "geometric") {
       if (a.model == "auto") {
         const DiagnosisResult d = diagnoseForAuto(a, in, p.outliers, "calibrate --model auto");
+        region_text = regionCheckText(d);
+        region_json = regionCheckJson(d);
         after = d.best().fit;
         held_after = d.best().held;
         ident_outliers = d.identification_outliers;
@@ -658,7 +667,7 @@ int runCalibrate(const CalibrateArgs& a) {
               model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
   if (!converged) std::printf("  solver: %s\n", message.c_str());
-  std::printf("\n");
+  std::printf("%s\n", region_text.c_str());
   printErrorsAndGrossErrors(
       ib, ia, vb, va, vbk, vak, ident_outliers, verify_outliers, p.outliers.threshold, in,
       a.frames_only ? "\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': "
@@ -753,7 +762,7 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"skipped_rows", in.file.skipped_rows}, {"split", a.input.split},
                         {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
                         {"measurement", in.measurementJson()},
-                        {"model", a.model}, {"model_fitted", model_label}, {"solver", a.solver},
+                        {"model", a.model}, {"model_fitted", model_label}, {"region_check", region_json}, {"solver", a.solver},
                         {"converged", converged}, {"iterations", iterations},
                         {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", in.modelErrorJson()},
                         {"setup_change", in.setup_hint.empty() ? nlohmann::json(nullptr)

@@ -13,6 +13,7 @@
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "commands.hpp"
+#include "diagnosis_output.hpp"
 #include "measurement_input.hpp"
 #include "progress.hpp"
 
@@ -22,13 +23,16 @@ namespace {
 struct DiagnoseArgs {
   InputArgs input;
   std::string json, report;
-  bool no_progress = false;
+  bool no_progress = false, no_region_check = false;
 };
 
 void addOptions(CLI::App& cmd, DiagnoseArgs& a) {
   addInputOptions(&cmd, a.input);
   cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());
   cmd.add_flag("--no-progress", a.no_progress, "no progress bar (it is drawn only when stderr is a terminal)");
+  cmd.add_flag("--no-region-check", a.no_region_check,
+               "keep every cause the selection chose; by default each is fitted again on one half of the workspace and "
+               "judged on the other, and one that does not lower the error there is left out (with those after it)");
   cmd.add_option("--report", a.report, "write report.md and the cause's signature (signature.svg, signature.png; gnuplot) into this directory");
 }
 
@@ -183,6 +187,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   DiagnosisOptions options;
   options.outliers = outlierOptions(a.input);
   options.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
+  options.region_check = !a.no_region_check;
   ProgressBar bar("diagnose", !a.no_progress);
   options.progress = [&bar](int done, int total) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
@@ -220,6 +225,7 @@ int runDiagnose(const DiagnoseArgs& a) {
       std::printf("  + %-40s verification mean %.4f mm, gain %.1f %%, z %.1f\n", extensionLabel(st.added).c_str(),
                   st.result.verification.mean_mm, st.gain_pct, st.z);
   }
+  if (const std::string r = regionCheckText(d); !r.empty()) std::printf("\n%s", r.c_str());
   std::printf("\nresidual structure, geometric model: %s\n", structureLine(d.structure_before, 4).c_str());
   if (!d.selection.empty()) std::printf("residual structure, final model:     %s\n", structureLine(d.structure_after, 4).c_str());
   std::printf("\ncause: %s\n", d.verdict_text.c_str());
@@ -302,7 +308,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                                                                   {"p_value", left->p_value}})
                                                 : nlohmann::json(nullptr)},
                         {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(d.selection.front().added) : nlohmann::json::array()},
-                        {"causes", causes},
+                        {"causes", causes}, {"region_check", regionCheckJson(d)},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
                         {"verification_all_rows", {{"geometric", errorStatsJson(d.geometric_verification_all_rows)},
                                                    {"extended", errorStatsJson(d.verification_all_rows)}}},

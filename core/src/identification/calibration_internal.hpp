@@ -22,6 +22,10 @@ CalibrationResult solveScreened(const CalibrationProblem& problem, const SolverO
 OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, const std::vector<Observation>& obs,
                         const OutlierOptions& options);
 
+// Paired improvement of squared position errors from residual set a to residual set b (row by row), in standard
+// errors of the mean difference: positive when b is better.
+double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b);
+
 // The linear-algebra view of a CalibrationProblem restricted to the estimated parameters.
 struct ReducedProblem {
   const CalibrationProblem* problem = nullptr;

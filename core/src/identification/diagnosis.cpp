@@ -18,6 +18,22 @@
 
 namespace cellcal {
 
+namespace internal {
+double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b) {
+  const auto n = static_cast<double>(a.size());
+  double mean = 0, sq = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double d = a[i].squaredNorm() - b[i].squaredNorm();
+    mean += d;
+    sq += d * d;
+  }
+  mean /= n;
+  const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
+  return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
+}
+}  // namespace internal
+using internal::pairedZ;
+
 namespace {
 
 // B_i of every observation; a backlash's play state evaluated at the width in `evaluated_at` (empty: width 0).
@@ -62,19 +78,6 @@ void stackExtended(const RobotModel& model, const Eigen::VectorXd& params, const
   }
 }
 
-// Paired improvement of squared position errors from residual set a to residual set b, in standard errors.
-double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b) {
-  const auto n = static_cast<double>(a.size());
-  double mean = 0, sq = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    const double d = a[i].squaredNorm() - b[i].squaredNorm();
-    mean += d;
-    sq += d * d;
-  }
-  mean /= n;
-  const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
-  return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
-}
 
 Eigen::VectorXd rowParams(const ExtendedFit& fit, const Eigen::MatrixXd& B) {
   return fit.extension_params.size() ? Eigen::VectorXd(fit.params + B * fit.extension_params) : fit.params;
@@ -463,6 +466,10 @@ bool DiagnosisOptions::IsValid(std::string* error) const {
   if (screen_keep < 0) return fail("screen_keep must be >= 0 (0: no screen, every candidate fitted in full)");
   if (screen_rows < 0) return fail("screen_rows must be >= 0 (0: every row)");
   if (!(screen_margin >= 0)) return fail("screen_margin must be >= 0");
+  if (region_min_rows < 8) return fail("region_min_rows must be >= 8");
+  if (region_fit_rows < 0) return fail("region_fit_rows must be >= 0 (0: every row)");
+  if (!(region_z >= 0) || !std::isfinite(region_z)) return fail("region_z must be finite and >= 0");
+  if (!(region_joint_end > 0 && region_joint_end < 0.5)) return fail("region_joint_end must be in (0, 0.5)");
   if (std::string e; !outliers.IsValid(&e)) return fail(e);
   for (Cause c : causes)
     if (c == Cause::kNone) return fail("causes: 'none' is not an extension (it is the default outcome)");
@@ -1183,6 +1190,22 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
   out.candidates = std::move(sel.candidates);
   out.selection = std::move(sel.steps);
   out.chosen = sel.chosen;
+  // Where the causes' data never were: a cause that does not lower the error on the other blocks of the workspace is
+  // left out, with those chosen beside it after.
+  if (options.region_check && !out.selection.empty()) {
+    std::vector<Observation> rows = subset(I, ik);
+    std::vector<Drivers> rows_drivers = subset(ID, ik);
+    rows.insert(rows.end(), Vk.begin(), Vk.end());
+    rows_drivers.insert(rows_drivers.end(), VDk.begin(), VDk.end());
+    out.region_checks =
+        checkRegions(model, start, rows, rows_drivers, out.geometric.fit, out.selection, options, &out.region_note);
+    if (!out.region_checks.empty() && !out.region_checks.back().transfers) {
+      const size_t k = out.region_checks.size() - 1;
+      for (size_t i = k; i < out.selection.size(); ++i) out.not_transferred.push_back(out.selection[i].added);
+      out.selection.resize(k);
+      if (k == 0) out.chosen = -1;
+    }
+  }
   if (!out.selection.empty()) {
     out.cause = out.selection.front().added.cause;
     if (out.selection.front().added.joint >= 0) out.joints = {out.selection.front().added.joint};
@@ -1207,6 +1230,15 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
   } else {
     out.verdict = left ? Verdict::kPartlyExplained : Verdict::kNamed;
     out.verdict_text = left ? "partly explained by " + modelLabel(out.causes()) + "; " + share : modelLabel(out.causes());
+  }
+  if (!out.not_transferred.empty()) {
+    const RegionCheck& c = out.region_checks.back();
+    char b[300];
+    std::snprintf(b, sizeof b,
+                  "; left out: %s (fitted on part of the rows, it made the error beyond them, by %s, worse: "
+                  "mean %.4f mm with it against %.4f mm without)",
+                  modelLabel(out.not_transferred).c_str(), c.split.c_str(), c.mean_with_mm, c.mean_without_mm);
+    out.verdict_text += b;
   }
   ExtendedFit start_fit;
   start_fit.params = start;

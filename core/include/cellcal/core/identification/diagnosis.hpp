@@ -18,6 +18,12 @@
 // parsimony_z standard errors (two causes that explain the data equally well: the one with fewer parameters is
 // named). Noise alone thus yields `none`. Thermal drift is also tried on the lengths alone (joint -1): a joint is named
 // only when its zero drift is needed.
+// Regions: the causes chosen are then checked where their data never were (region_check, RegionCheck): each, in the
+// order chosen, with the causes kept before it, fitted on part of the rows kept (identification and verification
+// together) and judged on rows beyond them (past either end of its joint's range, or the other half of the
+// workspace) against the model without it. A cause that makes the error there worse (it fits the rows it saw, not the
+// robot: a cyclic term fitted on part of a joint's range can be off by millimetres beyond it) is left out, with every
+// cause chosen after it (they were chosen beside it), and named.
 // Verdict: the residual the final model leaves on the verification rows is tested for structure against each driver
 // the file has (residualStructure): a cause is reported as the explanation only when nothing is left; otherwise
 // "partly explained by ...; structure left against <driver> (N %)".
@@ -135,6 +141,28 @@ struct DiagnosisData {
   std::string thermal_source;  // for reports: "temperature_c" or "stamp_s"
 };
 
+// A split of rows by region of the workspace: the measured target positions cut at their median along the direction
+// in which they spread most (their covariance's largest principal axis); true for the far half. No row of one half
+// lies on the other's side of the cut. Fewer than 8 rows: every row false.
+std::vector<bool> regionSplit(const std::vector<Observation>& obs);
+
+// A chosen cause judged where its data never were (DiagnosisOptions::region_check), in two folds whose judged rows
+// are pooled. For a joint's cyclic error, scale, backlash or compliance, by the angle of that joint: the rows up to
+// its upper quantile (1 - region_joint_end) fitted and those beyond it judged, and the same at the lower end (a
+// periodic or stiffness term fitted on part of a joint's range, carried beyond it). For other causes, by the workspace
+// (regionSplit): each half fitted, the other judged.
+struct RegionCheck {
+  Extension cause;                   // the cause judged, fitted with the causes kept before it
+  std::string split;                 // "q2" (by joint 2's angle) or "workspace"
+  int judged_rows[2] = {0, 0};       // observations judged in each fold
+  double mean_without_mm = 0, mean_with_mm = 0;         // mean position error on the judged rows
+  double gain_pct = 0;               // of the mean squared position error there, without -> with the cause
+  double z = 0;                      // paired improvement there, in standard errors (positive: the cause helps)
+  bool transfers = true;             // not (gain_pct < 0 and z < -region_z)
+};
+// RegionCheck::split for a cause: "q<joint>" (1-based) or "workspace".
+std::string regionSplitName(const Extension& cause);
+
 struct DiagnosisOptions {
   std::vector<Cause> causes = extensionCauses();
   double penalty_per_param = 2.0;
@@ -161,6 +189,17 @@ struct DiagnosisOptions {
   // The screen judges at most this many identification and this many verification observations (every k-th of a
   // larger file); 0: all of them. The fits use every row.
   int screen_rows = 2000;
+  // Check each chosen cause on a half of the rows its fit never saw (RegionCheck: by its joint's angle or by the
+  // workspace, over the rows kept, both ways round) against the model without it: a cause that makes the error there
+  // worse, by more than region_z standard errors of the paired difference, is left out with those chosen after it.
+  // Not run for a cause whose halves hold fewer than region_min_rows observations (DiagnosisResult::region_note).
+  bool region_check = true;
+  double region_z = 2.0;
+  double region_joint_end = 0.25;  // the share of rows judged at each end of a joint's range
+  int region_min_rows = 40;
+  // Each half's fit takes at most this many observations (every k-th of a larger half); the judged half all of its
+  // own. 0: every one.
+  int region_fit_rows = 3000;
   // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
   // bars on large files; runs on the caller's thread.
   std::function<void(int done, int total)> progress;
@@ -258,6 +297,11 @@ struct DiagnosisResult {
   ErrorStats geometric_verification_all_rows, verification_all_rows;
   ErrorStats start_verification;            // the start model (nominal kinematics, registered frames), rows kept
   std::string unusable;                     // why the chosen model cannot be used (unusableFit); empty: it can
+  // The region check, in the order of the selection (the causes left out included); `not_transferred`: the causes it
+  // left out (the selection above no longer holds them); `region_note`: why it did not run, empty when it ran.
+  std::vector<RegionCheck> region_checks;
+  std::vector<Extension> not_transferred;
+  std::string region_note;
   double solve_time_s = 0;
   // The noise_scale every fit decided its parameters with: with plausible ranges (identifiability.prior_sigma), the
   // root of the variance factor of a robust geometric fit on the identification rows (at least the options' own).
@@ -287,5 +331,15 @@ std::string unusableFit(const ErrorStats& start_held_out, const ErrorStats& held
 
 DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
                          const DiagnosisOptions& options = {});
+
+// The region check diagnose runs on its selection: `obs` (rows without gross errors; diagnose passes identification and
+// verification together) split in two for each step's cause (RegionCheck); the causes kept before it without and with
+// it, fitted on each half (warm-started from `geometric` and the steps' fits; parameters unexcited there but excited on
+// the other half held) and judged on the other. Stops after the first cause that does not transfer, or before one
+// whose halves hold fewer than options.region_min_rows observations (the reason in `note`).
+std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::VectorXd& start,
+                                      const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                      const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
+                                      const DiagnosisOptions& options, std::string* note);
 
 }  // namespace cellcal

@@ -1,0 +1,149 @@
+// The region check of diagnosis.hpp: chosen causes judged where their fit's rows never were.
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "calibration_internal.hpp"
+#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/prediction.hpp"
+
+namespace cellcal {
+
+std::vector<bool> regionSplit(const std::vector<Observation>& obs) {
+  std::vector<bool> side(obs.size(), false);
+  if (obs.size() < 8) return side;
+  const auto n = static_cast<double>(obs.size());
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& o : obs) mean += o.measured_in_tracker.translation() / n;
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& o : obs) {
+    const Eigen::Vector3d d = o.measured_in_tracker.translation() - mean;
+    cov += d * d.transpose() / n;
+  }
+  // Eigenvalues ascending: the last column is the direction of the largest spread.
+  const Eigen::Vector3d axis = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(2);
+  std::vector<double> x(obs.size());
+  for (size_t i = 0; i < obs.size(); ++i) x[i] = axis.dot(obs[i].measured_in_tracker.translation() - mean);
+  std::vector<double> sorted = x;
+  const auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+  std::nth_element(sorted.begin(), mid, sorted.end());
+  for (size_t i = 0; i < obs.size(); ++i) side[i] = x[i] >= *mid;
+  return side;
+}
+
+std::string regionSplitName(const Extension& cause) {
+  switch (cause.cause) {
+    case Cause::kCyclicTransmission:
+    case Cause::kJointScale:
+    case Cause::kBacklash:
+    case Cause::kJointCompliance:
+      if (cause.joint >= 0) return "q" + std::to_string(cause.joint + 1);
+      break;
+    default:
+      break;
+  }
+  return "workspace";
+}
+
+std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::VectorXd& start,
+                                      const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                      const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
+                                      const DiagnosisOptions& options, std::string* note) {
+  if (note) note->clear();
+  auto thin = [&](const std::vector<int>& rows) {
+    if (options.region_fit_rows <= 0 || static_cast<int>(rows.size()) <= options.region_fit_rows) return rows;
+    const size_t stride = (rows.size() + options.region_fit_rows - 1) / options.region_fit_rows;
+    std::vector<int> out;
+    for (size_t i = 0; i < rows.size(); i += stride) out.push_back(rows[i]);
+    return out;
+  };
+  auto meanSquare = [](const std::vector<Eigen::Vector3d>& r, double* mean_mm) {
+    double sq = 0, m = 0;
+    for (const auto& e : r) sq += e.squaredNorm(), m += e.norm();
+    *mean_mm = 1e3 * m / static_cast<double>(r.size());
+    return sq / static_cast<double>(r.size());
+  };
+  std::vector<Extension> kept;
+  const ExtendedFit* kept_fit = &geometric;
+  std::vector<RegionCheck> out;
+  for (const SelectionStep& step : steps) {
+    RegionCheck c;
+    c.cause = step.added;
+    c.split = regionSplitName(step.added);
+    // The folds: (fitted rows, judged rows). By the workspace: each half fitted, the other judged. By a joint: the rows
+    // up to its angle's upper quantile fitted and those beyond it judged, and the same at the lower end.
+    std::vector<std::pair<std::vector<int>, std::vector<int>>> folds;
+    if (c.split == "workspace") {
+      const std::vector<bool> side = regionSplit(obs);
+      std::vector<int> half[2];
+      for (size_t i = 0; i < obs.size(); ++i) half[side[i] ? 1 : 0].push_back(static_cast<int>(i));
+      folds = {{half[0], half[1]}, {half[1], half[0]}};
+    } else {
+      const double frac = options.region_joint_end;
+      std::vector<double> x;
+      for (const auto& o : obs) x.push_back(o.q_rad[step.added.joint]);
+      std::vector<double> sorted = x;
+      std::sort(sorted.begin(), sorted.end());
+      const double lo = sorted[static_cast<size_t>(frac * (sorted.size() - 1))];
+      const double hi = sorted[static_cast<size_t>((1 - frac) * (sorted.size() - 1))];
+      std::pair<std::vector<int>, std::vector<int>> up, down;
+      for (size_t i = 0; i < obs.size(); ++i) {
+        const int r = static_cast<int>(i);
+        (x[i] > hi ? up.second : up.first).push_back(r);
+        (x[i] < lo ? down.second : down.first).push_back(r);
+      }
+      folds = {up, down};
+    }
+    c.judged_rows[0] = static_cast<int>(folds[0].second.size());
+    c.judged_rows[1] = static_cast<int>(folds[1].second.size());
+    bool enough = true;
+    for (const auto& f : folds)
+      enough = enough && static_cast<int>(f.first.size()) >= options.region_min_rows && f.second.size() >= 8;
+    if (!enough) {
+      if (note) {
+        char b[240];
+        std::snprintf(b, sizeof b,
+                      "not run for %s: split by %s, it would fit %zu and %zu observations and judge %d and %d (at least "
+                      "%d and 8 needed)",
+                      extensionLabel(step.added).c_str(), c.split.c_str(), folds[0].first.size(), folds[1].first.size(),
+                      c.judged_rows[0], c.judged_rows[1], options.region_min_rows);
+        *note = b;
+      }
+      break;
+    }
+    // A model's judged residuals: those of both folds together.
+    auto judged = [&](const std::vector<Extension>& exts, const Eigen::VectorXd* warm, const Eigen::VectorXd* warm_ext) {
+      std::vector<Eigen::Vector3d> res;
+      for (const auto& fold : folds) {
+        const std::vector<int> fit_rows = thin(fold.first);
+        const std::vector<Observation> FO = subset(obs, fit_rows), JO = subset(obs, fold.second);
+        const std::vector<Drivers> FD = subset(drivers, fit_rows), JD = subset(drivers, fold.second);
+        IdentifiabilityOptions io = options.identifiability;
+        if (options.excitation_ratio > 0)
+          for (const auto& d : excitationDeficits(model, start, exts, FO, FD, JO, JD, options.excitation_ratio))
+            io.held.push_back(d.column);
+        const ExtendedFit fit = fitExtended(model, start, FO, FD, exts, options.solver, io, warm, warm_ext);
+        const std::vector<Eigen::Vector3d> r = positionResiduals(model, fit, JO, JD);
+        res.insert(res.end(), r.begin(), r.end());
+      }
+      return res;
+    };
+    const std::vector<Eigen::Vector3d> without =
+        judged(kept, &kept_fit->params, kept.empty() ? nullptr : &kept_fit->extension_params);
+    std::vector<Extension> exts = kept;
+    exts.push_back(step.added);
+    const std::vector<Eigen::Vector3d> with = judged(exts, &step.result.fit.params, &step.result.fit.extension_params);
+    const double mse0 = meanSquare(without, &c.mean_without_mm), mse1 = meanSquare(with, &c.mean_with_mm);
+    c.gain_pct = 100.0 * (1.0 - mse1 / mse0);
+    c.z = internal::pairedZ(without, with);
+    c.transfers = !(c.gain_pct < 0 && c.z < -options.region_z);
+    out.push_back(c);
+    if (!c.transfers) break;
+    kept = exts;
+    kept_fit = &step.result.fit;
+  }
+  return out;
+}
+
+}  // namespace cellcal

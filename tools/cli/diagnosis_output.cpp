@@ -1,0 +1,44 @@
+#include "diagnosis_output.hpp"
+
+#include <cstdio>
+
+namespace cellcal::cli {
+
+std::string regionCheckText(const DiagnosisResult& d) {
+  if (d.region_checks.empty() && d.region_note.empty()) return "";
+  std::string out =
+      "region check (each cause fitted on part of the rows and judged beyond them: past either end of its joint's "
+      "range, or on the other half of the workspace):\n";
+  for (size_t i = 0; i < d.region_checks.size(); ++i) {
+    const RegionCheck& c = d.region_checks[i];
+    char b[400];
+    std::snprintf(b, sizeof b, "  %-36s by %-9s mean %.4f -> %.4f mm, gain %+.1f %%, z %.1f: %s",
+                  extensionLabel(c.cause).c_str(), c.split.c_str(), c.mean_without_mm, c.mean_with_mm, c.gain_pct, c.z,
+                  c.transfers ? "transfers" : "does not transfer, left out");
+    out += b;
+    if (!c.transfers && d.not_transferred.size() > 1) {
+      std::string after;
+      for (size_t k = 1; k < d.not_transferred.size(); ++k)
+        after += (after.empty() ? "" : ", ") + extensionLabel(d.not_transferred[k]);
+      out += " (with " + after + ", chosen after it)";
+    }
+    out += "\n";
+  }
+  if (!d.region_note.empty()) out += "  " + d.region_note + "\n";
+  return out;
+}
+
+nlohmann::json regionCheckJson(const DiagnosisResult& d) {
+  nlohmann::json causes = nlohmann::json::array(), left_out = nlohmann::json::array();
+  for (const auto& c : d.region_checks)
+    causes.push_back({{"label", extensionLabel(c.cause)}, {"split", c.split}, {"mean_without_mm", c.mean_without_mm},
+                      {"mean_with_mm", c.mean_with_mm}, {"gain_pct", c.gain_pct}, {"z", c.z},
+                      {"transfers", c.transfers}, {"judged_rows", c.judged_rows[0] + c.judged_rows[1]}});
+  for (const auto& e : d.not_transferred) left_out.push_back(extensionLabel(e));
+  return {{"ran", !d.region_checks.empty()},
+          {"note", d.region_note.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.region_note)},
+          {"causes", causes},
+          {"left_out", left_out}};
+}
+
+}  // namespace cellcal::cli

@@ -1,0 +1,17 @@
+// What `diagnose` and `calibrate --model auto` both print and write of a diagnosis.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "cellcal/core/identification/diagnosis.hpp"
+
+namespace cellcal::cli {
+
+// The region check (DiagnosisOptions::region_check): a heading and a line per cause judged, or why it did not run;
+// empty when no cause was chosen.
+std::string regionCheckText(const DiagnosisResult& d);
+// {"ran", "note", "causes": [{label, mean_without_mm, mean_with_mm, gain_pct, z, transfers}], "left_out": [labels]}.
+nlohmann::json regionCheckJson(const DiagnosisResult& d);
+
+}  // namespace cellcal::cli
