@@ -327,7 +327,7 @@ TEST_F(NetnsCell, SixteenRobotsOnTwoCellServers) {
 // calibration, latencies reported for both.
 // Both runs make the same 50 poses (one campaign, done in about 2 s of the 12): with the default four campaigns, 2 h
 // of cell time apart, the second began 10 s in and how much of it fitted into 12 s was the machine's load to decide
-// (fresh-clone CI of 7e6f2d5: 65 updates on one host, 59 across, and so a different calibration).
+// (fresh-clone CI of d0047ce: 65 updates on one host, 59 across, and so a different calibration).
 TEST_F(NetnsCell, ConvergesAcrossThreeHostsAsOnOneHost) {
   const std::string dir = testDir();
   const std::string cfg =

@@ -758,6 +758,8 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   for (const auto& c : rc["causes"])
     for (const char* k : {"label", "split", "mean_with_mm", "mean_without_mm", "gain_pct", "z", "transfers"})
       EXPECT_TRUE(c.contains(k)) << k;
+  if (!rc["causes"].empty())
+    EXPECT_NE(readTextFile(dir + "/report/report.md").find("Beyond the rows fitted"), std::string::npos);
   if (!j["causes"].empty() || !rc["left_out"].empty()) {
     Process n(dir, "diagnose-no-region-check", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv",
                                                 "--json", dir + "/n.json", "--no-region-check", "--sigma-position-mm",

@@ -119,6 +119,8 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
       md << "\n";
     }
   }
+  if (const std::string r = regionCheckText(d); !r.empty())
+    md << "Beyond the rows fitted (docs/diagnosis.md, \"Regions the fit never saw\"):\n\n```\n" << r << "```\n\n";
   std::snprintf(buf, sizeof buf,
                 "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
                 d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());

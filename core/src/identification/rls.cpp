@@ -58,10 +58,17 @@ void RlsEstimator::updateWithInnovation(const Eigen::Ref<const Eigen::MatrixXd>&
   P_.selfadjointView<Eigen::Lower>().rankUpdate(PA_, -1.0);
   if (track_G_.rows() > 0) {  // g (P - W W^T) g^T = v - |g W|^2
     track_GW_.noalias() = track_G_ * PA_;
-    track_v_ -= track_GW_.rowwise().squaredNorm();
     // A downdate subtracts nearly equal numbers once the estimate converges: the rounding of each stays in v. Every
-    // kTrackRefresh updates v is computed from P again (amortized: 1/64 of G P G^T per update).
-    if (++track_updates_ % kTrackRefresh == 0) track_refresh_due_ = true;
+    // kTrackRefresh updates v is computed from P again (amortized: 1/64 of G P G^T per update), and at once after a
+    // downdate that removes all but kTrackCancel of a variance (the first poses from a wide prior: v falls by up to
+    // ten orders of magnitude, and its rounding with it would stay relative to the old v).
+    bool cancelled = false;
+    for (Eigen::Index i = 0; i < track_v_.size(); ++i) {
+      const double left = track_v_[i] - track_GW_.row(i).squaredNorm();
+      cancelled = cancelled || left < kTrackCancel * track_v_[i];
+      track_v_[i] = left;
+    }
+    if (++track_updates_ % kTrackRefresh == 0 || cancelled) track_refresh_due_ = true;
   }
   if (lambda < 1.0) {
     double inflate = 1.0 / lambda;

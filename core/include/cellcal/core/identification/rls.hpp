@@ -87,6 +87,7 @@ class RlsEstimator {
   Eigen::MatrixXd track_G_, track_GW_, track_Q_;  // tracked rows, G W workspace, the last scaled noise shape
   Eigen::VectorXd track_v_, track_Qv_;            // tracked variances; diag(G Q G^T) of track_Q_
   static constexpr std::uint64_t kTrackRefresh = 64;
+  static constexpr double kTrackCancel = 1e-2;
   std::uint64_t track_updates_ = 0;
   bool track_refresh_due_ = false;
 };
