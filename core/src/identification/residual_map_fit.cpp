@@ -19,6 +19,8 @@ namespace {
 
 using residual_map_detail::kernel;
 
+constexpr double kFloorM = 1e-9;  // the smallest signal and noise sigma a map is given: 1 nm
+
 // -log p(Y | theta) per row, the three axes together, and its gradient (theta: log l_1..l_d, log s, log n):
 //   f = (1/2 tr(Y^T K^-1 Y) + 3/2 log|K|) / m + 3/2 log(2 pi)
 //   df/dtheta_k = 1/(2m) tr((3 K^-1 - A A^T) dK/dtheta_k),  A = K^-1 Y,
@@ -35,6 +37,9 @@ class NegLogLikelihood : public ceres::FirstOrderFunction {
     const Eigen::Index m = Q_.rows();
     Eigen::VectorXd l(d_);
     for (int j = 0; j < d_; ++j) l[j] = std::exp(theta[j]);
+    // Below a nanometre the likelihood of residuals that are all (nearly) zero runs to -inf as s, n -> 0 and
+    // exp() underflows to 0: the line search is kept above the floor (an evaluation below it is infeasible).
+    if (theta[d_] < kLogFloorM || theta[d_ + 1] < kLogFloorM) return false;
     const double s2 = std::exp(2 * theta[d_]), n2 = std::exp(2 * theta[d_ + 1]);
     if (!std::isfinite(s2) || !std::isfinite(n2) || !l.allFinite()) return false;
     const Eigen::MatrixXd Qs = Q_ * l.cwiseInverse().asDiagonal();
@@ -67,6 +72,7 @@ class NegLogLikelihood : public ceres::FirstOrderFunction {
 
  private:
   static constexpr double kPiLocal = 3.14159265358979323846;
+  static constexpr double kLogFloorM = -20.7232658370;  // just below log(1e-9): 1 nm
   Eigen::MatrixXd Q_;
   Eigen::MatrixXd Y_;
   int d_;
@@ -114,9 +120,9 @@ ResidualMap fitResidualMap(const std::vector<Eigen::VectorXd>& q, const std::vec
     mean /= static_cast<double>(fit_rows.size());
     for (int r : fit_rows) sq += (q[static_cast<size_t>(r)] - mean).cwiseAbs2();
     for (Eigen::Index j = 0; j < d; ++j) theta[j] = std::log(std::max(1e-3, std::sqrt(sq[j] / static_cast<double>(fit_rows.size()))));
-    const double rms = std::max(1e-9, std::sqrt(Yfit.squaredNorm() / static_cast<double>(Yfit.size())));
+    const double rms = std::max(kFloorM, std::sqrt(Yfit.squaredNorm() / static_cast<double>(Yfit.size())));
     theta[d] = std::log(rms);
-    theta[d + 1] = std::log(rms / 3);
+    theta[d + 1] = std::log(std::max(kFloorM, rms / 3));
   }
   // Maximum marginal likelihood: L-BFGS on the analytic gradient (Ceres' gradient solver) from three starts (each
   // joint's spread x 0.3, 1 and 3), the best kept: the likelihood has local optima (on Series A after the extended
@@ -141,8 +147,8 @@ ResidualMap fitResidualMap(const std::vector<Eigen::VectorXd>& q, const std::vec
   theta = chosen;
   ResidualMapKernel k;
   k.length_rad = theta.head(d).array().exp();
-  k.signal_m = std::exp(theta[d]);
-  k.noise_m = std::exp(theta[d + 1]);
+  k.signal_m = std::max(kFloorM, std::exp(theta[d]));
+  k.noise_m = std::max(kFloorM, std::exp(theta[d + 1]));
   k.max_distance = o.max_distance;
   std::vector<Eigen::VectorXd> mq;
   std::vector<Eigen::Vector3d> my;
