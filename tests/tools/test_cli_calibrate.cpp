@@ -691,6 +691,46 @@ TEST(CliUsage, UsageErrorsExitTwoAndOutputFoldersAreMade) {
   EXPECT_TRUE(std::filesystem::exists(dir + "/made/here/m.mcap"));
 }
 
+// A robot base that drifts in the tracker's frame as the cell warms up (about joint 1's axis or by any small twist;
+// robot, placements, points or 6D, thermometer or not, warm-up, size and seed drawn at random): `diagnose` never names
+// a drift of the robot without saying it may be the frame's, in its output and its JSON; `calibrate --model
+// frame_drift` fits the frame's drift by name.
+TEST(CliDiagnose, ABaseThatDriftsIsSaidToBeTheFrames) {
+  const std::string dir = testDir();
+  std::mt19937_64 rng(testSeed());
+  DrawOptions o;
+  o.category = DrawCategory::kOutOfLibrary;
+  o.force_outside = OutsideEffect::kBaseDrift;
+  o.min_amp_deg = 0.02;
+  HiddenEffectData h = makeHiddenEffectData(o, rng());
+  while (h.draw.outside_rms_mm <= 2 * h.noise_rms_mm) h = makeHiddenEffectData(o, rng());
+  std::printf("hidden: %s, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.noise_rms_mm);
+  {
+    std::ofstream out(dir + "/m.csv");
+    writeMeasurementCsv(out, h.file, 6, "simulated robot whose base drifts");
+  }
+  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml";
+  const double sigma_mm = h.data.verification.front().sigma_position_m * 1e3;
+  Process p(dir, "diagnose", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                              dir + "/d.json", "--sigma-position-mm", std::to_string(sigma_mm)});
+  ASSERT_EQ(p.wait(120), 0) << p.log();
+  const auto j = readJson(dir + "/d.json");
+  const auto& dc = j["drift_check"];
+  ASSERT_TRUE(dc["ran"].get<bool>()) << p.log();
+  const std::string outcome = dc["outcome"];
+  EXPECT_TRUE(outcome == "alike" || outcome == "frame_drift_better" || outcome == "frame_drift_explains" ||
+              outcome == "both")
+      << p.log();
+  EXPECT_NE(j["verdict_text"].get<std::string>().find("base frame"), std::string::npos) << p.log();
+  EXPECT_NE(p.log().find("drift check"), std::string::npos) << p.log();
+  Process c(dir, "calibrate", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                               dir + "/c.json", "--model", "frame_drift"});
+  ASSERT_EQ(c.wait(120), 0) << c.log();
+  const auto cj = readJson(dir + "/c.json");
+  EXPECT_LT(cj["verification_without_outliers"]["after"]["rms_mm"].get<double>(), 1.2 * h.noise_rms_mm) << c.log();
+  EXPECT_EQ(cj["extension_params"].size(), 6u) << cj["extension_params"].dump();
+}
+
 // `cellcal diagnose` and `cellcal calibrate --model` on a file with an effect hidden in it (robot, tracker placement,
 // target offset, points or 6D, cause, joint, size, gross errors and seed drawn at random; sizes from 0.005 to 0.05 deg
 // RMS, mostly above the tracker noise). The tool sees only the file and registers the frames itself.
@@ -758,8 +798,22 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   for (const auto& c : rc["causes"])
     for (const char* k : {"label", "split", "mean_with_mm", "mean_without_mm", "gain_pct", "z", "transfers"})
       EXPECT_TRUE(c.contains(k)) << k;
-  if (!rc["causes"].empty())
+  if (!rc["causes"].empty()) {
     EXPECT_NE(readTextFile(dir + "/report/report.md").find("Beyond the rows fitted"), std::string::npos);
+  }
+  // The drift check ran where a thermal drift was named (these files have stamps: a time driver at least).
+  const auto& dc = j["drift_check"];
+  ASSERT_TRUE(dc.is_object()) << j.dump();
+  bool drift_named = false;
+  for (const auto& c : j["causes"]) drift_named = drift_named || c["cause"] == "thermal_drift";
+  if (drift_named) {
+    EXPECT_TRUE(dc["ran"].get<bool>()) << dc.dump();
+    EXPECT_NE(readTextFile(dir + "/report/report.md").find("A drift or the frame"), std::string::npos);
+  }
+  if (dc["ran"].get<bool>()) {
+    for (const char* k : {"outcome", "text", "chosen", "alternative", "mean_chosen_mm", "mean_alternative_mm", "z_frame"})
+      EXPECT_FALSE(dc[k].is_null()) << k << " " << dc.dump();
+  }
   if (!j["causes"].empty() || !rc["left_out"].empty()) {
     Process n(dir, "diagnose-no-region-check", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv",
                                                 "--json", dir + "/n.json", "--no-region-check", "--sigma-position-mm",

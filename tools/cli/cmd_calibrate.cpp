@@ -543,6 +543,7 @@ int runCalibrate(const CalibrateArgs& a) {
   std::string model_label, message;
   std::string region_text;                       // --model auto: the region check (diagnosis_output.hpp)
   nlohmann::json region_json = nullptr;
+  nlohmann::json drift_json = nullptr;            // --model auto: the drift check
   bool converged = false;
   int iterations = 0;
   size_t estimated = 0;
@@ -591,7 +592,9 @@ int runCalibrate(const CalibrateArgs& a) {
       if (a.model == "auto") {
         const DiagnosisResult d = diagnoseForAuto(a, in, p.outliers, "calibrate --model auto");
         region_text = regionCheckText(d);
+        if (const std::string t = driftCheckText(d); !t.empty()) region_text += (region_text.empty() ? "" : "\n") + t;
         region_json = regionCheckJson(d);
+        drift_json = driftCheckJson(d);
         after = d.best().fit;
         held_after = d.best().held;
         ident_outliers = d.identification_outliers;
@@ -762,7 +765,7 @@ int runCalibrate(const CalibrateArgs& a) {
                         {"skipped_rows", in.file.skipped_rows}, {"split", a.input.split},
                         {"identification_rows", ident.size()}, {"verification_rows", verify.size()},
                         {"measurement", in.measurementJson()},
-                        {"model", a.model}, {"model_fitted", model_label}, {"region_check", region_json}, {"solver", a.solver},
+                        {"model", a.model}, {"model_fitted", model_label}, {"region_check", region_json}, {"drift_check", drift_json}, {"solver", a.solver},
                         {"converged", converged}, {"iterations", iterations},
                         {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", in.modelErrorJson()},
                         {"setup_change", in.setup_hint.empty() ? nlohmann::json(nullptr)

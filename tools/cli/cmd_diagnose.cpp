@@ -121,6 +121,8 @@ void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisRe
   }
   if (const std::string r = regionCheckText(d); !r.empty())
     md << "Beyond the rows fitted (docs/diagnosis.md, \"Regions the fit never saw\"):\n\n```\n" << r << "```\n\n";
+  if (const std::string r = driftCheckText(d); !r.empty())
+    md << "A drift or the frame (docs/diagnosis.md, \"A drift or the frame\"):\n\n```\n" << r << "```\n\n";
   std::snprintf(buf, sizeof buf,
                 "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
                 d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());
@@ -228,6 +230,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                   st.result.verification.mean_mm, st.gain_pct, st.z);
   }
   if (const std::string r = regionCheckText(d); !r.empty()) std::printf("\n%s", r.c_str());
+  if (const std::string r = driftCheckText(d); !r.empty()) std::printf("\n%s", r.c_str());
   std::printf("\nresidual structure, geometric model: %s\n", structureLine(d.structure_before, 4).c_str());
   if (!d.selection.empty()) std::printf("residual structure, final model:     %s\n", structureLine(d.structure_after, 4).c_str());
   std::printf("\ncause: %s\n", d.verdict_text.c_str());
@@ -297,7 +300,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                            return a;
                          }()},
                         {"gain_pct", st.gain_pct}, {"z", st.z},
-                        {"time_constant_h", st.added.cause == Cause::kThermalDrift && st.added.time_constant_h > 0 &&
+                        {"time_constant_h", followsThermalDriver(st.added.cause) && st.added.time_constant_h > 0 &&
                                                     std::isfinite(st.added.time_constant_h)
                                                 ? nlohmann::json(st.added.time_constant_h)
                                                 : nlohmann::json(nullptr)}});
@@ -310,7 +313,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                                                                   {"p_value", left->p_value}})
                                                 : nlohmann::json(nullptr)},
                         {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(d.selection.front().added) : nlohmann::json::array()},
-                        {"causes", causes}, {"region_check", regionCheckJson(d)},
+                        {"causes", causes}, {"region_check", regionCheckJson(d)}, {"drift_check", driftCheckJson(d)},
                         {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
                         {"verification_all_rows", {{"geometric", errorStatsJson(d.geometric_verification_all_rows)},
                                                    {"extended", errorStatsJson(d.verification_all_rows)}}},

@@ -41,4 +41,38 @@ nlohmann::json regionCheckJson(const DiagnosisResult& d) {
           {"left_out", left_out}};
 }
 
+std::string driftCheckText(const DiagnosisResult& d) {
+  const DriftCheck& c = d.drift_check;
+  if (c.outcome == DriftCheck::Outcome::kNotRun) return "";
+  std::string out = "drift check (a drift in the data against the robot's base drifting in the tracker's frame):\n";
+  char b[300];
+  auto line = [&](const char* what, const std::vector<Extension>& m, double mean_mm) {
+    std::snprintf(b, sizeof b, "  %-14s %-52s held-out mean %.4f mm\n", what, modelLabel(m).c_str(), mean_mm);
+    out += b;
+  };
+  line("chosen", c.chosen, c.mean_chosen_mm);
+  line(c.both.empty() ? "frame added" : "frame instead", c.alternative, c.mean_alternative_mm);
+  if (!c.both.empty()) line("both", c.both, c.mean_both_mm);
+  out += "  " + std::string(driftOutcomeName(c.outcome)) + ": " + c.text + "\n";
+  return out;
+}
+
+nlohmann::json driftCheckJson(const DiagnosisResult& d) {
+  const DriftCheck& c = d.drift_check;
+  const bool ran = c.outcome != DriftCheck::Outcome::kNotRun;
+  auto labels = [](const std::vector<Extension>& m) { return m.empty() ? nlohmann::json(nullptr) : nlohmann::json(modelLabel(m)); };
+  auto num = [&](double v, bool set) { return ran && set ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  return {{"ran", ran},
+          {"outcome", driftOutcomeName(c.outcome)},
+          {"text", ran ? nlohmann::json(c.text) : nlohmann::json(nullptr)},
+          {"chosen", ran ? nlohmann::json(modelLabel(c.chosen)) : nlohmann::json(nullptr)},
+          {"alternative", labels(c.alternative)},
+          {"both", labels(c.both)},
+          {"mean_chosen_mm", num(c.mean_chosen_mm, true)},
+          {"mean_alternative_mm", num(c.mean_alternative_mm, true)},
+          {"mean_both_mm", num(c.mean_both_mm, !c.both.empty())},
+          {"z_drift", num(c.z_drift, !c.both.empty())},
+          {"z_frame", num(c.z_frame, true)}};
+}
+
 }  // namespace cellcal::cli

@@ -14,4 +14,10 @@ std::string regionCheckText(const DiagnosisResult& d);
 // {"ran", "note", "causes": [{label, mean_without_mm, mean_with_mm, gain_pct, z, transfers}], "left_out": [labels]}.
 nlohmann::json regionCheckJson(const DiagnosisResult& d);
 
+// The drift check (DriftCheck): a heading, the models judged and the outcome's sentence; empty when it did not run.
+std::string driftCheckText(const DiagnosisResult& d);
+// {"ran", "outcome", "text", "chosen", "alternative", "both" (labels), "mean_chosen_mm", "mean_alternative_mm",
+//  "mean_both_mm", "z_drift", "z_frame"}; absent figures null.
+nlohmann::json driftCheckJson(const DiagnosisResult& d);
+
 }  // namespace cellcal::cli

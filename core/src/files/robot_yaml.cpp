@@ -325,7 +325,7 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
     o << "  extensions:\n";
     for (const auto& e : cal->extensions) {
       o << "    - { spec: " << quoted(extensionSpec(e));
-      if (e.cause == Cause::kThermalDrift && e.time_constant_h != 0) o << ", time_constant_h: " << num(e.time_constant_h);
+      if (followsThermalDriver(e.cause) && e.time_constant_h != 0) o << ", time_constant_h: " << num(e.time_constant_h);
       o << " }\n";
     }
     o << "  extension_parameters:\n";

@@ -84,7 +84,7 @@ Eigen::VectorXd rowParams(const ExtendedFit& fit, const Eigen::MatrixXd& B) {
 }
 
 bool needsTimeConstant(const Extension& e, const std::vector<Drivers>& drivers) {
-  return e.cause == Cause::kThermalDrift && e.time_constant_h == 0.0 && !drivers.empty() && drivers.front().thermal_is_time;
+  return followsThermalDriver(e.cause) && e.time_constant_h == 0.0 && !drivers.empty() && drivers.front().thermal_is_time;
 }
 
 // The warm-up time constant of extension `t` (a thermal drift on a time driver) that leaves the least residual, on
@@ -249,8 +249,11 @@ OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, con
 std::string extensionLabel(const Extension& e) {
   std::string s = causeName(e.cause);
   if (e.cause == Cause::kLinkDeflection) return s + " link " + std::to_string(e.joint + 1);
-  if (e.cause == Cause::kThermalDrift) {
-    s += e.joint < 0 ? " (lengths)" : " joint " + std::to_string(e.joint + 1);
+  if (followsThermalDriver(e.cause)) {
+    if (e.cause == Cause::kFrameDrift)
+      s += " (base)";
+    else
+      s += e.joint < 0 ? " (lengths)" : " joint " + std::to_string(e.joint + 1);
     if (e.time_constant_h > 0) {
       char b[64];
       if (std::isfinite(e.time_constant_h))
@@ -1240,6 +1243,11 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
                   modelLabel(out.not_transferred).c_str(), c.split.c_str(), c.mean_with_mm, c.mean_without_mm);
     out.verdict_text += b;
   }
+  // A drift (or structure against the thermal driver) against the base frame drifting with the same driver.
+  out.drift_check = checkDrift(model, start, subset(I, ik), subset(ID, ik), Vk, VDk, data.has_thermal, best, left, options);
+  using DO = DriftCheck::Outcome;
+  if (const DO o = out.drift_check.outcome; o != DO::kNotRun && o != DO::kToldApart && o != DO::kNotAFrameDrift)
+    out.verdict_text += "; " + out.drift_check.text;
   ExtendedFit start_fit;
   start_fit.params = start;
   out.start_verification = errorStats(model, start_fit, Vk, VDk);
@@ -1305,6 +1313,8 @@ CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geomet
     case Cause::kLinkDeflection:
       sig.x_label = "gravity across link " + jn + " (g)";
       break;
+    case Cause::kFrameDrift:
+      throw std::invalid_argument("causeSignature: frame_drift is not a cause diagnose names");
     case Cause::kNone:
       break;
   }
@@ -1365,6 +1375,7 @@ CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geomet
         break;
       }
       case Cause::kLinkDeflection:  // above
+      case Cause::kFrameDrift:
       case Cause::kNone:
         break;
     }

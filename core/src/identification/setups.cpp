@@ -29,7 +29,7 @@ bool SetupsProblem::IsValid(std::string* error) const {
       if (drivers[s].size() != observations[s].size())
         return fail("set-up " + std::to_string(s + 1) + ": one driver per observation");
     for (const Extension& e : extensions) {
-      if (e.cause == Cause::kThermalDrift && e.time_constant_h == 0)
+      if (followsThermalDriver(e.cause) && e.time_constant_h == 0)
         for (const auto& d : drivers)
           for (const auto& x : d)
             if (x.thermal_is_time)

@@ -22,7 +22,8 @@ constexpr CauseInfo kCauses[] = {{Cause::kNone, "none"},
                                   {Cause::kCyclicTransmission, "cyclic_transmission"},
                                   {Cause::kJointScale, "joint_scale"},
                                   {Cause::kBacklash, "backlash"},
-                                  {Cause::kLinkDeflection, "link_deflection"}};
+                                  {Cause::kLinkDeflection, "link_deflection"},
+                                  {Cause::kFrameDrift, "frame_drift"}};
 
 constexpr double kStillRad = 1e-4;        // a joint that moved less than this keeps its last direction
 constexpr double kMinBeamLengthM = 0.2;   // links shorter than this are not treated as beams
@@ -63,6 +64,8 @@ const std::vector<Cause>& extensionCauses() {
                                        Cause::kJointScale, Cause::kBacklash, Cause::kLinkDeflection};
   return c;
 }
+
+bool followsThermalDriver(Cause c) { return c == Cause::kThermalDrift || c == Cause::kFrameDrift; }
 
 DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
                                 const std::vector<std::optional<double>>& temperature_c,
@@ -211,6 +214,7 @@ bool beamLoadedByGravity(const RobotModel& model, int j) {
 
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal) {
   if (ext.cause == Cause::kThermalDrift && ext.joint == -1) return has_thermal;  // lengths only
+  if (ext.cause == Cause::kFrameDrift) return ext.joint == -1 && has_thermal;
   if (ext.joint < 0 || ext.joint >= model.numJoints()) return false;
   switch (ext.cause) {
     case Cause::kNone:
@@ -241,6 +245,8 @@ int numExtensionParams(const RobotModel& model, const Extension& ext) {
       return 1;
     case Cause::kLinkDeflection:
       return 2;
+    case Cause::kFrameDrift:
+      return 6;
   }
   return 0;
 }
@@ -273,6 +279,9 @@ std::vector<std::string> extensionParamNames(const RobotModel& model, const Exte
       const std::string l = "link" + std::to_string(ext.joint + 1) + ".";
       return {l + "sag_m", l + "tip_slope_rad"};
     }
+    case Cause::kFrameDrift:
+      return {"base.drift_x_m_per_unit",        "base.drift_y_m_per_unit",       "base.drift_z_m_per_unit",
+              "base.drift_roll_rad_per_unit", "base.drift_pitch_rad_per_unit", "base.drift_yaw_rad_per_unit"};
   }
   return {};
 }
@@ -283,10 +292,15 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(model.numParams(), k);
   if (k == 0) return B;
   const int j = ext.joint;
-  if (ext.cause == Cause::kThermalDrift) {  // column 0: every length grows with itself; column 1: joint j's zero
+  if (followsThermalDriver(ext.cause)) {
     double s = drivers.thermal;
     const double tau = ext.time_constant_h;
     if (drivers.thermal_is_time && tau > 0 && std::isfinite(tau)) s = tau * -std::expm1(-drivers.thermal / tau);
+    if (ext.cause == Cause::kFrameDrift) {  // each base parameter moves with s
+      for (int p = 0; p < 6; ++p) B(model.baseParam(static_cast<FrameParam>(p)), p) = s;
+      return B;
+    }
+    // thermal_drift. Column 0: every length grows with itself; column 1: joint j's zero.
     for (int i = 0; i < model.numJoints(); ++i)
       for (JointParam p : {JointParam::kA, JointParam::kD}) {
         const int idx = model.jointParam(i, p);
@@ -348,6 +362,7 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
       B(th, 0) = 0.5 * playState(drivers, j, backlash_width_rad);
       break;
     case Cause::kLinkDeflection:  // above
+    case Cause::kFrameDrift:
       break;
   }
   return B;
@@ -391,7 +406,7 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
   const auto cause = causeFromName(name);
   if (!cause || *cause == Cause::kNone)
     throw std::invalid_argument("'" + name + "' is not a cause (joint_compliance, thermal_drift, cyclic_transmission, "
-                                "joint_scale, backlash, link_deflection)");
+                                "joint_scale, backlash, link_deflection, frame_drift)");
   Extension e{*cause, -1};
   if (colon != std::string::npos) {
     const std::string joint = item.substr(colon + 1);
@@ -407,13 +422,14 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
     if (j < 1 || j > model.numJoints())
       throw std::invalid_argument("'" + item + "': " + model.name + " has joints 1.." + std::to_string(model.numJoints()) +
                                   (*cause == Cause::kLinkDeflection ? " (link j: between the axes of joints j and j+1)" : ""));
+    if (*cause == Cause::kFrameDrift) throw std::invalid_argument("'" + item + "': frame_drift has no joint (the base frame)");
     e.joint = j - 1;
-  } else if (*cause != Cause::kThermalDrift) {
+  } else if (*cause != Cause::kThermalDrift && *cause != Cause::kFrameDrift) {
     throw std::invalid_argument("'" + item + "' needs a joint, e.g. " + name + ":2");
   }
   if (!applicable(model, e, has_thermal)) {
     std::string why = "does not apply to " + model.name;
-    if (e.cause == Cause::kThermalDrift && !has_thermal) why += " without a temperature or time driver";
+    if (followsThermalDriver(e.cause) && !has_thermal) why += " without a temperature or time driver";
     if (e.cause == Cause::kJointCompliance) why += " (gravity does not load that joint)";
     if (e.cause == Cause::kLinkDeflection)
       why += " (link " + std::to_string(e.joint + 1) + ", between the axes of joints " + std::to_string(e.joint + 1) +

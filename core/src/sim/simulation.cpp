@@ -108,7 +108,9 @@ Eigen::VectorXd SimulatedCell::hiddenJointErrorRad(const Eigen::VectorXd& q_rad,
       e = -0.5 * h.backlash_width_rad * (state ? state->backlash_play : 1.0);
       break;
     case Cause::kLinkDeflection:
-      throw std::invalid_argument("HiddenJointEffect: link_deflection is not a joint error (a Cartesian effect)");
+    case Cause::kFrameDrift:
+      throw std::invalid_argument(std::string("HiddenJointEffect: ") + causeName(h.cause) +
+                                  " is not a joint error (a Cartesian effect)");
   }
   return dq;
 }

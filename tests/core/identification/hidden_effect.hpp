@@ -11,6 +11,9 @@
 //     to the true pose directly (not through cellcal's parameter mapping);
 //   - outside the library: a tracker whose distance scale drifts over hours (positions scaled about the tracker by
 //     1 + k t), and a sag growing with the square of the horizontal reach (a Cartesian field no link model has);
+//   - not the robot's (only when asked, DrawOptions::force_outside): the robot's base drifting in the tracker's frame as
+//     the cell warms up (a stand that grows, a tracker that creeps), either turning about joint 1's axis alone (the
+//     same motion as joint 1's zero drifting) or by any small twist about the base;
 //   - gross errors: a fraction of the readings displaced by 1-5 mm in a random direction.
 #pragma once
 
@@ -33,7 +36,7 @@
 namespace cellcal::test {
 
 enum class DrawCategory { kNoiseOnly, kSingle, kPair, kOutOfLibrary };
-enum class OutsideEffect { kNone, kTrackerScaleDrift, kReachSag };
+enum class OutsideEffect { kNone, kTrackerScaleDrift, kReachSag, kBaseDrift };
 
 inline const char* categoryName(DrawCategory c) {
   switch (c) {
@@ -57,6 +60,8 @@ struct DrawOptions {
   double repeat_probability = 0.3;   // files where 10 % of the poses are measured again later
   double no_thermometer_probability = 0.5;
   Cause force_cause = Cause::kNone;  // single: this cause instead of a random one
+  // outside the library: this effect instead of a random one of the first two (kBaseDrift is drawn only here)
+  OutsideEffect force_outside = OutsideEffect::kNone;
 };
 
 struct TrueEffect {
@@ -74,7 +79,8 @@ struct HiddenEffectDraw {
   Eigen::Matrix<double, 6, 1> base = Eigen::Matrix<double, 6, 1>::Zero(), tool = Eigen::Matrix<double, 6, 1>::Zero();
   std::vector<TrueEffect> effects;
   OutsideEffect outside = OutsideEffect::kNone;
-  double outside_size = 0;       // scale drift: per hour; reach sag: m per m^2
+  double outside_size = 0;       // scale drift: per hour; reach sag: m per m^2; base drift: rad at the end of the run
+  bool base_yaw_only = false;    // base drift: turning about joint 1's axis alone
   double outside_rms_mm = 0;     // what the outside effect leaves after a geometric fit (noise-free)
   bool thermometer = true, repeats = false;
   double outlier_fraction = 0;
@@ -92,6 +98,9 @@ struct HiddenEffectDraw {
     }
     if (outside == OutsideEffect::kTrackerScaleDrift) e += " tracker scale drift " + std::to_string(outside_size * 1e6) + " ppm/h";
     if (outside == OutsideEffect::kReachSag) e += " reach-squared sag";
+    if (outside == OutsideEffect::kBaseDrift)
+      e += std::string(" base drift (") + (base_yaw_only ? "about joint 1's axis" : "any twist") + ") " +
+           std::to_string(outside_size * 180 / kPi) + " deg at the end, warm-up " + std::to_string(warmup_tau_h) + " h";
     if (outside != OutsideEffect::kNone) e += " (leaves " + std::to_string(outside_rms_mm) + " mm)";
     if (e.empty()) e = "none";
     std::snprintf(buf, sizeof buf, "%s: %s | %s %s, tool (%.0f, %.0f, %.0f) mm, %s%s, outliers %.1f %%, seed %llu",
@@ -178,6 +187,11 @@ struct Cartesian {
   double sag_m = 0, slope_rad = 0;
   OutsideEffect outside = OutsideEffect::kNone;
   double outside_size = 0;
+  // Base drift: a rotation of outside_size * w(t) about `axis` through joint 1's axis (yaw only) or the base origin,
+  // and a translation of outside_size * 1 m * w(t) along `shift` (zero for yaw only); w(t) the warm-up, 0 -> 1.
+  Eigen::Vector3d axis = Eigen::Vector3d::UnitZ(), shift = Eigen::Vector3d::Zero();
+  bool yaw_only = false;
+  double tau_h = 1, hours = 1;
   Pose apply(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_true, Pose T,
              double t_h) const {
     if (link >= 0) {
@@ -191,6 +205,16 @@ struct Cartesian {
       T.linear() = R * T.linear();
     }
     if (outside == OutsideEffect::kTrackerScaleDrift) T.translation() *= 1.0 + outside_size * t_h;
+    if (outside == OutsideEffect::kBaseDrift) {
+      const double w = std::expm1(-t_h / tau_h) / std::expm1(-hours / tau_h);
+      const std::vector<Pose> F = chainFrames(model, params, q_true);
+      // Joint 1 turns about the z axis of frame 0 (the base, after the mount), through its origin.
+      const Eigen::Vector3d a = yaw_only ? Eigen::Vector3d(F[0].linear().col(2)) : axis;
+      const Eigen::Vector3d c = F[0].translation();
+      const Eigen::Matrix3d R = expSO3(outside_size * w * a);
+      T.translation() = c + R * (T.translation() - c) + outside_size * w * shift;
+      T.linear() = R * T.linear();
+    }
     if (outside == OutsideEffect::kReachSag) {
       const Pose base = chainFrames(model, params, q_true).front();
       const Eigen::Vector3d p = base.inverse() * T.translation();
@@ -318,6 +342,7 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
         break;
       }
       case Cause::kNone:
+      case Cause::kFrameDrift:  // not the robot's: OutsideEffect::kBaseDrift
         break;
     }
     t.joint = e.joint;
@@ -325,9 +350,25 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
     d.effects.push_back(t);
   }
   if (d.category == DrawCategory::kOutOfLibrary) {
-    d.outside = u(rng) < 0.5 ? OutsideEffect::kTrackerScaleDrift : OutsideEffect::kReachSag;
+    d.outside = options.force_outside != OutsideEffect::kNone
+                    ? options.force_outside
+                    : (u(rng) < 0.5 ? OutsideEffect::kTrackerScaleDrift : OutsideEffect::kReachSag);
     const double amp = logUniform(options.min_amp_deg, options.max_amp_deg) * kPi / 180;
-    if (d.outside == OutsideEffect::kTrackerScaleDrift) {
+    if (d.outside == OutsideEffect::kBaseDrift) {
+      // The cell warms up (a thermometer reads it where there is one); only the base moves with it.
+      sc.warmup_K = 3.0 + 5.0 * u(rng);
+      sc.warmup_tau_h = 0.5 + 2.5 * u(rng);
+      sc.expansion_per_K = 0;
+      d.warmup_tau_h = sc.warmup_tau_h;
+      d.outside_size = amp;
+      d.base_yaw_only = u(rng) < 0.5;
+      std::normal_distribution<double> g;
+      cart.yaw_only = d.base_yaw_only;
+      cart.axis = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      if (!cart.yaw_only) cart.shift = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      cart.tau_h = sc.warmup_tau_h;
+      cart.hours = options.hours;
+    } else if (d.outside == OutsideEffect::kTrackerScaleDrift) {
       d.outside_size = amp / options.hours;  // a 1e-4 scale error over the run is like 1e-4 rad at 1 m
     } else {
       double r4 = 0;

@@ -59,6 +59,7 @@ TEST_P(ExtensionReproducesTheEffect, ForEveryCauseAndJoint) {
           ext_params = Eigen::VectorXd::Constant(1, -e.backlash_width_rad);  // the link lags the motor
           break;
         case Cause::kLinkDeflection:
+        case Cause::kFrameDrift:
         case Cause::kNone:
           break;
       }

@@ -163,6 +163,37 @@ struct RegionCheck {
 // RegionCheck::split for a cause: "q<joint>" (1-based) or "workspace".
 std::string regionSplitName(const Extension& cause);
 
+// Whether a drift diagnose finds could be the base frame's rather than the robot's. A thermal drift of joint 1's zero
+// is the same motion as the robot's base turning about joint 1's axis in the tracker's frame (a tracker or a base that
+// creeps), and a frame drift is partly alike to any drift. With a thermal driver, diagnose fits the alternatives on
+// the identification rows and judges them on the verification rows, as the forward selection judges a cause (more
+// than min_z standard errors of the paired difference and more than min_gain of the mean squared error):
+//   - a drift was chosen: the model with each thermal_drift replaced by frame_drift (the base frame moving with the
+//     same driver, model_extension.hpp), and the model with both. Whether the drift adds to the frame drift, and the
+//     frame drift to the drift, are the two nested tests (more parameters alone never decide it);
+//   - no drift was chosen but structure against the thermal driver ("time" or "thermal") is left: the model with
+//     frame_drift added, against the model chosen.
+struct DriftCheck {
+  enum class Outcome {
+    kNotRun,
+    kToldApart,           // the drift adds to a frame drift; a frame drift adds nothing to it
+    kAlike,               // neither adds to the other: the data cannot tell them
+    kFrameDriftBetter,    // a frame drift adds to the drift; the drift adds nothing to a frame drift
+    kBoth,                // each adds to the other: the robot drifts and the frame moves
+    kFrameDriftExplains,  // structure left: frame_drift added to the model passes the test
+    kNotAFrameDrift,      // structure left: it does not
+  };
+  Outcome outcome = Outcome::kNotRun;
+  std::vector<Extension> chosen, alternative, both;  // the models judged (with their fitted time constants)
+  double mean_chosen_mm = 0, mean_alternative_mm = 0, mean_both_mm = 0;  // verification rows kept
+  // Paired improvement, in standard errors, of the model with both over the frame drift alone (the drift adds) and
+  // over the model chosen (the frame drift adds). Structure left: `alternative` is the model chosen with frame_drift
+  // added and only z_frame is set.
+  double z_drift = 0, z_frame = 0;
+  std::string text;  // one sentence for the verdict and the report; empty when not run
+};
+const char* driftOutcomeName(DriftCheck::Outcome o);  // "not_run", "told_apart", "alike", ...
+
 struct DiagnosisOptions {
   std::vector<Cause> causes = extensionCauses();
   double penalty_per_param = 2.0;
@@ -200,6 +231,8 @@ struct DiagnosisOptions {
   // Each half's fit takes at most this many observations (every k-th of a larger half); the judged half all of its
   // own. 0: every one.
   int region_fit_rows = 3000;
+  // DriftCheck (above): needs a thermal driver; one more fit where it runs.
+  bool drift_check = true;
   // Called after the geometric fit and after each candidate fit: (fits done, fits in all). Empty: none. For progress
   // bars on large files; runs on the caller's thread.
   std::function<void(int done, int total)> progress;
@@ -302,6 +335,7 @@ struct DiagnosisResult {
   std::vector<RegionCheck> region_checks;
   std::vector<Extension> not_transferred;
   std::string region_note;
+  DriftCheck drift_check;
   double solve_time_s = 0;
   // The noise_scale every fit decided its parameters with: with plausible ranges (identifiability.prior_sigma), the
   // root of the variance factor of a robust geometric fit on the identification rows (at least the options' own).
@@ -341,5 +375,13 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
                                       const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                       const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
                                       const DiagnosisOptions& options, std::string* note);
+
+// The drift check diagnose runs (DriftCheck) on its result: `identification` and `verification` are the rows kept
+// (without gross errors); `best` the model chosen. kNotRun where it does not apply (no thermal driver, neither a
+// drift chosen nor structure against the thermal driver left).
+DriftCheck checkDrift(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& identification,
+                      const std::vector<Drivers>& identification_drivers, const std::vector<Observation>& verification,
+                      const std::vector<Drivers>& verification_drivers, bool has_thermal, const CandidateResult& best,
+                      const DriverStructure* structure_left, const DiagnosisOptions& options);
 
 }  // namespace cellcal

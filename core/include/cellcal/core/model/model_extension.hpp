@@ -16,6 +16,11 @@
 //                        warm-up: s = tau (1 - exp(-t / tau)) with t the hours since the first row and tau the time
 //                        constant (Extension::time_constant_h, fitted by fitExtended; infinite: s = t, a straight line).
 //                        joint = -1: the lengths only (one parameter), when no joint zero drifts measurably.
+//   frame_drift          not the robot's error: the base frame (the robot in the tracker's frame) moves with the same
+//                        thermal driver, each of base x, y, z, roll, pitch, yaw by e_k * s (6 parameters; a tracker or a
+//                        robot base that creeps). Never chosen by diagnose (extensionCauses() leaves it out): it is the
+//                        alternative each drift diagnose names is tested against (DriftCheck in diagnosis.hpp); a user
+//                        may fit it by name.
 //   cyclic_transmission  dq_j = e_0 sin q_j + e_1 cos q_j + e_2 sin 2q_j + e_3 cos 2q_j.
 //   joint_scale          dq_j = e_0 q_j (transmission-ratio error).
 //   backlash             dq_j = e_0 * s_j / 2 with s_j in [-1, 1] the play state of joint j (|e_0|: the width, rad):
@@ -47,11 +52,15 @@
 
 namespace cellcal {
 
-enum class Cause { kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash, kLinkDeflection };
+enum class Cause {
+  kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash, kLinkDeflection, kFrameDrift
+};
 
 const char* causeName(Cause c);                               // "joint_compliance", ...
 std::optional<Cause> causeFromName(const std::string& name);  // inverse of causeName
-const std::vector<Cause>& extensionCauses();                  // every cause except kNone
+const std::vector<Cause>& extensionCauses();                  // the robot's causes: every one except kNone, kFrameDrift
+// Whether the cause follows the thermal driver (thermal_drift, frame_drift): a warm-up time constant applies on time.
+bool followsThermalDriver(Cause c);
 
 // Values of the drivers other than q at one observation.
 struct Drivers {
@@ -88,8 +97,8 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad, const
 
 struct Extension {
   Cause cause = Cause::kNone;
-  int joint = -1;  // 0-based (link_deflection: the link, 0-based); -1 for kNone and for thermal drift of the lengths
-  // thermal_drift on a time driver: the warm-up's time constant (h). 0: not chosen yet (fitExtended fits it; a
+  int joint = -1;  // 0-based (link_deflection: the link, 0-based); -1 for kNone, frame_drift and thermal drift of the lengths
+  // thermal_drift or frame_drift on a time driver: the warm-up's time constant (h). 0: not chosen yet (fitExtended fits it; a
   // straight line where used unfitted); infinity: a straight line in time. Ignored with a temperature driver.
   double time_constant_h = 0.0;
 };
