@@ -33,6 +33,7 @@ struct CalibrateArgs {
   double excitation_ratio = DiagnosisOptions{}.excitation_ratio;
   std::string save_robot;
   bool frames_only = false;
+  bool keep_extensions = false;
   bool residual_map = false, no_region_check = false;
   double residual_map_distance = ResidualMapOptions{}.max_distance;
 };
@@ -103,6 +104,9 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
   cmd.add_flag("--frames-only", a.frames_only,
                "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
                "base and tool frames on the identification rows: the tracker or the target was moved");
+  cmd.add_flag("--keep-extensions", a.keep_extensions,
+               "--frames-only: keep the robot file's extensions where they do not transfer to these rows (by default "
+               "the same campaign's geometric calibration, saved beside them, is used instead; both are judged)");
   cmd.add_flag("--residual-map", a.residual_map,
                "learn what the calibrated model leaves at the identification rows (a Gaussian process over the joints, "
                "residual_map.hpp) and judge it on the verification rows: applied only within "
@@ -544,6 +548,7 @@ int runCalibrate(const CalibrateArgs& a) {
   std::string region_text;                       // --model auto: the region check (diagnosis_output.hpp)
   nlohmann::json region_json = nullptr;
   nlohmann::json drift_json = nullptr;            // --model auto: the drift check
+  std::optional<CarriedComparison> carried_check;  // --frames-only: the file's extensions against its geometric fit
   bool converged = false;
   int iterations = 0;
   size_t estimated = 0;
@@ -565,6 +570,14 @@ int runCalibrate(const CalibrateArgs& a) {
     iterations = rr.iterations;
     estimated = 12;
     model_label = "the robot file's (" + modelLabel(after.extensions) + "), frames only";
+    // Its extensions against the same campaign's geometric calibration, both carried to these rows: the better one.
+    if (in.calibration && in.calibration->geometric_params.size() == robot.numParams() && !after.extensions.empty()) {
+      carried_check = compareCarried(robot, after, in.calibration->geometric_params, ident, idr, verify, vdr);
+      if (!carried_check->extensions_transfer && !a.keep_extensions) {
+        after = carried_check->geometric;
+        model_label = "the campaign's geometric calibration (the robot file's extensions do not transfer), frames only";
+      }
+    }
     ident_outliers = screenRows(robot, after, ident, idr, p.outliers);
   } else {
     const std::vector<Extension> named =
@@ -643,8 +656,14 @@ int runCalibrate(const CalibrateArgs& a) {
     if (!a.frames_only) return predictionModel(robot, after, ident_kept, idr_kept);
     PredictionModel carried;
     if (in.calibration) {
-      carried.columns = in.calibration->columns;
-      carried.covariance = in.calibration->covariance;
+      // Over the kinematic parameters alone where the extensions were left for the geometric calibration (its own
+      // covariance is not in the file: the extended fit's, marginal, stands for it).
+      const auto& kc = in.calibration->columns;
+      std::vector<Eigen::Index> keep;
+      for (size_t k = 0; k < kc.size(); ++k)
+        if (!after.extensions.empty() || kc[k] < robot.numParams()) keep.push_back(static_cast<Eigen::Index>(k));
+      for (Eigen::Index k : keep) carried.columns.push_back(kc[static_cast<size_t>(k)]);
+      carried.covariance = in.calibration->covariance(keep, keep);
     } else {
       carried = predictionModel(robot, after, {}, {});
     }
@@ -671,6 +690,11 @@ int runCalibrate(const CalibrateArgs& a) {
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
   if (!converged) std::printf("  solver: %s\n", message.c_str());
   std::printf("%s\n", region_text.c_str());
+  if (carried_check)
+    std::printf("%s%s\n", carried_check->text.c_str(),
+                carried_check->extensions_transfer ? ""
+                : a.keep_extensions                 ? ": kept (--keep-extensions)"
+                                                    : ": the geometric calibration is used (--keep-extensions keeps them)");
   printErrorsAndGrossErrors(
       ib, ia, vb, va, vbk, vak, ident_outliers, verify_outliers, p.outliers.threshold, in,
       a.frames_only ? "\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': "
@@ -805,6 +829,15 @@ int runCalibrate(const CalibrateArgs& a) {
                                         {"actual_over_predicted_rms", trust.ratio_rms},
                                         {"verification_rows_outside_calibrated_region", trust.extrapolated}}},
                         {"frames_variance_factor", a.frames_only ? nlohmann::json(frames_variance_factor) : nlohmann::json(nullptr)},
+                        {"carried_extensions",
+                         carried_check ? nlohmann::json{{"extensions", modelLabel(carried_check->extended.extensions)},
+                                                        {"mean_extended_mm", carried_check->mean_extended_mm},
+                                                        {"mean_geometric_mm", carried_check->mean_geometric_mm},
+                                                        {"z", carried_check->z},
+                                                        {"transfer", carried_check->extensions_transfer},
+                                                        {"used", after.extensions.empty() ? "geometric" : "extended"},
+                                                        {"text", carried_check->text}}
+                                       : nlohmann::json(nullptr)},
                         {"implausible", implausible},
                         {"residual_map", residual_map_json},
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
@@ -816,6 +849,11 @@ int runCalibrate(const CalibrateArgs& a) {
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);
     cal.residual_map = residual_map;
+    // Beside an extended model, the same campaign's geometric calibration (a new set-up judges the extensions by it).
+    if (!after.extensions.empty())
+      cal.geometric_params = !a.frames_only ? r.params
+                             : carried_check ? carried_check->geometric.params
+                                             : in.calibration ? in.calibration->geometric_params : Eigen::VectorXd();
     if (a.frames_only) {  // estimated: the new frames, and what the robot file's own calibration estimated
       for (size_t k = 0; k < cal.columns.size(); ++k) {
         if (cal.estimated[k] || !in.calibration) continue;

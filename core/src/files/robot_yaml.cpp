@@ -51,7 +51,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   const std::string f = "calibration";
   r.requireMap(c, f);
   r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
-                     "correlation", "residual_map"});
+                     "correlation", "residual_map", "geometric_parameters"});
   RobotCalibration cal;
   if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
     r.requireMap(pv, f + ".provenance");
@@ -97,6 +97,22 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       if (!name.IsScalar() || name.Scalar() != ext_names[k])
         r.fail(name, fk + ".name", "expected " + ext_names[k] + " (the parameters of the extensions, in order)");
       cal.extension_params[static_cast<Eigen::Index>(k)] = r.number(r.required(ep[k], "value", fk + ".value"), fk + ".value");
+    }
+  }
+  if (const YAML::Node gp = c["geometric_parameters"]; gp.IsDefined() && !gp.IsNull()) {
+    const std::string fg = f + ".geometric_parameters";
+    if (!gp.IsSequence() || static_cast<int>(gp.size()) != m.numParams())
+      r.fail(gp, fg, "expected one {name, value} per kinematic parameter and frame (" + std::to_string(m.numParams()) + ")");
+    cal.geometric_params.resize(m.numParams());
+    for (int k = 0; k < m.numParams(); ++k) {
+      const std::string fk = fg + "[" + std::to_string(k) + "]";
+      const YAML::Node e = gp[static_cast<size_t>(k)];
+      r.requireMap(e, fk);
+      r.checkKeys(e, fk, {"name", "value"});
+      const YAML::Node name = r.required(e, "name", fk + ".name");
+      if (!name.IsScalar() || name.Scalar() != m.paramNameHuman(k))
+        r.fail(name, fk + ".name", "expected " + m.paramNameHuman(k) + " (the robot's parameters, in order)");
+      cal.geometric_params[k] = r.number(r.required(e, "value", fk + ".value"), fk + ".value") / columnScale(m, k);
     }
   }
   if (const YAML::Node vf = c["variance_factor_position"]; vf.IsDefined() && !vf.IsNull()) {
@@ -262,6 +278,9 @@ bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) cons
   for (int c : columns)
     if (c < 0 || c >= model.numParams() + k) return fail("column " + std::to_string(c) + " out of range");
   if (!covariance.allFinite() || !extension_params.allFinite()) return fail("not finite");
+  if (geometric_params.size() != 0 && geometric_params.size() != model.numParams())
+    return fail("geometric_params: expected " + std::to_string(model.numParams()) + " values");
+  if (!geometric_params.allFinite()) return fail("geometric_params: not finite");
   return true;
 }
 
@@ -332,6 +351,12 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
     const auto names = extensionParamNames(m, cal->extensions);
     for (size_t k = 0; k < names.size(); ++k)
       o << "    - { name: " << names[k] << ", value: " << num(cal->extension_params[static_cast<Eigen::Index>(k)]) << " }\n";
+  }
+  if (cal->geometric_params.size() == m.numParams()) {
+    o << "  # the geometric calibration of the same campaign (no extensions): a new set-up judges the extensions against\n"
+         "  # it (calibrate --frames-only)\n  geometric_parameters:\n";
+    for (int k = 0; k < m.numParams(); ++k)
+      o << "    - { name: " << m.paramNameHuman(k) << ", value: " << num(cal->geometric_params[k] * columnScale(m, k)) << " }\n";
   }
   o << "  variance_factor_position: " << num(cal->variance_factor_position) << "\n";
   if (!cal->columns.empty()) {

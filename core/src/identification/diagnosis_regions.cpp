@@ -7,6 +7,7 @@
 #include "calibration_internal.hpp"
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/identification/registration.hpp"
 
 namespace cellcal {
 
@@ -144,6 +145,47 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
     kept_fit = &step.result.fit;
   }
   return out;
+}
+
+CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& extended, const Eigen::VectorXd& geometric_params,
+                                 const std::vector<Observation>& identification,
+                                 const std::vector<Drivers>& identification_drivers,
+                                 const std::vector<Observation>& verification,
+                                 const std::vector<Drivers>& verification_drivers, double z_limit, double min_gain) {
+  if (geometric_params.size() != model.numParams()) throw std::invalid_argument("compareCarried: geometric_params has the wrong size");
+  if (verification.empty()) throw std::invalid_argument("compareCarried: no verification rows");
+  CarriedComparison c;
+  c.extended = extended;
+  c.geometric.params = refineFrames(model, registerFrames(model, geometric_params, identification).params, {},
+                                    Eigen::VectorXd(), identification, identification_drivers).params;
+  c.geometric.converged = true;
+  c.geometric.estimated = extended.estimated;  // the frames
+  const auto re = positionResiduals(model, c.extended, verification, verification_drivers);
+  const auto rg = positionResiduals(model, c.geometric, verification, verification_drivers);
+  double se = 0, sg = 0, me = 0, mg = 0;
+  for (size_t i = 0; i < re.size(); ++i) {
+    se += re[i].squaredNorm(), sg += rg[i].squaredNorm();
+    me += re[i].norm(), mg += rg[i].norm();
+  }
+  c.mean_extended_mm = 1e3 * me / static_cast<double>(re.size());
+  c.mean_geometric_mm = 1e3 * mg / static_cast<double>(rg.size());
+  c.z = internal::pairedZ(re, rg);
+  c.extensions_transfer = !(c.z > z_limit && 1.0 - sg / se > min_gain);
+  char b[400];
+  const std::string label = modelLabel(extended.extensions);
+  if (!c.extensions_transfer)
+    std::snprintf(b, sizeof b,
+                  "the carried extensions (%s) do not transfer to these rows: %.4f mm held-out mean against %.4f mm for "
+                  "the campaign's geometric calibration carried the same way (%.1f standard errors worse)",
+                  label.c_str(), c.mean_extended_mm, c.mean_geometric_mm, c.z);
+  else
+    std::snprintf(b, sizeof b,
+                  "the carried extensions (%s) hold on these rows: %.4f mm held-out mean against %.4f mm for the "
+                  "campaign's geometric calibration carried the same way (%.1f standard errors %s)",
+                  label.c_str(), c.mean_extended_mm, c.mean_geometric_mm, std::abs(c.z),
+                  c.z <= 0 ? "better" : "worse, within the limit");
+  c.text = b;
+  return c;
 }
 
 }  // namespace cellcal

@@ -31,6 +31,8 @@ RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
   for (Eigen::Index i = 0; i < n; ++i) c.estimated.push_back(u(rng) < 0.8);
   c.variance_factor_position = 0.5 + 100 * u(rng);
   c.provenance = {{"date_utc", "2026-11-28T21:50:00Z"}, {"data_file", "dir with space/m \"1\".csv"}, {"rows", "120"}};
+  if (!c.extensions.empty() && u(rng) < 0.7)  // the campaign's geometric calibration beside the extended model
+    c.geometric_params = m.nominal + Eigen::VectorXd::NullaryExpr(m.numParams(), [&] { return 1e-3 * g(rng); });
   return c;
 }
 
@@ -63,6 +65,9 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
     EXPECT_EQ(c2.estimated, cal.estimated);
     EXPECT_EQ(c2.provenance, cal.provenance);
     EXPECT_EQ(c2.variance_factor_position, cal.variance_factor_position);
+    ASSERT_EQ(c2.geometric_params.size(), cal.geometric_params.size());
+    for (Eigen::Index i = 0; i < cal.geometric_params.size(); ++i)
+      EXPECT_NEAR(c2.geometric_params[i], cal.geometric_params[i], 1e-12 * (1 + std::abs(cal.geometric_params[i]))) << i;
     worst_cov = std::max(worst_cov, (c2.covariance - cal.covariance).cwiseAbs().maxCoeff() / cal.covariance.cwiseAbs().maxCoeff());
     // Predictions (with the extensions) at random configurations.
     KinematicsData a(calibrated), b(back.model);
@@ -122,6 +127,13 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   expectRefused(good, "- [1, 0]", "- [1, 2]", "calibration.correlation[0]");
   expectRefused(good, "estimated: true", "estimated: maybe", "calibration.parameters[0].estimated");
   expectRefused(good, "variance_factor_position:", "variance_factorposition:", "unknown key");
+  // The geometric calibration beside it: every parameter, by name, in order.
+  cal.geometric_params = m.nominal;
+  const std::string with = robotFileText(m, &cal, "");
+  EXPECT_NO_THROW(parseRobotFile(with, "<good>"));
+  expectRefused(with, "geometric_parameters:\n    - { name: joint1.theta_offset_deg", "geometric_parameters:\n    - { name: joint1.d_mm",
+                "calibration.geometric_parameters[0].name");
+  expectRefused(with, "    - { name: tool.yaw_deg, value: 0 }\n", "", "calibration.geometric_parameters: expected one");
 }
 
 // A residual map (calibrate --residual-map) in the calibration section: rows and kernel drawn at random, saved and

@@ -34,6 +34,10 @@ struct RobotCalibration {
   // What the model leaves, learnt at the calibration's identification rows (calibrate --residual-map): measured minus
   // model target position in the tracker frame of this calibration's registration. Key residual_map.
   std::optional<ResidualMap> residual_map;
+  // The geometric calibration of the same campaign (every kinematic parameter and frame, SI; no extensions), kept
+  // beside an extended model so that a new set-up can judge the extensions against it (calibrate --frames-only).
+  // Empty: none. Key geometric_parameters.
+  Eigen::VectorXd geometric_params;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
   // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.
   std::optional<std::int64_t> dateUtcNs() const;

@@ -376,6 +376,25 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
                                       const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
                                       const DiagnosisOptions& options, std::string* note);
 
+// A model carried to a new set-up (calibrate --frames-only) judged on its rows: the robot file's extended model and
+// the same campaign's geometric calibration (RobotCalibration::geometric_params), each with its frames registered on
+// `identification` (closed form, then refineFrames with the rest held), judged on `verification`. The extensions do
+// not transfer when the geometric model is better there by more than `z_limit` standard errors of the paired per-row
+// difference and `min_gain` of the mean squared position error.
+struct CarriedComparison {
+  ExtendedFit extended, geometric;  // frames registered on the identification rows
+  double mean_extended_mm = 0, mean_geometric_mm = 0;  // verification rows
+  double z = 0;                     // paired improvement of the geometric model over the extended one
+  bool extensions_transfer = true;
+  std::string text;                 // one sentence
+};
+CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& extended, const Eigen::VectorXd& geometric_params,
+                                 const std::vector<Observation>& identification,
+                                 const std::vector<Drivers>& identification_drivers,
+                                 const std::vector<Observation>& verification,
+                                 const std::vector<Drivers>& verification_drivers, double z_limit = 2.0,
+                                 double min_gain = 0.03);
+
 // The drift check diagnose runs (DriftCheck) on its result: `identification` and `verification` are the rows kept
 // (without gross errors); `best` the model chosen. kNotRun where it does not apply (no thermal driver, neither a
 // drift chosen nor structure against the thermal driver left).
