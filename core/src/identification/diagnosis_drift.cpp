@@ -69,10 +69,10 @@ DriftCheck checkDrift(const RobotModel& model, const Eigen::VectorXd& start, con
     if (adds(r_chosen, r, &check.z_frame)) {
       check.outcome = DriftCheck::Outcome::kFrameDriftExplains;
       std::snprintf(b, sizeof b,
-                    "the structure against %s is (mostly) the robot's base drifting in the tracker's frame (the robot or "
-                    "the tracker moving in the cell, or the tracker's scale drifting): a frame drift lowers the held-out "
-                    "mean from %.4f to %.4f mm (%.1f standard errors); check the mounts and the tracker, and register "
-                    "the frames again (calibrate --frames-only)",
+                    "the structure against %s is (mostly) a drift of the base frame, the robot in the tracker's frame (the "
+                    "robot or the tracker moving in the cell, or the tracker's scale drifting): a frame drift lowers the "
+                    "held-out mean from %.4f to %.4f mm (%.1f standard errors); check the mounts and the tracker, and "
+                    "register the frames again (calibrate --frames-only)",
                     structure_left->driver.c_str(), check.mean_chosen_mm, check.mean_alternative_mm, check.z_frame);
     } else {
       check.outcome = DriftCheck::Outcome::kNotAFrameDrift;
