@@ -780,6 +780,18 @@ TEST(CliUsage, UsageErrorsExitTwoAndOutputFoldersAreMade) {
   EXPECT_TRUE(std::filesystem::exists(dir + "/made/here/m.mcap"));
 }
 
+// A drawn file written as dir/m.csv; the robot file of its robot and its readings' position sigma (mm).
+struct WrittenDraw {
+  std::string robot_file;
+  double sigma_mm = 0;
+};
+WrittenDraw writeDraw(const std::string& dir, const HiddenEffectData& h, const char* comment) {
+  std::ofstream out(dir + "/m.csv");
+  writeMeasurementCsv(out, h.file, 6, comment);
+  return {std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml",
+          h.data.verification.front().sigma_position_m * 1e3};
+}
+
 // A robot base that drifts in the tracker's frame as the cell warms up (about joint 1's axis or by any small twist;
 // robot, placements, points or 6D, thermometer or not, warm-up, size and seed drawn at random): `diagnose` never names
 // a drift of the robot without saying it may be the frame's, in its output and its JSON; `calibrate --model
@@ -794,12 +806,7 @@ TEST(CliDiagnose, ABaseThatDriftsIsSaidToBeTheFrames) {
   HiddenEffectData h = makeHiddenEffectData(o, rng());
   while (h.draw.outside_rms_mm <= 2 * h.noise_rms_mm) h = makeHiddenEffectData(o, rng());
   std::printf("hidden: %s, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.noise_rms_mm);
-  {
-    std::ofstream out(dir + "/m.csv");
-    writeMeasurementCsv(out, h.file, 6, "simulated robot whose base drifts");
-  }
-  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml";
-  const double sigma_mm = h.data.verification.front().sigma_position_m * 1e3;
+  const auto [robot_file, sigma_mm] = writeDraw(dir, h, "simulated robot whose base drifts");
   Process p(dir, "diagnose", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
                               dir + "/d.json", "--sigma-position-mm", std::to_string(sigma_mm)});
   ASSERT_EQ(p.wait(120), 0) << p.log();
@@ -831,12 +838,7 @@ TEST(CliDiagnose, NamesTheHiddenCauseAndCalibratesTheExtendedModel) {
   const HiddenEffectData h = makeHiddenEffectData(o, testSeed());
   const TrueEffect& t = h.draw.effects.front();
   std::printf("hidden: %s, noise %.4f mm RMS\n", h.draw.describe().c_str(), h.noise_rms_mm);
-  {
-    std::ofstream out(dir + "/m.csv");
-    writeMeasurementCsv(out, h.file, 6, "simulated robot with a hidden effect");
-  }
-  const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml";
-  const double sigma_mm = h.data.verification.front().sigma_position_m * 1e3;
+  const auto [robot_file, sigma_mm] = writeDraw(dir, h, "simulated robot with a hidden effect");
   Process p(dir, "diagnose", {"cellcal", "diagnose", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
                               dir + "/d.json", "--report", dir + "/report", "--sigma-position-mm", std::to_string(sigma_mm)});
   ASSERT_EQ(p.wait(120), 0) << p.log();

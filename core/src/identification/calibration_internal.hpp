@@ -25,6 +25,18 @@ OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, 
 // Paired improvement of squared position errors from residual set a to residual set b (row by row), in standard
 // errors of the mean difference: positive when b is better.
 double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b);
+// Whether residual set b improves on a (row by row) by more than `z_limit` standard errors (pairedZ, written to `z`)
+// and more than `min_gain` of the mean squared position error.
+bool improves(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, double z_limit,
+              double min_gain, double* z);
+// Mean position error (mm) and mean squared position error (m^2) of residuals (not empty).
+struct ResidualMeans {
+  double mean_mm = 0, mse_m2 = 0;
+};
+ResidualMeans residualMeans(const std::vector<Eigen::Vector3d>& r);
+// Indices 0..n-1, every one when n <= max_rows (or max_rows <= 0), else every k-th evenly through them, at most
+// max_rows.
+std::vector<int> evenlyThinned(size_t n, int max_rows);
 
 // The linear-algebra view of a CalibrationProblem restricted to the estimated parameters.
 struct ReducedProblem {

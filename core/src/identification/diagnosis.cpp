@@ -31,6 +31,27 @@ double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::V
   const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
   return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
 }
+
+ResidualMeans residualMeans(const std::vector<Eigen::Vector3d>& r) {
+  ResidualMeans m;
+  for (const auto& e : r) m.mean_mm += e.norm(), m.mse_m2 += e.squaredNorm();
+  m.mean_mm *= 1e3 / static_cast<double>(r.size());
+  m.mse_m2 /= static_cast<double>(r.size());
+  return m;
+}
+
+bool improves(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, double z_limit,
+              double min_gain, double* z) {
+  *z = pairedZ(a, b);
+  return *z > z_limit && 1.0 - residualMeans(b).mse_m2 / residualMeans(a).mse_m2 > min_gain;
+}
+
+std::vector<int> evenlyThinned(size_t n, int max_rows) {
+  const size_t stride = max_rows > 0 ? std::max<size_t>(1, (n + static_cast<size_t>(max_rows) - 1) / static_cast<size_t>(max_rows)) : 1;
+  std::vector<int> keep;
+  for (size_t i = 0; i < n; i += stride) keep.push_back(static_cast<int>(i));
+  return keep;
+}
 }  // namespace internal
 using internal::pairedZ;
 
@@ -1028,13 +1049,8 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
     CandidateResult base = sel.geometric;
     std::vector<Eigen::Vector3d> base_res = positionResiduals(model, base.fit, V, VD);
     // The screen's rows: every one up to screen_rows, else every k-th (evenly through the file) of each set.
-    auto thin = [&](size_t n) {
-      std::vector<int> keep;
-      const size_t stride = options.screen_rows > 0 ? (n + options.screen_rows - 1) / options.screen_rows : 1;
-      for (size_t i = 0; i < n; i += std::max<size_t>(1, stride)) keep.push_back(static_cast<int>(i));
-      return keep;
-    };
-    const std::vector<int> si = thin(I.size()), sv = thin(V.size());
+    const std::vector<int> si = internal::evenlyThinned(I.size(), options.screen_rows),
+                           sv = internal::evenlyThinned(V.size(), options.screen_rows);
     const std::vector<Observation> SI = subset(I, si), SV = subset(V, sv);
     const std::vector<Drivers> SID = subset(ID, si), SVD = subset(VD, sv);
     for (int round = 0; round < options.max_causes; ++round) {

@@ -39,21 +39,11 @@ DriftCheck checkDrift(const RobotModel& model, const Eigen::VectorXd& start, con
     return fitExtended(model, start, identification, identification_drivers, exts, options.solver, io, &best.fit.params);
   };
   auto residuals = [&](const ExtendedFit& f) { return positionResiduals(model, f, verification, verification_drivers); };
-  auto mean_mm = [](const std::vector<Eigen::Vector3d>& r) {
-    double s = 0;
-    for (const auto& x : r) s += x.norm();
-    return 1e3 * s / static_cast<double>(r.size());
-  };
-  auto mse = [](const std::vector<Eigen::Vector3d>& r) {
-    double s = 0;
-    for (const auto& x : r) s += x.squaredNorm();
-    return s / static_cast<double>(r.size());
-  };
+  auto mean_mm = [](const std::vector<Eigen::Vector3d>& r) { return internal::residualMeans(r).mean_mm; };
   // `b` adds to `a`: z above parsimony_z (one comparison, not a choice among many as in the selection, which asks
   // min_z) and a gain above min_gain.
   auto adds = [&](const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, double* z) {
-    *z = internal::pairedZ(a, b);
-    return *z > options.parsimony_z && 1.0 - mse(b) / mse(a) > options.min_gain;
+    return internal::improves(a, b, options.parsimony_z, options.min_gain, z);
   };
   const Extension frame{Cause::kFrameDrift, -1};
   const std::vector<Eigen::Vector3d> r_chosen = residuals(best.fit);

@@ -52,19 +52,7 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
                                       const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
                                       const DiagnosisOptions& options, std::string* note) {
   if (note) note->clear();
-  auto thin = [&](const std::vector<int>& rows) {
-    if (options.region_fit_rows <= 0 || static_cast<int>(rows.size()) <= options.region_fit_rows) return rows;
-    const size_t stride = (rows.size() + options.region_fit_rows - 1) / options.region_fit_rows;
-    std::vector<int> out;
-    for (size_t i = 0; i < rows.size(); i += stride) out.push_back(rows[i]);
-    return out;
-  };
-  auto meanSquare = [](const std::vector<Eigen::Vector3d>& r, double* mean_mm) {
-    double sq = 0, m = 0;
-    for (const auto& e : r) sq += e.squaredNorm(), m += e.norm();
-    *mean_mm = 1e3 * m / static_cast<double>(r.size());
-    return sq / static_cast<double>(r.size());
-  };
+  auto thin = [&](const std::vector<int>& rows) { return subset(rows, internal::evenlyThinned(rows.size(), options.region_fit_rows)); };
   std::vector<Extension> kept;
   const ExtendedFit* kept_fit = &geometric;
   std::vector<RegionCheck> out;
@@ -135,8 +123,10 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
     std::vector<Extension> exts = kept;
     exts.push_back(step.added);
     const std::vector<Eigen::Vector3d> with = judged(exts, &step.result.fit.params, &step.result.fit.extension_params);
-    const double mse0 = meanSquare(without, &c.mean_without_mm), mse1 = meanSquare(with, &c.mean_with_mm);
-    c.gain_pct = 100.0 * (1.0 - mse1 / mse0);
+    const internal::ResidualMeans m0 = internal::residualMeans(without), m1 = internal::residualMeans(with);
+    c.mean_without_mm = m0.mean_mm;
+    c.mean_with_mm = m1.mean_mm;
+    c.gain_pct = 100.0 * (1.0 - m1.mse_m2 / m0.mse_m2);
     c.z = internal::pairedZ(without, with);
     c.transfers = !(c.gain_pct < 0 && c.z < -options.region_z);
     out.push_back(c);
@@ -162,15 +152,9 @@ CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& ext
   c.geometric.estimated = extended.estimated;  // the frames
   const auto re = positionResiduals(model, c.extended, verification, verification_drivers);
   const auto rg = positionResiduals(model, c.geometric, verification, verification_drivers);
-  double se = 0, sg = 0, me = 0, mg = 0;
-  for (size_t i = 0; i < re.size(); ++i) {
-    se += re[i].squaredNorm(), sg += rg[i].squaredNorm();
-    me += re[i].norm(), mg += rg[i].norm();
-  }
-  c.mean_extended_mm = 1e3 * me / static_cast<double>(re.size());
-  c.mean_geometric_mm = 1e3 * mg / static_cast<double>(rg.size());
-  c.z = internal::pairedZ(re, rg);
-  c.extensions_transfer = !(c.z > z_limit && 1.0 - sg / se > min_gain);
+  c.mean_extended_mm = internal::residualMeans(re).mean_mm;
+  c.mean_geometric_mm = internal::residualMeans(rg).mean_mm;
+  c.extensions_transfer = !internal::improves(re, rg, z_limit, min_gain, &c.z);
   char b[400];
   const std::string label = modelLabel(extended.extensions);
   if (!c.extensions_transfer)
