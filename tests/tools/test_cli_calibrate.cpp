@@ -630,6 +630,29 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
                                 "cyclic_transmission:" + std::to_string(j + 1), "--save-robot", dir + "/campaign.yaml"});
     ASSERT_EQ(c.wait(120), 0) << what << "\n" << c.log();
     ASSERT_NE(readTextFile(dir + "/campaign.yaml").find("geometric_parameters:"), std::string::npos);
+    // What the cyclic term may do beyond the campaign's range of joint j (its region folds): saved, and carried.
+    const RobotFile saved = loadRobotFile(dir + "/campaign.yaml");
+    ASSERT_TRUE(saved.calibration.has_value());
+    const std::vector<BeyondRange> beyond_data = saved.calibration->beyond_data;
+    for (const auto& b : beyond_data) EXPECT_EQ(b.joint, j) << what;
+    if (!beyond_data.empty()) {
+      RobotCalibration stripped = *saved.calibration;
+      stripped.beyond_data.clear();
+      saveRobotFile(dir + "/stripped.yaml", saved.model, &stripped, "", &saved.source);
+      double ratio[2] = {0, 0};
+      for (int w = 0; w < 2; ++w) {
+        Process k(dir, "carry", {"cellcal", "calibrate", "--robot", dir + (w ? "/campaign.yaml" : "/stripped.yaml"), "--data",
+                                 dir + "/beyond.csv", "--frames-only", "--keep-extensions", "--json", dir + "/c.json"});
+        const int kc = k.wait(120);
+        ASSERT_TRUE(kc == 0 || kc == 4) << k.log();
+        const auto kj = readJson(dir + "/c.json");
+        ratio[w] = kj["prediction"]["actual_over_predicted_rms"];
+        EXPECT_EQ(kj["beyond_data"]["ranges"].size(), w ? beyond_data.size() : 0u) << k.log();
+        if (w) EXPECT_NE(k.log().find("carried beyond the campaign's data: joint " + std::to_string(j + 1)), std::string::npos) << k.log();
+      }
+      std::printf("  %s: beyond_data carried: actual / predicted %.2f without it, %.2f with it\n", what.c_str(), ratio[0], ratio[1]);
+      EXPECT_LT(ratio[1], ratio[0]) << what;  // every row of beyond.csv lies beyond the campaign's range of joint j
+    }
     Process f(dir, "frames", {"cellcal", "calibrate", "--robot", dir + "/campaign.yaml", "--data", dir + "/beyond.csv",
                               "--frames-only", "--json", dir + "/f.json"});
     const int code = f.wait(120);

@@ -134,6 +134,7 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
 struct Trust {
   double ident_rms_mm = 0, ident_max_mm = 0, verify_rms_mm = 0, verify_max_mm = 0, ratio_rms = 0;
   int extrapolated = 0;  // verification rows predicted more than 3x the largest identification row
+  int beyond_checked = 0;  // verification rows farther beyond a joint's range than its folds judged (BeyondRange)
 };
 
 Trust trustOf(const RobotModel& robot, const ExtendedFit& fit, const PredictionModel& pm,
@@ -155,6 +156,11 @@ Trust trustOf(const RobotModel& robot, const ExtendedFit& fit, const PredictionM
     sq += s * s;
     t.verify_max_mm = std::max(t.verify_max_mm, s);
     if (s > 3 * t.ident_max_mm) ++t.extrapolated;
+    for (const BeyondRange& b : pm.beyond)
+      if (b.sigma_at_1_rad > 0 && b.beyondRad(verify[i].q_rad[b.joint]) > b.checked_rad) {
+        ++t.beyond_checked;
+        break;
+      }
     const Eigen::VectorXd p = extendedParams(robot, fit.params, fit.extensions, fit.extension_params, verify[i].q_rad, vdr[i]);
     const double actual_mm =
         (forwardKinematics(robot, data, p, verify[i].q_rad).translation() - verify[i].measured_in_tracker.translation()).norm() * 1e3;
@@ -649,11 +655,30 @@ int runCalibrate(const CalibrateArgs& a) {
                                             &frames_variance_factor);
     estimated = after.estimated.size();
   }
+  // What the extensions are worth beyond their data (prediction.hpp): measured on region folds of the identification
+  // rows, saved in the robot file, carried by --frames-only.
+  std::optional<ExtensionTransfer> transfer;
+  if (!a.frames_only && !after.extensions.empty() && after.converged) {
+    DiagnosisOptions o;
+    o.identifiability = p.identifiability;
+    o.identifiability.noise_scale = r.identifiability.noise_scale;
+    o.excitation_ratio = a.excitation_ratio;
+    transfer = extensionTransfer(robot, start, after, ident_kept, idr_kept, o);
+  }
+  // Carried with --frames-only where the robot file's extensions are kept.
+  const std::vector<BeyondRange> beyond = transfer ? transfer->beyond()
+                                          : a.frames_only && in.calibration && !after.extensions.empty()
+                                              ? in.calibration->beyond_data
+                                              : std::vector<BeyondRange>{};
   // How far the model can be trusted: its predicted position error on every kept row, against the actual one. With
   // --frames-only, the robot file's covariance carried to these rows less what the new frames take up of it
   // (carriedPrediction); a robot file without a calibration section carries the priors of a model no one calibrated.
   const PredictionModel pm = [&] {
-    if (!a.frames_only) return predictionModel(robot, after, ident_kept, idr_kept);
+    if (!a.frames_only) {
+      PredictionModel own = predictionModel(robot, after, ident_kept, idr_kept);
+      own.beyond = beyond;
+      return own;
+    }
     PredictionModel carried;
     if (in.calibration) {
       // Over the kinematic parameters alone where the extensions were left for the geometric calibration (its own
@@ -669,6 +694,7 @@ int runCalibrate(const CalibrateArgs& a) {
     }
     // The readings' noise on these rows as the frames leave it, position and orientation rows apart (their sigmas may
     // not be the campaign's, and a tracker may understate one kind).
+    carried.beyond = beyond;  // what the extensions may do beyond the campaign's joint ranges (its region folds)
     return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated,
                              residualVarianceFactors(robot, after, ident_kept, idr_kept,
                                                      static_cast<int>(after.estimated.size())));
@@ -690,6 +716,17 @@ int runCalibrate(const CalibrateArgs& a) {
               converged ? "converged" : "NOT converged", iterations, estimated, solve_s * 1e3);
   if (!converged) std::printf("  solver: %s\n", message.c_str());
   std::printf("%s\n", region_text.c_str());
+  if (transfer) {
+    std::string t = transfer->text;
+    for (size_t at = t.find('\n'); at != std::string::npos; at = t.find('\n', at + 3)) t.replace(at, 1, "\n  ");
+    std::printf("beyond its data (region folds):\n  %s\n", t.c_str());
+  }
+  if (a.frames_only)
+    for (const auto& b : beyond)
+      std::printf("carried beyond the campaign's data: joint %d outside [%.1f, %.1f] deg, a further joint error of %.3g deg%s "
+                  "(the robot file's beyond_data)\n",
+                  b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.sigma_at_1_rad * 180 / kPi,
+                  b.growth == 0 ? "" : b.growth == 1 ? " per rad beyond" : " per rad^2 beyond");
   if (carried_check)
     std::printf("%s%s\n", carried_check->text.c_str(),
                 carried_check->extensions_transfer ? ""
@@ -737,6 +774,9 @@ int runCalibrate(const CalibrateArgs& a) {
                                               : ": about the readings' noise");
   std::printf("check: the verification errors against that uncertainty and the residual together: RMS ratio %.2f (1: "
               "the predicted errors can be trusted)\n", trust.ratio_rms);
+  if (trust.beyond_checked > 0)
+    std::printf("  %d verification rows lie farther beyond a joint's calibrated range than the region folds judged: the "
+                "error beyond it is held at its value there, itself an extrapolation\n", trust.beyond_checked);
   if (trust.extrapolated > 0)
     std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
                 "the identification rows)\n", trust.extrapolated);
@@ -827,7 +867,8 @@ int runCalibrate(const CalibrateArgs& a) {
                                         {"variance_factor_position", pm.variance_factor_position},
                                         {"variance_factor_orientation", pm.variance_factor_orientation},
                                         {"actual_over_predicted_rms", trust.ratio_rms},
-                                        {"verification_rows_outside_calibrated_region", trust.extrapolated}}},
+                                        {"verification_rows_outside_calibrated_region", trust.extrapolated},
+                                        {"verification_rows_beyond_checked_range", trust.beyond_checked}}},
                         {"frames_variance_factor", a.frames_only ? nlohmann::json(frames_variance_factor) : nlohmann::json(nullptr)},
                         {"carried_extensions",
                          carried_check ? nlohmann::json{{"extensions", modelLabel(carried_check->extended.extensions)},
@@ -838,6 +879,22 @@ int runCalibrate(const CalibrateArgs& a) {
                                                         {"used", after.extensions.empty() ? "geometric" : "extended"},
                                                         {"text", carried_check->text}}
                                        : nlohmann::json(nullptr)},
+                        {"beyond_data", [&] {
+                           nlohmann::json j = nlohmann::json::array();
+                           for (const auto& b : beyond)
+                             j.push_back({{"joint", b.joint + 1}, {"lower_deg", b.lower_rad * 180 / kPi},
+                                          {"upper_deg", b.upper_rad * 180 / kPi},
+                                          {"sigma_at_1_rad_deg", b.sigma_at_1_rad * 180 / kPi}, {"growth", b.growth}});
+                           nlohmann::json folds = nlohmann::json::array();
+                           if (transfer)
+                             for (const auto& t : transfer->joints)
+                               folds.push_back({{"joint", t.beyond.joint + 1}, {"folds", t.folds},
+                                                {"judged_rows", t.judged_rows}, {"ratio_rms_without", t.ratio_rms_without},
+                                                {"ratio_rms_with", t.ratio_rms_with}});
+                           return nlohmann::json{{"ranges", j}, {"carried", a.frames_only}, {"folds", folds},
+                                                 {"not_measured", transfer ? transfer->not_measured : std::vector<std::string>{}},
+                                                 {"text", transfer ? transfer->text : ""}};
+                         }()},
                         {"implausible", implausible},
                         {"residual_map", residual_map_json},
                         {"unusable", unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(unusable)}};
@@ -849,6 +906,7 @@ int runCalibrate(const CalibrateArgs& a) {
   if (!a.save_robot.empty()) {
     RobotCalibration cal = robotCalibration(robot, after, pm);
     cal.residual_map = residual_map;
+    if (!after.extensions.empty()) cal.beyond_data = beyond;
     // Beside an extended model, the same campaign's geometric calibration (a new set-up judges the extensions by it).
     if (!after.extensions.empty())
       cal.geometric_params = !a.frames_only ? r.params

@@ -51,7 +51,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   const std::string f = "calibration";
   r.requireMap(c, f);
   r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
-                     "correlation", "residual_map", "geometric_parameters"});
+                     "correlation", "residual_map", "geometric_parameters", "beyond_data"});
   RobotCalibration cal;
   if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
     r.requireMap(pv, f + ".provenance");
@@ -113,6 +113,29 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       if (!name.IsScalar() || name.Scalar() != m.paramNameHuman(k))
         r.fail(name, fk + ".name", "expected " + m.paramNameHuman(k) + " (the robot's parameters, in order)");
       cal.geometric_params[k] = r.number(r.required(e, "value", fk + ".value"), fk + ".value") / columnScale(m, k);
+    }
+  }
+  if (const YAML::Node bd = c["beyond_data"]; bd.IsDefined() && !bd.IsNull()) {
+    if (!bd.IsSequence()) r.fail(bd, f + ".beyond_data", "expected a list of {joint, lower_deg, upper_deg, sigma_at_1_rad_deg, growth}");
+    for (size_t i = 0; i < bd.size(); ++i) {
+      const std::string fi = f + ".beyond_data[" + std::to_string(i) + "]";
+      r.requireMap(bd[i], fi);
+      r.checkKeys(bd[i], fi, {"joint", "lower_deg", "upper_deg", "sigma_at_1_rad_deg", "growth", "checked_deg"});
+      BeyondRange b;
+      const double joint = r.number(r.required(bd[i], "joint", fi + ".joint"), fi + ".joint");
+      const double growth = r.number(r.required(bd[i], "growth", fi + ".growth"), fi + ".growth");
+      b.joint = static_cast<int>(joint) - 1;
+      b.growth = static_cast<int>(growth);
+      b.lower_rad = r.number(r.required(bd[i], "lower_deg", fi + ".lower_deg"), fi + ".lower_deg") * kPi / 180;
+      b.upper_rad = r.number(r.required(bd[i], "upper_deg", fi + ".upper_deg"), fi + ".upper_deg") * kPi / 180;
+      b.sigma_at_1_rad = r.number(r.required(bd[i], "sigma_at_1_rad_deg", fi + ".sigma_at_1_rad_deg"),
+                                  fi + ".sigma_at_1_rad_deg") * kPi / 180;
+      if (const YAML::Node ck = bd[i]["checked_deg"]; ck.IsDefined() && !ck.IsNull())
+        b.checked_rad = r.number(ck, fi + ".checked_deg") * kPi / 180;
+      std::string why;
+      if (joint != std::floor(joint) || growth != std::floor(growth) || !b.IsValid(m.numJoints(), &why))
+        r.fail(bd[i], fi, why.empty() ? "joint and growth must be whole numbers" : why);
+      cal.beyond_data.push_back(b);
     }
   }
   if (const YAML::Node vf = c["variance_factor_position"]; vf.IsDefined() && !vf.IsNull()) {
@@ -281,6 +304,10 @@ bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) cons
   if (geometric_params.size() != 0 && geometric_params.size() != model.numParams())
     return fail("geometric_params: expected " + std::to_string(model.numParams()) + " values");
   if (!geometric_params.allFinite()) return fail("geometric_params: not finite");
+  for (const auto& b : beyond_data) {
+    std::string why;
+    if (!b.IsValid(model.numJoints(), &why)) return fail("beyond_data: " + why);
+  }
   return true;
 }
 
@@ -357,6 +384,14 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
          "  # it (calibrate --frames-only)\n  geometric_parameters:\n";
     for (int k = 0; k < m.numParams(); ++k)
       o << "    - { name: " << m.paramNameHuman(k) << ", value: " << num(cal->geometric_params[k] * columnScale(m, k)) << " }\n";
+  }
+  if (!cal->beyond_data.empty()) {
+    o << "  # beyond the joint ranges of the campaign's data, a further joint error of sigma x (rad beyond)^growth\n"
+         "  # (calibrate's region folds; predictions carried to other rows include it)\n  beyond_data:\n";
+    for (const auto& b : cal->beyond_data)
+      o << "    - { joint: " << b.joint + 1 << ", lower_deg: " << num(b.lower_rad * 180 / kPi) << ", upper_deg: "
+        << num(b.upper_rad * 180 / kPi) << ", sigma_at_1_rad_deg: " << num(b.sigma_at_1_rad * 180 / kPi)
+        << ", growth: " << b.growth << ", checked_deg: " << num(b.checked_rad * 180 / kPi) << " }\n";
   }
   o << "  variance_factor_position: " << num(cal->variance_factor_position) << "\n";
   if (!cal->columns.empty()) {

@@ -4,8 +4,11 @@
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/model/model_extension.hpp"
 
 namespace cellcal::internal {
 
@@ -34,6 +37,17 @@ struct ResidualMeans {
   double mean_mm = 0, mse_m2 = 0;
 };
 ResidualMeans residualMeans(const std::vector<Eigen::Vector3d>& r);
+// `options` with plausible ranges for the extension columns (identifiability.hpp): when its prior_sigma is given, the
+// columns before `ext0` keep theirs (none beyond its size) and the extension columns from `ext0` on get
+// extensionPriorSigma(model, params, exts, kPlausibleExtensionJointErrorRad). Without prior_sigma: unchanged.
+IdentifiabilityOptions withExtensionRanges(const IdentifiabilityOptions& options, const RobotModel& model,
+                                           const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                                           Eigen::Index ext0);
+// Rows fitted and rows judged: one fold of a split by region (RegionCheck).
+using Fold = std::pair<std::vector<int>, std::vector<int>>;
+// The two folds RegionCheck judges `cause` on: by the angle of its joint (the rows beyond the `joint_end` quantile
+// at either end judged, the others fitted) or by the workspace (regionSplit: each half fitted, the other judged).
+std::vector<Fold> regionFolds(const std::vector<Observation>& obs, const Extension& cause, double joint_end);
 // Indices 0..n-1, every one when n <= max_rows (or max_rows <= 0), else every k-th evenly through them, at most
 // max_rows.
 std::vector<int> evenlyThinned(size_t n, int max_rows);

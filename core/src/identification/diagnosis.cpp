@@ -295,6 +295,19 @@ std::string modelLabel(const std::vector<Extension>& exts) {
   return s.empty() ? "geometric" : s;
 }
 
+IdentifiabilityOptions internal::withExtensionRanges(const IdentifiabilityOptions& options, const RobotModel& model,
+                                                     const Eigen::VectorXd& params, const std::vector<Extension>& exts,
+                                                     Eigen::Index ext0) {
+  if (options.prior_sigma.size() == 0 || exts.empty()) return options;
+  const Eigen::VectorXd ext = extensionPriorSigma(model, params, exts, kPlausibleExtensionJointErrorRad);
+  IdentifiabilityOptions out = options;
+  out.prior_sigma = Eigen::VectorXd::Zero(ext0 + ext.size());
+  const Eigen::Index own = std::min<Eigen::Index>(options.prior_sigma.size(), ext0);
+  out.prior_sigma.head(own) = options.prior_sigma.head(own);
+  out.prior_sigma.tail(ext.size()) = ext;
+  return out;
+}
+
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
                         const std::vector<Drivers>& drivers, const Extension& extension, const SolverOptions& solver,
                         const IdentifiabilityOptions& identifiability, const Eigen::VectorXd* warm_start) {
@@ -351,7 +364,8 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   stackExtended(model, p0, Eigen::VectorXd::Zero(k), obs, B, r, &J);
   std::vector<int> order = identificationPriority(model);
   for (int c = 0; c < k; ++c) order.push_back(np + c);
-  std::vector<int> cols = independentColumns(J, order, identifiability);
+  const IdentifiabilityOptions io = internal::withExtensionRanges(identifiability, model, start, extensions, np);
+  std::vector<int> cols = independentColumns(J, order, io);
   // Warm-up time constants (thermal drift on a time driver): chosen on the linearized model, then the columns again.
   bool chose = false;
   for (size_t t = 0; t < fit.extensions.size(); ++t)
@@ -363,7 +377,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   if (chose) {
     B = bases(model, start, fit.extensions, obs, drivers, evaluated_at);
     stackExtended(model, p0, Eigen::VectorXd::Zero(k), obs, B, r, &J);
-    cols = independentColumns(J, order, identifiability);
+    cols = independentColumns(J, order, io);
   }
   for (int c : cols) (c < np ? fit.estimated : fit.estimated_extension).push_back(c < np ? c : c - np);
 

@@ -47,6 +47,32 @@ std::string regionSplitName(const Extension& cause) {
   return "workspace";
 }
 
+std::vector<internal::Fold> internal::regionFolds(const std::vector<Observation>& obs, const Extension& cause,
+                                                 double joint_end) {
+  // By the workspace: each half fitted, the other judged. By a joint: the rows up to its angle's upper quantile
+  // fitted and those beyond it judged, and the same at the lower end.
+  std::vector<Fold> folds;
+  if (regionSplitName(cause) == "workspace") {
+    const std::vector<bool> side = regionSplit(obs);
+    std::vector<int> half[2];
+    for (size_t i = 0; i < obs.size(); ++i) half[side[i] ? 1 : 0].push_back(static_cast<int>(i));
+    return {{half[0], half[1]}, {half[1], half[0]}};
+  }
+  std::vector<double> x;
+  for (const auto& o : obs) x.push_back(o.q_rad[cause.joint]);
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  const double lo = sorted[static_cast<size_t>(joint_end * (sorted.size() - 1))];
+  const double hi = sorted[static_cast<size_t>((1 - joint_end) * (sorted.size() - 1))];
+  Fold up, down;
+  for (size_t i = 0; i < obs.size(); ++i) {
+    const int r = static_cast<int>(i);
+    (x[i] > hi ? up.second : up.first).push_back(r);
+    (x[i] < lo ? down.second : down.first).push_back(r);
+  }
+  return {up, down};
+}
+
 std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::VectorXd& start,
                                       const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                       const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
@@ -60,30 +86,7 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
     RegionCheck c;
     c.cause = step.added;
     c.split = regionSplitName(step.added);
-    // The folds: (fitted rows, judged rows). By the workspace: each half fitted, the other judged. By a joint: the rows
-    // up to its angle's upper quantile fitted and those beyond it judged, and the same at the lower end.
-    std::vector<std::pair<std::vector<int>, std::vector<int>>> folds;
-    if (c.split == "workspace") {
-      const std::vector<bool> side = regionSplit(obs);
-      std::vector<int> half[2];
-      for (size_t i = 0; i < obs.size(); ++i) half[side[i] ? 1 : 0].push_back(static_cast<int>(i));
-      folds = {{half[0], half[1]}, {half[1], half[0]}};
-    } else {
-      const double frac = options.region_joint_end;
-      std::vector<double> x;
-      for (const auto& o : obs) x.push_back(o.q_rad[step.added.joint]);
-      std::vector<double> sorted = x;
-      std::sort(sorted.begin(), sorted.end());
-      const double lo = sorted[static_cast<size_t>(frac * (sorted.size() - 1))];
-      const double hi = sorted[static_cast<size_t>((1 - frac) * (sorted.size() - 1))];
-      std::pair<std::vector<int>, std::vector<int>> up, down;
-      for (size_t i = 0; i < obs.size(); ++i) {
-        const int r = static_cast<int>(i);
-        (x[i] > hi ? up.second : up.first).push_back(r);
-        (x[i] < lo ? down.second : down.first).push_back(r);
-      }
-      folds = {up, down};
-    }
+    const std::vector<internal::Fold> folds = internal::regionFolds(obs, step.added, options.region_joint_end);
     c.judged_rows[0] = static_cast<int>(folds[0].second.size());
     c.judged_rows[1] = static_cast<int>(folds[1].second.size());
     bool enough = true;

@@ -197,6 +197,7 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
   pm.variance_factor = rows_total > 0 ? (noise.position * rows_p + noise.orientation * rows_o) / rows_total : noise.position;
   pm.rows = rows_total;
   pm.estimated = static_cast<int>(nf);
+  pm.beyond = carried.beyond;
   return pm;
 }
 
@@ -212,7 +213,12 @@ double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, c
   const auto n = static_cast<Eigen::Index>(prediction.columns.size());
   Eigen::MatrixXd Jp(3, n);
   for (Eigen::Index c = 0; c < n; ++c) Jp.col(c) = J.col(prediction.columns[c]);
-  return std::sqrt(std::max(0.0, (Jp * prediction.covariance * Jp.transpose()).trace()));
+  double var = (Jp * prediction.covariance * Jp.transpose()).trace();
+  for (const BeyondRange& b : prediction.beyond) {  // a joint error: the position moves as with the joint's offset
+    const double s = b.sigmaRad(q_rad[b.joint]);
+    if (s > 0) var += s * s * J.col(model.jointParam(b.joint, JointParam::kThetaOffset)).head<3>().squaredNorm();
+  }
+  return std::sqrt(std::max(0.0, var));
 }
 
 double kinematicPositionSigma(const RobotModel& model, KinematicsData& data, const Eigen::VectorXd& params,

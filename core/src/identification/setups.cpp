@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "calibration_internal.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -179,7 +180,7 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   further(false);
   for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
   SetupsFit out;
-  out.estimated = independentColumns(J, order, pr.identifiability);
+  out.estimated = independentColumns(J, order, internal::withExtensionRanges(pr.identifiability, m, pr.starts.front(), pr.extensions, ext0));
   for (int c : out.estimated) {
     if (c < f) out.estimated_kinematic.push_back(c);
     if (c >= ext0) out.estimated_extension.push_back(c - static_cast<int>(ext0));

@@ -33,6 +33,17 @@ RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
   c.provenance = {{"date_utc", "2026-11-28T21:50:00Z"}, {"data_file", "dir with space/m \"1\".csv"}, {"rows", "120"}};
   if (!c.extensions.empty() && u(rng) < 0.7)  // the campaign's geometric calibration beside the extended model
     c.geometric_params = m.nominal + Eigen::VectorXd::NullaryExpr(m.numParams(), [&] { return 1e-3 * g(rng); });
+  for (const auto& e : c.extensions)  // what the extensions may do beyond the campaign's joint ranges
+    if (e.joint >= 0 && u(rng) < 0.7) {
+      BeyondRange b;
+      b.joint = e.joint;
+      b.lower_rad = -3 * u(rng);
+      b.upper_rad = b.lower_rad + 3 * u(rng);
+      b.sigma_at_1_rad = 1e-3 * u(rng);
+      b.growth = static_cast<int>(3 * u(rng)) % 3;
+      b.checked_rad = 0.5 * u(rng);
+      c.beyond_data.push_back(b);
+    }
   return c;
 }
 
@@ -68,6 +79,14 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
     ASSERT_EQ(c2.geometric_params.size(), cal.geometric_params.size());
     for (Eigen::Index i = 0; i < cal.geometric_params.size(); ++i)
       EXPECT_NEAR(c2.geometric_params[i], cal.geometric_params[i], 1e-12 * (1 + std::abs(cal.geometric_params[i]))) << i;
+    ASSERT_EQ(c2.beyond_data.size(), cal.beyond_data.size());
+    for (size_t i = 0; i < cal.beyond_data.size(); ++i) {
+      const BeyondRange &x = cal.beyond_data[i], &y = c2.beyond_data[i];
+      EXPECT_EQ(y.joint, x.joint);
+      EXPECT_EQ(y.growth, x.growth);
+      for (double q = -4; q < 4; q += 0.37) EXPECT_NEAR(y.sigmaRad(q), x.sigmaRad(q), 1e-12 * (1 + x.sigmaRad(q))) << q;
+      EXPECT_NEAR(y.checked_rad, x.checked_rad, 1e-12);
+    }
     worst_cov = std::max(worst_cov, (c2.covariance - cal.covariance).cwiseAbs().maxCoeff() / cal.covariance.cwiseAbs().maxCoeff());
     // Predictions (with the extensions) at random configurations.
     KinematicsData a(calibrated), b(back.model);
@@ -134,6 +153,21 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   expectRefused(with, "geometric_parameters:\n    - { name: joint1.theta_offset_deg", "geometric_parameters:\n    - { name: joint1.d_mm",
                 "calibration.geometric_parameters[0].name");
   expectRefused(with, "    - { name: tool.yaw_deg, value: 0 }\n", "", "calibration.geometric_parameters: expected one");
+  // What the extensions may do beyond the campaign's joint ranges: a joint of the robot, a growth of 0-2, a range.
+  BeyondRange b;
+  b.joint = 1;
+  b.lower_rad = -1;
+  b.upper_rad = 0.5;
+  b.sigma_at_1_rad = 1e-3;
+  b.growth = 1;
+  cal.beyond_data = {b};
+  const std::string beyond = robotFileText(m, &cal, "");
+  EXPECT_NO_THROW(parseRobotFile(beyond, "<good>"));
+  expectRefused(beyond, "{ joint: 2,", "{ joint: 9,", "calibration.beyond_data[0]");
+  expectRefused(beyond, "growth: 1,", "growth: 3,", "calibration.beyond_data[0]");
+  expectRefused(beyond, "growth: 1,", "growth: 1.5,", "calibration.beyond_data[0]");
+  expectRefused(beyond, "lower_deg: -57", "lower_deg: 57", "calibration.beyond_data[0]");
+  expectRefused(beyond, "sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -", "calibration.beyond_data[0]");
 }
 
 // A residual map (calibrate --residual-map) in the calibration section: rows and kernel drawn at random, saved and

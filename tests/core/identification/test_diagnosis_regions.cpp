@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cstdlib>
 
+#include "cellcal/core/identification/prediction.hpp"
 #include "core/identification/hidden_effect.hpp"
 #include "test_support.hpp"
 
@@ -202,6 +203,141 @@ TEST(RegionCheck, ACyclicTermFittedOnPartOfAJointsRangeIsLeftOut) {
   // with it.
   EXPECT_GE(worse_off, draws / 2) << "the draws do not make the failure the check is for";
   EXPECT_EQ(worse_on, 0);
+}
+
+// A joint (2 or 3) measured on 60 % of its range, with an error of one of two kinds, and a model that names a cause of
+// that joint (cyclic_transmission or joint_scale, drawn):
+//  - `library`: the named cause is the truth, over the whole range (hidden_effect.hpp's scaling, 0.02-0.1 deg RMS);
+//  - otherwise an error outside the library that grows smoothly from the campaign's middle (a quadratic in the angle,
+//    0.02-0.1 deg RMS over the campaign), which the named cause follows inside and only partly beyond.
+// The model is fitted on the campaign's identification rows (plausible ranges on) and predicts the rows beyond it.
+struct Carried {
+  double ratio_without = 0, ratio_with = 0;  // RMS of actual / sqrt(predicted^2 + noise) beyond the campaign
+  double near_without = 0, near_with = 0;    // the same on the rows within the distance the folds checked
+  int near = 0;
+  ExtensionTransfer transfer;
+  std::string text;
+};
+Carried carriedBeyond(bool library, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const test::RandomDraw d = test::randomDraw(rng);
+  const RobotModel model = test::robot(d.name);
+  SimulationConfig sc = d.sc;
+  sc.warmup_K = 0;
+  sc.zero_drift_per_K_max_rad = 0;
+  sc.zero_wear_per_h_max_rad = 0;
+  const int j = 1 + static_cast<int>(u(rng) * 2);
+  const Cause cause = u(rng) < 0.5 ? Cause::kCyclicTransmission : Cause::kJointScale;
+  const double size_rad = (0.02 + 0.08 * u(rng)) * kPi / 180;
+  std::vector<Eigen::VectorXd> qs = SimulatedCell(model, sc).randomConfigurations(700, rng);
+  std::vector<double> sorted;
+  for (const auto& q : qs) sorted.push_back(q[j]);
+  std::sort(sorted.begin(), sorted.end());
+  const bool low = u(rng) < 0.5;
+  const double cut = sorted[low ? sorted.size() * 6 / 10 : sorted.size() * 4 / 10];
+  const double centre = sorted[low ? sorted.size() * 3 / 10 : sorted.size() * 7 / 10];
+  std::vector<bool> inside;
+  for (const auto& q : qs) inside.push_back(low ? q[j] < cut : q[j] >= cut);
+  if (library) {
+    const SimulatedCell plain(model, sc);
+    sc.hidden = scaledHiddenEffect(model, plain.trueParams(0), cause, j, size_rad, {}, qs, rng);
+  }
+  const SimulatedCell cell(model, sc);
+  double ms = 0;
+  int n_in = 0;
+  for (size_t i = 0; i < qs.size(); ++i)
+    if (inside[i]) ms += std::pow(qs[i][j] - centre, 4), ++n_in;
+  const double curvature = size_rad / std::sqrt(ms / n_in) * (u(rng) < 0.5 ? 1 : -1);
+  std::vector<Observation> rows;
+  for (const auto& q : qs) {
+    Eigen::VectorXd qt = q;
+    if (!library) qt[j] += curvature * (q[j] - centre) * (q[j] - centre);
+    rows.push_back(library ? cell.measure(q, 0.0, rng, d.kind) : cell.measurePose(cell.truePose(qt, 0.0), q, rng, d.kind));
+  }
+  const DriverTable dt = driversFromSequence(qs, {}, {});
+  const Campaign c = campaignOf(model, rows, dt.rows, inside, false, "");
+  Extension e;
+  e.cause = cause;
+  e.joint = j;
+  DiagnosisOptions o;
+  o.identifiability.prior_sigma = plausibleDeviation(model);
+  const ExtendedFit fit = fitExtended(model, c.start, c.data.identification, c.data.identification_drivers, {e}, o.solver,
+                                      o.identifiability);
+  Carried out;
+  out.transfer = extensionTransfer(model, c.start, fit, c.data.identification, c.data.identification_drivers, o);
+  const PredictionModel pm = predictionModel(model, fit, c.data.identification, c.data.identification_drivers);
+  PredictionModel wide = pm;
+  wide.beyond = out.transfer.beyond();
+  const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, c.beyond, c.beyond_drivers);
+  double sum0 = 0, sum1 = 0, near0 = 0, near1 = 0;
+  int near = 0;
+  const BeyondRange& br = out.transfer.joints.front().beyond;
+  for (size_t i = 0; i < c.beyond.size(); ++i) {
+    const double noise2 = 3 * pm.variance_factor_position * std::pow(c.beyond[i].sigma_position_m, 2);
+    const double p0 = predictedPositionSigma(model, fit, pm, c.beyond[i].q_rad, c.beyond_drivers[i]);
+    const double p1 = predictedPositionSigma(model, fit, wide, c.beyond[i].q_rad, c.beyond_drivers[i]);
+    sum0 += res[i].squaredNorm() / (p0 * p0 + noise2);
+    sum1 += res[i].squaredNorm() / (p1 * p1 + noise2);
+    const double q = c.beyond[i].q_rad[j];
+    if ((q < br.lower_rad && br.lower_rad - q <= br.checked_rad) || (q > br.upper_rad && q - br.upper_rad <= br.checked_rad)) {
+      near0 += res[i].squaredNorm() / (p0 * p0 + noise2);
+      near1 += res[i].squaredNorm() / (p1 * p1 + noise2);
+      ++near;
+    }
+  }
+  out.near_without = near ? std::sqrt(near0 / near) : 0;
+  out.near_with = near ? std::sqrt(near1 / near) : 0;
+  out.near = near;
+  out.ratio_without = std::sqrt(sum0 / c.beyond.size());
+  out.ratio_with = std::sqrt(sum1 / c.beyond.size());
+  char t[300];
+  const JointTransfer& jt = out.transfer.joints.front();
+  std::snprintf(t, sizeof t, "%s %s, joint %d, %s %.3f deg, model %s: folds %.2f -> %.2f (sigma %.3g deg, growth %d); beyond: ratio %.2f -> %.2f, %d rows within %.1f deg: %.2f -> %.2f",
+                d.name.c_str(), d.kind == MeasurementKind::kPose6D ? "6D" : "points", j + 1,
+                library ? "true" : "quadratic", size_rad * 180 / kPi, causeName(cause), jt.ratio_rms_without,
+                jt.ratio_rms_with, jt.beyond.sigma_at_1_rad * 180 / kPi, jt.beyond.growth, out.ratio_without, out.ratio_with, out.near, jt.beyond.checked_rad * 180 / kPi, out.near_without, out.near_with);
+  out.text = t;
+  std::printf("  %s\n", t);
+  return out;
+}
+
+// Measured over 120 draws of each kind (CELLCAL_DIAGNOSIS_DRAWS=40, seeds 1-3), on the rows beyond the campaign within
+// the distance the folds judged (BeyondRange::checked_rad): of the 91 partial draws whose prediction was more than
+// 1.5x too low there (median 3.65x), 60 came to 1.5x or less and 80 to 2x or less with the joint's BeyondRange (median
+// 1.44x); joint_scale 52 of 66 to 1.5x, cyclic_transmission 8 of 25 (a periodic term's folds often see nothing: fitted
+// on less of the range, its own posterior is wide). The true causes: median ratio with / without 1.00, 3 of 120 below
+// 0.7. On all rows beyond (farther than the folds judged, the error held at its value there): partial median 8.95x ->
+// 2.93x, true causes median 0.95x (lowest 0.29x).
+TEST(ExtensionTransfer, APredictionBeyondTheDataCoversWhatTheExtensionsDoThere) {
+  const int draws = drawsOr(12);
+  std::mt19937_64 rng(test::testSeed());
+  std::vector<double> problem_without, problem_with, true_change;
+  for (int k = 0; k < draws; ++k) {
+    const Carried p = carriedBeyond(false, rng);
+    if (p.near > 0 && p.near_without > 1.5) {
+      problem_without.push_back(p.near_without);
+      problem_with.push_back(p.near_with);
+    }
+    const Carried t = carriedBeyond(true, rng);
+    if (t.near > 0) true_change.push_back(t.near_with / t.near_without);
+    EXPECT_GE(t.near_with, 0.4) << t.text;
+    for (const Carried* c : {&p, &t}) {
+      const BeyondRange& b = c->transfer.joints.front().beyond;
+      EXPECT_GT(b.checked_rad, 0) << c->text;
+      EXPECT_LE(c->transfer.joints.front().ratio_rms_with, std::max(1.0, c->transfer.joints.front().ratio_rms_without) + 1e-9);
+    }
+  }
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0.0 : v[v.size() / 2];
+  };
+  std::printf("  summary: %zu of %d partial draws predicted more than 1.5x too low within the checked distance (median "
+              "%.2fx, with the beyond term %.2fx); true causes: median change %.2f\n",
+              problem_without.size(), draws, median(problem_without), median(problem_with), median(true_change));
+  ASSERT_GE(problem_without.size(), 2u) << "the draws do not make the failure the beyond term is for";
+  EXPECT_GE(median(problem_without), 2.5) << "the draws do not make the failure the beyond term is for";
+  EXPECT_LE(median(problem_with), 2.5);
+  EXPECT_GE(median(true_change), 0.85);
 }
 
 // regionSplit against a plain computation: the covariance's major axis by power iteration, the median by a full sort.

@@ -345,3 +345,52 @@ TEST(Prediction, ExcitationDeficitsAgreeWithAPlainReferenceAndAreHeld) {
 
 }  // namespace
 }  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+// The error beyond a joint's range (BeyondRange) in predictedPositionSigma against a plain reference: that joint turned
+// by sigmaRad(q) in the forward kinematics moves the target by sigma |dp/dq| to first order (central differences);
+// inside the range it adds nothing, and beyond the checked distance it stays at its value there. Robots, ranges, sizes, growths and configurations drawn at random.
+TEST(Prediction, AnErrorBeyondAJointsRangeMovesTheTargetAsThatJointWould) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int d = 0; d < 30; ++d) {
+    const RobotModel m = test::robot(d % 2 ? "ur10" : "staubli_tx60");
+    KinematicsData data(m);
+    ExtendedFit fit;
+    fit.params = m.nominal;
+    PredictionModel pm;  // no parameter covariance: the beyond term alone
+    BeyondRange b;
+    b.joint = static_cast<int>(u(rng) * m.numJoints()) % m.numJoints();
+    b.lower_rad = -2 * u(rng);
+    b.upper_rad = b.lower_rad + 2 * u(rng);
+    b.sigma_at_1_rad = 1e-4 + 1e-3 * u(rng);
+    b.growth = d % 3;
+    b.checked_rad = d % 2 ? 0.0 : 0.3 + u(rng);  // 0: no limit
+    pm.beyond = {b};
+    std::string why;
+    ASSERT_TRUE(b.IsValid(m.numJoints(), &why)) << why;
+    for (int t = 0; t < 20; ++t) {
+      Eigen::VectorXd q(m.numJoints());
+      for (int j = 0; j < q.size(); ++j) q[j] = -3 + 6 * u(rng);
+      const double x = q[b.joint];
+      double beyond = x < b.lower_rad ? b.lower_rad - x : x > b.upper_rad ? x - b.upper_rad : 0.0;
+      if (b.checked_rad > 0) beyond = std::min(beyond, b.checked_rad);
+      const double sigma = beyond > 0 ? b.sigma_at_1_rad * std::pow(beyond, b.growth) : 0.0;
+      EXPECT_NEAR(b.sigmaRad(x), sigma, 1e-15);
+      const double h = 1e-6;
+      Eigen::VectorXd qp = q, qm = q;
+      qp[b.joint] += h;
+      qm[b.joint] -= h;
+      const Eigen::Vector3d pp = forwardKinematics(m, data, m.nominal, qp).translation();
+      const Eigen::Vector3d pn = forwardKinematics(m, data, m.nominal, qm).translation();
+      const double reference = sigma * ((pp - pn) / (2 * h)).norm();
+      const double got = predictedPositionSigma(m, fit, pm, q, Drivers{});
+      EXPECT_NEAR(got, reference, 1e-7 * (reference + 1e-6)) << "joint " << b.joint + 1 << " at " << x;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace cellcal

@@ -38,6 +38,10 @@ struct RobotCalibration {
   // beside an extended model so that a new set-up can judge the extensions against it (calibrate --frames-only).
   // Empty: none. Key geometric_parameters.
   Eigen::VectorXd geometric_params;
+  // What the extensions may do beyond the joint ranges of the campaign's data (extensionTransfer, prediction.hpp):
+  // predictions carried to other rows (calibrate --frames-only) include it. Empty: the folds' predictions held, or not
+  // measured. Key beyond_data.
+  std::vector<BeyondRange> beyond_data;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
   // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.
   std::optional<std::int64_t> dateUtcNs() const;

@@ -27,6 +27,9 @@
 // above chooses among the columns that pass. The readings' sigmas whiten J; noise_scale is by how much the residual exceeds them (the root of a fit's
 // variance factor: model error the geometric model leaves counts as noise here), so the decision follows the data's
 // real noise. Frame parameters have no plausible range (the tracker stands anywhere): only rank decides them.
+// Extension parameters (fitExtended, fitSetups) have one when prior_sigma is given: extensionPriorSigma at
+// kPlausibleExtensionJointErrorRad, the value whose column makes that RMS joint error through the joint limits (an
+// extension the rows pin no better than an effect of that size is held at 0, as a kinematic parameter at its start).
 #pragma once
 
 #include <Eigen/Core>
@@ -57,6 +60,7 @@ struct IdentifiabilityOptions {
 // The same widths as PredictionOptions' priors.
 constexpr double kPlausibleLengthM = 5e-3;
 constexpr double kPlausibleAngleRad = 0.5 * 3.14159265358979323846 / 180;
+constexpr double kPlausibleExtensionJointErrorRad = 0.5 * 3.14159265358979323846 / 180;
 Eigen::VectorXd plausibleDeviation(const RobotModel& model, double length_m = kPlausibleLengthM,
                                    double angle_rad = kPlausibleAngleRad);
 // The noise_scale a fit implies: the root of its whitened residual's sum of squares over its degrees of freedom

@@ -27,6 +27,23 @@
 
 namespace cellcal {
 
+// A joint's error beyond the range of the data a model was fitted on: 1 sigma sigma_at_1_rad * d^growth (rad), d the
+// angle by which q_rad[joint] lies outside [lower_rad, upper_rad] (rad; 0 inside: there the posterior holds), at most
+// checked_rad (when > 0: the farthest the folds judged it; farther, the growth is not known and the error is held at
+// its value there, the configuration flagged as extrapolated by the caller). What an extension of that joint (a
+// periodic term, a scale, a stiffness fitted on part of the joint's range) may do beyond it that its posterior does
+// not say (extensionTransfer).
+struct BeyondRange {
+  int joint = 0;
+  double lower_rad = 0, upper_rad = 0;
+  double sigma_at_1_rad = 0;
+  int growth = 0;  // 0: a constant error beyond the range, 1: growing linearly with d, 2: with d^2
+  double checked_rad = 0;
+  double beyondRad(double q_rad) const;  // d
+  double sigmaRad(double q_rad) const;
+  bool IsValid(int num_joints, std::string* error) const;
+};
+
 struct PredictionOptions {
   double prior_length_m = kPlausibleLengthM;            // 1 sigma of a length no one calibrated
   double prior_angle_rad = kPlausibleAngleRad;
@@ -42,6 +59,9 @@ struct PredictionModel {
   double variance_factor_position = 1.0;     // s^2 of the position rows: the one that scales the readings' position noise
   double variance_factor_orientation = 1.0;  // s^2 of the orientation rows (1 without 6D rows)
   int rows = 0, estimated = 0;   // whitened rows of the identification data; parameters the fit estimated
+  // Errors beyond the data's joint ranges (extensionTransfer), added to the parameters' in predictedPositionSigma:
+  // sum over them of sigmaRad(q)^2 |dp/dq_joint|^2. carriedPrediction keeps the carried model's.
+  std::vector<BeyondRange> beyond;
 };
 
 // By how much a fit's whitened residuals exceed the readings' sigmas, position rows and orientation rows apart (a
@@ -80,8 +100,35 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
                                   const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                   const std::vector<int>& frames, const VarianceFactors& noise);
 
+// What a fit's extensions are worth where their data never were. The prediction above holds while the model's form
+// does: an extension fitted on part of a joint's range (a periodic term standing for a local error, a scale or a
+// stiffness for an error that grows otherwise) may act otherwise beyond it, and its posterior does not say so.
+// Measured as RegionCheck folds the rows by that joint's angle (the rows beyond either end's region_joint_end
+// quantile judged, the others fitted; each joint once): the whole model is fitted on the fitted rows (at most
+// region_fit_rows of them; excitation deficits held as diagnose holds them) and predicts the judged ones
+// (predictionModel of that fit, and the readings' noise 3 s^2 sigma_reading^2 beside it). Where the actual errors
+// there exceed that (RMS of actual / sqrt(predicted^2 + noise) above 1), a BeyondRange of the joint is fitted on the
+// judged rows by maximum likelihood (Gaussian position errors of that variance plus the BeyondRange's, d measured from
+// the fitted rows' range): the growth (0, 1 or 2) that explains them best and its sigma. The result's ranges are
+// the joint's over `obs`. Extensions of no joint (thermal drift of the lengths, link deflection, frame drift) are not
+// measured: `not_measured` names them.
+struct JointTransfer {
+  BeyondRange beyond;                               // sigma_at_1_rad 0: the folds' predictions held
+  int folds = 0, judged_rows = 0;
+  double ratio_rms_without = 0, ratio_rms_with = 0;  // on the judged rows
+};
+struct ExtensionTransfer {
+  std::vector<JointTransfer> joints;
+  std::vector<std::string> not_measured;  // extensionLabel of each extension not measured, with why
+  std::vector<BeyondRange> beyond() const;  // those with sigma_at_1_rad > 0
+  std::string text;                         // one line per joint and a line for what was not measured
+};
+ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const ExtendedFit& fit,
+                                    const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                    const DiagnosisOptions& options = {});
+
 // Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
-// 3D position error the model makes there, reading noise not included).
+// 3D position error the model makes there, reading noise not included), prediction.beyond's errors included.
 double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
                               const Eigen::VectorXd& q_rad, const Drivers& drivers);
 
