@@ -5,6 +5,8 @@
 // gives the AP its truth says, and none against the true model.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <cmath>
 #include <map>
 #include <random>
@@ -292,6 +294,7 @@ TEST(Iso9283, TheCubeAndItsPosesAreReachedOnRandomRobots) {
 // RP is the repeatability and noise the simulator draws (2 sigma 0.02 mm plus the tracker): within 0.02-0.1 mm.
 TEST(Iso9283, ASimulatedTestGivesTheAccuracyItsTruthSays) {
   std::mt19937_64 rng(test::testSeed());
+  std::vector<double> rp_over_sigma;
   for (int draw = 0; draw < 4; ++draw) {
     test::RandomDraw d = test::randomDraw(rng);
     const RobotModel nominal = test::robot(d.name);
@@ -345,8 +348,13 @@ TEST(Iso9283, ASimulatedTestGivesTheAccuracyItsTruthSays) {
       EXPECT_NEAR(p.AP_p_m, want.norm(), share) << p.name;
       EXPECT_LT(after.poses[static_cast<size_t>(k)].AP_p_m, share) << p.name;
       EXPECT_NEAR(after.poses[static_cast<size_t>(k)].RP_l_m, p.RP_l_m, 1e-12) << "repeatability is the robot's";
-      EXPECT_GT(p.RP_l_m, 0.01e-3);
-      EXPECT_LT(p.RP_l_m, 0.1e-3);
+      // RP_l = mean + 3 S of the distances to the barycentre: for a 3D normal of sigma per axis, a Maxwell distance
+      // (mean 1.60 sigma, S 0.67 sigma): about 3.6 sigma, within 10 % over 30 visits (the tracker's noise is not the
+      // same along its beam and across it). Measured over 41 seeds x 20 poses: 2.48-4.58 sigma. The bounds, 2 and 5.5
+      // sigma, fail a mean distance alone (1.6); they replace 0.01-0.1 mm, which one seed's 0.104 mm exceeded.
+      EXPECT_GT(p.RP_l_m, 2.0 * sigma);
+      EXPECT_LT(p.RP_l_m, 5.5 * sigma);
+      rp_over_sigma.push_back(p.RP_l_m / sigma);
     }
     std::printf("  %s %s: AP_p against the nominal model %.3f-%.3f mm, against the truth %.4f mm at most; RP_l %.4f mm; "
                 "AD %.4f mm, RD %.4f mm\n",
@@ -356,6 +364,8 @@ TEST(Iso9283, ASimulatedTestGivesTheAccuracyItsTruthSays) {
                 std::max_element(after.poses.begin(), after.poses.end(), [](auto& a, auto& c) { return a.AP_p_m < c.AP_p_m; })->AP_p_m * 1e3,
                 before.poses[0].RP_l_m * 1e3, before.distances[0].AD_p_m * 1e3, before.distances[0].RD_m * 1e3);
   }
+  std::sort(rp_over_sigma.begin(), rp_over_sigma.end());
+  std::printf("  RP_l / sigma: %.2f-%.2f\n", rp_over_sigma.front(), rp_over_sigma.back());
 }
 
 }  // namespace
