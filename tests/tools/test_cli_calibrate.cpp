@@ -760,7 +760,12 @@ TEST(CliCalibrate, AFitThatDidNotConvergeNeverExitsZero) {
     EXPECT_NE(def_code, 3) << def_log;  // 4 where the effect the model does not hold makes it no better than nominal
     const auto dflt = readJson(dir + "/default.json");
     EXPECT_TRUE(dflt["converged"].get<bool>()) << def_log;
-    EXPECT_FALSE(dflt["identifiability"]["held_within_plausible"].empty()) << def_log;
+    // It decided otherwise than rank alone: held parameters within their plausible ranges, or, by the default rank
+    // tolerance (1e-5, against 1e-8 here), another set (seed 4's sixth draw: joint 5's offset held instead of its a,
+    // nothing within the ranges).
+    EXPECT_TRUE(!dflt["identifiability"]["held_within_plausible"].empty() ||
+                dflt["identifiability"]["not_identifiable"] != readJson(dir + "/rank_only.json")["identifiability"]["not_identifiable"])
+        << def_log;
     // The extended model chosen by default can still fail to converge (an extension column has no plausible range:
     // seed 7189369393246471111, joint 3's compliance, 50 iterations): then it must say so with exit 3, never 0.
     const auto [def_auto_code, def_auto_log] = run("default_auto", robot_file, {"--model", "auto"});
