@@ -648,7 +648,9 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
         const auto kj = readJson(dir + "/c.json");
         ratio[w] = kj["prediction"]["actual_over_predicted_rms"];
         EXPECT_EQ(kj["beyond_data"]["ranges"].size(), w ? beyond_data.size() : 0u) << k.log();
-        if (w) EXPECT_NE(k.log().find("carried beyond the campaign's data: joint " + std::to_string(j + 1)), std::string::npos) << k.log();
+        if (w) {
+          EXPECT_NE(k.log().find("carried beyond the campaign's data: joint " + std::to_string(j + 1)), std::string::npos) << k.log();
+        }
       }
       std::printf("  %s: beyond_data carried: actual / predicted %.2f without it, %.2f with it\n", what.c_str(), ratio[0], ratio[1]);
       EXPECT_LT(ratio[1], ratio[0]) << what;  // every row of beyond.csv lies beyond the campaign's range of joint j

@@ -726,7 +726,7 @@ int runCalibrate(const CalibrateArgs& a) {
       std::printf("carried beyond the campaign's data: joint %d outside [%.1f, %.1f] deg, a further joint error of %.3g deg%s "
                   "(the robot file's beyond_data)\n",
                   b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.sigma_at_1_rad * 180 / kPi,
-                  b.growth == 0 ? "" : b.growth == 1 ? " per rad beyond" : " per rad^2 beyond");
+                  b.growthText());
   if (carried_check)
     std::printf("%s%s\n", carried_check->text.c_str(),
                 carried_check->extensions_transfer ? ""

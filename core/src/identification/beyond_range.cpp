@@ -19,6 +19,10 @@ double BeyondRange::sigmaRad(double q_rad) const {
   return sigma_at_1_rad * std::pow(d, growth);
 }
 
+const char* BeyondRange::growthText() const {
+  return growth == 0 ? "" : growth == 1 ? " per rad beyond" : " per rad^2 beyond";
+}
+
 bool BeyondRange::IsValid(int num_joints, std::string* error) const {
   auto fail = [&](const std::string& m) {
     if (error) *error = m;

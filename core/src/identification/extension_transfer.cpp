@@ -1,4 +1,4 @@
-// extensionTransfer and BeyondRange (prediction.hpp): what a fit's extensions are worth where their data never were.
+// extensionTransfer (prediction.hpp): what a fit's extensions are worth where their data never were.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -6,7 +6,6 @@
 
 #include "calibration_internal.hpp"
 #include "cellcal/core/identification/prediction.hpp"
-#include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
 
@@ -67,19 +66,6 @@ double fitSigma(const std::vector<Judged>& rows, int growth) {
   return std::exp(0.5 * (a + b));
 }
 
-// " per rad beyond" for a growth.
-const char* growthText(int growth) { return growth == 0 ? "" : growth == 1 ? " per rad beyond" : " per rad^2 beyond"; }
-
-// |d position / d q_joint|^2 (m^2/rad^2) of the fit's model at q.
-double jointGain2(const RobotModel& model, KinematicsData& data, const ExtendedFit& fit, const Observation& o,
-                  const Drivers& d, int joint) {
-  const Eigen::VectorXd p = extendedParams(model, fit.params, fit.extensions, fit.extension_params, o.q_rad, d);
-  Eigen::MatrixXd J(6, model.numParams());
-  forwardKinematics(model, data, p, o.q_rad);
-  computePoseJacobian(model, data, J);
-  return J.col(model.jointParam(joint, JointParam::kThetaOffset)).head<3>().squaredNorm();
-}
-
 }  // namespace
 
 ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const ExtendedFit& fit,
@@ -87,7 +73,6 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
                                     const DiagnosisOptions& options) {
   if (obs.size() != drivers.size()) throw std::invalid_argument("extensionTransfer: one Drivers entry per observation");
   ExtensionTransfer out;
-  KinematicsData data(model);
   std::vector<int> joints;
   for (const Extension& e : fit.extensions) {
     if (regionSplitName(e) == "workspace") {
@@ -112,11 +97,16 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
         skipped = "too few rows at an end of the joint's range";
         continue;
       }
-      double lo = std::numeric_limits<double>::infinity(), hi = -lo, side_max = 0;
+      // The fitted rows' range of the joint, with a unit constant error beyond it: beyondRad gives a judged row's
+      // distance, and predictedPositionSigma over it alone |dp/dq_joint| there (as the prediction will use it).
+      PredictionModel unit;
+      BeyondRange fitted{e.joint, std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(), 1.0};
       for (int r : fold.first) {
-        lo = std::min(lo, obs[static_cast<size_t>(r)].q_rad[e.joint]);
-        hi = std::max(hi, obs[static_cast<size_t>(r)].q_rad[e.joint]);
+        fitted.lower_rad = std::min(fitted.lower_rad, obs[static_cast<size_t>(r)].q_rad[e.joint]);
+        fitted.upper_rad = std::max(fitted.upper_rad, obs[static_cast<size_t>(r)].q_rad[e.joint]);
       }
+      unit.beyond = {fitted};
+      double side_max = 0;
       const std::vector<int> fit_rows = subset(fold.first, internal::evenlyThinned(fold.first.size(), options.region_fit_rows));
       const std::vector<Observation> FO = subset(obs, fit_rows), JO = subset(obs, fold.second);
       const std::vector<Drivers> FD = subset(drivers, fit_rows), JD = subset(drivers, fold.second);
@@ -142,9 +132,8 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
         j.actual2 = res[i].squaredNorm();
         j.predicted2 = std::pow(predictedPositionSigma(model, ff, pm, JO[i].q_rad, JD[i]), 2);
         j.noise2 = 3.0 * pm.variance_factor_position * JO[i].sigma_position_m * JO[i].sigma_position_m;
-        const double q = JO[i].q_rad[e.joint];
-        j.beyond_rad = q < lo ? lo - q : q > hi ? q - hi : 0.0;
-        j.gain2 = jointGain2(model, data, ff, JO[i], JD[i], e.joint);
+        j.beyond_rad = fitted.beyondRad(JO[i].q_rad[e.joint]);
+        if (j.beyond_rad > 0) j.gain2 = std::pow(predictedPositionSigma(model, ff, unit, JO[i].q_rad, JD[i]), 2);
         if (std::isfinite(j.actual2) && std::isfinite(j.predicted2) && j.variance(0, 0) > 0) rows.push_back(j);
         side_max = std::max(side_max, j.beyond_rad);
       }
@@ -181,7 +170,7 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
                     "on the rows beyond (%d rows); outside [%.1f, %.1f] deg it is given a further joint error of %.3g deg%s "
                     "(ratio then %.2f; judged up to %.1f deg beyond, farther it is extrapolated)",
                     e.joint + 1, jt.ratio_rms_without, jt.judged_rows, jt.beyond.lower_rad * 180 / kPi,
-                    jt.beyond.upper_rad * 180 / kPi, jt.beyond.sigma_at_1_rad * 180 / kPi, growthText(jt.beyond.growth),
+                    jt.beyond.upper_rad * 180 / kPi, jt.beyond.sigma_at_1_rad * 180 / kPi, jt.beyond.growthText(),
                     jt.ratio_rms_with, jt.beyond.checked_rad * 180 / kPi);
     out.text += (out.text.empty() ? "" : "\n") + std::string(b);
     out.joints.push_back(jt);

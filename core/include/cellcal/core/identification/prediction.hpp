@@ -41,6 +41,7 @@ struct BeyondRange {
   double checked_rad = 0;
   double beyondRad(double q_rad) const;  // d
   double sigmaRad(double q_rad) const;
+  const char* growthText() const;        // "", " per rad beyond", " per rad^2 beyond": the unit sigma is read in
   bool IsValid(int num_joints, std::string* error) const;
 };
 
