@@ -14,6 +14,7 @@ rules=(
   "core/include/cellcal/core/identification core/src/identification|core/model core/identification|no"
   "core/include/cellcal/core/sim core/src/sim|core/model core/identification core/sim|no"
   "core/include/cellcal/core/files core/src/files|core/model core/identification core/files|no"
+  "core/include/cellcal/core/campaign core/src/campaign|core/model core/identification core/files core/campaign|no"
   "core/include/cellcal/core/engine core/src/engine|core/model core/identification core/files core/engine|no"
   "core/include/cellcal/core/accuracy core/src/accuracy|core/model core/identification core/files core/accuracy|no"
   "core/|core/|no"

@@ -34,5 +34,5 @@ cmake -S "$here/consumer" -B "$work/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DCM
   { cat "$work/consumer_configure.log"; fail "the consumer project did not configure against $prefix"; }
 cmake --build "$work/consumer" >"$work/consumer_build.log" 2>&1 ||
   { cat "$work/consumer_build.log"; fail "the consumer project did not build against $prefix"; }
-"$work/consumer/consumer"
+(cd "$work" && "$work/consumer/consumer")  # it writes its measurement file there
 echo "check_install: installed tree in $prefix is complete and usable"

@@ -306,7 +306,7 @@ int runDiagnose(const DiagnoseArgs& a) {
                                                 : nlohmann::json(nullptr)}});
     const DriverStructure* left = d.structureLeft();
     nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
-                        {"split", a.input.split}, {"measurement", in.measurementJson()}, {"model_error_sigma", in.modelErrorJson()},
+                        {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},
                         {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
                         {"verdict", verdictName(d.verdict)}, {"verdict_text", d.verdict_text},
                         {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},

@@ -33,23 +33,6 @@ OutlierOptions outlierOptions(const InputArgs& a) {
 
 namespace {
 
-// The file's rows per set-up label, in order of first appearance (one group, unlabelled, when it has no setup column).
-std::vector<std::pair<std::string, MeasurementFile>> bySetup(const MeasurementFile& file) {
-  std::vector<std::pair<std::string, MeasurementFile>> out;
-  for (const auto& r : file.rows) {
-    const std::string label = r.setup.value_or("");
-    auto it = std::find_if(out.begin(), out.end(), [&](const auto& p) { return p.first == label; });
-    if (it == out.end()) {
-      MeasurementFile part;
-      part.source = file.source;
-      out.emplace_back(label, std::move(part));
-      it = out.end() - 1;
-    }
-    it->second.rows.push_back(r);
-  }
-  return out;
-}
-
 std::pair<RobotFile, MeasurementFile> readInput(const InputArgs& a, const std::string& path) {
   RobotFile rf = loadRobotFile(a.robot);
   MeasurementCsvOptions mo;
@@ -60,165 +43,50 @@ std::pair<RobotFile, MeasurementFile> readInput(const InputArgs& a, const std::s
   return {std::move(rf), std::move(file)};
 }
 
-// Splits, registers and checks the rows of one set-up; `name` (the file, and its set-up label) in messages.
-LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile rf, MeasurementFile file);
-void addModelErrorComponent(LoadedInput& in, const InputArgs& a);
-
 }  // namespace
+
+InputOptions inputOptions(const InputArgs& a) {
+  InputOptions o;
+  o.split = a.split;
+  o.sigma_position_m = a.sigma_position_mm * 1e-3;
+  o.sigma_orientation_rad = a.sigma_orientation_deg * kPi / 180;
+  o.position_only = a.position_only;
+  o.register_frames = !a.no_register;
+  o.outliers = outlierOptions(a);
+  return o;
+}
 
 LoadedInput loadInput(const InputArgs& a) {
   if (!a.more_data.empty())
     throw ConfigError("--data given " + std::to_string(1 + a.more_data.size()) +
                       " times: only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
   auto [rf, file] = readInput(a, a.data);
-  const auto parts = bySetup(file);
+  const auto parts = splitBySetup(file);
   if (parts.size() > 1) {
     std::string labels;
     for (const auto& p : parts) labels += (labels.empty() ? "" : ", ") + (p.first.empty() ? "(none)" : p.first);
     throw ConfigError(a.data + ": rows of " + std::to_string(parts.size()) + " set-ups (column setup: " + labels +
                       "): only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
   }
-  return prepareInput(a, a.data, std::move(rf), std::move(file));
+  return prepareCampaignInput(a.data, std::move(rf), std::move(file), inputOptions(a));
 }
 
 std::vector<LoadedInput> loadSetups(const InputArgs& a) {
   std::vector<std::string> paths = {a.data};
   paths.insert(paths.end(), a.more_data.begin(), a.more_data.end());
+  const InputOptions options = inputOptions(a);
   std::vector<LoadedInput> out;
   for (const auto& path : paths) {
     auto [rf, file] = readInput(a, path);
-    if (file.rows.empty()) throw ConfigError(path + ": no data rows");  // readMeasurementCsv refuses it already
-    for (auto& [label, part] : bySetup(file)) {
-      if (label.empty() && file.rows.size() != part.rows.size())
-        throw ConfigError(path + ": line " + std::to_string(part.rows.front().line) +
-                          ": setup: empty, while other rows name their set-up");
-      out.push_back(prepareInput(a, label.empty() ? path : path + " [setup " + label + "]", rf, std::move(part)));
-    }
+    for (auto& in : prepareCampaignSetups(path, rf, file, options)) out.push_back(std::move(in));
   }
-  // Set-ups weigh against each other by their sigmas: when one carries the tracker's own (and so the model error
-  // beside them), the others get their model error too.
-  bool any = false;
-  for (const auto& in : out) any = any || in.own_sigmas;
-  for (auto& in : out)
-    if (any && !in.model_error_added) addModelErrorComponent(in, a);
+  weighSetupsAlike(&out, options);
   return out;
 }
 
-namespace {
-LoadedInput prepareInput(const InputArgs& a, const std::string& name, RobotFile rf, MeasurementFile file) {
-  LoadedInput in;
-  in.name = name;
-  in.robot = std::move(rf.model);
-  in.calibration = std::move(rf.calibration);
-  in.source = rf.source;
-  in.file = std::move(file);
-  in.kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
-  const auto& rows = in.file.rows;
-  const DriverTable drivers = driversOf(in.file);
-  in.data.has_thermal = drivers.has_thermal;
-  in.data.thermal_source = drivers.thermal_source;
-  // 'positions': rows measured within kPositionRadiusMm of a position's first row are that position (in row order);
-  // even positions identify, odd ones verify, so no verification row has an identification row that near.
-  std::vector<int> position_of(rows.size(), 0);
-  if (a.split == "positions") {
-    std::vector<Eigen::Vector3d> first;
-    for (size_t i = 0; i < rows.size(); ++i) {
-      const Eigen::Vector3d p = rows[i].position_m;
-      size_t k = 0;
-      while (k < first.size() && (first[k] - p).norm() > kPositionRadiusMm * 1e-3) ++k;
-      if (k == first.size()) first.push_back(p);
-      position_of[i] = static_cast<int>(k);
-    }
-  }
-  for (size_t i = 0; i < rows.size(); ++i) {
-    const Observation o =
-        toObservation(rows[i], in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180);
-    (o.kind == MeasurementKind::kPose6D ? in.oriented_rows : in.position_rows)++;
-    const bool to_verify = a.split == "alternate" ? (i % 2 == 1)
-                           : a.split == "positions" ? (position_of[i] % 2 == 1)
-                                                    : (i >= rows.size() / 2);
-    (to_verify ? in.data.verification : in.data.identification).push_back(o);
-    (to_verify ? in.data.verification_drivers : in.data.identification_drivers).push_back(drivers.rows[i]);
-    (to_verify ? in.verification_lines : in.identification_lines).push_back(rows[i].line);
-  }
-  if (in.oriented_rows == 0) in.kind = MeasurementKind::kPosition3D;
-  if (in.data.identification.size() < 8 || in.data.verification.empty())
-    throw ConfigError(name + ": too few rows (" + std::to_string(rows.size()) + "): the " + a.split +
-                      " split gives " + std::to_string(in.data.identification.size()) + " to identify and " +
-                      std::to_string(in.data.verification.size()) +
-                      " to verify; at least 8 and 1 are needed (16 rows or more)");
-  const auto t0 = std::chrono::steady_clock::now();
-  in.start = in.robot.nominal;
-  in.registration_rms_mm = std::nan("");
-  if (!a.no_register) {
-    const RegistrationResult reg = registerFrames(in.robot, in.robot.nominal, in.data.identification);
-    in.start = reg.params;
-    in.registration_rms_mm = reg.rms_position_m * 1e3;
-    // No robot is off its nominal model by this much: rows of two placements of the tracker (or the target)?
-    constexpr double kSetupHintRmsMm = 5.0;
-    if (in.registration_rms_mm > kSetupHintRmsMm) {
-      std::vector<Observation> all;
-      for (const auto& r : rows)
-        all.push_back(toObservation(r, in.kind, a.sigma_position_mm * 1e-3, a.sigma_orientation_deg * kPi / 180));
-      if (const auto c = findSetupChange(in.robot, in.robot.nominal, all)) {
-        const auto k = static_cast<size_t>(c->first_row);
-        in.setup_change_line = rows[k].line;
-        char b[512];
-        std::snprintf(b, sizeof b,
-                      "the rows look like two set-ups (the tracker or the target moved): one registration leaves %.1f mm "
-                      "RMS; lines %d-%d register to %.2f mm and lines %d-%d to %.2f mm on their own. Calibrate each "
-                      "set-up from its own file, or carry a calibrated model to the other with --frames-only "
-                      "(docs/real-robots.md)",
-                      c->rms_single_m * 1e3, rows.front().line, rows[k - 1].line, c->rms_first_m * 1e3, rows[k].line,
-                      rows.back().line, c->rms_second_m * 1e3);
-        in.setup_hint = b;
-      }
-    }
-  }
-  in.registration_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  // The tracker's own sigmas weight the rows only as far as they matter: beside them, the error a geometric fit
-  // leaves (its gross errors screened out) as a variance component of every row (model_error.hpp).
-  for (const auto& r : rows) in.own_sigmas = in.own_sigmas || r.sigma_position_m || r.sigma_orientation_rad;
-  if (in.own_sigmas) addModelErrorComponent(in, a);
-  return in;
-}
-
-void addModelErrorComponent(LoadedInput& in, const InputArgs& a) {
-  CalibrationProblem p{&in.robot, in.start, in.data.identification, std::nullopt, {}, {}};
-  p.outliers = outlierOptions(a);
-  const CalibrationResult r = solveGaussNewton(p);
-  in.model_error = modelErrorSigma(in.robot, r.params, in.data.identification, r.outliers.rows);
-  in.model_error_added = true;
-  addModelError(in.data.identification, in.model_error);
-  addModelError(in.data.verification, in.model_error);
-}
-}  // namespace
-
-std::string LoadedInput::modelErrorText() const {
-  if (!model_error_added) return "";
-  char b[400];
-  std::snprintf(b, sizeof b,
-                "reading sigmas: %s; a geometric fit leaves %.4f mm and %.4f deg per axis beyond them, added to every "
-                "row's sigmas (model_error.hpp)",
-                own_sigmas ? "the file's own" : "the defaults, beside set-ups with their own", model_error.position_m * 1e3,
-                model_error.orientation_rad * 180 / kPi);
-  return b;
-}
-
-nlohmann::json LoadedInput::modelErrorJson() const {
-  if (!model_error_added) return nullptr;
-  return {{"position_mm", model_error.position_m * 1e3}, {"orientation_deg", model_error.orientation_rad * 180 / kPi}};
-}
-
-std::string LoadedInput::measurementText() const {
-  if (position_rows == 0) return "6D";
-  if (oriented_rows == 0) return "position only";
-  return "mixed: " + std::to_string(oriented_rows) + " 6D, " + std::to_string(position_rows) + " position-only rows";
-}
-
-std::string LoadedInput::measurementJson() const {
-  if (position_rows == 0) return "pose6d";
-  return oriented_rows == 0 ? "position3d" : "mixed";
+nlohmann::json modelErrorJson(const CampaignInput& in) {
+  if (!in.model_error_added) return nullptr;
+  return {{"position_mm", in.model_error.position_m * 1e3}, {"orientation_deg", in.model_error.orientation_rad * 180 / kPi}};
 }
 
 // "backlash:3,joint_compliance:2" or "thermal_drift" (lengths) -> extensions; joints 1-based.

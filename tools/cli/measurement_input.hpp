@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/core/campaign/campaign_input.hpp"
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/model_error.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
@@ -29,41 +30,18 @@ struct InputArgs {
 // The identifiability options' plausible ranges from --plausible-length-mm / --plausible-angle-deg (empty: both 0).
 Eigen::VectorXd plausibleRanges(const InputArgs& a, const RobotModel& robot);
 
-struct LoadedInput {
-  std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column
-  RobotModel robot;
-  std::optional<RobotCalibration> calibration;  // the robot file's calibration section (a calibrated robot file)
-  std::vector<std::pair<std::string, std::string>> source;  // the robot file's source (a URDF's), kept when saved
-  MeasurementFile file;
-  MeasurementKind kind = MeasurementKind::kPose6D;  // kPosition3D when no row used has an orientation
-  int oriented_rows = 0, position_rows = 0;          // rows used as 6D poses / as points
-  std::string measurementText() const;               // "6D", "position only", "mixed: 30 6D, 12 position-only rows"
-  std::string measurementJson() const;               // "pose6d", "position3d", "mixed"
-  DiagnosisData data;        // identification / verification rows with their drivers (computed in visiting order)
-  std::vector<int> identification_lines, verification_lines;  // the file line of each of those rows
-  Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
-  double registration_rms_mm = 0;  // NaN with --no-register
-  // When one registration cannot fit the file (RMS above kSetupHintRmsMm) and its rows split into two set-ups that
-  // each register: where they change and what each side leaves (empty otherwise).
-  std::string setup_hint;
-  int setup_change_line = -1;         // file line of the first row of the second set-up
-  double registration_s = 0;
-  // Rows with the tracker's own sigmas (sigma_position_mm / sigma_orientation_deg columns): the error a geometric
-  // fit leaves beyond them (model_error.hpp), added to every row's sigmas before any fit; zero without such rows.
-  // Set-ups beside one with own sigmas get theirs too (model_error_added), so that they weigh alike.
-  bool own_sigmas = false, model_error_added = false;
-  ModelErrorSigma model_error;
-  std::string modelErrorText() const;  // "" when none was added
-  nlohmann::json modelErrorJson() const;
-};
+// The CLI's name for a prepared set-up (campaign_input.hpp).
+using LoadedInput = CampaignInput;
+// {position_mm, orientation_deg} of the model error added to the rows' sigmas; null when none was added.
+nlohmann::json modelErrorJson(const CampaignInput& in);
+
+// --split, --sigma-*, --position-only, --no-register, --outlier-threshold as the core's options.
+InputOptions inputOptions(const InputArgs& a);
 
 // --outlier-threshold as options (0: screening off); throws std::runtime_error on a bad value.
 OutlierOptions outlierOptions(const InputArgs& a);
 
-// Reads and splits. Split 'alternate': even rows (0-based) identify, odd rows verify; 'halves': first half identifies;
-// 'positions': rows within kPositionRadiusMm of a position's first row form that position, alternate positions identify.
-constexpr double kPositionRadiusMm = 20.0;
-// Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
+// Reads and prepares (prepareCampaignInput: split, registration, the rows' sigmas). Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
 // Every set-up of every --data file (a file with a setup column gives one per label, in order of appearance), each
 // split and registered on its own as loadInput does. A file whose rows name set-ups must name one on every row.

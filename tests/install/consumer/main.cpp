@@ -1,8 +1,13 @@
 // Uses the installed cellcal::core as the README's "Using the core library" does: a robot file from the installed
-// configuration, a batch calibration of simulated poses, then RLS pose by pose. Exit 0 only when the calibrated model
-// is far closer to the simulated truth than the nominal one.
+// configuration, a batch calibration of simulated poses, then RLS pose by pose; and a measurement file (CSV v1) it
+// writes calibrated as `cellcal calibrate` does (campaign.hpp). Exit 0 only when the calibrated model is far closer to
+// the simulated truth than the nominal one, and the campaign's verdict is to deploy a model that beats the start.
 #include <cstdio>
+#include <fstream>
 #include <random>
+
+#include "cellcal/core/campaign/campaign.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
 
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
@@ -37,5 +42,29 @@ int main() {
   const double nominal = meanErrorMm(cell.nominalParams()), calibrated = meanErrorMm(rls.params());
   std::printf("consumer: cellcal::core from %s: converged %d, mean error %.3f mm nominal -> %.4f mm calibrated\n",
               CELLCAL_INSTALLED_CONFIG_DIR, r.converged ? 1 : 0, nominal, calibrated);
-  return r.converged && calibrated < nominal / 10 ? 0 : 1;
+  if (!r.converged || !(calibrated < nominal / 10)) return 1;
+
+  // A measurement file of 60 poses, calibrated as a campaign.
+  {
+    std::ofstream csv("consumer_campaign.csv");
+    csv << "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n";
+    csv.precision(12);
+    for (const auto& q : cell.randomConfigurations(60, rng)) {
+      const cellcal::Observation o = cell.measure(q, 0.0, rng);
+      for (int j = 0; j < 6; ++j) csv << q[j] * 180 / cellcal::kPi << ",";
+      const Eigen::Vector3d p = o.measured_in_tracker.translation() * 1e3;
+      csv << p.x() << "," << p.y() << "," << p.z() << "\n";
+    }
+  }
+  cellcal::RobotFile rf;
+  rf.model = robot;
+  cellcal::CampaignProblem campaign;
+  campaign.setups = {cellcal::prepareCampaignInput(
+      "consumer_campaign.csv", rf, cellcal::readMeasurementCsv("consumer_campaign.csv", robot), cellcal::InputOptions{})};
+  const cellcal::CampaignReport report = cellcal::calibrateCampaign(campaign);
+  const auto& e = report.errors;
+  std::printf("consumer: campaign of %zu rows: held-out mean %.4f mm before -> %.4f mm after, exit code %d\n%s\n",
+              campaign.setups[0].file.rows.size(), e.verification_kept_before.mean_mm, e.verification_kept_after.mean_mm,
+              report.exitCode(), report.verdict.c_str());
+  return report.exitCode() == 0 && e.verification_kept_after.mean_mm < e.verification_kept_before.mean_mm / 5 ? 0 : 1;
 }
