@@ -10,10 +10,7 @@ const std::vector<TopicInfo>& cellTopics() {
     std::vector<TopicInfo> v;
     forEachTopicType([&](auto tag) {
       using M = typename decltype(tag)::type;
-      // The simulation's truth is not an input: replayed, it would make a sim tracker adapter measure again.
-      const bool input = std::is_same_v<M, msg::JointState> || std::is_same_v<M, msg::TrackerPose> ||
-                         std::is_same_v<M, msg::TargetPose>;
-      v.push_back({TopicOf<M>::name, typeName<M>(), TopicOf<M>::profile, input});
+      v.push_back({TopicOf<M>::name, typeName<M>(), TopicOf<M>::profile, TopicOf<M>::cell_input});
     });
     return v;
   }();

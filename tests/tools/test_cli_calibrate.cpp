@@ -360,6 +360,10 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
   Process diag(dir, "diagnose", {"cellcal", "diagnose", "--robot", tx60, "--data", files[0], "--data", files[1]});
   EXPECT_EQ(diag.wait(60), 2);
   EXPECT_NE(diag.log().find("only `cellcal calibrate` takes several set-ups"), std::string::npos) << diag.log();
+  // Set-ups are fitted by Gauss-Newton: --solver lm is refused, not ignored.
+  Process lm(dir, "lm", {"cellcal", "calibrate", "--robot", tx60, "--data", files[0], "--data", files[1], "--solver", "lm"});
+  EXPECT_EQ(lm.wait(60), 2);
+  EXPECT_NE(lm.log().find("--solver lm takes one set-up"), std::string::npos) << lm.log();
 
   // The setup column: the same calibration as the two files (the reference), each set-up named by its label.
   Process col(dir, "column", {"cellcal", "calibrate", "--robot", tx60, "--data", dir + "/both.csv", "--json",

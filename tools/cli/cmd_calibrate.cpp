@@ -20,7 +20,7 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
                  "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
                  "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
       ->capture_default_str();
-  cmd.add_option("--solver", a.solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; geometric model)")
+  cmd.add_option("--solver", a.solver, "gn (Gauss-Newton, default) | lm (Levenberg-Marquardt, Ceres; the geometric fit of one set-up)")
       ->check(CLI::IsMember({"gn", "lm"}))
       ->capture_default_str();
   cmd.add_option("--save-robot", a.save_robot,
@@ -89,6 +89,8 @@ int runCalibrate(const CalibrateArgs& a) {
   p.setups = loadSetups(a.input);  // --data given again, or a file with a setup column
   const bool several = p.setups.size() > 1;
   if (several && a.frames_only) throw ConfigError("--frames-only takes one set-up (a usage error, exit 2)");
+  if (several && a.solver == "lm")
+    throw ConfigError("--solver lm takes one set-up: several set-ups are fitted by Gauss-Newton (a usage error, exit 2)");
   if (a.frames_only && a.model != "geometric")
     throw std::runtime_error("--frames-only keeps the robot file's model: no --model");
   const RobotModel& robot = p.setups.front().robot;

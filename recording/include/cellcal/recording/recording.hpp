@@ -30,23 +30,12 @@ namespace cellcal::recording {
 using namespace cellcal::components;  // the topic types and DdsNode
 
 template <class M>
-struct Tag {
-  using type = M;
-};
+using Tag = TopicTag<M>;
 
-// Calls f(Tag<M>{}) for every topic type of the cell, in TopicOf<> order.
+// Calls f(Tag<M>{}) for every topic type of the cell, in the topic table's order (dds_node.hpp).
 template <class F>
 void forEachTopicType(F&& f) {
-  f(Tag<msg::JointState>{});
-  f(Tag<msg::TrackerPose>{});
-  f(Tag<msg::CalibrationState>{});
-  f(Tag<msg::CalibrationDiagnostics>{});
-  f(Tag<msg::PoseRequest>{});
-  f(Tag<msg::TargetPose>{});
-  f(Tag<msg::CompensatedTarget>{});
-  f(Tag<msg::ServoSetpoint>{});
-  f(Tag<msg::ServoCorrection>{});
-  f(Tag<sim::RobotTruth>{});
+  forEachCellTopic(std::forward<F>(f));
 }
 
 // Calls f(Tag<M>{}) for the type of `topic`; false when the topic is not one of the cell's.
@@ -67,9 +56,7 @@ struct TopicInfo {
   std::string topic;        // "cellcal/joint_state"
   std::string type_name;    // "cellcal::msg::JointState"
   std::string qos_profile;  // endpoint profile of the cell's XML
-  // Published by the cell's sources (adapters, simulation, the application's targets), not by the engine or the
-  // compensation publisher: what a replay republishes by default to drive a new engine.
-  bool cell_input = false;
+  bool cell_input = false;  // TopicOf<M>::cell_input: what a replay republishes by default to drive a new engine
 };
 const std::vector<TopicInfo>& cellTopics();
 // The cell topic named `topic`; throws std::runtime_error naming it when it is not one.

@@ -34,31 +34,51 @@ namespace fdds = eprosima::fastdds::dds;
 
 template <class M>
 struct TopicOf;
-#define CELLCAL_TOPIC(Msg, Name, Profile)                      \
-  template <>                                                  \
-  struct TopicOf<Msg> {                                        \
-    using PubSub = Msg##PubSubType;                            \
-    static constexpr const char* name = Name;                  \
-    static constexpr const char* profile = Profile;            \
+#define CELLCAL_TOPIC(Msg, Name, Profile, Input)                \
+  template <>                                                   \
+  struct TopicOf<Msg> {                                         \
+    using PubSub = Msg##PubSubType;                             \
+    static constexpr const char* name = Name;                   \
+    static constexpr const char* profile = Profile;             \
+    static constexpr bool cell_input = Input;                   \
   };
-CELLCAL_TOPIC(cellcal::msg::JointState, "cellcal/joint_state", "sensor_stream")
-CELLCAL_TOPIC(cellcal::msg::TrackerPose, "cellcal/tracker_pose", "sensor_stream")
-CELLCAL_TOPIC(cellcal::msg::CalibrationState, "cellcal/calibration_state", "calibration_state")
-CELLCAL_TOPIC(cellcal::msg::CalibrationDiagnostics, "cellcal/calibration_diagnostics", "calibration_state")
-CELLCAL_TOPIC(cellcal::msg::PoseRequest, "cellcal/pose_request", "calibration_state")
-CELLCAL_TOPIC(cellcal::msg::TargetPose, "cellcal/target_pose", "command")
-CELLCAL_TOPIC(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "command")
-CELLCAL_TOPIC(cellcal::msg::ServoSetpoint, "cellcal/servo_setpoint", "servo")
-CELLCAL_TOPIC(cellcal::msg::ServoCorrection, "cellcal/servo_correction", "servo")
-CELLCAL_TOPIC(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream")
+// The cell's topics, one line each: type, name, QoS profile of the cell's XML, and whether the cell's sources publish
+// it (adapters, simulation, the application's targets; not the engine or the compensation publisher: what a replay
+// republishes by default to drive a new engine). TopicOf<>, forEachCellTopic (the recorder, replay, the Foxglove
+// bridge, status) and the recording's topic list all come from this table: a new topic is its IDL and one line here.
+// The simulation's truth is not an input: replayed, it would make a sim tracker adapter measure again.
+#define CELLCAL_CELL_TOPICS(X)                                                                         \
+  X(cellcal::msg::JointState, "cellcal/joint_state", "sensor_stream", true)                            \
+  X(cellcal::msg::TrackerPose, "cellcal/tracker_pose", "sensor_stream", true)                          \
+  X(cellcal::msg::CalibrationState, "cellcal/calibration_state", "calibration_state", false)           \
+  X(cellcal::msg::CalibrationDiagnostics, "cellcal/calibration_diagnostics", "calibration_state", false) \
+  X(cellcal::msg::PoseRequest, "cellcal/pose_request", "calibration_state", false)                     \
+  X(cellcal::msg::TargetPose, "cellcal/target_pose", "command", true)                                  \
+  X(cellcal::msg::CompensatedTarget, "cellcal/compensated_target", "command", false)                   \
+  X(cellcal::msg::ServoSetpoint, "cellcal/servo_setpoint", "servo", false)                             \
+  X(cellcal::msg::ServoCorrection, "cellcal/servo_correction", "servo", false)                         \
+  X(cellcal::sim::RobotTruth, "cellcal/sim/robot_truth", "sensor_stream", false)
+CELLCAL_CELL_TOPICS(CELLCAL_TOPIC)
 // ROS 2 messages (ros2_msgs.idl): no fixed topic, the user names it (ros2.hpp turns "/joint_states" into
 // "rt/joint_states"); QoS profile "ros2": readers best effort (they match reliable and best-effort publishers),
 // writers reliable, volatile, keep last 10 (ROS 2's default). std_msgs/String carries robot_description: profile
 // "ros2_latched" (reliable, transient local, keep last 1, as robot_state_publisher).
-CELLCAL_TOPIC(sensor_msgs::msg::dds_::JointState_, "", "ros2")
-CELLCAL_TOPIC(geometry_msgs::msg::dds_::PoseStamped_, "", "ros2")
-CELLCAL_TOPIC(std_msgs::msg::dds_::String_, "", "ros2_latched")
+CELLCAL_TOPIC(sensor_msgs::msg::dds_::JointState_, "", "ros2", false)
+CELLCAL_TOPIC(geometry_msgs::msg::dds_::PoseStamped_, "", "ros2", false)
+CELLCAL_TOPIC(std_msgs::msg::dds_::String_, "", "ros2_latched", false)
 #undef CELLCAL_TOPIC
+
+template <class M>
+struct TopicTag {
+  using type = M;
+};
+// Calls f(TopicTag<M>{}) for every topic type of the cell, in the table's order.
+template <class F>
+void forEachCellTopic(F&& f) {
+#define CELLCAL_VISIT_TOPIC(Msg, Name, Profile, Input) f(TopicTag<Msg>{});
+  CELLCAL_CELL_TOPICS(CELLCAL_VISIT_TOPIC)
+#undef CELLCAL_VISIT_TOPIC
+}
 
 struct TopicCounters {
   std::atomic<std::uint64_t> published{0}, received{0};
