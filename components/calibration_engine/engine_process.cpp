@@ -5,6 +5,7 @@
 #include <chrono>
 #include <iostream>
 
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/core/engine/state_file.hpp"
 
@@ -235,7 +236,7 @@ void EngineProcess::stopAndReport() {
     for (size_t k = 0; k < r.engine->counters().rejected.size(); ++k)
       if (r.engine->counters().rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = r.engine->counters().rejected[k];
     robots[id] = {{"version", snap.version},
-                  {"poses_used", snap.poses_used},
+                  {stats::kPosesUsed, snap.poses_used},
                   {"health", healthName(snap.health)},
                   {"recent_nis_per_row", snap.recent_nis_per_row},
                   {"drift_alarm", snap.drift_alarm},
@@ -245,7 +246,7 @@ void EngineProcess::stopAndReport() {
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},
                   // the readings applied, in order (the last 4096): [tracker sequence number, stamp_ns]
-                  {"applied_readings", appliedReadingsJson(r.engine->appliedReadings())},
+                  {stats::kAppliedReadings, appliedReadingsJson(r.engine->appliedReadings())},
                   {"pose_requests",
                    {{"published", requests_[id].seq},
                     {"choose_p50_ns", percentileNs(requests_[id].compute_ns, 0.5)},
@@ -265,13 +266,11 @@ void EngineProcess::stopAndReport() {
                     {"persist", percentileNs(r.persist_ns, 0.5)},
                     {"publish", percentileNs(r.publish_ns, 0.5)}}}};
   }
-  writeJsonFile(options_.process.stats_json,
-                {{"name", "calibration_engine"},
-                 {"pid", ::getpid()},
-                 {"topics", node_.stats()},
-                 {"extra", {{"updates", host_.updates()}, {"unknown_keys", host_.unknownKeys()}, {"robots", robots},
-                            {"input_queue", {{"peak", inputs_->peak()}, {"refused", inputs_->refused()},
-                                             {"max", kMaxQueuedInputs}}}}}});
+  stats::writeProcessStats(options_.process.stats_json, "calibration_engine", node_.stats(),
+                           {{stats::kUpdates, host_.updates()}, {"unknown_keys", host_.unknownKeys()},
+                            {stats::kRobots, robots},
+                            {stats::kInputQueue, {{"peak", inputs_->peak()}, {"refused", inputs_->refused()},
+                                                  {"max", kMaxQueuedInputs}}}});
   // A clean exit says so (a silent one reads like a crash in a log).
   std::cerr << "calibration_engine: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
             << "), " << host_.updates() << " updates this run; state files synced:";

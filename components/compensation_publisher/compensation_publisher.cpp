@@ -1,3 +1,4 @@
+#include "cellcal/components/process_stats.hpp"
 #include "compensation_publisher.hpp"
 
 #include <unistd.h>
@@ -402,17 +403,14 @@ int CompensationPublisher::run() {
   for (int k = 0; k < kNumCompensationOutcomes; ++k)
     if (outcomes_[static_cast<size_t>(k)] > 0)
       outcomes[outcomeName(static_cast<CompensationOutcome>(k))] = outcomes_[static_cast<size_t>(k)];
-  writeJsonFile(options_.process.stats_json,
-                {{"name", "compensation_publisher"},
-                 {"pid", ::getpid()},
-                 {"topics", node_.stats()},
-                 {"extra", {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
+  stats::writeProcessStats(options_.process.stats_json, "compensation_publisher", node_.stats(),
+                           {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
                             {"residual_map_applied", residual_map_applied_},
                             {"bad_calibration_states", bad_states_}, {"calibration_versions", versions},
-                            {"descriptions", descriptions}, {"outcomes", outcomes},
-                            {"target_cpu_us", target_cpu_.json()},
-                            {"servo", {{"answered", servo_answered_}, {"applied", servo_applied_},
-                                       {"out_of_order", servo_out_of_order_}, {"cpu_us", servo_cpu_.json()}}}}}});
+                            {"descriptions", descriptions}, {stats::kOutcomes, outcomes},
+                            {stats::kTargetCpuUs, target_cpu_.json()},
+                            {stats::kServo, {{"answered", servo_answered_}, {"applied", servo_applied_},
+                                             {"out_of_order", servo_out_of_order_}, {"cpu_us", servo_cpu_.json()}}}});
   std::cerr << "compensation_publisher: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
             << "): " << applied_ << " targets corrected, " << refused_ << " passed through uncorrected (" << clamped_
             << " clamped)\n";

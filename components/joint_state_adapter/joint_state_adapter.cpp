@@ -6,6 +6,7 @@
 #include <mutex>
 #include <thread>
 
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/ros2.hpp"
 #include "cellcal/components/udp_lines.hpp"
@@ -122,7 +123,7 @@ void JointStateAdapter::runSim() {
       }
       followed[cell_.robots[i].robot_id] = list;
     }
-    extra_["followed_poses"] = followed;
+    extra_[stats::kFollowedPoses] = followed;
     extra_["pose_requests_received"] = requests_received;
     extra_["pose_requests_refused"] = requests_refused;
   }

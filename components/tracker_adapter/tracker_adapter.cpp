@@ -6,6 +6,7 @@
 #include <mutex>
 #include <thread>
 
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/udp_lines.hpp"
 #include "cellcal/lab/sim_program.hpp"
@@ -77,7 +78,7 @@ void TrackerAdapter::runSim() {
   while (!limit.over()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
   node_.shutdown();  // before `robots` goes: no callback after this point
   extra_["readings"] = measured;
-  extra_["pose_of_reading"] = pose_of_reading;
+  extra_[stats::kPoseOfReading] = pose_of_reading;
 }
 
 void TrackerAdapter::runCsv() {

@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/components/profile_probe.hpp"
@@ -165,7 +166,7 @@ int runRecord(const RecordArgs& a) {
                                  {"duration_s", wall_s},
                                  {"topics", per_topic}};
   writeJsonFile(a.json, counts);
-  writeJsonFile(a.common.stats_json, {{"name", "recorder"}, {"pid", ::getpid()}, {"topics", node.stats()}, {"extra", counts}});
+  stats::writeProcessStats(a.common.stats_json, "recorder", node.stats(), counts);
   if (rec.file().messagesWritten() == 0) {
     std::fprintf(stderr, "record: WARNING: nothing received in %.1f s on domain %d with participant profile %s (exit 3); "
                  "looking on the other profiles...\n",

@@ -1,3 +1,4 @@
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/adapter_source.hpp"
 
 #include <unistd.h>
@@ -28,8 +29,7 @@ int SourceAdapter::run() {
   else if (input_.source == "ros2") runRos2();
   else runUdp();
   node_.shutdown();  // no callback after this point
-  writeJsonFile(input_.process.stats_json, {{"name", name_}, {"pid", ::getpid()}, {"topics", node_.stats()},
-                                            {"source", input_.source}, {"extra", extra_}});
+  stats::writeProcessStats(input_.process.stats_json, name_, node_.stats(), extra_, {{"source", input_.source}});
   return 0;
 }
 

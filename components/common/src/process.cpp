@@ -1,3 +1,5 @@
+#include <unistd.h>
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/process.hpp"
 
 #include <algorithm>
@@ -127,6 +129,15 @@ void writeJsonFile(const std::string& path, const nlohmann::json& j) {
   }
   std::filesystem::rename(tmp, path);
 }
+
+namespace stats {
+void writeProcessStats(const std::string& path, const std::string& name, const nlohmann::json& topics,
+                       const nlohmann::json& extra, const nlohmann::json& more) {
+  nlohmann::json j = {{kName, name}, {kPid, ::getpid()}, {kTopics, topics}, {kExtra, extra}};
+  j.update(more);
+  writeJsonFile(path, j);
+}
+}  // namespace stats
 
 std::string maskFigures(const std::string& text) {
   std::string out;

@@ -1,0 +1,336 @@
+// `cellcal cell`'s application and judge: the launcher's own participant.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <mutex>
+#include <random>
+
+#include "cell_roles.hpp"
+#include "cellcal/components/convert.hpp"
+#include "cellcal/components/dds_node.hpp"
+#include "cellcal/core/identification/statistics.hpp"
+#include "cellcal/core/model/inverse_kinematics.hpp"
+#include "cellcal/lab/sim_program.hpp"
+
+namespace cellcal::cli {
+
+using namespace cellcal::components;
+
+// The launcher's own participant: the cell's application (TargetPoses at --targets-hz) and its judge (scores every
+// calibration and compensated target it receives against the simulator's truth). DDS callbacks only record
+// (receipt time, sample): one receive thread serves every reader, so scoring in a callback would delay the others
+// and inflate the latencies measured; score() does the work on the caller's thread.
+class CellJudge::Impl {
+ public:
+  Impl(const CellConfig& cell, const CellArgs& a) : cell_(cell), a_(a), node_(cell, "cellcal_cell_launcher", identity::kApplication),
+        targets_(node_.writer<msg::TargetPose>()), target_rng_(cell.simulation.seed + 777) {
+    for (size_t i = 0; i < cell.robots.size(); ++i) {
+      Judge j(&cell.robots[i], makeSimulatedCell(cell.robots[i], cell.simulation, static_cast<int>(i)));
+      std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);
+      j.holdout = j.sim.randomConfigurations(a.holdout_poses, rng);
+      j.target_qs = j.sim.randomConfigurations(200, rng);
+      j.identified.params = j.sim.nominalParams();
+      judges_.push_back(std::move(j));
+    }
+    node_.reader<sim::RobotTruth>([this](const sim::RobotTruth& t, const fdds::SampleInfo&) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!program_start_) program_start_ = std::chrono::steady_clock::now();
+      if (Judge* j = find(t.robot_id().to_string())) j->cell_time_s = std::max(j->cell_time_s, t.cell_time_s());
+    });
+    node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+      const std::int64_t now = wallNs();
+      std::lock_guard<std::mutex> lock(mutex_);
+      states_in_.emplace_back(now, m);
+    });
+    node_.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
+      const std::int64_t now = wallNs();
+      std::lock_guard<std::mutex> lock(mutex_);
+      compensated_in_.emplace_back(now, m);
+    });
+    if (a.servo) {
+      servo_.emplace(node_.writer<msg::ServoSetpoint>());
+      node_.reader<msg::ServoCorrection>([this](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
+        ++servo_answered_;
+        if (m.applied()) ++servo_applied_;
+      });
+    }
+  }
+
+  double elapsed() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count(); }
+
+  // --duration-s counts from the moment the robot program runs (start-up and discovery excluded), so a loaded
+  // machine still sees the whole program; at most 30 s are allowed for start-up.
+  double runningSeconds() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!program_start_) return elapsed() > 30 ? a_.duration_s : 0.0;
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - *program_start_).count();
+  }
+
+  // One TargetPose per robot: the nominal pose of a random configuration, to be compensated.
+  void sendTargets() {
+    for (auto& j : judges_) {
+      const Eigen::VectorXd& q = j.target_qs[std::uniform_int_distribution<size_t>(0, j.target_qs.size() - 1)(target_rng_)];
+      KinematicsData d(j.sim.model());
+      const Pose desired = forwardKinematics(j.sim.model(), d, j.sim.nominalParams(), q);
+      msg::TargetPose t;
+      t.robot_id(j.robot->robot_id);
+      t.sequence_number(++j.target_seq);
+      fromPose(desired, t.position_m(), t.orientation_xyzw());
+      t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+      const std::int64_t now = wallNs();
+      t.source_stamp_ns(static_cast<std::uint64_t>(now));
+      j.sent[j.target_seq] = {now, q};
+      targets_.write(t);
+      if (servo_) {  // the robot holding the target's joints, one setpoint per cycle
+        servo_sample_.robot_id(j.robot->robot_id);
+        servo_sample_.sequence_number(j.target_seq);  // one setpoint per target: the same count
+        servo_sample_.source_stamp_ns(static_cast<std::uint64_t>(now));
+        servo_sample_.cycle_stamp_ns(static_cast<std::uint64_t>(now));
+        servo_sample_.cartesian(false);
+        servo_sample_.joint_position_rad().assign(q.data(), q.data() + q.size());
+        servo_->write(servo_sample_);
+        ++servo_sent_;
+      }
+    }
+  }
+
+  // Scores what arrived since the last call; a line per calibration update unless --quiet.
+  void score() {
+    std::vector<std::pair<std::int64_t, msg::CalibrationState>> states;
+    std::vector<std::pair<std::int64_t, msg::CompensatedTarget>> comps;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      states.swap(states_in_);
+      comps.swap(compensated_in_);
+    }
+    for (const auto& [now, m] : states) scoreCalibration(now, m);
+    for (const auto& [now, m] : comps) scoreCompensation(now, m);
+  }
+
+  // Leaves the domain (no callback after this) and scores what is left.
+  void finish() {
+    node_.shutdown();
+    score();
+  }
+
+  // The summary of the run (processes and their topic counts: mergeProcessStats) and its two printed lines.
+  void summarize(nlohmann::json* summary) const {
+    nlohmann::json robots = nlohmann::json::array();
+    double before = 0, after = 0, reference = 0, at_update = 0;
+    int reference_poses = 0;
+    const double n = static_cast<double>(judges_.size());
+    for (size_t i = 0; i < judges_.size(); ++i) {
+      const Judge& j = judges_[i];
+      const double t_h = j.cell_time_s / 3600.0;
+      const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
+      const std::optional<ReadingsApplied> readings = readingsApplied(*summary, j.robot->robot_id);
+      const std::map<long long, Eigen::VectorXd> followed = followedPoses(*summary, j.robot->robot_id);
+      const Reference r = a_.in_process_reference ? inProcessReference(cell_, *j.robot, static_cast<int>(i), j.cell_time_s, j,
+                                                                       readings ? &*readings : nullptr, followed)
+                                                  : Reference{};
+      if (!r.why_program.empty())
+        std::printf("cell: %s: the in-process engine replays the program, not the readings applied: %s\n",
+                    j.robot->robot_id.c_str(), r.why_program.c_str());
+      const double ref = r.verify_mm;
+      reference_poses += r.poses;
+      before += vb / n;
+      after += va / n;
+      at_update += j.verify_mm / n;
+      reference += ref / n;
+      robots.push_back({{"robot_id", j.robot->robot_id},
+                        {"final_version", j.version},
+                        {"cell_time_h", t_h},
+                        {"verify_before_mm", vb},
+                        {"verify_after_mm", va},
+                        {"verify_after_last_update_mm", j.verify_mm},  // at the cell time of the last update
+                        {"in_process_verify_after_mm", ref},
+                        {"in_process_poses", r.poses},    // the poses it applied
+                        {"in_process_inputs", r.inputs},  // applied_readings: the engine's; program: every pose by then
+                        {"poses_followed", followed.size()},  // taken from the engine's proposals
+                        // [version, poses used, cell time h, hold-out error mm] of each calibration received
+                        {"holdout_by_version", j.history},
+                        {"targets_applied", j.applied},
+                        {"targets_refused", j.refused},
+                        {"targets_refused_why", refusedWhyJson(j)},
+                        {"correction_mean_mm", mean(j.correction_mm)},
+                        {"correction_mean_deg", mean(j.correction_deg)},
+                        {"landed_error_compensated_mean_mm", mean(j.compensated_error_mm)},
+                        {"landed_error_uncompensated_mean_mm", mean(j.uncompensated_error_mm)}});
+    }
+    auto& s = *summary;
+    s["robots"] = robots;
+    s["verify_before_mm"] = before;
+    s["verify_after_mm"] = after;
+    s["in_process_verify_after_mm"] = reference;
+    s["in_process_poses"] = reference_poses;
+    s["verify_after_last_update_mm"] = at_update;
+    s["latency_us"] = {{"tracker_to_state_p50", percentile(tracker_to_state_us_, 0.5)},
+                       {"tracker_to_state_p99", percentile(tracker_to_state_us_, 0.99)},
+                       {"target_to_compensated_p50", percentile(target_to_compensated_us_, 0.5)},
+                       {"target_to_compensated_p99", percentile(target_to_compensated_us_, 0.99)},
+                       {"tracker_to_state_samples", tracker_to_state_us_.size()},
+                       {"target_to_compensated_samples", target_to_compensated_us_.size()}};
+    s["domain_id"] = cell_.dds.domain_id;
+    s["duration_s"] = elapsed();
+    std::printf("cell: %llu calibration updates; hold-out error at the end %.4f mm calibrated vs %.3f mm uncalibrated "
+                "(in-process engine on the same poses: %.4f mm); %.4f mm right after the last update\n",
+                static_cast<unsigned long long>(s.value("calibration_updates", 0ULL)), after, before, reference, at_update);
+    std::printf("cell: latency tracker -> CalibrationState p50 %.0f us, p99 %.0f us; TargetPose -> CompensatedTarget "
+                "p50 %.0f us, p99 %.0f us\n",
+                percentile(tracker_to_state_us_, 0.5), percentile(tracker_to_state_us_, 0.99),
+                percentile(target_to_compensated_us_, 0.5), percentile(target_to_compensated_us_, 0.99));
+    if (servo_) {
+      s["servo"] = {{"sent", servo_sent_}, {"answered", servo_answered_.load()}, {"applied", servo_applied_.load()}};
+      std::printf("cell: servo stream: %llu joint setpoints, %llu answered on cellcal/servo_correction (%llu applied)\n",
+                  static_cast<unsigned long long>(servo_sent_), static_cast<unsigned long long>(servo_answered_.load()),
+                  static_cast<unsigned long long>(servo_applied_.load()));
+    }
+    if (cell_.simulation.follow_pose_requests)
+      for (const auto& r : robots)
+        std::printf("cell: %s: %llu poses of the program taken from the engine's proposals (cellcal/pose_request)\n",
+                    r["robot_id"].get<std::string>().c_str(), r["poses_followed"].get<unsigned long long>());
+    // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it.
+    for (const auto& j : judges_) {
+      if (!j.refused) continue;
+      std::printf("cell: %s: %llu of %llu targets passed through uncorrected:\n", j.robot->robot_id.c_str(),
+                  static_cast<unsigned long long>(j.refused), static_cast<unsigned long long>(j.refused + j.applied));
+      for (const auto& [key, why] : j.refused_why)
+        std::printf("cell:   %llu x %s%s\n", static_cast<unsigned long long>(why.first), why.second.c_str(),
+                    why.first > 1 ? " (the last of them)" : "");
+    }
+  }
+
+  nlohmann::json topicStats() const { return node_.stats(); }
+
+ private:
+  static double mean(const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? std::nan("") : s / static_cast<double>(v.size());
+  }
+
+  // {reason without its figures: {count, last}}.
+  static nlohmann::json refusedWhyJson(const Judge& j) {
+    nlohmann::json out = nlohmann::json::object();
+    for (const auto& [key, why] : j.refused_why) out[key] = {{"count", why.first}, {"last", why.second}};
+    return out;
+  }
+
+  Judge* find(const std::string& id) {
+    for (auto& j : judges_)
+      if (j.robot->robot_id == id) return &j;
+    return nullptr;
+  }
+
+  void scoreCalibration(std::int64_t now, const msg::CalibrationState& m) {
+    Judge* j = find(m.robot_id().to_string());
+    if (!j || m.version() == j->version) return;
+    std::string err;
+    auto c = fromCalibrationState(j->sim.model(), m, &err);
+    if (!c) {
+      std::cerr << "cell: " << err << "\n";
+      return;
+    }
+    if (m.last_measurement_stamp_ns() > 0)
+      tracker_to_state_us_.push_back((now - static_cast<std::int64_t>(m.last_measurement_stamp_ns())) / 1e3);
+    j->version = c->version;
+    j->identified = IdentifiedModel{c->params, c->extensions, c->extension_params};
+    double cell_time;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      cell_time = j->cell_time_s;
+    }
+    const double t_h = cell_time / 3600.0;
+    j->verify_mm = j->verify(j->identified, t_h);
+    j->nominal_mm = j->verifyNominal(t_h);
+    j->health = healthName(static_cast<Health>(static_cast<int>(m.health())));
+    j->history.push_back({static_cast<double>(c->version), static_cast<double>(c->poses_used), t_h, j->verify_mm});
+    if (a_.quiet) return;
+    // The calibration as published (its health in capitals when it is not ok: the engine degraded or holds an older
+    // version) and what compensation did since the last line: the version it applied, where those targets landed.
+    std::string health = j->health;
+    if (health != "ok") std::transform(health.begin(), health.end(), health.begin(), ::toupper);
+    std::string comp = "compensation: no target corrected since the last line";
+    if (j->compensated_error_mm.size() > j->landed_reported) {
+      double sum = 0;
+      for (size_t k = j->landed_reported; k < j->compensated_error_mm.size(); ++k) sum += j->compensated_error_mm[k];
+      const size_t n = j->compensated_error_mm.size() - j->landed_reported;
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "compensation v%llu: %zu target%s landed %.4f mm from where %s wanted",
+                    static_cast<unsigned long long>(j->applied_version), n, n == 1 ? "" : "s",
+                    sum / static_cast<double>(n), n == 1 ? "it was" : "they were");
+      comp = buf;
+      j->landed_reported = j->compensated_error_mm.size();
+    }
+    std::printf("[%6.2f s] %-8s v%-4llu %-14s poses %-4u cell time %5.2f h | hold-out error %.4f mm (uncalibrated "
+                "%.3f mm) | %s\n",
+                elapsed(), j->robot->robot_id.c_str(), static_cast<unsigned long long>(c->version), health.c_str(),
+                c->poses_used, t_h, j->verify_mm, j->nominal_mm, comp.c_str());
+    std::fflush(stdout);
+  }
+
+  void scoreCompensation(std::int64_t now, const msg::CompensatedTarget& m) {
+    Judge* j = find(m.robot_id().to_string());
+    if (!j) return;
+    auto it = j->sent.find(m.target_sequence());
+    if (it == j->sent.end()) return;
+    target_to_compensated_us_.push_back((now - it->second.first) / 1e3);
+    const Eigen::VectorXd q_nominal = it->second.second;
+    j->sent.erase(it);
+    if (!m.applied()) {
+      ++j->refused;
+      // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
+      const std::string reason = m.reason().to_string();
+      const std::string first = reason.substr(0, reason.find(';'));
+      auto& why = j->refused_why[maskFigures(first)];
+      ++why.first;
+      why.second = first;
+      return;
+    }
+    ++j->applied;
+    j->applied_version = m.calibration_version();
+    j->correction_mm.push_back(m.correction_position_m() * 1e3);
+    j->correction_deg.push_back(m.correction_orientation_rad() * 180 / kPi);
+    // Where the real robot lands: the controller (nominal model) drives to the commanded pose.
+    const RobotModel& model = j->sim.model();
+    const Pose commanded = toPose(m.corrected_position_m(), m.corrected_orientation_xyzw());
+    const Pose desired = toPose(m.desired_position_m(), m.desired_orientation_xyzw());
+    const Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(m.joint_position_rad().data(),
+                                                                   static_cast<Eigen::Index>(m.joint_position_rad().size()));
+    const IkResult ctrl = solveInverseKinematics(model, model.nominal, commanded, seed);
+    if (!ctrl.ok()) return;
+    const double t_h = j->cell_time_s / 3600.0;
+    j->compensated_error_mm.push_back((j->sim.truePose(ctrl.q_rad, t_h).translation() - desired.translation()).norm() * 1e3);
+    j->uncompensated_error_mm.push_back((j->sim.truePose(q_nominal, t_h).translation() - desired.translation()).norm() * 1e3);
+  }
+
+  const CellConfig& cell_;
+  const CellArgs& a_;
+  const std::chrono::steady_clock::time_point t0_ = std::chrono::steady_clock::now();
+  std::vector<Judge> judges_;
+  std::mutex mutex_;  // guards what the callbacks write: the *_in_ queues, program_start_, Judge::cell_time_s
+  std::optional<std::chrono::steady_clock::time_point> program_start_;  // first RobotTruth: the robot runs
+  std::vector<std::pair<std::int64_t, msg::CalibrationState>> states_in_;
+  std::vector<std::pair<std::int64_t, msg::CompensatedTarget>> compensated_in_;
+  std::vector<double> tracker_to_state_us_, target_to_compensated_us_;
+  std::atomic<std::uint64_t> servo_answered_{0}, servo_applied_{0};  // --servo: corrections received
+  DdsNode node_;  // after the state its callbacks use: deleted (and its callbacks stopped) before it
+  Writer<msg::TargetPose> targets_;
+  std::optional<Writer<msg::ServoSetpoint>> servo_;  // --servo
+  msg::ServoSetpoint servo_sample_;
+  std::uint64_t servo_sent_ = 0;
+  std::mt19937_64 target_rng_;
+};
+
+CellJudge::CellJudge(const CellConfig& cell, const CellArgs& a) : impl_(std::make_unique<Impl>(cell, a)) {}
+CellJudge::~CellJudge() = default;
+double CellJudge::runningSeconds() { return impl_->runningSeconds(); }
+void CellJudge::sendTargets() { impl_->sendTargets(); }
+void CellJudge::score() { impl_->score(); }
+void CellJudge::finish() { impl_->finish(); }
+void CellJudge::summarize(nlohmann::json* summary) const { impl_->summarize(summary); }
+nlohmann::json CellJudge::topicStats() const { return impl_->topicStats(); }
+
+}  // namespace cellcal::cli

@@ -1,0 +1,151 @@
+// `cellcal cell`'s roles beside the four processes it launches: the launcher (cell_launcher.cpp: start the
+// processes, merge their --stats-json), the cell's application and judge (cell_judge.cpp: one participant of the
+// launcher's that publishes TargetPoses and scores every calibration against the simulator's truth) and the in-process
+// reference (cell_reference.cpp: core's CalibrationEngine on the same inputs, no DDS).
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cellcal/components/child_process.hpp"
+#include "cellcal/components/process.hpp"
+#include "cellcal/core/engine/compensation.hpp"
+#include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/kinematics.hpp"
+#include "cellcal/core/sim/simulation.hpp"
+
+namespace cellcal::cli {
+
+struct CellArgs {
+  components::ProcessOptions common;
+  double duration_s = 32;  // the default cell: 4 campaigns, the last one ends at ~30.6 s
+  std::string summary_json;
+  std::string work_dir = "cellcal-cell";
+  bool resume = false;
+  double targets_hz = 20;
+  bool servo = false;  // also a servo stream: a joint setpoint per robot with each target
+  int holdout_poses = 100;
+  bool quiet = false;
+  bool in_process_reference = true;
+  std::string record;  // MCAP file: a recorder process records every topic
+  // --host PROCESS=NETNS: run that process in that network namespace (`ip netns exec`), as on another host
+  // (tools/netns/cellnet.sh makes them); the others run where the launcher does.
+  std::vector<std::string> host_specs;
+  std::map<std::string, std::string> hosts;  // from host_specs
+  // --shards N: the robots split into N consecutive groups, each served by its own engine, compensation publisher
+  // and adapters (each with --robots: content-filtered readers), named <process>_<k>.
+  int shards = 1;
+};
+
+// The launcher.
+
+// A process of the cell: its name, the file it writes its counts to at exit, and the process.
+struct Child {
+  std::string name, stats_file;
+  components::ChildProcess process;
+};
+
+// The cell's processes, each with its output in <work_dir>/<name>.log. The recorder first: the robot program waits
+// for its RobotTruth reader too, so the recording starts with the program.
+std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, const std::string& state_dir);
+// Adds each process's exit code and its --stats-json (topic counts summed with the launcher's own, the engine's,
+// compensation's and recorder's counters) to the summary; returns how many processes failed.
+int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohmann::json* summary);
+
+// The judge's view of one robot: truth, hold-out poses, calibrations, targets.
+struct Judge {
+  Judge(const CellRobot* r, SimulatedCell s) : robot(r), sim(std::move(s)) {}
+  const CellRobot* robot;
+  SimulatedCell sim;
+  std::vector<Eigen::VectorXd> holdout;
+  std::vector<Eigen::VectorXd> target_qs;
+  double cell_time_s = 0;
+  std::uint64_t version = 0;
+  IdentifiedModel identified;  // the latest calibration received (with its model extensions, if any)
+  double verify_mm = std::nan(""), nominal_mm = std::nan("");
+  std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
+  std::uint64_t target_seq = 0, applied = 0, refused = 0;
+  // The compensation publisher's reasons, grouped without their figures: how many, and the last one as it was said.
+  std::map<std::string, std::pair<std::uint64_t, std::string>> refused_why;
+  std::string health = "uncalibrated";  // of the latest CalibrationState
+  std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last
+  size_t landed_reported = 0;           // compensated_error_mm up to here is in a printed line
+  std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
+  // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
+  std::vector<std::array<double, 4>> history;
+
+  double verify(const IdentifiedModel& m, double t_h) const {
+    const RobotModel& model = sim.model();
+    KinematicsData d(model);
+    double s = 0;
+    for (const auto& q : holdout) {
+      const Eigen::VectorXd p = extendedParams(model, m.params, m.extensions, m.extension_params, q, Drivers{});
+      s += (forwardKinematics(model, d, p, q).translation() - sim.truePose(q, t_h).translation()).norm();
+    }
+    return s / static_cast<double>(holdout.size()) * 1e3;
+  }
+  double verifyNominal(double t_h) const { return verify(IdentifiedModel{sim.nominalParams(), {}, {}}, t_h); }
+};
+
+// What the cell's processes say of one robot's readings, from their --stats-json: the program's pose each reading
+// of the simulated tracker measured (reading sequence k: element k - 1), and the sequence numbers of the readings the
+// engine applied, of its `poses_used` in all (more than applied: it resumed from a state).
+struct ReadingsApplied {
+  std::vector<long long> pose_of_reading;
+  std::vector<std::pair<std::uint64_t, std::int64_t>> applied;  // (tracker sequence number, stamp_ns)
+  std::uint64_t poses_used = 0;
+};
+
+// The same robot program and tracker model, through core's CalibrationEngine in this process (no DDS): what the
+// cell should reach on the same inputs. The hold-out error at `cell_time_end_s`, how many poses were fed and which.
+// With `readings`: exactly the readings the engine applied, replayed at the stamps it saw (every reading the tracker
+// made draws its noise in order, as the tracker did; those the engine did not apply are not fed). Without them, or
+// when they do not account for the engine's poses: every pose the program measured up to `cell_time_end_s`, stamped
+// by cell time (`inputs` says which).
+struct Reference {
+  double verify_mm = std::nan("");
+  int poses = 0;
+  std::string inputs;  // "applied_readings" or "program"
+  std::string why_program;  // when readings were given and could not be used
+};
+// `followed`: the poses the simulated program took from the engine's proposals (pose id -> joints; the joint-state
+// adapter's followed_poses), in place of the program's own.
+Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int index, double cell_time_end_s,
+                             const Judge& judge, const ReadingsApplied* readings,
+                             const std::map<long long, Eigen::VectorXd>& followed);
+
+// The readings of one robot the simulated tracker made and the engine applied (mergeProcessStats put both processes'
+// stats in the summary); nullopt when a process did not say.
+std::optional<ReadingsApplied> readingsApplied(const nlohmann::json& summary, const std::string& robot_id);
+// The poses the simulated program took from the engine's proposals (the joint-state adapter's followed_poses).
+std::map<long long, Eigen::VectorXd> followedPoses(const nlohmann::json& summary, const std::string& robot_id);
+
+// The launcher's own participant: the cell's application (TargetPoses at --targets-hz, and a servo setpoint with each
+// with --servo) and its judge (scores every calibration and compensated target it receives against the simulator's
+// truth; cell_judge.cpp).
+class CellJudge {
+ public:
+  CellJudge(const CellConfig& cell, const CellArgs& a);
+  ~CellJudge();
+  // --duration-s counts from the moment the robot program runs (start-up and discovery excluded), so a loaded
+  // machine still sees the whole program; at most 30 s are allowed for start-up.
+  double runningSeconds();
+  void sendTargets();  // one TargetPose per robot: the nominal pose of a random configuration, to be compensated
+  void score();        // scores what arrived since the last call; a line per calibration update unless --quiet
+  void finish();       // leaves the domain (no callback after this) and scores what is left
+  // The summary of the run (processes and their topic counts: mergeProcessStats) and its printed lines.
+  void summarize(nlohmann::json* summary) const;
+  nlohmann::json topicStats() const;
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace cellcal::cli
