@@ -129,33 +129,14 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   // The file's covariance covers every parameter a prediction depends on, those its fit held at their prior width:
   // parameters in the span of others (joint 1's offset and the base yaw) are individually wide and strongly
   // correlated. The engine holds the parameters outside its state at the file's values, so its prior is the
-  // covariance of its state given those: P_ee - P_eh P_hh^+ P_he (Gaussian conditioning).
-  std::vector<int> e_rows, e_cols, h_cols;
+  // covariance of its state given those (Gaussian conditioning); entries the file does not cover keep their prior.
+  std::vector<int> e_rows, e_cols;
   for (Eigen::Index k = 0; k < n; ++k)
     if (col[static_cast<size_t>(k)] >= 0) {
       e_rows.push_back(static_cast<int>(k));
       e_cols.push_back(col[static_cast<size_t>(k)]);
     }
-  for (int j = 0; j < static_cast<int>(cal.columns.size()); ++j)
-    if (std::find(e_cols.begin(), e_cols.end(), j) == e_cols.end()) h_cols.push_back(j);
-  auto block = [&](const std::vector<int>& r, const std::vector<int>& c) {
-    Eigen::MatrixXd b(r.size(), c.size());
-    for (size_t i = 0; i < r.size(); ++i)
-      for (size_t j = 0; j < c.size(); ++j) b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = cal.covariance(r[i], c[j]);
-    return b;
-  };
-  Eigen::MatrixXd Pee = block(e_cols, e_cols);
-  if (!h_cols.empty()) {
-    const Eigen::MatrixXd Peh = block(e_cols, h_cols);
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(block(h_cols, h_cols));
-    const Eigen::VectorXd ev = eig.eigenvalues();
-    Eigen::VectorXd inv = Eigen::VectorXd::Zero(ev.size());
-    for (Eigen::Index i = 0; i < ev.size(); ++i)
-      if (ev[i] > 1e-12 * ev.maxCoeff()) inv[i] = 1.0 / ev[i];
-    const Eigen::MatrixXd W = Peh * eig.eigenvectors();
-    Pee -= W * inv.asDiagonal() * W.transpose();
-    Pee = 0.5 * (Pee + Pee.transpose());
-  }
+  const Eigen::MatrixXd Pee = conditionalGaussianCovariance(cal.covariance, e_cols);
   Eigen::MatrixXd P = prior_sd.array().square().matrix().asDiagonal();
   for (size_t a = 0; a < e_rows.size(); ++a)
     for (size_t b = 0; b < e_rows.size(); ++b)

@@ -283,7 +283,7 @@ std::string IdentifiabilityReport::summary(const RobotModel& model) const {
   s << rank << " of " << num_candidates << " parameters identifiable, condition number " << condition_number << "\n";
   for (const auto& d : dropped) {
     s << "  fixed " << model.paramName(d.index);
-    if (d.below_prior && d.data_sigma_si >= d.prior_sigma_si) {
+    if (d.below_prior && d.prior_sigma_si > 0 && d.data_sigma_si >= d.prior_sigma_si) {
       s << " (the data pin it to +-" << d.data_sigma_si << ", no better than its plausible +-" << d.prior_sigma_si << ")";
     } else if (d.below_prior) {
       s << " (fitted with the others, they would pin some of them no better than their plausible range)";

@@ -1,5 +1,6 @@
 #include "cellcal/core/identification/statistics.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -84,6 +85,36 @@ double fSurvival(double f, double d1, double d2) {
   if (!(d1 > 0 && d2 > 0)) throw std::invalid_argument("fSurvival: degrees of freedom must be > 0");
   if (!(f > 0)) return 1.0;
   return regularizedIncompleteBeta(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f));
+}
+
+Eigen::MatrixXd conditionalGaussianCovariance(const Eigen::MatrixXd& P, const std::vector<int>& kept) {
+  const auto n = P.rows();
+  std::vector<bool> is_kept(static_cast<size_t>(n), false);
+  for (int k : kept) {
+    if (k < 0 || k >= n || is_kept[static_cast<size_t>(k)])
+      throw std::invalid_argument("conditionalGaussianCovariance: entry " + std::to_string(k) + " repeated or outside");
+    is_kept[static_cast<size_t>(k)] = true;
+  }
+  std::vector<int> held;
+  for (int j = 0; j < n; ++j)
+    if (!is_kept[static_cast<size_t>(j)]) held.push_back(j);
+  auto block = [&](const std::vector<int>& r, const std::vector<int>& c) {
+    Eigen::MatrixXd b(r.size(), c.size());
+    for (size_t i = 0; i < r.size(); ++i)
+      for (size_t j = 0; j < c.size(); ++j) b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = P(r[i], c[j]);
+    return b;
+  };
+  Eigen::MatrixXd Pkk = block(kept, kept);
+  if (held.empty()) return Pkk;
+  const Eigen::MatrixXd Pkh = block(kept, held);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(block(held, held));
+  const Eigen::VectorXd ev = eig.eigenvalues();
+  Eigen::VectorXd inv = Eigen::VectorXd::Zero(ev.size());
+  for (Eigen::Index i = 0; i < ev.size(); ++i)
+    if (ev[i] > 1e-12 * ev.maxCoeff()) inv[i] = 1.0 / ev[i];
+  const Eigen::MatrixXd W = Pkh * eig.eigenvectors();
+  Pkk -= W * inv.asDiagonal() * W.transpose();
+  return 0.5 * (Pkk + Pkk.transpose());
 }
 
 }  // namespace cellcal

@@ -4,6 +4,8 @@
 #include <random>
 
 #include "cellcal/core/identification/identifiability.hpp"
+#include "cellcal/core/identification/statistics.hpp"
+#include <numeric>
 #include <Eigen/QR>
 
 #include "cellcal/core/identification/calibration.hpp"
@@ -184,7 +186,7 @@ TEST_P(Identifiability, PriorOverEstimatedMapsAndConditions) {
 TEST_P(Identifiability, PlausibleRangesHoldWhatTheRowsPinNoBetter) {
   std::mt19937_64 rng(test::testSeed());
   std::uniform_real_distribution<double> u(0, 1);
-  int held_by_range = 0;
+  int held_by_range = 0, unranged_held = 0;  // the second: frames held for loosening a ranged kept one
   for (int trial = 0; trial < 6; ++trial) {
     SimulationConfig sc = test::randomPlacement(rng);
     const double off = (0.05 + 0.25 * u(rng)) * 1e-3, dir = 2 * kPi * u(rng);
@@ -245,9 +247,14 @@ TEST_P(Identifiability, PlausibleRangesHoldWhatTheRowsPinNoBetter) {
       }
       before.push_back(c);
     }
+    // A column without a range that rank alone keeps stays, unless fitted with the kept ones it would loosen one of
+    // them beyond its range (a dropped column below_prior: checked above to be so).
     for (int c : rank_only.identifiable)
-      if (!(o.prior_sigma[c] > 0)) {
-        EXPECT_TRUE(contains(rep.identifiable, c)) << m.paramName(c) << "\n" << rep.summary(m);
+      if (!(o.prior_sigma[c] > 0) && !contains(rep.identifiable, c)) {
+        const auto d = std::find_if(rep.dropped.begin(), rep.dropped.end(), [&](const auto& x) { return x.index == c; });
+        ASSERT_NE(d, rep.dropped.end()) << m.paramName(c);
+        EXPECT_TRUE(d->below_prior) << m.paramName(c) << "\n" << rep.summary(m);
+        ++unranged_held;
       }
     o.noise_scale = 1e-9;
     EXPECT_EQ(analyzeIdentifiability(m, J, o).identifiable, rank_only.identifiable);
@@ -255,6 +262,8 @@ TEST_P(Identifiability, PlausibleRangesHoldWhatTheRowsPinNoBetter) {
     for (int c : analyzeIdentifiability(m, J, o).identifiable) EXPECT_EQ(o.prior_sigma[c], 0) << m.paramName(c);
   }
   EXPECT_GT(held_by_range, 0) << "no draw held a parameter for its range: the check above checked nothing";
+  std::printf("held for their range: %d; of them columns without a range that would loosen a kept one: %d\n",
+              held_by_range, unranged_held);
 }
 
 TEST(IdentifiabilityOptions, RejectsBadTolerance) {
@@ -266,6 +275,58 @@ TEST(IdentifiabilityOptions, RejectsBadTolerance) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Robots, Identifiability, ::testing::Values("staubli_tx60", "ur10"));
+
+}  // namespace
+}  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+// Gaussian conditioning (statistics.hpp), as the engine's start from a calibrated robot file uses it: against the
+// inverse of the precision's block (a full-rank held block), and against a pseudo-inverse by complete orthogonal
+// decomposition where the held entries are only pinned in sum.
+TEST(GaussianConditioning, TheKeptEntriesGivenTheHeldOnesMatchAPlainReference) {
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g;
+  for (int draw = 0; draw < 20; ++draw) {
+    const int n = 4 + static_cast<int>(rng() % 12);
+    Eigen::MatrixXd A(n, n + 3);
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n + 3; ++j) A(i, j) = g(rng) * std::pow(10.0, -(i % 3));  // entries of mixed units
+    Eigen::MatrixXd P = A * A.transpose();
+    std::vector<int> order(static_cast<size_t>(n));
+    std::iota(order.begin(), order.end(), 0);
+    std::shuffle(order.begin(), order.end(), rng);
+    const std::vector<int> kept(order.begin(), order.begin() + 1 + static_cast<long>(rng() % (n - 1)));
+    const std::vector<int> held(order.begin() + static_cast<long>(kept.size()), order.end());
+    const bool singular = draw % 2 == 1 && held.size() >= 2;
+    if (singular) {  // the first two held entries the same: only their sum is pinned
+      P.row(held[1]) = P.row(held[0]);
+      P.col(held[1]) = P.col(held[0]);
+    }
+    auto block = [&](const Eigen::MatrixXd& M, const std::vector<int>& r, const std::vector<int>& c) {
+      Eigen::MatrixXd m(r.size(), c.size());
+      for (size_t i = 0; i < r.size(); ++i)
+        for (size_t j = 0; j < c.size(); ++j) m(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = M(r[i], c[j]);
+      return m;
+    };
+    // Full rank: the inverse of the precision's kept block. Singular: the formula with a pseudo-inverse of its own.
+    const Eigen::MatrixXd want =
+        singular ? Eigen::MatrixXd(block(P, kept, kept) - block(P, kept, held) *
+                                                              block(P, held, held).completeOrthogonalDecomposition().pseudoInverse() *
+                                                              block(P, held, kept))
+                 : Eigen::MatrixXd(block(P.inverse(), kept, kept).inverse());
+    const Eigen::MatrixXd got = conditionalGaussianCovariance(P, kept);
+    ASSERT_EQ(got.rows(), static_cast<Eigen::Index>(kept.size()));
+    const Eigen::VectorXd sd = want.diagonal().cwiseSqrt();
+    const Eigen::MatrixXd err = (got - want).cwiseQuotient(sd * sd.transpose());
+    EXPECT_LT(err.cwiseAbs().maxCoeff(), 1e-6) << "n " << n << ", kept " << kept.size()
+                                               << (singular ? ", singular held block" : "");
+    EXPECT_EQ((got - got.transpose()).cwiseAbs().maxCoeff(), 0.0);
+  }
+  EXPECT_THROW(conditionalGaussianCovariance(Eigen::MatrixXd::Identity(3, 3), {0, 0}), std::invalid_argument);
+  EXPECT_THROW(conditionalGaussianCovariance(Eigen::MatrixXd::Identity(3, 3), {3}), std::invalid_argument);
+}
 
 }  // namespace
 }  // namespace cellcal

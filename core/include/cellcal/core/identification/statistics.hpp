@@ -3,6 +3,7 @@
 // distribution's tail (whether a regression explains more of a residual than noise would).
 #pragma once
 
+#include <Eigen/Core>
 #include <vector>
 
 namespace cellcal {
@@ -20,5 +21,11 @@ double fSurvival(double f, double d1, double d2);
 // The sample at rank floor(p n) (clamped to the last) of v: p = 0.5 the median, 0.99 the 99th percentile. NaN when
 // v is empty.
 double percentile(std::vector<double> v, double p);
+
+// Gaussian conditioning: the covariance of the entries `kept` of a Gaussian with covariance P (symmetric, positive
+// semi-definite) given the other entries at known values: P_kk - P_kh P_hh^+ P_hk, in the order of `kept`, symmetric.
+// The pseudo-inverse drops P_hh's eigenvalues below 1e-12 of its largest (held entries only their sum is pinned of).
+// Throws std::invalid_argument when `kept` repeats an entry or leaves P.
+Eigen::MatrixXd conditionalGaussianCovariance(const Eigen::MatrixXd& P, const std::vector<int>& kept);
 
 }  // namespace cellcal
