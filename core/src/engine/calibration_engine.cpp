@@ -53,7 +53,8 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
       settings_(&settings),
       time_compression_(time_compression),
       pairing_(robot.model, pairingOptions(robot, settings)),
-      play_(robot.model.numJoints(), settings.settle_tolerance_rad) {
+      play_(robot.model.numJoints(), settings.settle_tolerance_rad),
+      gate_(settings.outlier_gate_nis_per_row, kRecentWindow) {
   for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || e.cause == Cause::kBacklash;
   const RobotModel& m = robot.model;
   DriftModel drift;
@@ -255,7 +256,7 @@ bool CalibrationEngine::refuseCalibrationFile(double gate) {
   file_date_ns_ = 0;
   last_good_.reset();
   recent_.clear();
-  gate_window_.clear();
+  gate_.clear();
   consecutive_outliers_ = 0;
   gated_q_.resize(0);
   used_q_.resize(0);
@@ -421,36 +422,19 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   const bool extended = !rls_->extensions().empty();
   bool changed = false;
   const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
-  if (settings_->outlier_gate_nis_per_row > 0) {
+  if (gate_.enabled()) {
     // After a silence longer than the drift model's period (a tracker link down for hours of cell time), the gate's
     // window describes the robot as it was: its innovations are judged afresh (once per silence), so a robot that
     // drifted further than the model allows is followed after a few poses (and the drift alarm says so) instead of
     // every pose after the silence being gated against the old window.
-    if (snap_.last_update_stamp_ns > 0 && gate_cleared_after_ns_ != snap_.last_update_stamp_ns &&
-        (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0 > settings_->drift_per_h) {
-      gate_window_.clear();
-      gate_cleared_after_ns_ = snap_.last_update_stamp_ns;
-    }
+    if (snap_.last_update_stamp_ns > 0 &&
+        (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0 > settings_->drift_per_h)
+      gate_.clearOnceAfter(snap_.last_update_stamp_ns);
     const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
     const int rows = p.observation.rows();
-    // A noise model that is too optimistic for this cell (every pose's NIS high) must not gate good poses: the gate
-    // scales with the recent median NIS per row when that is above 1. A gross error (a bumped target, a beam
-    // break caught mid-reading) is hundreds of sigmas and stays far outside.
-    // The median is over every new stand-still, gated or not: when most poses look like outliers the model (or the
-    // station) changed, the gate opens within half a window, and the drift alarm says so, instead of the engine
-    // freezing on an estimate that no longer fits.
-    double scale = 1;
-    if (gate_window_.size() >= 5) {
-      std::vector<double> v(gate_window_.begin(), gate_window_.end());
-      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-      scale = std::max(1.0, v[v.size() / 2]);
-    }
-    const double gate = settings_->outlier_gate_nis_per_row * rows * scale;
+    const double gate = gate_.gate(rows);  // scaled by the recent median NIS per row (outlier_gate.hpp)
     const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
-    if (new_stand_still && std::isfinite(nis)) {
-      gate_window_.push_back(nis / rows);
-      while (gate_window_.size() > kRecentWindow) gate_window_.pop_front();
-    }
+    if (new_stand_still && std::isfinite(nis)) gate_.record(nis / rows);
     if (!(nis <= gate)) {
       std::ostringstream m;
       m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
@@ -705,7 +689,7 @@ EngineState CalibrationEngine::exportState() const {
   s.extension_params = rls_->extensionParams();
   s.estimated_extension = rls_->estimatedExtension();
   s.consecutive_outliers = consecutive_outliers_;
-  s.gate_window.assign(gate_window_.begin(), gate_window_.end());
+  s.gate_window.assign(gate_.window().begin(), gate_.window().end());
   if (last_good_ && snap_.health != Health::kOk)
     s.last_good = EngineState::Good{last_good_->version, last_good_->params, last_good_->extension_params,
                                     last_good_->estimated, last_good_->covariance};
@@ -804,7 +788,7 @@ void CalibrationEngine::importState(const EngineState& s) {
   batch_.clear();
   for (const auto& b : s.pending_batch) batch_.push_back({b.reading, b.drivers ? *b.drivers : Drivers{}});
   consecutive_outliers_ = s.consecutive_outliers;
-  gate_window_.assign(s.gate_window.begin(), s.gate_window.end());
+  gate_.assign(s.gate_window.begin(), s.gate_window.end());
   last_good_ = std::move(good);
   publishEstimate();
   pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);

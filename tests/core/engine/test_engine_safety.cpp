@@ -316,5 +316,40 @@ TEST_F(SafetyFixture, ASlowlyBiasedTrackerDegradesHealth) {
               creep_m_per_pose * 1e3, first_alarm, first_degraded, largest_nis);
 }
 
+// The gate alone (outlier_gate.hpp) against its rule computed plainly: the median NIS per row of the last `window`
+// new stand-stills, once at least 5, scales the gate when above 1; a silence clears the window once per update.
+TEST(OutlierGate, TheGateIsTheRuleItsHeaderStates) {
+  std::mt19937_64 rng(test::testSeed());
+  std::lognormal_distribution<double> nis(0.0, 1.5);
+  for (int draw = 0; draw < 20; ++draw) {
+    const double per_row = 5 + 95 * std::uniform_real_distribution<double>(0, 1)(rng);
+    const std::size_t window = 5 + rng() % 40;
+    OutlierGate gate(per_row, window);
+    std::vector<double> all;
+    for (int k = 0; k < 120; ++k) {
+      const int rows = rng() % 2 ? 3 : 6;
+      std::vector<double> last(all.end() - static_cast<long>(std::min(all.size(), window)), all.end());
+      double scale = 1;
+      if (last.size() >= 5) {
+        std::sort(last.begin(), last.end());
+        scale = std::max(1.0, last[last.size() / 2]);
+      }
+      EXPECT_DOUBLE_EQ(gate.gate(rows), per_row * rows * scale) << "stand-still " << k;
+      const double x = nis(rng);
+      gate.record(x);
+      all.push_back(x);
+      EXPECT_EQ(gate.window().size(), std::min(all.size(), window));
+    }
+    gate.clearOnceAfter(42);
+    EXPECT_TRUE(gate.window().empty());
+    gate.record(7.0);
+    gate.clearOnceAfter(42);  // the same silence: not again
+    EXPECT_EQ(gate.window().size(), 1u);
+    gate.clearOnceAfter(43);
+    EXPECT_TRUE(gate.window().empty());
+  }
+  EXPECT_FALSE(OutlierGate(0, 10).enabled());
+}
+
 }  // namespace
 }  // namespace cellcal

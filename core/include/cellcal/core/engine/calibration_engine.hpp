@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/engine_state.hpp"
+#include "cellcal/core/engine/outlier_gate.hpp"
 #include "cellcal/core/engine/pairing.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/identification/rls.hpp"
@@ -219,8 +220,7 @@ class CalibrationEngine {
   };
   std::optional<Good> last_good_;
   int consecutive_outliers_ = 0;
-  std::deque<double> gate_window_;  // NIS per row of the recent new stand-stills, gated or not
-  std::int64_t gate_cleared_after_ns_ = 0;  // the update after which a silence cleared gate_window_
+  OutlierGate gate_;  // NIS per row of the recent new stand-stills (outlier_gate.hpp)
   Eigen::VectorXd gated_q_;
   std::int64_t gated_joint_stamp_ns_ = 0;
   std::vector<Eigen::VectorXd> reference_q_;
