@@ -128,11 +128,9 @@ int runCalibrate(const CalibrateArgs& a) {
   if (!a.save_robot.empty()) {
     const CampaignInput& in = several ? p.setups.back() : p.setups.front();
     std::string comment;
-    if (several) {
-      std::string all;
-      for (const auto& s : p.setups) all += (all.empty() ? "" : ", ") + s.name;
+    if (several) {  // the set-ups as the provenance names them (provenanceOf)
       comment = "Calibrated " + robot.name + ": written by `cellcal calibrate` from " + std::to_string(p.setups.size()) +
-                " set-ups (" + all + "); base and tool frames of " + in.name;
+                " set-ups (" + r.calibration.provenanceValue("data_files") + "); base and tool frames of " + in.name;
     } else {
       comment = "Calibrated " + robot.name + ": written by `cellcal calibrate" + (a.frames_only ? " --frames-only" : "") +
                 "` from " + a.input.data + " (docs/robot-file.md, calibrated robot files)";

@@ -1,6 +1,7 @@
 #include "cellcal/components/dds_node.hpp"
 
 #include "cellcal/components/dds_security.hpp"
+#include "cellcal/components/process_stats.hpp"
 #include "cellcal/components/host_limits.hpp"
 
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
@@ -190,7 +191,7 @@ std::shared_ptr<TopicCounters> DdsNode::counters(const std::string& topic) {
 nlohmann::json DdsNode::stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   nlohmann::json j = nlohmann::json::object();
-  for (const auto& [name, c] : counters_) j[name] = {{"published", c->published.load()}, {"received", c->received.load()}};
+  for (const auto& [name, c] : counters_) j[name] = {{stats::kPublished, c->published.load()}, {stats::kReceived, c->received.load()}};
   return j;
 }
 

@@ -98,16 +98,10 @@ Eigen::MatrixXd conditionalGaussianCovariance(const Eigen::MatrixXd& P, const st
   std::vector<int> held;
   for (int j = 0; j < n; ++j)
     if (!is_kept[static_cast<size_t>(j)]) held.push_back(j);
-  auto block = [&](const std::vector<int>& r, const std::vector<int>& c) {
-    Eigen::MatrixXd b(r.size(), c.size());
-    for (size_t i = 0; i < r.size(); ++i)
-      for (size_t j = 0; j < c.size(); ++j) b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = P(r[i], c[j]);
-    return b;
-  };
-  Eigen::MatrixXd Pkk = block(kept, kept);
+  Eigen::MatrixXd Pkk = P(kept, kept);
   if (held.empty()) return Pkk;
-  const Eigen::MatrixXd Pkh = block(kept, held);
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(block(held, held));
+  const Eigen::MatrixXd Pkh = P(kept, held);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(P(held, held));
   const Eigen::VectorXd ev = eig.eigenvalues();
   Eigen::VectorXd inv = Eigen::VectorXd::Zero(ev.size());
   for (Eigen::Index i = 0; i < ev.size(); ++i)
