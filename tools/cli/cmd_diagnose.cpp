@@ -266,7 +266,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   std::vector<std::string> cell_extensions;
   bool thermal = false;
   for (const auto& e : d.unusable.empty() ? d.causes() : std::vector<Extension>{}) {
-    if (e.cause == Cause::kThermalDrift) thermal = true;
+    if (followsThermalDriver(e.cause)) thermal = true;
     else cell_extensions.push_back(extensionSpec(e));
   }
   if (!cell_extensions.empty()) {

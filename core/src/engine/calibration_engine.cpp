@@ -55,7 +55,7 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
       pairing_(robot.model, pairingOptions(robot, settings)),
       play_(robot.model.numJoints(), settings.settle_tolerance_rad),
       gate_(settings.outlier_gate_nis_per_row, kRecentWindow) {
-  for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || e.cause == Cause::kBacklash;
+  for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || followsPath(e.cause);
   const RobotModel& m = robot.model;
   DriftModel drift;
   drift.joint_offset_rad = settings.drift_joint_offset_rad;

@@ -260,9 +260,9 @@ CellConfig parseCellConfig(const std::string& yaml_text, const std::string& sour
       for (size_t k = 0; k < x.size(); ++k) {
         const std::string fk = fx + "[" + std::to_string(k) + "]";
         const std::string item = r.string(x[k], fk);
-        if (item.rfind("thermal_drift", 0) == 0)
-          r.fail(x[k], fk, "thermal_drift needs a temperature, which the cell's topics do not carry (the engine's "
-                           "drift model follows warm-up; engine.drift sets how fast)");
+        if (const auto cause = causeFromName(item.substr(0, item.find(':'))); cause && followsThermalDriver(*cause))
+          r.fail(x[k], fk, std::string(causeName(*cause)) + " needs a temperature, which the cell's topics do not carry "
+                           "(the engine's drift model follows warm-up; engine.drift sets how fast)");
         try {
           const Extension ext = parseExtension(item, rb.model, false);
           for (const auto& o : rb.extensions)

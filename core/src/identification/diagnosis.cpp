@@ -1,6 +1,7 @@
 #include "cellcal/core/identification/diagnosis.hpp"
 
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/model/cause.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
@@ -218,7 +219,7 @@ double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, con
   Eigen::MatrixXd J(6, model.numParams());
   for (size_t e = 0, c = 0; e < fit.extensions.size(); c += static_cast<size_t>(numExtensionParams(model, fit.extensions[e])), ++e) {
     const Extension& x = fit.extensions[e];
-    if (x.cause != Cause::kBacklash || playStateUnknown({x}, d) == false) continue;
+    if (!followsPath(x.cause) || playStateUnknown({x}, d) == false) continue;
     forwardKinematics(model, data, fit.params, obs.q_rad);
     computePoseJacobian(model, data, J);
     allowance += 0.5 * std::abs(fit.extension_params[static_cast<Eigen::Index>(c)]) *
@@ -268,25 +269,7 @@ OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, con
 }  // namespace
 
 std::string extensionLabel(const Extension& e) {
-  std::string s = causeName(e.cause);
-  if (e.cause == Cause::kLinkDeflection) return s + " link " + std::to_string(e.joint + 1);
-  if (followsThermalDriver(e.cause)) {
-    if (e.cause == Cause::kFrameDrift)
-      s += " (base)";
-    else
-      s += e.joint < 0 ? " (lengths)" : " joint " + std::to_string(e.joint + 1);
-    if (e.time_constant_h > 0) {
-      char b[64];
-      if (std::isfinite(e.time_constant_h))
-        std::snprintf(b, sizeof b, ", warm-up %.2g h", e.time_constant_h);
-      else
-        std::snprintf(b, sizeof b, ", linear in time");
-      s += b;
-    }
-    return s;
-  }
-  if (e.joint >= 0) s += " joint " + std::to_string(e.joint + 1);
-  return s;
+  return e.cause == Cause::kNone ? causeName(e.cause) : causeModel(e.cause).label(e);
 }
 
 std::string modelLabel(const std::vector<Extension>& exts) {
@@ -800,7 +783,7 @@ int chooseCandidate(const CandidateResult& base, const std::vector<CandidateResu
 bool conflicts(const Extension& e, const std::vector<Extension>& chosen) {
   for (const auto& c : chosen) {
     if (c.cause == e.cause && c.joint == e.joint) return true;
-    if (c.cause == Cause::kThermalDrift && e.cause == Cause::kThermalDrift) return true;  // they share the lengths
+    if (e.cause != Cause::kNone && causeModel(e.cause).conflicts(e, c)) return true;
   }
   return false;
 }
@@ -1024,7 +1007,7 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
                                 const DiagnosisOptions& options, std::chrono::steady_clock::time_point t0) {
   std::vector<Extension> to_try;
   for (Cause cause : options.causes)
-    for (int j = cause == Cause::kThermalDrift ? -1 : 0; j < model.numJoints(); ++j)
+    for (int j = causeModel(cause).subject() == CauseModel::Subject::kJointOrLengths ? -1 : 0; j < model.numJoints(); ++j)
       if (applicable(model, Extension{cause, j}, data.has_thermal)) to_try.push_back(Extension{cause, j});
   int fits_done = 0;
   const int fits_total = 2 + static_cast<int>(to_try.size()) * options.max_causes;
@@ -1321,35 +1304,13 @@ CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geomet
                               const std::string& thermal_source) {
   const Extension ext = extended.extension();
   if (ext.cause == Cause::kNone) throw std::invalid_argument("causeSignature: the extended fit has no cause");
+  const CauseModel& cause = causeModel(ext.cause);
+  if (!cause.diagnosed())
+    throw std::invalid_argument(std::string("causeSignature: ") + cause.name() + " is not a cause diagnose names");
   CauseSignature sig;
   const int j = ext.joint;
-  const std::string jn = std::to_string(j + 1);
-  const std::string thermal = thermal_source == "temperature_c" ? "temperature - mean (K)" : "time since first row (h)";
-  switch (ext.cause) {
-    case Cause::kJointCompliance:
-      sig.x_label = model.links.empty() ? "gravity torque of 1 kg at the target on joint " + jn + " (N m/kg)"
-                                        : "gravity torque on joint " + jn + " (N m)";
-      break;
-    case Cause::kThermalDrift:
-      sig.x_label = thermal;
-      break;
-    case Cause::kCyclicTransmission:
-    case Cause::kJointScale:
-      sig.x_label = "q" + jn + " (deg)";
-      break;
-    case Cause::kBacklash:
-      sig.x_label = "direction joint " + jn + " last moved (-1 / +1)";
-      break;
-    case Cause::kLinkDeflection:
-      sig.x_label = "gravity across link " + jn + " (g)";
-      break;
-    case Cause::kFrameDrift:
-      throw std::invalid_argument("causeSignature: frame_drift is not a cause diagnose names");
-    case Cause::kNone:
-      break;
-  }
-  sig.y_label = j >= 0 ? "apparent joint " + jn + " error (deg)" : "apparent growth of the lengths (um/m)";
-  if (ext.cause == Cause::kLinkDeflection) sig.y_label = "position error along the gravity across link " + jn + " (mm)";
+  sig.x_label = cause.signatureXLabel(model, j, thermal_source);
+  sig.y_label = cause.signatureYLabel(j);
   const std::vector<Eigen::Vector3d> before = positionResiduals(model, geometric, obs, drivers);
   const std::vector<Eigen::Vector3d> after = positionResiduals(model, extended, obs, drivers);
   KinematicsData data(model);
@@ -1357,59 +1318,18 @@ CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geomet
   for (size_t i = 0; i < obs.size(); ++i) {
     forwardKinematics(model, data, geometric.params, obs[i].q_rad);
     computePoseJacobian(model, data, J);
-    Eigen::Vector3d d;
-    double scale;
-    if (j >= 0) {
-      d = ext.cause == Cause::kLinkDeflection ? Eigen::Vector3d::UnitX()
-                                              : Eigen::Vector3d(J.block<3, 1>(0, model.jointParam(j, JointParam::kThetaOffset)));
-      scale = 180.0 / kPi;
+    const SignatureRow row{model, geometric.params, obs[i].q_rad, drivers[i], j, i, J};
+    const SignatureAxis axis = cause.signatureAxis(row);
+    const Eigen::Vector3d& d = axis.direction;
+    if (axis.unit) {
+      sig.y_before.push_back(d.dot(before[i]) * axis.scale);
+      sig.y_after.push_back(d.dot(after[i]) * axis.scale);
     } else {
-      d.setZero();
-      for (int k = 0; k < model.numJoints(); ++k)
-        for (JointParam p : {JointParam::kA, JointParam::kD}) {
-          const int idx = model.jointParam(k, p);
-          d += J.block<3, 1>(0, idx) * geometric.params[idx];
-        }
-      scale = 1e6;
+      const double dd = std::max(d.squaredNorm(), 1e-30);
+      sig.y_before.push_back(d.dot(before[i]) / dd * axis.scale);
+      sig.y_after.push_back(d.dot(after[i]) / dd * axis.scale);
     }
-    double x = 0;
-    if (ext.cause == Cause::kLinkDeflection) {
-      const std::vector<Pose> F = chainFrames(model, geometric.params, obs[i].q_rad);
-      const Eigen::Vector3d u = (F[j + 1].translation() - F[j].translation()).normalized();
-      const Eigen::Vector3d g = (F[0].linear() * model.gravity_in_base_mps2).normalized();
-      const Eigen::Vector3d across = g - g.dot(u) * u;
-      x = across.norm();
-      const Eigen::Vector3d dir = across / std::max(x, 1e-12);
-      sig.x.push_back(x);
-      sig.y_before.push_back(dir.dot(before[i]) * 1e3);
-      sig.y_after.push_back(dir.dot(after[i]) * 1e3);
-      continue;
-    }
-    const double dd = std::max(d.squaredNorm(), 1e-30);
-    sig.y_before.push_back(d.dot(before[i]) / dd * scale);
-    sig.y_after.push_back(d.dot(after[i]) / dd * scale);
-    switch (ext.cause) {
-      case Cause::kJointCompliance:
-        x = complianceDriver(model, geometric.params, obs[i].q_rad, j);
-        break;
-      case Cause::kThermalDrift:
-        x = drivers[i].thermal;
-        break;
-      case Cause::kCyclicTransmission:
-      case Cause::kJointScale:
-        x = obs[i].q_rad[j] * 180.0 / kPi;
-        break;
-      case Cause::kBacklash: {
-        const double spread = std::fmod(0.6180339887 * static_cast<double>(i), 1.0) - 0.5;
-        x = (drivers[i].motion_direction.size() > j ? drivers[i].motion_direction[j] : 0.0) + 0.3 * spread;
-        break;
-      }
-      case Cause::kLinkDeflection:  // above
-      case Cause::kFrameDrift:
-      case Cause::kNone:
-        break;
-    }
-    sig.x.push_back(x);
+    sig.x.push_back(cause.signatureX(row));
   }
   return sig;
 }

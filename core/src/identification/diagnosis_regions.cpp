@@ -8,6 +8,7 @@
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/cause.hpp"
 
 namespace cellcal {
 
@@ -34,17 +35,8 @@ std::vector<bool> regionSplit(const std::vector<Observation>& obs) {
 }
 
 std::string regionSplitName(const Extension& cause) {
-  switch (cause.cause) {
-    case Cause::kCyclicTransmission:
-    case Cause::kJointScale:
-    case Cause::kBacklash:
-    case Cause::kJointCompliance:
-      if (cause.joint >= 0) return "q" + std::to_string(cause.joint + 1);
-      break;
-    default:
-      break;
-  }
-  return "workspace";
+  const int j = cause.cause == Cause::kNone ? -1 : causeModel(cause.cause).regionJoint(cause);
+  return j >= 0 ? "q" + std::to_string(j + 1) : "workspace";
 }
 
 std::vector<internal::Fold> internal::regionFolds(const std::vector<Observation>& obs, const Extension& cause,

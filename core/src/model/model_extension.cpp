@@ -6,66 +6,45 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "causes/cause_support.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
 
 namespace {
-
-struct CauseInfo {
-  Cause cause;
-  const char* name;
-};
-constexpr CauseInfo kCauses[] = {{Cause::kNone, "none"},
-                                  {Cause::kJointCompliance, "joint_compliance"},
-                                  {Cause::kThermalDrift, "thermal_drift"},
-                                  {Cause::kCyclicTransmission, "cyclic_transmission"},
-                                  {Cause::kJointScale, "joint_scale"},
-                                  {Cause::kBacklash, "backlash"},
-                                  {Cause::kLinkDeflection, "link_deflection"},
-                                  {Cause::kFrameDrift, "frame_drift"}};
-
-constexpr double kStillRad = 1e-4;        // a joint that moved less than this keeps its last direction
-constexpr double kMinBeamLengthM = 0.2;   // links shorter than this are not treated as beams
-
-Eigen::Vector3d gravityInTracker(const RobotModel& model, const std::vector<Pose>& F) {
-  return F[0].linear() * model.gravity_in_base_mps2;
-}
-
-// Torque about joint j's axis of a unit mass at point c (tracker frame), N m per kg.
-double unitTorque(const std::vector<Pose>& F, int j, const Eigen::Vector3d& c, const Eigen::Vector3d& g) {
-  const Eigen::Vector3d z = F[j].linear().col(2), o = F[j].translation();
-  return z.dot((c - o).cross(g));
-}
-
-bool loadedByGravity(const RobotModel& model, int j) {
-  if (j > 0) return true;
-  const std::vector<Pose> F = chainFrames(model, model.nominal, Eigen::VectorXd::Zero(model.numJoints()));
-  const Eigen::Vector3d z = F[0].linear().col(2), g = gravityInTracker(model, F);
-  return z.cross(g).norm() > 1e-6 * g.norm();
-}
-
+constexpr double kStillRad = 1e-4;  // a joint that moved less than this keeps its last direction
 }  // namespace
 
-const char* causeName(Cause c) {
-  for (const auto& i : kCauses)
-    if (i.cause == c) return i.name;
-  return "?";
-}
+const char* causeName(Cause c) { return c == Cause::kNone ? "none" : causeModel(c).name(); }
 
 std::optional<Cause> causeFromName(const std::string& name) {
-  for (const auto& i : kCauses)
-    if (name == i.name) return i.cause;
+  if (name == "none") return Cause::kNone;
+  for (const CauseModel* c : causeModels())
+    if (name == c->name()) return c->id();
   return std::nullopt;
 }
 
 const std::vector<Cause>& extensionCauses() {
-  static const std::vector<Cause> c = {Cause::kJointCompliance, Cause::kThermalDrift, Cause::kCyclicTransmission,
-                                       Cause::kJointScale, Cause::kBacklash, Cause::kLinkDeflection};
-  return c;
+  static const std::vector<Cause> diagnosed = [] {
+    std::vector<Cause> out;
+    for (const CauseModel* c : causeModels())
+      if (c->diagnosed()) out.push_back(c->id());
+    return out;
+  }();
+  return diagnosed;
 }
 
-bool followsThermalDriver(Cause c) { return c == Cause::kThermalDrift || c == Cause::kFrameDrift; }
+bool followsThermalDriver(Cause c) {
+  return c != Cause::kNone && causeModel(c).driver() == CauseModel::Driver::kThermal;
+}
+
+bool followsPath(Cause c) { return c != Cause::kNone && causeModel(c).driver() == CauseModel::Driver::kPath; }
+
+double thermalDriverValue(const Extension& ext, const Drivers& drivers) {
+  const double tau = ext.time_constant_h;
+  if (drivers.thermal_is_time && tau > 0 && std::isfinite(tau)) return tau * -std::expm1(-drivers.thermal / tau);
+  return drivers.thermal;
+}
 
 DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
                                 const std::vector<std::optional<double>>& temperature_c,
@@ -113,12 +92,12 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
 }
 
 bool hasBacklash(const std::vector<Extension>& extensions) {
-  return std::any_of(extensions.begin(), extensions.end(), [](const Extension& e) { return e.cause == Cause::kBacklash; });
+  return std::any_of(extensions.begin(), extensions.end(), [](const Extension& e) { return followsPath(e.cause); });
 }
 
 bool playStateUnknown(const std::vector<Extension>& extensions, const Drivers& drivers) {
   for (const auto& e : extensions)
-    if (e.cause == Cause::kBacklash &&
+    if (followsPath(e.cause) &&
         (drivers.motion_direction.size() <= e.joint || drivers.motion_direction[e.joint] == 0.0))
       return true;
   return false;
@@ -162,17 +141,17 @@ Eigen::VectorXd gravityTorques(const RobotModel& model, const Eigen::VectorXd& p
   Eigen::VectorXd tau = Eigen::VectorXd::Zero(n);
   if (model.links.empty()) return tau;
   const std::vector<Pose> F = chainFrames(model, params, q_rad);
-  const Eigen::Vector3d g = gravityInTracker(model, F);
+  const Eigen::Vector3d g = causes::gravityInTracker(model, F);
   for (int j = 0; j < n; ++j)
     for (int i = j + 1; i <= n; ++i)
-      tau[j] += model.links[i - 1].mass_kg * unitTorque(F, j, F[i] * model.links[i - 1].com_m, g);
+      tau[j] += model.links[i - 1].mass_kg * causes::unitTorque(F, j, F[i] * model.links[i - 1].com_m, g);
   return tau;
 }
 
 double complianceDriver(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad, int j) {
   if (!model.links.empty()) return gravityTorques(model, params, q_rad)[j];
   const std::vector<Pose> F = chainFrames(model, params, q_rad);
-  return unitTorque(F, j, F.back().translation(), gravityInTracker(model, F));
+  return causes::unitTorque(F, j, F.back().translation(), causes::gravityInTracker(model, F));
 }
 
 double linkLength(const RobotModel& model, const Eigen::VectorXd& params, int j) {
@@ -181,109 +160,17 @@ double linkLength(const RobotModel& model, const Eigen::VectorXd& params, int j)
   return (F[j + 1].translation() - F[j].translation()).norm();
 }
 
-namespace {
-// Gravity across link j at q, in g: the part of the unit gravity vector perpendicular to the link; and the link's
-// direction and far end, from the chain frames.
-struct LinkLoad {
-  Eigen::Vector3d across, direction, far_end;
-};
-LinkLoad linkLoad(const RobotModel& model, const std::vector<Pose>& F, int j) {
-  LinkLoad l;
-  l.far_end = F[j + 1].translation();
-  l.direction = (l.far_end - F[j].translation()).normalized();
-  const Eigen::Vector3d g = gravityInTracker(model, F).normalized();
-  l.across = g - g.dot(l.direction) * l.direction;
-  return l;
-}
-
-// A link of beam length that gravity can load across: over configurations spread through the limits, the gravity
-// across it reaches 0.3 g.
-bool beamLoadedByGravity(const RobotModel& model, int j) {
-  if (j < 0 || j >= model.numJoints() - 1 || linkLength(model, model.nominal, j) < kMinBeamLengthM) return false;
-  std::mt19937_64 rng(20261128);
-  for (int s = 0; s < 64; ++s) {
-    Eigen::VectorXd q(model.numJoints());
-    for (int k = 0; k < model.numJoints(); ++k)
-      q[k] = std::uniform_real_distribution<double>(std::max(model.limits[k].lower_rad, -kPi),
-                                                    std::min(model.limits[k].upper_rad, kPi))(rng);
-    if (linkLoad(model, chainFrames(model, model.nominal, q), j).across.norm() > 0.3) return true;
-  }
-  return false;
-}
-}  // namespace
-
 bool applicable(const RobotModel& model, const Extension& ext, bool has_thermal) {
-  if (ext.cause == Cause::kThermalDrift && ext.joint == -1) return has_thermal;  // lengths only
-  if (ext.cause == Cause::kFrameDrift) return ext.joint == -1 && has_thermal;
-  if (ext.joint < 0 || ext.joint >= model.numJoints()) return false;
-  switch (ext.cause) {
-    case Cause::kNone:
-      return false;
-    case Cause::kJointCompliance:
-      return loadedByGravity(model, ext.joint) && numExtensionParams(model, ext) > 0;
-    case Cause::kThermalDrift:
-      return has_thermal;
-    case Cause::kLinkDeflection:
-      return beamLoadedByGravity(model, ext.joint);
-    default:
-      return true;
-  }
+  return ext.cause != Cause::kNone && causeModel(ext.cause).applicable(model, ext.joint, has_thermal);
 }
 
 int numExtensionParams(const RobotModel& model, const Extension& ext) {
-  switch (ext.cause) {
-    case Cause::kNone:
-      return 0;
-    case Cause::kJointCompliance:
-      return model.links.empty() ? 4 * (model.numJoints() - ext.joint) : 1;
-    case Cause::kThermalDrift:
-      return ext.joint < 0 ? 1 : 2;
-    case Cause::kCyclicTransmission:
-      return 4;
-    case Cause::kJointScale:
-    case Cause::kBacklash:
-      return 1;
-    case Cause::kLinkDeflection:
-      return 2;
-    case Cause::kFrameDrift:
-      return 6;
-  }
-  return 0;
+  return ext.cause == Cause::kNone ? 0 : causeModel(ext.cause).numParams(model, ext.joint);
 }
 
 std::vector<std::string> extensionParamNames(const RobotModel& model, const Extension& ext) {
-  const std::string j = "joint" + std::to_string(ext.joint + 1) + ".";
-  switch (ext.cause) {
-    case Cause::kNone:
-      return {};
-    case Cause::kJointCompliance: {
-      if (!model.links.empty()) return {j + "compliance_rad_per_Nm"};
-      std::vector<std::string> out;
-      for (int i = ext.joint + 1; i <= model.numJoints(); ++i) {
-        const std::string l = j + "compliance_link" + std::to_string(i);
-        out.push_back(l + "_mass_rad_per_Nm_kg");
-        for (const char* a : {"x", "y", "z"}) out.push_back(l + "_moment_" + a + "_rad_per_Nm_kg_m");
-      }
-      return out;
-    }
-    case Cause::kThermalDrift:
-      if (ext.joint < 0) return {"lengths.expansion_per_unit"};
-      return {"lengths.expansion_per_unit", j + "zero_drift_rad_per_unit"};
-    case Cause::kCyclicTransmission:
-      return {j + "sin1_rad", j + "cos1_rad", j + "sin2_rad", j + "cos2_rad"};
-    case Cause::kJointScale:
-      return {j + "scale_ratio"};
-    case Cause::kBacklash:
-      return {j + "backlash_width_rad"};
-    case Cause::kLinkDeflection: {
-      const std::string l = "link" + std::to_string(ext.joint + 1) + ".";
-      return {l + "sag_m", l + "tip_slope_rad"};
-    }
-    case Cause::kFrameDrift:
-      return {"base.drift_x_m_per_unit",        "base.drift_y_m_per_unit",       "base.drift_z_m_per_unit",
-              "base.drift_roll_rad_per_unit", "base.drift_pitch_rad_per_unit", "base.drift_yaw_rad_per_unit"};
-  }
-  return {};
+  if (ext.cause == Cause::kNone) return {};
+  return causeModel(ext.cause).paramNames(model, ext.joint);
 }
 
 Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
@@ -291,80 +178,7 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
   const int k = numExtensionParams(model, ext);
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(model.numParams(), k);
   if (k == 0) return B;
-  const int j = ext.joint;
-  if (followsThermalDriver(ext.cause)) {
-    double s = drivers.thermal;
-    const double tau = ext.time_constant_h;
-    if (drivers.thermal_is_time && tau > 0 && std::isfinite(tau)) s = tau * -std::expm1(-drivers.thermal / tau);
-    if (ext.cause == Cause::kFrameDrift) {  // each base parameter moves with s
-      for (int p = 0; p < 6; ++p) B(model.baseParam(static_cast<FrameParam>(p)), p) = s;
-      return B;
-    }
-    // thermal_drift. Column 0: every length grows with itself; column 1: joint j's zero.
-    for (int i = 0; i < model.numJoints(); ++i)
-      for (JointParam p : {JointParam::kA, JointParam::kD}) {
-        const int idx = model.jointParam(i, p);
-        B(idx, 0) = s * params[idx];
-      }
-    if (j >= 0) B(model.jointParam(j, JointParam::kThetaOffset), 1) = s;
-    return B;
-  }
-  if (ext.cause == Cause::kLinkDeflection) {
-    // The twist the bending gives the target (translation, rotation; tracker frame), then the minimum-norm parameter
-    // change with that first-order effect: B = J^T (J J^T)^-1 G.
-    const std::vector<Pose> F = chainFrames(model, params, q_rad);
-    const LinkLoad l = linkLoad(model, F, j);
-    const Eigen::Vector3d target = F.back().translation();
-    Eigen::Matrix<double, 6, 2> G;
-    const Eigen::Vector3d w = l.direction.cross(l.across);
-    G.col(0) << l.across, Eigen::Vector3d::Zero();
-    G.col(1) << w.cross(target - l.far_end), w;
-    KinematicsData data(model);
-    forwardKinematics(model, data, params, q_rad);
-    Eigen::MatrixXd J(6, model.numParams());
-    computePoseJacobian(model, data, J);
-    B = J.transpose() * (J * J.transpose()).ldlt().solve(G);
-    return B;
-  }
-  const int th = model.jointParam(j, JointParam::kThetaOffset);
-  const double q = q_rad[j];
-  switch (ext.cause) {
-    case Cause::kNone:
-      break;
-    case Cause::kJointCompliance: {
-      if (!model.links.empty()) {
-        B(th, 0) = gravityTorques(model, params, q_rad)[j];
-        break;
-      }
-      // Gravity regressor of the links beyond joint j: a mass m with centre l in frame i loads joint j with
-      // m * torque(origin of frame i) + (m l) . R_i^T (g x z_j): linear in (m, m l), four parameters per link.
-      const std::vector<Pose> F = chainFrames(model, params, q_rad);
-      const Eigen::Vector3d g = gravityInTracker(model, F);
-      const Eigen::Vector3d gxz = g.cross(F[j].linear().col(2));
-      for (int i = j + 1, c = 0; i <= model.numJoints(); ++i, c += 4) {
-        B(th, c) = unitTorque(F, j, F[i].translation(), g);
-        B.block<1, 3>(th, c + 1) = (F[i].linear().transpose() * gxz).transpose();
-      }
-      break;
-    }
-    case Cause::kThermalDrift:  // above
-      break;
-    case Cause::kCyclicTransmission:
-      B(th, 0) = std::sin(q);
-      B(th, 1) = std::cos(q);
-      B(th, 2) = std::sin(2 * q);
-      B(th, 3) = std::cos(2 * q);
-      break;
-    case Cause::kJointScale:
-      B(th, 0) = q;
-      break;
-    case Cause::kBacklash:
-      B(th, 0) = 0.5 * playState(drivers, j, backlash_width_rad);
-      break;
-    case Cause::kLinkDeflection:  // above
-    case Cause::kFrameDrift:
-      break;
-  }
+  causeModel(ext.cause).basis(BasisPoint{model, params, ext, q_rad, drivers, backlash_width_rad}, B);
   return B;
 }
 
@@ -387,7 +201,7 @@ Eigen::MatrixXd extensionBasis(const RobotModel& model, const Eigen::VectorXd& p
   int c = 0;
   for (const auto& e : exts) {
     const int k = numExtensionParams(model, e);
-    const double width = e.cause == Cause::kBacklash && evaluated_at.size() > c ? std::abs(evaluated_at[c]) : 0.0;
+    const double width = followsPath(e.cause) && evaluated_at.size() > c ? std::abs(evaluated_at[c]) : 0.0;
     B.middleCols(c, k) = extensionBasis(model, params, e, q_rad, drivers, width);
     c += k;
   }
@@ -404,9 +218,13 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
   const auto colon = item.find(':');
   const std::string name = item.substr(0, colon);
   const auto cause = causeFromName(name);
-  if (!cause || *cause == Cause::kNone)
-    throw std::invalid_argument("'" + name + "' is not a cause (joint_compliance, thermal_drift, cyclic_transmission, "
-                                "joint_scale, backlash, link_deflection, frame_drift)");
+  if (!cause || *cause == Cause::kNone) {
+    std::string known;
+    for (const CauseModel* c : causeModels()) known += (known.empty() ? "" : ", ") + std::string(c->name());
+    throw std::invalid_argument("'" + name + "' is not a cause (" + known + ")");
+  }
+  const CauseModel& cm = causeModel(*cause);
+  using Subject = CauseModel::Subject;
   Extension e{*cause, -1};
   if (colon != std::string::npos) {
     const std::string joint = item.substr(colon + 1);
@@ -421,21 +239,15 @@ Extension parseExtension(const std::string& item, const RobotModel& model, bool 
       throw std::invalid_argument("'" + item + "': the joint after ':' must be a number (1-based)");
     if (j < 1 || j > model.numJoints())
       throw std::invalid_argument("'" + item + "': " + model.name + " has joints 1.." + std::to_string(model.numJoints()) +
-                                  (*cause == Cause::kLinkDeflection ? " (link j: between the axes of joints j and j+1)" : ""));
-    if (*cause == Cause::kFrameDrift) throw std::invalid_argument("'" + item + "': frame_drift has no joint (the base frame)");
+                                  (cm.subject() == Subject::kLink ? " (link j: between the axes of joints j and j+1)" : ""));
+    if (cm.subject() == Subject::kBase)
+      throw std::invalid_argument("'" + item + "': " + name + " has no joint (the base frame)");
     e.joint = j - 1;
-  } else if (*cause != Cause::kThermalDrift && *cause != Cause::kFrameDrift) {
+  } else if (cm.subject() == Subject::kJoint || cm.subject() == Subject::kLink) {
     throw std::invalid_argument("'" + item + "' needs a joint, e.g. " + name + ":2");
   }
-  if (!applicable(model, e, has_thermal)) {
-    std::string why = "does not apply to " + model.name;
-    if (followsThermalDriver(e.cause) && !has_thermal) why += " without a temperature or time driver";
-    if (e.cause == Cause::kJointCompliance) why += " (gravity does not load that joint)";
-    if (e.cause == Cause::kLinkDeflection)
-      why += " (link " + std::to_string(e.joint + 1) + ", between the axes of joints " + std::to_string(e.joint + 1) +
-             " and " + std::to_string(e.joint + 2) + ", is shorter than 200 mm or never held across gravity)";
-    throw std::invalid_argument("'" + item + "' " + why);
-  }
+  if (!applicable(model, e, has_thermal))
+    throw std::invalid_argument("'" + item + "' does not apply to " + model.name + cm.whyNot(model, e.joint, has_thermal));
   return e;
 }
 

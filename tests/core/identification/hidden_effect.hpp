@@ -265,8 +265,7 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
 
   // The causes.
   std::vector<Cause> causes;
-  const std::vector<Cause> library = {Cause::kJointCompliance, Cause::kThermalDrift, Cause::kCyclicTransmission,
-                                      Cause::kJointScale, Cause::kBacklash, Cause::kLinkDeflection};
+  const std::vector<Cause>& library = extensionCauses();  // the registry's (cause_list.hpp) that diagnose tries
   auto pick = [&]() { return library[static_cast<size_t>(u(rng) * library.size())]; };
   if (d.category == DrawCategory::kSingle) causes = {options.force_cause != Cause::kNone ? options.force_cause : pick()};
   if (d.category == DrawCategory::kPair) {

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "cellcal/core/model/kinematics.hpp"
+#include "core/model/jet_twist.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -67,21 +68,10 @@ TEST_P(PoseJacobianTest, ColumnMatchesCeresJets) {
     std::vector<Jet> pj(p.size());
     for (int k = 0; k < p.size(); ++k) pj[k] = Jet(p[k]);
     pj[i].v[0] = 1.0;
-    const PoseT<Jet> X = forwardKinematicsT<Jet>(model_, pj.data(), q.data());
-    Eigen::Vector3d dp;
-    Eigen::Matrix3d R, dR;
-    for (int r = 0; r < 3; ++r) {
-      dp[r] = X.p[r].v[0];
-      for (int c = 0; c < 3; ++c) {
-        R(r, c) = X.R(r, c).a;
-        dR(r, c) = X.R(r, c).v[0];
-      }
-    }
-    const Eigen::Matrix3d W = dR * R.transpose();  // [omega]x
-    const Eigen::Vector3d w(W(2, 1), W(0, 2), W(1, 0));
-    EXPECT_NEAR((J.col(i).head<3>() - dp).norm(), 0.0, 1e-12) << model_.paramName(i);
-    EXPECT_NEAR((J.col(i).tail<3>() - w).norm(), 0.0, 1e-12) << model_.paramName(i);
-    EXPECT_NEAR((W + W.transpose()).norm(), 0.0, 1e-12);  // really a rotation derivative
+    const test::JetTwist t = test::jetTwist(forwardKinematicsT<Jet>(model_, pj.data(), q.data()));
+    EXPECT_NEAR((J.col(i).head<3>() - t.translation).norm(), 0.0, 1e-12) << model_.paramName(i);
+    EXPECT_NEAR((J.col(i).tail<3>() - t.rotation).norm(), 0.0, 1e-12) << model_.paramName(i);
+    EXPECT_NEAR((t.omega_hat + t.omega_hat.transpose()).norm(), 0.0, 1e-12);  // really a rotation derivative
   }
 }
 

@@ -6,37 +6,10 @@
 // adds to the a and d entries. The pose Jacobian with respect to e is therefore J_i B_i, with J_i the kinematic
 // Jacobian of kinematics.hpp: no new derivative code.
 //
-// Causes (joint j, 1-based in names and output, 0-based in code):
-//   joint_compliance     dq_j = compliance * tau_j(q): the gravity torque on joint j. With link masses in the robot file,
-//                        one parameter (rad per N m) times the torque of those masses. Without, the gravity regressor
-//                        of the links beyond joint j: per link i, its mass and first moment (m, m c) in frame i times
-//                        the compliance, 4 parameters per link (the data decide which combinations are identifiable).
-//   thermal_drift        every a and d grows by e_0 * s * value and joint j's zero by e_1 * s, with s the thermal driver
-//                        (temperature minus its reference, K). Without a thermometer, time drives it as a first-order
-//                        warm-up: s = tau (1 - exp(-t / tau)) with t the hours since the first row and tau the time
-//                        constant (Extension::time_constant_h, fitted by fitExtended; infinite: s = t, a straight line).
-//                        joint = -1: the lengths only (one parameter), when no joint zero drifts measurably.
-//   frame_drift          not the robot's error: the base frame (the robot in the tracker's frame) moves with the same
-//                        thermal driver, each of base x, y, z, roll, pitch, yaw by e_k * s (6 parameters; a tracker or a
-//                        robot base that creeps). Never chosen by diagnose (extensionCauses() leaves it out): it is the
-//                        alternative each drift diagnose names is tested against (DriftCheck in diagnosis.hpp); a user
-//                        may fit it by name.
-//   cyclic_transmission  dq_j = e_0 sin q_j + e_1 cos q_j + e_2 sin 2q_j + e_3 cos 2q_j.
-//   joint_scale          dq_j = e_0 q_j (transmission-ratio error).
-//   backlash             dq_j = e_0 * s_j / 2 with s_j in [-1, 1] the play state of joint j (|e_0|: the width, rad):
-//                        +-1 after the joint moved more than the width in the + / - direction; a smaller move crosses
-//                        the gap only partly, s_j <- clamp(s_j + 2 step / width, -1, 1). s_j depends on the width, so
-//                        the basis is evaluated at a width (fitExtended iterates it with the fit); width 0 is the
-//                        direction the joint last moved (Drivers::motion_direction).
-//   link_deflection      link j (the segment between the axes of joints j and j+1, 1-based; one of 200 mm or more that
-//                        gravity loads across) bends as a beam under the gravity across it, g_perp = the part of
-//                        gravity (in g) perpendicular to the link, the elastostatic model of elasto-geometric
-//                        calibration: its far end moves by e_0 g_perp (e_0: the sag of the link held horizontal, m) and
-//                        turns by e_1 about u x g_perp (u: the link's direction; e_1: the slope at its end when
-//                        horizontal, rad). The load of the links beyond adds a moment that depends on their pose: that
-//                        part acts as joint_compliance of joint j+1. A Cartesian motion, not a joint error: B_i is the
-//                        minimum-norm parameter change that moves the target by that twist (first order; J B_i e = the
-//                        twist).
+// The causes (joint j, 1-based in names and output, 0-based in code) are listed in cause_list.hpp; each is described
+// and implemented in its own file of core/src/model/causes/ (joint_compliance, thermal_drift, cyclic_transmission,
+// joint_scale, backlash, link_deflection, frame_drift) behind the CauseModel interface of cause.hpp. The functions
+// below dispatch to them; adding a cause is its file and its line in cause_list.hpp (docs/ARCHITECTURE.md).
 #pragma once
 
 #include <Eigen/Core>
@@ -47,20 +20,24 @@
 #include <string>
 #include <vector>
 
+#include "cellcal/core/model/cause_list.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 #include "cellcal/core/model/se3.hpp"
 
 namespace cellcal {
 
-enum class Cause {
-  kNone, kJointCompliance, kThermalDrift, kCyclicTransmission, kJointScale, kBacklash, kLinkDeflection, kFrameDrift
-};
+// kNone, then the causes of cause_list.hpp. Everything about one cause is in its CauseModel (cause.hpp).
+#define CELLCAL_CAUSE_ENUMERATOR(enumerator, stem) enumerator,
+enum class Cause { kNone, CELLCAL_CAUSES(CELLCAL_CAUSE_ENUMERATOR) };
+#undef CELLCAL_CAUSE_ENUMERATOR
 
 const char* causeName(Cause c);                               // "joint_compliance", ...
 std::optional<Cause> causeFromName(const std::string& name);  // inverse of causeName
 const std::vector<Cause>& extensionCauses();                  // the robot's causes: every one except kNone, kFrameDrift
 // Whether the cause follows the thermal driver (thermal_drift, frame_drift): a warm-up time constant applies on time.
 bool followsThermalDriver(Cause c);
+// Whether the cause reads the path to a pose (backlash: a play state).
+bool followsPath(Cause c);
 
 // Values of the drivers other than q at one observation.
 struct Drivers {
@@ -102,6 +79,10 @@ struct Extension {
   // straight line where used unfitted); infinity: a straight line in time. Ignored with a temperature driver.
   double time_constant_h = 0.0;
 };
+
+// The thermal driver an extension that follows it sees at a row: Drivers::thermal, or on time the warm-up
+// tau (1 - exp(-t / tau)) for a fitted time constant tau.
+double thermalDriverValue(const Extension& ext, const Drivers& drivers);
 
 // Whether `extensions` include a backlash; whether a row's play state is unknown for one of their backlash joints (it
 // has not moved since the data began: which side of the gap it rests on is unknown to anyone, and a fit leaves the
