@@ -11,7 +11,7 @@
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/urdf.hpp"
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "commands.hpp"

@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "cellcal/core/campaign/campaign_input.hpp"
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/model_error.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"

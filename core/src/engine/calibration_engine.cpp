@@ -54,6 +54,7 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
       time_compression_(time_compression),
       pairing_(robot.model, pairingOptions(robot, settings)),
       play_(robot.model.numJoints(), settings.settle_tolerance_rad),
+      inputs_(settings),
       gate_(settings.outlier_gate_nis_per_row, kRecentWindow) {
   for (const auto& e : robot.extensions) tracks_play_ = tracks_play_ || followsPath(e.cause);
   const RobotModel& m = robot.model;
@@ -319,25 +320,11 @@ bool CalibrationEngine::admitted(std::optional<Rejection> r, const std::string& 
 
 bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_ns) {
   ++counters_.joint_states;
-  last_joint_ns_ = receive_ns;
+  inputs_.jointReceived(receive_ns);
   std::string detail;
   if (!admitted(pairing_.addJointState(s, receive_ns, &detail), robot_->robot_id, detail)) return false;
   if (tracks_play_) play_.add(s.stamp_ns, s.q_rad);
-  // Remember when the robot moved (a new stand-still starts a new pose).
-  const bool moved = !s.settled || (last_joint_q_.size() == s.q_rad.size() &&
-                                    (s.q_rad - last_joint_q_).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad);
-  if (moved) {
-    motion_stamps_ns_.push_back(s.stamp_ns);
-    while (motion_stamps_ns_.size() > 256) motion_stamps_ns_.pop_front();
-  }
-  if (!moved && !in_stand_still_) {  // a stand-still begins
-    in_stand_still_ = true;
-    read_in_stand_still_ = false;
-  } else if (moved && in_stand_still_) {  // it ends: was the target read during it?
-    in_stand_still_ = false;
-    stand_stills_without_reading_ = read_in_stand_still_ ? 0 : stand_stills_without_reading_ + 1;
-  }
-  last_joint_q_ = s.q_rad;
+  inputs_.jointAdmitted(s);  // a new stand-still starts a new pose
   return true;
 }
 
@@ -345,9 +332,7 @@ bool CalibrationEngine::onJointState(const JointSample& s, std::int64_t receive_
 bool CalibrationEngine::samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const {
   if (q.size() != p.observation.q_rad.size()) return false;
   if ((p.observation.q_rad - q).cwiseAbs().maxCoeff() > settings_->settle_tolerance_rad) return false;
-  for (std::int64_t t : motion_stamps_ns_)
-    if (t > stamp_ns && t <= p.joint_stamp_ns) return false;
-  return true;
+  return !inputs_.movedBetween(stamp_ns, p.joint_stamp_ns);
 }
 
 std::string CalibrationEngine::clockWarning() const {
@@ -370,33 +355,11 @@ std::string CalibrationEngine::clockWarning() const {
   return m.str();
 }
 
-std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const {
-  const auto limit = static_cast<std::int64_t>(settings_->stale_input_s * 1e9);
-  std::string out;
-  auto silence = [&](std::int64_t last) {
-    std::ostringstream m;
-    if (last == 0) m << "nothing received yet";
-    else m << "nothing for " << std::fixed << std::setprecision(1) << (now_ns - last) * 1e-9 << " s";
-    return m.str();
-  };
-  auto add = [&](const char* topic, const std::string& why) { out += (out.empty() ? "" : "; ") + std::string(topic) + ": " + why; };
-  if (last_joint_ns_ == 0 || now_ns - last_joint_ns_ > limit) add("joint_state", silence(last_joint_ns_));
-  const int without = stand_stills_without_reading_;
-  const bool silent_too_long = settings_->tracker_silence_s > 0 &&
-                               now_ns - (last_tracker_ns_ ? last_tracker_ns_ : now_ns) > settings_->tracker_silence_s * 1e9;
-  if (without >= settings_->stale_stand_stills)
-    add("tracker_pose", "no reading in the robot's last " + std::to_string(without) + " stand-stills (" +
-                            silence(last_tracker_ns_) + ")");
-  else if (silent_too_long)
-    add("tracker_pose", silence(last_tracker_ns_) + " (engine.tracker_silence_s)");
-  return out;
-}
+std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const { return inputs_.staleInputs(now_ns); }
 
 bool CalibrationEngine::onTrackerSample(const TrackerSample& s, std::int64_t receive_ns) {
   ++counters_.tracker_readings;
-  last_tracker_ns_ = receive_ns;
-  read_in_stand_still_ = true;
-  stand_stills_without_reading_ = 0;
+  inputs_.trackerReceived(receive_ns);
   std::string detail;
   return admitted(pairing_.addTrackerSample(s, receive_ns, &detail), robot_->target_id, detail);
 }

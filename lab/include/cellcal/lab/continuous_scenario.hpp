@@ -21,7 +21,7 @@
 #include <string>
 #include <vector>
 
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/identification/rls.hpp"
 

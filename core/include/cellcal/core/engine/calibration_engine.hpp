@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/engine_state.hpp"
+#include "cellcal/core/engine/input_watch.hpp"
 #include "cellcal/core/engine/outlier_gate.hpp"
 #include "cellcal/core/engine/pairing.hpp"
 #include "cellcal/core/files/cell_config.hpp"
@@ -130,10 +131,8 @@ class CalibrationEngine {
   const std::vector<Eigen::VectorXd>& referenceConfigurations() const { return reference_q_; }
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
-  // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh).
-  // Joint states: stale after EngineSettings::stale_input_s without a sample (or before the first). Tracker readings:
-  // after stale_stand_stills stand-stills of the robot in a row without one (a robot that works between campaigns,
-  // moving or standing, is not a stale tracker), or after tracker_silence_s without one when that is set.
+  // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh;
+  // InputWatch::staleInputs). A robot that works between campaigns, moving or standing, is not a stale tracker.
   std::string staleInputs(std::int64_t now_ns) const;
   // Said when the recent tracker readings fit the robot's stand-stills only once shifted in time
   // (PairingBuffer::clockOffsetHint): how far, how many, what to check. Empty: no sign of a clock offset.
@@ -208,10 +207,7 @@ class CalibrationEngine {
     double prior_error_m, post_error_m, post_error_rad, nis_per_row;
   };
   std::deque<Recent> recent_;
-  std::int64_t last_joint_ns_ = 0, last_tracker_ns_ = 0;  // receive time of the last sample per stream
-  // Stand-stills (settled joint states at one configuration) and whether a tracker reading came during each.
-  bool in_stand_still_ = false, read_in_stand_still_ = false;
-  int stand_stills_without_reading_ = 0;
+  InputWatch inputs_;  // stand-stills, when the robot moved, stale streams (input_watch.hpp)
   struct Good {  // the last version published with health ok
     std::uint64_t version = 0;
     Eigen::VectorXd params, extension_params;
@@ -231,9 +227,8 @@ class CalibrationEngine {
   RlsCalibrator::Checkpoint rollback_;  // applyPose's, reused
   std::int64_t last_update_duration_ns_ = 0;
   std::deque<AppliedReading> applied_readings_;
-  Eigen::VectorXd last_joint_q_, used_q_;
+  Eigen::VectorXd used_q_;
   std::int64_t used_joint_stamp_ns_ = 0;
-  std::deque<std::int64_t> motion_stamps_ns_;  // joint states that show the robot moving
 };
 
 // The pairing the engine does for `robot` (cellcal export pairs a recording the same way).

@@ -13,7 +13,7 @@
 #include <utility>
 #include <vector>
 
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/residual_map.hpp"
 #include "cellcal/core/model/model_extension.hpp"

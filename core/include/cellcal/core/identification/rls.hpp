@@ -23,7 +23,7 @@
 #include <vector>
 
 #include "cellcal/core/identification/calibration.hpp"
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/identification/observation.hpp"
 

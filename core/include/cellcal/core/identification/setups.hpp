@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "cellcal/core/identification/calibration.hpp"
-#include "cellcal/core/identification/diagnosis.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/identifiability.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/model/model_extension.hpp"
