@@ -3,7 +3,6 @@
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/cause.hpp"
 
-#include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <algorithm>
 #include <chrono>

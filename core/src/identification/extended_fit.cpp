@@ -130,8 +130,7 @@ double searchTimeConstant(const RobotModel& model, const Eigen::VectorXd& start,
     b.tail(q).setZero();
     double cnorm = 0;
     for (size_t i = 0; i < n; ++i) {
-      const double h = hours[static_cast<Eigen::Index>(i)];
-      const double si = std::isfinite(tau) ? tau * -std::expm1(-h / tau) : h;
+      const double si = warmUpDriver(hours[static_cast<Eigen::Index>(i)], tau);
       H.topRightCorner(p, q) += si * GtC[i];
       H.bottomRightCorner(q, q) += si * si * CtC[i];
       b.tail(q) += si * Ctr[i];

@@ -40,10 +40,12 @@ bool followsThermalDriver(Cause c) {
 
 bool followsPath(Cause c) { return c != Cause::kNone && causeModel(c).driver() == CauseModel::Driver::kPath; }
 
+double warmUpDriver(double t_h, double tau_h) {
+  return tau_h > 0 && std::isfinite(tau_h) ? tau_h * -std::expm1(-t_h / tau_h) : t_h;
+}
+
 double thermalDriverValue(const Extension& ext, const Drivers& drivers) {
-  const double tau = ext.time_constant_h;
-  if (drivers.thermal_is_time && tau > 0 && std::isfinite(tau)) return tau * -std::expm1(-drivers.thermal / tau);
-  return drivers.thermal;
+  return drivers.thermal_is_time ? warmUpDriver(drivers.thermal, ext.time_constant_h) : drivers.thermal;
 }
 
 DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,

@@ -66,9 +66,12 @@ TEST(InputWatch, StandStillsMovesAndStaleStreamsAreWhatTheProgramDid) {
     const bool tracker_stale = unread_in_a_row >= settings.stale_stand_stills;
     EXPECT_EQ(stale.find("tracker_pose") != std::string::npos, tracker_stale)
         << stale << " | unread in a row " << unread_in_a_row << " of " << settings.stale_stand_stills;
-    if (tracker_stale)
+    if (tracker_stale) {
       EXPECT_NE(stale.find("last " + std::to_string(unread_in_a_row) + " stand-stills"), std::string::npos) << stale;
-    if (tracker_stale && !any_reading) EXPECT_NE(stale.find("nothing received yet"), std::string::npos) << stale;
+    }
+    if (tracker_stale && !any_reading) {
+      EXPECT_NE(stale.find("nothing received yet"), std::string::npos) << stale;
+    }
     EXPECT_EQ(stale.find("joint_state"), std::string::npos) << stale;
     const auto later = t + static_cast<std::int64_t>((settings.stale_input_s + 0.1) * 1e9);
     EXPECT_NE(watch.staleInputs(later).find("joint_state: nothing for"), std::string::npos);

@@ -45,10 +45,6 @@ inline std::string jointPrefix(int joint) { return "joint" + std::to_string(join
 // A joint cause's only kinematic row: the joint's theta offset.
 inline int thetaRow(const RobotModel& model, int joint) { return model.jointParam(joint, JointParam::kThetaOffset); }
 
-}  // namespace cellcal::causes
-
-namespace cellcal::causes {
-
 // ", warm-up 1.5 h" or ", linear in time" for a fitted time constant; "" before one is fitted.
 inline std::string warmUpSuffix(const Extension& ext) {
   if (!(ext.time_constant_h > 0)) return "";

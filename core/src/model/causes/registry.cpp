@@ -1,5 +1,4 @@
 // The registry of causes (cause_list.hpp) and what every cause has in common (the defaults of CauseModel).
-#include <cstdio>
 #include <stdexcept>
 
 #include "cause_support.hpp"

@@ -80,8 +80,11 @@ struct Extension {
   double time_constant_h = 0.0;
 };
 
-// The thermal driver an extension that follows it sees at a row: Drivers::thermal, or on time the warm-up
-// tau (1 - exp(-t / tau)) for a fitted time constant tau.
+// The first-order warm-up on time: tau (1 - exp(-t / tau)) hours after t hours, for a time constant tau (h); t itself
+// (a straight line) when tau is 0 (not fitted yet) or infinite.
+double warmUpDriver(double t_h, double tau_h);
+// The thermal driver an extension that follows it sees at a row: Drivers::thermal, or on time its warm-up
+// (warmUpDriver with Extension::time_constant_h).
 double thermalDriverValue(const Extension& ext, const Drivers& drivers);
 
 // Whether `extensions` include a backlash; whether a row's play state is unknown for one of their backlash joints (it
