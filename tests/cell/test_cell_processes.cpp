@@ -270,8 +270,18 @@ TEST(CellProcesses, TwoShardsServeHalfTheRobotsEach) {
     ASSERT_EQ(r["robot_id"], w["robot_id"]);
     EXPECT_GE(r["final_version"].get<int>(), 20) << r.dump();
     EXPECT_NEAR(r["final_version"].get<int>(), w["final_version"].get<int>(), 2) << r["robot_id"];
+    // Each engine of each run computes what core's engine computes in-process from the readings it applied.
+    for (const auto* run : {&r, &w}) {
+      EXPECT_EQ((*run)["in_process_inputs"], "applied_readings") << run->dump();
+      EXPECT_LT((*run)["verify_after_mm"].get<double>(), 1.05 * (*run)["in_process_verify_after_mm"].get<double>() + 0.001)
+          << r["robot_id"] << ": the engine process differs from core's engine on the same readings";
+    }
+    // The two runs measure the same program, but the readings are not the same: the simulated cell clock runs with
+    // the wall clock, so a loaded machine measures each pose a little later in the robot's warm-up. Measured on a
+    // busy CI machine: 0.0262 mm for one engine against 0.0215 mm for two shards (0.0223/0.0224 mm on a quiet one).
+    // Splitting the robots between engines must cost no accuracy beyond that.
     const double e_shard = r["verify_after_last_update_mm"], e_whole = w["verify_after_last_update_mm"];
-    EXPECT_NEAR(e_shard, e_whole, 0.1 * e_whole + 0.002) << r["robot_id"] << ": same inputs, different calibration";
+    EXPECT_LT(e_shard, 1.3 * e_whole + 0.003) << r["robot_id"] << ": a shard calibrates worse than one engine";
     EXPECT_LT(e_shard, 0.5 * r["verify_before_mm"].get<double>()) << r.dump();
     EXPECT_GT(r["targets_applied"].get<int>(), 0) << r.dump();
   }
