@@ -82,7 +82,7 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
     std::cerr << "compensation_publisher: " << it->first << ": calibration v" << c->version << " is ok again: applying it\n";
   if (c->health == msg::HEALTH_OK) {
     r.last_ok = *c;
-    r.applied_model = IdentifiedModel{c->params, c->extensions, c->extension_params, c->estimated, c->covariance};
+    r.applied_model = IdentifiedModel(*c);
     if (r.robot->start) attachResidualMap(*r.robot->start, *r.applied_model);  // teach points (compensation.hpp)
     r.servo->setCalibration(c->version, *r.applied_model);
   }

@@ -146,7 +146,7 @@ void BM_Compensate(benchmark::State& state) {
   RlsCalibrator rls(m, m.nominal, diagonalPrior(m, m.nominal, m.canonicalParams(), 1e-3, 1.7e-3),
                     MeasurementKind::kPose6D);
   for (int k = 0; k < 50; ++k) rls.addObservation(f.obs[static_cast<size_t>(k)]);
-  const IdentifiedModel identified{truth, {}, {}, rls.estimated(), rls.covariance()};
+  const IdentifiedModel identified(CalibratedModel::geometric(truth, rls.estimated(), rls.covariance()));
   std::vector<Pose> targets;
   for (const auto& o : f.obs) targets.push_back(forwardKinematics(m, m.nominal, o.q_rad));
   const CompensationSettings settings;

@@ -236,7 +236,7 @@ class CellJudge::Impl {
     if (m.last_measurement_stamp_ns() > 0)
       tracker_to_state_us_.push_back((now - static_cast<std::int64_t>(m.last_measurement_stamp_ns())) / 1e3);
     j->version = c->version;
-    j->identified = IdentifiedModel{c->params, c->extensions, c->extension_params};
+    j->identified = *c;
     double cell_time;
     {
       std::lock_guard<std::mutex> lock(mutex_);

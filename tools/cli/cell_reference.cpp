@@ -73,7 +73,7 @@ Reference inProcessReference(const CellConfig& cell, const CellRobot& robot, int
     for (std::size_t id = 0; id < joints_of.size() && read_at_s[id] <= cell_time_end_s; ++id) reading(id, 0);
   }
   const CalibrationSnapshot& snap = engine.snapshot();
-  ref.verify_mm = judge.verify(IdentifiedModel{snap.params, snap.extensions, snap.extension_params}, cell_time_end_s / 3600.0);
+  ref.verify_mm = judge.verify(snap, cell_time_end_s / 3600.0);
   ref.poses = static_cast<int>(snap.poses_used);
   return ref;
 }

@@ -17,6 +17,7 @@
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 
@@ -67,7 +68,7 @@ struct Judge {
   std::vector<Eigen::VectorXd> target_qs;
   double cell_time_s = 0;
   std::uint64_t version = 0;
-  IdentifiedModel identified;  // the latest calibration received (with its model extensions, if any)
+  CalibratedModel identified;  // the latest calibration received (with its model extensions, if any)
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
   std::uint64_t target_seq = 0, applied = 0, refused = 0;
@@ -80,7 +81,7 @@ struct Judge {
   // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
   std::vector<std::array<double, 4>> history;
 
-  double verify(const IdentifiedModel& m, double t_h) const {
+  double verify(const CalibratedModel& m, double t_h) const {
     const RobotModel& model = sim.model();
     KinematicsData d(model);
     double s = 0;
@@ -90,7 +91,7 @@ struct Judge {
     }
     return s / static_cast<double>(holdout.size()) * 1e3;
   }
-  double verifyNominal(double t_h) const { return verify(IdentifiedModel{sim.nominalParams(), {}, {}}, t_h); }
+  double verifyNominal(double t_h) const { return verify(CalibratedModel::geometric(sim.nominalParams()), t_h); }
 };
 
 // What the cell's processes say of one robot's readings, from their --stats-json: the program's pose each reading

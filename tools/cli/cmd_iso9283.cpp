@@ -227,19 +227,14 @@ int runIso9283(const Iso9283Args& a) {
   }
   const bool orientation = !a.position_only;
   std::vector<Model> models;
-  models.push_back({"nominal model of " + robot_label, {&m, m.nominal, {}, {}}});
+  models.push_back({"nominal model of " + robot_label, {CalibratedModel::geometric(m.nominal), &m}});
   std::optional<RobotFile> cal;
   if (!a.model_robot.empty()) {
     cal = loadRobotFile(a.model_robot);
     bool same = cal->model.numParams() == m.numParams();
     for (int i = 0; same && i < m.numParams(); ++i) same = cal->model.paramName(i) == m.paramName(i);
     if (!same) throw ConfigError(a.model_robot + ": not a model of " + robot_label + " (another joint layout)");
-    Iso9283Model cm{&cal->model, cal->model.nominal, {}, {}};
-    if (cal->calibration) {
-      cm.extensions = cal->calibration->extensions;
-      cm.extension_params = cal->calibration->extension_params;
-    }
-    models.push_back({"calibrated model " + a.model_robot, cm});
+    models.push_back({"calibrated model " + a.model_robot, {calibratedModel(*cal), &cal->model}});
   }
   if (a.register_frames) {
     // The frames can be fitted only on poses that span space and turn the flange: the standard's five lie in one

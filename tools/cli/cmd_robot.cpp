@@ -104,10 +104,7 @@ ExportCost exportCost(const RobotFile& rf) {
     verify.push_back(toObservation(f.rows[i], MeasurementKind::kPose6D, 0.01e-3, 0.001 * kPi / 180));
     drivers.push_back(table.rows[i]);
   }
-  ExtendedFit full, geometric;
-  full.params = geometric.params = rf.model.nominal;
-  full.extensions = rf.calibration->extensions;
-  full.extension_params = rf.calibration->extension_params;
+  const CalibratedModel full = calibratedModel(rf), geometric = CalibratedModel::geometric(rf.model.nominal);
   c.full = errorStats(rf.model, full, verify, drivers);
   c.geometric = errorStats(rf.model, geometric, verify, drivers);
   c.measured = true;

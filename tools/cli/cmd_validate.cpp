@@ -18,6 +18,7 @@
 #include "cellcal/components/engine_host.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/recording/recording.hpp"
 #include "commands.hpp"
 #include "progress.hpp"
@@ -53,6 +54,7 @@ struct Difference {
   double length_m = 0, angle_rad = 0, other = 0, verification_m = 0;
   std::string worst;  // the parameter that differs most (relative to its tolerance)
   double worst_ratio = 0;
+  std::string different_model;  // when the two are not the same model (other extensions): what each has
 };
 
 Difference compare(const RobotModel& model, const std::vector<Extension>& exts, const ReceivedCalibration& a,
@@ -73,8 +75,15 @@ Difference compare(const RobotModel& model, const std::vector<Extension>& exts, 
   if (a.extension_params.size() == b.extension_params.size())
     for (Eigen::Index i = 0; i < a.extension_params.size(); ++i)
       consider(names[static_cast<size_t>(i)], a.extension_params[i] - b.extension_params[i]);
-  else
+  std::vector<std::string> specs_a, specs_b;
+  for (const auto& e : a.extensions) specs_a.push_back(extensionSpec(e));
+  for (const auto& e : b.extensions) specs_b.push_back(extensionSpec(e));
+  if (specs_a != specs_b || a.extension_params.size() != b.extension_params.size()) {
     d.worst = "model extensions differ", d.worst_ratio = INFINITY;
+    d.different_model = "the recording's calibrations are of the model " + modelLabel(b.extensions) +
+                        ", the engine replayed with this cell file's settings gives " + modelLabel(a.extensions) +
+                        ": give --config the cell file the recording was made with";
+  }
   const bool both_nan = std::isnan(a.verification_mean_position_m) && std::isnan(b.verification_mean_position_m);
   d.verification_m = both_nan ? 0 : std::abs(a.verification_mean_position_m - b.verification_mean_position_m);
   if (std::isnan(d.verification_m)) d.verification_m = INFINITY;
@@ -203,8 +212,11 @@ int runValidate(const ValidateArgs& a) {
       if (!ok) {
         ++mismatched;
         if (first_mismatch.empty())
-          first_mismatch = "v" + std::to_string(c.version) + ": " + d.worst + " differs by " + std::to_string(d.worst_ratio) +
-                           "x the tolerance; a-priori error by " + std::to_string(d.verification_m * 1e3) + " mm";
+          first_mismatch = "v" + std::to_string(c.version) + ": " +
+                           (!d.different_model.empty()
+                                ? d.different_model
+                                : d.worst + " differs by " + std::to_string(d.worst_ratio) +
+                                      "x the tolerance; a-priori error by " + std::to_string(d.verification_m * 1e3) + " mm");
       }
     }
     std::uint64_t missing = 0;

@@ -282,12 +282,7 @@ std::vector<std::string> CalibrationEngine::takeNotes() {
 }
 
 void CalibrationEngine::publishEstimate() {
-  snap_.params = rls_->params();
-  snap_.estimated = rls_->estimated();
-  snap_.covariance = rls_->covariance();
-  snap_.extensions = rls_->extensions();
-  snap_.extension_params = rls_->extensionParams();
-  snap_.estimated_extension = rls_->estimatedExtension();
+  static_cast<CalibratedModel&>(snap_) = rls_->model();
 }
 
 // The extension parameters start at zero (no effect) with a prior whose 1 sigma makes a joint error of
@@ -580,10 +575,7 @@ void CalibrationEngine::decideHealth() {
     if (last_good_) {
       snap_.health = Health::kHoldLastGood;
       snap_.held_version = last_good_->version;
-      snap_.params = last_good_->params;
-      snap_.estimated = last_good_->estimated;
-      snap_.covariance = last_good_->covariance;
-      snap_.extension_params = last_good_->extension_params;
+      static_cast<CalibratedModel&>(snap_) = *last_good_;
       snap_.health_reason = "holding v" + std::to_string(last_good_->version) + ": " + why.str();
     } else {
       publishEstimate();
@@ -603,7 +595,7 @@ void CalibrationEngine::decideHealth() {
     return;
   }
   snap_.health = Health::kOk;
-  last_good_ = Good{snap_.version, snap_.params, snap_.extension_params, snap_.estimated, snap_.covariance};
+  last_good_ = EngineState::Good{snap_, snap_.version};
 }
 
 void CalibrationEngine::refreshStatistics() {
@@ -654,8 +646,7 @@ EngineState CalibrationEngine::exportState() const {
   s.consecutive_outliers = consecutive_outliers_;
   s.gate_window.assign(gate_.window().begin(), gate_.window().end());
   if (last_good_ && snap_.health != Health::kOk)
-    s.last_good = EngineState::Good{last_good_->version, last_good_->params, last_good_->extension_params,
-                                    last_good_->estimated, last_good_->covariance};
+    s.last_good = last_good_;
   if (tracks_play_) s.play = EngineState::Play{play_.joints(), play_.lastStampNs()};
   for (const auto& r : recent_) s.recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
   const bool extended = !rls_->extensions().empty();
@@ -686,13 +677,11 @@ void CalibrationEngine::importState(const EngineState& s) {
   for (int e : s.estimated)
     if (e < 0 || e >= m.numParams()) fail("estimated index out of range");
   if (!s.params.allFinite() || !s.covariance.allFinite()) fail("non-finite values");
-  std::optional<Good> good;
-  if (s.last_good) {
-    const EngineState::Good& g = *s.last_good;
-    if (g.params.size() != m.numParams() || g.covariance.rows() != g.covariance.cols())
+  std::optional<EngineState::Good> good = s.last_good;
+  if (good) {
+    if (good->params.size() != m.numParams() || good->covariance.rows() != good->covariance.cols())
       fail("last_good: parameter or covariance size mismatch");
-    if (!g.params.allFinite() || !g.covariance.allFinite()) fail("last_good: non-finite values");
-    good = Good{g.version, g.params, g.extension_params, g.estimated, g.covariance};
+    if (!good->params.allFinite() || !good->covariance.allFinite()) fail("last_good: non-finite values");
   }
   // Extensions: resumed when the cell file still names the same ones; else the kinematic estimate is kept and the
   // cell file's extensions start from their prior (an extension added after `cellcal diagnose` does not throw away
@@ -752,6 +741,15 @@ void CalibrationEngine::importState(const EngineState& s) {
   for (const auto& b : s.pending_batch) batch_.push_back({b.reading, b.drivers ? *b.drivers : Drivers{}});
   consecutive_outliers_ = s.consecutive_outliers;
   gate_.assign(s.gate_window.begin(), s.gate_window.end());
+  if (good) {  // the files keep its extensions and their estimated set once, as the state's
+    good->extensions = rls_->extensions();
+    good->estimated_extension = rls_->estimatedExtension();
+    if (good->extension_params.size() != numExtensionParams(m, good->extensions)) {
+      good.reset();  // made with other extensions: it cannot be published as this cell file's model
+      restore_note_ += std::string(restore_note_.empty() ? "" : "; ") + "the held good version was made with other "
+                       "extensions and is not kept";
+    }
+  }
   last_good_ = std::move(good);
   publishEstimate();
   pairing_.setAppliedUntil(snap_.last_measurement_stamp_ns);

@@ -49,7 +49,7 @@ void attachResidualMap(const RobotFile& start, IdentifiedModel& model) {
 
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
                               const Eigen::VectorXd& q_seed, const CompensationSettings& s) {
-  return compensate(nominal, IdentifiedModel{identified, {}, {}}, desired, q_seed, s);
+  return compensate(nominal, IdentifiedModel(CalibratedModel::geometric(identified)), desired, q_seed, s);
 }
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
@@ -119,9 +119,12 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     return out;
   }
   KinematicsData data(nominal);
-  if (!model.estimated.empty() && model.covariance.rows() == static_cast<Eigen::Index>(model.estimated.size())) {
+  if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
+    // The kinematic block (the whole covariance unless it also covers extension parameters).
     out.predicted_sigma_position_m =
-        kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad);
+        model.estimated_extension.empty()
+            ? kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad)
+            : kinematicPositionSigma(nominal, data, identified, model.estimated, model.kinematicCovariance(), ik.q_rad);
     if (out.residual_map_applied) {
       const double map_sigma = model.residual_map->sigmaBound_m(ik.q_rad);
       out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);

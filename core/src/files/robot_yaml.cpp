@@ -273,7 +273,7 @@ std::string RobotCalibration::columnName(const RobotModel& model, int column) co
   return extensionParamNames(model, extensions).at(static_cast<size_t>(column - model.numParams()));
 }
 
-RobotCalibration robotCalibration(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& pm) {
+RobotCalibration robotCalibration(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& pm) {
   RobotCalibration cal;
   cal.extensions = fit.extensions;
   cal.extension_params = fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(0);
@@ -286,6 +286,31 @@ RobotCalibration robotCalibration(const RobotModel& model, const ExtendedFit& fi
     cal.estimated.push_back(std::count(set.begin(), set.end(), kin ? c : c - model.numParams()) > 0);
   }
   return cal;
+}
+
+CalibratedModel calibratedModel(const RobotFile& file) {
+  CalibratedModel m = CalibratedModel::geometric(file.model.nominal);
+  if (!file.calibration) return m;
+  const RobotCalibration& cal = *file.calibration;
+  const int n = file.model.numParams();
+  m.extensions = cal.extensions;
+  m.extension_params = cal.extension_params;
+  std::vector<std::pair<int, Eigen::Index>> kin, ext;  // (column, its place in cal.covariance), estimated ones
+  for (size_t k = 0; k < cal.columns.size(); ++k)
+    if (cal.estimated[k]) (cal.columns[k] < n ? kin : ext).emplace_back(cal.columns[k], static_cast<Eigen::Index>(k));
+  std::sort(kin.begin(), kin.end());
+  std::sort(ext.begin(), ext.end());
+  std::vector<Eigen::Index> at;
+  for (const auto& [c, k] : kin) {
+    m.estimated.push_back(c);
+    at.push_back(k);
+  }
+  for (const auto& [c, k] : ext) {
+    m.estimated_extension.push_back(c - n);
+    at.push_back(k);
+  }
+  if (!at.empty()) m.covariance = cal.covariance(at, at);
+  return m;
 }
 
 bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) const {

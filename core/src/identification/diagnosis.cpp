@@ -91,7 +91,7 @@ bool DiagnosisOptions::IsValid(std::string* error) const {
   return true;
 }
 
-std::vector<DriverStructure> residualStructure(const RobotModel& model, const ExtendedFit& fit,
+std::vector<DriverStructure> residualStructure(const RobotModel& model, const CalibratedModel& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                                bool has_thermal, double alpha) {
   const auto n = static_cast<Eigen::Index>(obs.size());
@@ -213,7 +213,7 @@ std::vector<DriverStructure> residualStructure(const RobotModel& model, const Ex
   return out;
 }
 
-NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& fitted,
+NoiseEstimate estimateNoise(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& fitted,
                             const std::vector<Drivers>& fitted_drivers, const std::vector<Observation>& predicted,
                             const std::vector<Drivers>& predicted_drivers) {
   NoiseEstimate e;

@@ -32,7 +32,7 @@ std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const Eigen::VectorX
   return B;
 }
 
-std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+std::vector<Eigen::MatrixXd> bases(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                                    const std::vector<Drivers>& drivers) {
   return bases(model, fit.params, fit.extensions, obs, drivers, fit.extension_params);
 }
@@ -63,7 +63,7 @@ void stackExtended(const RobotModel& model, const Eigen::VectorXd& params, const
 }
 
 
-Eigen::VectorXd rowParams(const ExtendedFit& fit, const Eigen::MatrixXd& B) {
+Eigen::VectorXd rowParams(const CalibratedModel& fit, const Eigen::MatrixXd& B) {
   return fit.extension_params.size() ? Eigen::VectorXd(fit.params + B * fit.extension_params) : fit.params;
 }
 
@@ -174,7 +174,7 @@ double searchTimeConstant(const RobotModel& model, const Eigen::VectorXd& start,
 
 // How far a row the fit cannot fully predict may be off without a gross error: before a backlash joint first moves
 // its play state is unknown and the model predicts the middle of the gap, up to half the width off (m, at the target).
-double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, const Observation& obs, const Drivers& d) {
+double unknownPlayAllowance(const RobotModel& model, const CalibratedModel& fit, const Observation& obs, const Drivers& d) {
   double allowance = 0;
   KinematicsData data(model);
   Eigen::MatrixXd J(6, model.numParams());
@@ -191,7 +191,7 @@ double unknownPlayAllowance(const RobotModel& model, const ExtendedFit& fit, con
 
 // Position and orientation errors of `obs` under a fit, screened. Rows the fit cannot fully predict (unknown backlash
 // play) do not enter the robust scale, and are judged on what their error exceeds the unknown play by.
-OutlierScreen screenFitRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+OutlierScreen screenFitRows(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                             const std::vector<Drivers>& drivers, const OutlierOptions& options) {
   const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
@@ -371,21 +371,7 @@ ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, c
   return fit;
 }
 
-double ExtendedFit::paramStddev(int i) const {
-  const auto it = std::find(estimated.begin(), estimated.end(), i);
-  if (it == estimated.end() || covariance.rows() == 0) return std::nan("");
-  const auto c = it - estimated.begin();
-  return std::sqrt(covariance(c, c));
-}
-
-double ExtendedFit::extensionStddev(int k) const {
-  const auto it = std::find(estimated_extension.begin(), estimated_extension.end(), k);
-  if (it == estimated_extension.end() || covariance.rows() == 0) return std::nan("");
-  const auto c = static_cast<Eigen::Index>(estimated.size()) + (it - estimated_extension.begin());
-  return std::sqrt(covariance(c, c));
-}
-
-std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
+std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const CalibratedModel& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers) {
   const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
@@ -397,7 +383,7 @@ std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const Ex
   return out;
 }
 
-ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+ErrorStats errorStats(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers) {
   const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
@@ -457,7 +443,7 @@ ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& st
   return fit;
 }
 
-std::vector<int> conditionalCovariance(const RobotModel& model, const ExtendedFit& fit,
+std::vector<int> conditionalCovariance(const RobotModel& model, const CalibratedModel& fit,
                                        const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                        const std::vector<int>& columns, Eigen::MatrixXd* covariance,
                                        double* variance_factor) {
@@ -482,7 +468,7 @@ std::vector<int> conditionalCovariance(const RobotModel& model, const ExtendedFi
   return ordered;
 }
 
-OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+OutlierScreen screenRows(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                          const std::vector<Drivers>& drivers, const OutlierOptions& options) {
   return screenFitRows(model, fit, obs, drivers, options);
 }

@@ -68,7 +68,7 @@ double fitSigma(const std::vector<Judged>& rows, int growth) {
 
 }  // namespace
 
-ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const ExtendedFit& fit,
+ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const CalibratedModel& fit,
                                     const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                     const DiagnosisOptions& options) {
   if (obs.size() != drivers.size()) throw std::invalid_argument("extensionTransfer: one Drivers entry per observation");

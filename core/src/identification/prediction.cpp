@@ -11,7 +11,7 @@ namespace cellcal {
 namespace {
 
 // Whitened Jacobian rows of one observation with respect to [kinematic parameters, extension parameters].
-int jacobianRows(const RobotModel& model, KinematicsData& data, const ExtendedFit& fit, const Observation& obs,
+int jacobianRows(const RobotModel& model, KinematicsData& data, const CalibratedModel& fit, const Observation& obs,
                  const Drivers& drivers, Eigen::VectorXd* r, Eigen::MatrixXd& J) {
   const int np = model.numParams();
   const int k = static_cast<int>(fit.extension_params.size());
@@ -51,7 +51,7 @@ bool PredictionOptions::IsValid(std::string* error) const {
   return true;
 }
 
-VarianceFactors residualVarianceFactors(const RobotModel& model, const ExtendedFit& fit,
+VarianceFactors residualVarianceFactors(const RobotModel& model, const CalibratedModel& fit,
                                         const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                         int estimated) {
   if (obs.size() != drivers.size()) throw std::invalid_argument("residualVarianceFactors: one Drivers entry per observation");
@@ -72,7 +72,7 @@ VarianceFactors residualVarianceFactors(const RobotModel& model, const ExtendedF
   return factorsOf(rss_p, rows_p, rss_o, rows_o, estimated);
 }
 
-PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+PredictionModel predictionModel(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                                 const std::vector<Drivers>& drivers, const PredictionOptions& options) {
   std::string err;
   if (!options.IsValid(&err)) throw std::invalid_argument("PredictionOptions: " + err);
@@ -131,7 +131,7 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
   return pm;
 }
 
-PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
+PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& carried,
                                   const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                   const std::vector<int>& frames, const VarianceFactors& noise) {
   if (obs.size() != drivers.size()) throw std::invalid_argument("carriedPrediction: one Drivers entry per observation");
@@ -201,7 +201,7 @@ PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fi
   return pm;
 }
 
-double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
+double predictedPositionSigma(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& prediction,
                               const Eigen::VectorXd& q_rad, const Drivers& drivers) {
   Observation o;
   o.q_rad = q_rad;

@@ -195,7 +195,7 @@ RlsCalibrator::RlsCalibrator(const RobotModel& model, const Eigen::VectorXd& par
     throw std::invalid_argument("RlsCalibrator: extension parameters do not match the extensions");
 }
 
-RlsCalibrator::RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options)
+RlsCalibrator::RlsCalibrator(const RobotModel& model, const CalibratedModel& initial, RlsCalibratorOptions options)
     : model_(&model),
       params_(initial.params),
       estimated_(initial.estimated),
@@ -242,6 +242,17 @@ int RlsCalibrator::linearizeAnew(const Observation& obs, const Drivers* drivers)
     for (size_t k = 0; k < estimated_extension_.size(); ++k) A_.col(ne + k) = JB.col(estimated_extension_[k]);
   }
   return rows;
+}
+
+CalibratedModel RlsCalibrator::model() const {
+  CalibratedModel m;
+  m.params = params_;
+  m.extensions = extensions_;
+  m.extension_params = extension_params_;
+  m.estimated = estimated_;
+  m.estimated_extension = estimated_extension_;
+  m.covariance = rls_.P();
+  return m;
 }
 
 void RlsCalibrator::save(Checkpoint& c) const {

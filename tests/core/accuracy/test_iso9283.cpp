@@ -322,8 +322,8 @@ TEST(Iso9283, ASimulatedTestGivesTheAccuracyItsTruthSays) {
         f.rows.push_back(r);
       }
     SCOPED_TRACE(d.name + (d.kind == MeasurementKind::kPose6D ? " 6D" : " points"));
-    const Iso9283Model nominal_model{&m, m.nominal, {}, {}};
-    const Iso9283Model true_model{&m, cell.trueParams(0.0), {}, {}};
+    const Iso9283Model nominal_model{CalibratedModel::geometric(m.nominal), &m};
+    const Iso9283Model true_model{CalibratedModel::geometric(cell.trueParams(0.0)), &m};
     const Iso9283Report before = iso9283Report(iso9283Visits(f, nominal_model, true));
     const Iso9283Report after = iso9283Report(iso9283Visits(f, true_model, true));
     ASSERT_EQ(before.poses.size(), 5u);

@@ -94,7 +94,9 @@ TEST(Compensation, AnExtendedModelIsSolvedAtItsFixedPoint) {
     }
     const SimulatedCell cell(m, sc);
     const Eigen::VectorXd truth = cell.trueParams(0.0);
-    const IdentifiedModel identified{truth, {Extension{e.cause, e.joint}}, ext};
+    IdentifiedModel identified(CalibratedModel::geometric(truth));
+    identified.extensions = {Extension{e.cause, e.joint}};
+    identified.extension_params = ext;
     KinematicsData d(m);
     Eigen::VectorXd from = cell.randomConfigurations(1, rng)[0];
     std::vector<Eigen::VectorXd> path = {from};  // what the compensation publisher commanded before
@@ -160,9 +162,9 @@ TEST(Compensation, AResidualMapCorrectsNearMeasuredPosesOnly) {
     for (const auto& o : obs)
       residuals.push_back(o.measured_in_tracker.translation() - forwardKinematics(m, d, fit.params, o.q_rad).translation());
     const ResidualMap map = fitResidualMap(qs, residuals);
-    IdentifiedModel with{fit.params, {}, {}, fit.estimated, fit.covariance};
+    IdentifiedModel with(CalibratedModel::geometric(fit.params, fit.estimated, fit.covariance));
     with.residual_map = &map;
-    const IdentifiedModel without{fit.params, {}, {}, fit.estimated, fit.covariance};
+    const IdentifiedModel without(CalibratedModel::geometric(fit.params, fit.estimated, fit.covariance));
     CompensationSettings s;
     s.max_predicted_sigma_m = 0;  // judged here, not refused
     auto errorAt = [&](const CompensationResult& c, const Pose& desired) {
@@ -224,13 +226,13 @@ TEST(Compensation, AResidualMapCorrectsNearMeasuredPosesOnly) {
     ys.emplace_back(1e-4, 2e-4 * i, 0);
   }
   start.calibration->residual_map = conditionResidualMap(rows, ys, {Eigen::VectorXd::Constant(6, 0.5), 1e-4, 1e-5, 1.0});
-  IdentifiedModel moved{start.model.nominal, {}, {}};
+  IdentifiedModel moved(CalibratedModel::geometric(start.model.nominal));
   moved.params[b + 5] = 0.3 + 0.5 * kPi;  // the tracker turned a quarter about z
   attachResidualMap(start, moved);
   ASSERT_EQ(moved.residual_map, &*start.calibration->residual_map);
   const Eigen::Vector3d c = moved.residual_map->predict(rows[3]).correction_m;
   EXPECT_LT((moved.residual_map_rotation * c - Eigen::Vector3d(-c.y(), c.x(), c.z())).norm(), 1e-12 * c.norm());
-  IdentifiedModel plain_model{start.model.nominal, {}, {}};
+  IdentifiedModel plain_model(CalibratedModel::geometric(start.model.nominal));
   start.calibration->residual_map.reset();
   attachResidualMap(start, plain_model);
   EXPECT_EQ(plain_model.residual_map, nullptr);
@@ -291,7 +293,7 @@ TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {
   const CalibrationSnapshot& snap = engine.snapshot();
   ASSERT_EQ(snap.poses_used, 40u) << engine.counters().last_rejection;
   const auto ne = static_cast<Eigen::Index>(snap.estimated.size());
-  const IdentifiedModel model{snap.params, {}, {}, snap.estimated, snap.covariance.topLeftCorner(ne, ne)};
+  const IdentifiedModel model(CalibratedModel::geometric(snap.params, snap.estimated, snap.kinematicCovariance()));
   CompensationSettings off = config.compensation;
   off.max_predicted_sigma_m = 0;
   off.max_correction_m = 1;  // this test is about the predicted error, not the correction bound

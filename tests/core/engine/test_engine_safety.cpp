@@ -192,7 +192,7 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
   const Eigen::Vector3d offset = randomDirection(rng) * std::uniform_real_distribution<double>(1e-3, 5e-3)(rng);
   const int bump_at = std::uniform_int_distribution<int>(50, 60)(rng);
   std::uint64_t good_version = 0;
-  Eigen::VectorXd good_params;
+  CalibratedModel good_model;
   bool held = false, alarm = false;
   for (int k = 0; k < static_cast<int>(qs.size()); ++k) {
     st.advance(60);
@@ -204,7 +204,7 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
     if (k == bump_at - 1) {
       ASSERT_EQ(snap.health, Health::kOk) << snap.health_reason;
       good_version = snap.version;
-      good_params = snap.params;
+      good_model = snap;
     }
     if (k >= bump_at && snap.health == Health::kHoldLastGood) {
       if (!held) {
@@ -212,7 +212,14 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
       }
       held = true;
       EXPECT_EQ(snap.held_version, good_version);
-      EXPECT_EQ(maxAbsDiff(snap.params, good_params), 0.0);
+      // The whole published model is that version's: parameters, estimated sets and covariance.
+      EXPECT_EQ(maxAbsDiff(snap.params, good_model.params), 0.0);
+      EXPECT_EQ(snap.estimated, good_model.estimated);
+      EXPECT_EQ(snap.estimated_extension, good_model.estimated_extension);
+      EXPECT_EQ(snap.extension_params, good_model.extension_params);
+      EXPECT_TRUE(snap.covariance == good_model.covariance);
+      std::string why;
+      EXPECT_TRUE(snap.IsValid(robot.model, &why)) << why;
       EXPECT_TRUE(snap.drift_alarm);
       EXPECT_NE(snap.health_reason.find("in a row beyond the outlier gate"), std::string::npos) << snap.health_reason;
     }

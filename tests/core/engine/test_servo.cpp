@@ -66,7 +66,7 @@ TEST_F(ServoFixture, ANewVersionIsBlendedInWithoutAStep) {
   const int third_at = switch_at + 1 + static_cast<int>(u(rng) * blend_s * 500 * 0.8);
   const std::int64_t t0 = 1'700'000'000'000'000'000, dt = 2'000'000;  // 500 Hz
   ServoCompensator blended(m, config.compensation, blend_s), stepped(m, config.compensation, 0.0);
-  for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(1, IdentifiedModel{v1, {}, {}});
+  for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(1, IdentifiedModel(CalibratedModel::geometric(v1)));
   const auto qs = path(cycles);
   Eigen::VectorXd last_blended, last_stepped, last_q;
   std::optional<Eigen::VectorXd> last_c[3];
@@ -79,9 +79,9 @@ TEST_F(ServoFixture, ANewVersionIsBlendedInWithoutAStep) {
   for (int k = 0; k < cycles; ++k) {
     const std::int64_t t = t0 + k * dt;
     if (k == switch_at)
-      for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(2, IdentifiedModel{v2, {}, {}});
+      for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(2, IdentifiedModel(CalibratedModel::geometric(v2)));
     if (third && k == third_at)
-      for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(3, IdentifiedModel{v3, {}, {}});
+      for (ServoCompensator* s : {&blended, &stepped}) s->setCalibration(3, IdentifiedModel(CalibratedModel::geometric(v3)));
     const ServoAnswer a = blended.answerJoints(t, qs[k]), b = stepped.answerJoints(t, qs[k]);
     // The plain reference: each version's compensate() of the setpoint's nominal pose, seeded at the setpoint.
     const Pose desired = forwardKinematics(m, m.nominal, qs[k]);
@@ -168,7 +168,7 @@ TEST_F(ServoFixture, CartesianSetpointsAndTheirRefusals) {
   EXPECT_EQ(none.reason, "no calibration received yet");
   EXPECT_EQ(none.q_rad, qs[0]);
   EXPECT_TRUE(none.commanded.isApprox(target));
-  servo.setCalibration(7, IdentifiedModel{truth, {}, {}});
+  servo.setCalibration(7, IdentifiedModel(CalibratedModel::geometric(truth)));
   int matched = 0;
   for (const auto& q : qs) {
     const Pose desired = forwardKinematics(m, m.nominal, q);

@@ -61,7 +61,15 @@ EngineState randomState(std::mt19937_64& rng, std::uint64_t version) {
   s.consecutive_outliers = small(rng);
   s.gate_window = std::vector<double>(static_cast<std::size_t>(small(rng)), 0.0);
   for (auto& g : s.gate_window) g = std::abs(u(rng)) * 100;
-  if (small(rng) % 2) s.last_good = EngineState::Good{version - 1, vec(s.num_params), vec(2 * n_ext), ints(5), cov(5)};
+  if (small(rng) % 2) {
+    EngineState::Good g;
+    g.version = version - 1;
+    g.params = vec(s.num_params);
+    g.extension_params = vec(2 * n_ext);
+    g.estimated = ints(5);
+    g.covariance = cov(5);
+    s.last_good = g;
+  }
   if (n_ext) {
     EngineState::Play play;
     for (int j = 0; j < 6; ++j) {

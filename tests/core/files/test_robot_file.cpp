@@ -2,6 +2,7 @@
 // and covariances drawn at random; a damaged calibration section is refused with its line and field.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 
 #include "cellcal/core/files/robot_file.hpp"
@@ -122,6 +123,52 @@ void expectRefused(const std::string& good, const std::string& from, const std::
     EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
     EXPECT_EQ(std::string(e.what()).rfind("<bad>:", 0), 0u) << e.what();
   }
+}
+
+// calibratedModel(file): the file's kinematics and extensions, and the covariance of the columns the calibration
+// estimated (in any order in the file), checked entry by entry against a plain search of the file's columns by name.
+TEST(RobotFile, ItsCalibratedModelIsTheEstimatedColumnsOfTheFile) {
+  std::mt19937_64 rng(test::testSeed());
+  for (int d = 0; d < 20; ++d) {
+    const RobotModel m = test::robot(d % 2 ? "ur10" : "staubli_tx60");
+    RobotFile file{m, randomCalibration(m, rng), {}};
+    RobotCalibration& cal = *file.calibration;
+    // The file's columns in a random order, the covariance permuted with them.
+    std::vector<Eigen::Index> perm(cal.columns.size());
+    for (size_t k = 0; k < perm.size(); ++k) perm[k] = static_cast<Eigen::Index>(k);
+    std::shuffle(perm.begin(), perm.end(), rng);
+    std::vector<int> columns;
+    std::vector<bool> estimated;
+    for (Eigen::Index k : perm) {
+      columns.push_back(cal.columns[static_cast<size_t>(k)]);
+      estimated.push_back(cal.estimated[static_cast<size_t>(k)]);
+    }
+    const Eigen::MatrixXd cov = cal.covariance(perm, perm);
+    cal.columns = columns, cal.estimated = estimated, cal.covariance = cov;
+    const CalibratedModel c = calibratedModel(file);
+    std::string why;
+    ASSERT_TRUE(c.IsValid(m, &why)) << why;
+    EXPECT_EQ(c.params, m.nominal);
+    EXPECT_EQ(c.extension_params, cal.extension_params);
+    ASSERT_EQ(c.extensions.size(), cal.extensions.size());
+    int flagged = 0;
+    for (bool e : cal.estimated) flagged += e;
+    ASSERT_EQ(c.numEstimated(), flagged);
+    auto fileIndex = [&](const std::string& name) {
+      for (size_t k = 0; k < cal.columns.size(); ++k)
+        if (cal.columnName(m, cal.columns[k]) == name) return static_cast<Eigen::Index>(k);
+      return Eigen::Index(-1);
+    };
+    for (int a = 0; a < c.numEstimated(); ++a) {
+      const Eigen::Index fa = fileIndex(c.columnName(m, a));
+      ASSERT_GE(fa, 0) << c.columnName(m, a);
+      EXPECT_TRUE(cal.estimated[static_cast<size_t>(fa)]) << c.columnName(m, a);
+      for (int b = 0; b < c.numEstimated(); ++b)
+        EXPECT_EQ(c.covariance(a, b), cal.covariance(fa, fileIndex(c.columnName(m, b))));
+    }
+  }
+  const CalibratedModel plain = calibratedModel(RobotFile{test::robot("ur10"), std::nullopt, {}});
+  EXPECT_TRUE(plain.extensions.empty() && plain.estimated.empty() && !plain.hasCovariance());
 }
 
 TEST(RobotFile, APlainRobotFileHasNoCalibration) {

@@ -50,22 +50,18 @@ msg::PoseRequest toPoseRequest(const std::string& robot_id, const PoseProposal& 
 // The configurations of a PoseRequest; nullopt + error when it does not fit a robot of `joints` joints.
 std::optional<std::vector<Eigen::VectorXd>> fromPoseRequest(const msg::PoseRequest& m, int joints, std::string* error);
 
-// What a consumer needs of a CalibrationState: the full parameter vector of the robot's model (nominal values for
-// parameters the message does not name). nullopt + error when the message does not fit the model.
-struct ReceivedCalibration {
+// What a consumer needs of a CalibrationState: the calibrated model (calibrated_model.hpp: the full parameter vector
+// of the robot's model, nominal values for parameters the message does not name; the extensions and their values; the
+// estimated kinematic parameters and their covariance from parameter_stddevs and parameter_correlations, empty when
+// the sender sent no correlations; estimated_extension empty: the wire carries the kinematic block) and the version,
+// health and statistics. nullopt + error when the message does not fit the model.
+struct ReceivedCalibration : CalibratedModel {
   std::uint64_t version = 0;
   msg::CalibrationHealth health = msg::HEALTH_UNCALIBRATED;
-  Eigen::VectorXd params;
-  std::vector<Extension> extensions;  // model extensions and their parameters (empty: geometric model)
-  Eigen::VectorXd extension_params;
   std::uint32_t poses_used = 0;
   double verification_mean_position_m = 0;
   double residual_rms_position_m = 0;          // a-posteriori, over the recent poses
   std::uint64_t last_measurement_stamp_ns = 0;  // with version: tells a new calibration from a republished one
-  // The estimated kinematic parameters and their covariance (from parameter_stddevs and parameter_correlations;
-  // empty when the sender sent no correlations).
-  std::vector<int> estimated;
-  Eigen::MatrixXd covariance;
 };
 std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model, const msg::CalibrationState& m,
                                                          std::string* error);

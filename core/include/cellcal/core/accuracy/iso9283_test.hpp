@@ -15,16 +15,16 @@
 
 #include "cellcal/core/accuracy/iso9283.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
 namespace cellcal {
 
-struct Iso9283Model {
+// The model whose accuracy is tested (kinematics, frames and any extensions: calibrated_model.hpp) and the robot
+// model it is relative to.
+struct Iso9283Model : CalibratedModel {
   const RobotModel* model = nullptr;
-  Eigen::VectorXd params;                // kinematics and frames
-  std::vector<Extension> extensions;     // a calibrated model's extensions (empty: geometric)
-  Eigen::VectorXd extension_params;
 };
 
 // The visits of each test pose, the poses in the order of their names (numbers as numbers: P1, P2, ..., P10). Cycle: the row's `cycle`, else its count at its

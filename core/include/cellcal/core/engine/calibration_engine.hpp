@@ -40,6 +40,7 @@
 #include "cellcal/core/engine/pairing.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/identification/rls.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -47,18 +48,14 @@ namespace cellcal {
 enum class Health { kUncalibrated = 0, kOk = 1, kDegraded = 2, kHoldLastGood = 3 };
 const char* healthName(Health h);
 
-struct CalibrationSnapshot {
+// What the engine publishes: the calibrated model (calibrated_model.hpp: the RLS estimate, or the held version's;
+// extensions are the cell file's, CellRobot::extensions; the covariance is over every estimated kinematic, then
+// extension parameter) and the engine's version, health and statistics.
+struct CalibrationSnapshot : CalibratedModel {
   std::uint64_t version = 0;          // 0 = nothing identified yet; +1 per accepted update
   EngineMode mode = EngineMode::kContinuous;
   Health health = Health::kUncalibrated;
   std::uint32_t poses_used = 0;
-  Eigen::VectorXd params;             // full SI vector (RobotModel layout)
-  std::vector<int> estimated;         // indices of params the RLS estimates
-  // Model extensions of the cell file (CellRobot::extensions) and their parameters (extensionParamNames order).
-  std::vector<Extension> extensions;
-  Eigen::VectorXd extension_params;
-  std::vector<int> estimated_extension;  // indices of extension_params the RLS estimates
-  Eigen::MatrixXd covariance;         // over `estimated`, then `estimated_extension`
   double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
   double residual_rms_orientation_rad = 0;
   double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
@@ -208,13 +205,7 @@ class CalibrationEngine {
   };
   std::deque<Recent> recent_;
   InputWatch inputs_;  // stand-stills, when the robot moved, stale streams (input_watch.hpp)
-  struct Good {  // the last version published with health ok
-    std::uint64_t version = 0;
-    Eigen::VectorXd params, extension_params;
-    std::vector<int> estimated;
-    Eigen::MatrixXd covariance;
-  };
-  std::optional<Good> last_good_;
+  std::optional<EngineState::Good> last_good_;  // the last version published with health ok
   int consecutive_outliers_ = 0;
   OutlierGate gate_;  // NIS per row of the recent new stand-stills (outlier_gate.hpp)
   Eigen::VectorXd gated_q_;

@@ -31,10 +31,12 @@
 #include <Eigen/Core>
 #include <limits>
 #include <string>
+#include <utility>
 
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/identification/residual_map.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/inverse_kinematics.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/se3.hpp"
@@ -75,15 +77,12 @@ struct CompensationResult {
   Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
 };
 
-struct IdentifiedModel {
-  Eigen::VectorXd params;                  // full kinematic vector (RobotModel layout)
-  std::vector<Extension> extensions;       // empty: the geometric model
-  Eigen::VectorXd extension_params;
-  // Covariance of the estimated kinematic parameters (indices into params): with it, a target where the model's
-  // predicted position error exceeds CompensationSettings::max_predicted_sigma_m is passed through uncorrected.
-  // Empty: no such guard.
-  std::vector<int> estimated = {};
-  Eigen::MatrixXd covariance = Eigen::MatrixXd();
+// The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
+// covariance, a target where the model's predicted position error (of the estimated kinematic parameters) exceeds
+// CompensationSettings::max_predicted_sigma_m is passed through uncorrected; without one, no such guard.
+struct IdentifiedModel : CalibratedModel {
+  IdentifiedModel() = default;
+  explicit IdentifiedModel(CalibratedModel model) : CalibratedModel(std::move(model)) {}
   // What the calibration still leaves where the robot was measured (a calibrated robot file's residual map; not
   // owned: it must outlive this model), and the rotation from the tracker frame it was made in into this model's
   // (identity when the registration is the same).

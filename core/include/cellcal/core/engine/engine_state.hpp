@@ -11,6 +11,7 @@
 
 #include "cellcal/core/engine/pairing.hpp"
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 
 namespace cellcal {
@@ -41,12 +42,11 @@ struct EngineState {
   int consecutive_outliers = 0;
   std::vector<double> gate_window;
 
-  // The last version published with health ok, while another health is published.
-  struct Good {
+  // The last version published with health ok, while another health is published: its model (calibrated_model.hpp;
+  // the files keep params, extension_params, estimated and covariance: its extensions and estimated_extension are
+  // the state's own, filled in on import) and its version.
+  struct Good : CalibratedModel {
     std::uint64_t version = 0;
-    Eigen::VectorXd params, extension_params;
-    std::vector<int> estimated;
-    Eigen::MatrixXd covariance;
   };
   std::optional<Good> last_good;
 

@@ -16,6 +16,7 @@
 #include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/residual_map.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/robot_model.hpp"
 
@@ -61,7 +62,12 @@ struct RobotFile {
 // The calibration section of a fit and its prediction model (prediction.hpp): the fit's extensions and their values,
 // the prediction's covariance over every parameter a prediction depends on, flagged estimated where the fit estimated
 // it. Provenance is the caller's to fill.
-RobotCalibration robotCalibration(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction);
+RobotCalibration robotCalibration(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& prediction);
+
+// The file's model as a calibrated model (calibrated_model.hpp): its kinematics and frames (model.nominal), the
+// extensions and their values, and the columns the calibration estimated with their covariance (columns kept at their
+// prior width left out). Without a calibration section: the geometric model of its values, nothing estimated.
+CalibratedModel calibratedModel(const RobotFile& file);
 
 // Throws ConfigError "<file>:<line>:<column>: <field>: <message>" on bad input (as loadRobotModel).
 RobotFile loadRobotFile(const std::string& path);

@@ -179,7 +179,7 @@ struct DriverStructure {
   double p_value = 1;
   bool significant = false;
 };
-std::vector<DriverStructure> residualStructure(const RobotModel& model, const ExtendedFit& fit,
+std::vector<DriverStructure> residualStructure(const RobotModel& model, const CalibratedModel& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                                bool has_thermal, double alpha = 0.001);
 
@@ -193,7 +193,7 @@ struct NoiseEstimate {
   bool from_repeats = false;
   std::string source;  // "repeated poses (12 groups, 30 rows)" or "residual of <model> on 195 identification rows"
 };
-NoiseEstimate estimateNoise(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& fitted,
+NoiseEstimate estimateNoise(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& fitted,
                             const std::vector<Drivers>& fitted_drivers, const std::vector<Observation>& predicted,
                             const std::vector<Drivers>& predicted_drivers);
 

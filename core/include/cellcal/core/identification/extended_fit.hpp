@@ -14,31 +14,23 @@
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/identification/outliers.hpp"
+#include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/model_extension.hpp"
 
 namespace cellcal {
 
-struct ExtendedFit {
-  std::vector<Extension> extensions;      // in the order of their parameters; empty: the geometric model
+// A batch fit's model (calibrated_model.hpp: kinematic and extension parameters, the estimated ones, their
+// covariance) and the solver's outcome. The covariance, (A^T A)^-1 of the whitened Jacobian at the solution, assumes
+// the readings' sigmas: scale it by the residual's ratio to them when the model leaves more than noise. Extension
+// parameters the data do not separate from the geometric ones are held at 0 (not in estimated_extension).
+struct ExtendedFit : CalibratedModel {
   Extension extension() const { return extensions.empty() ? Extension{} : extensions.front(); }  // the (first) one
   bool converged = false;
   int iterations = 0;
   std::string message;
-  Eigen::VectorXd params;                 // kinematic parameters, full vector, SI
-  Eigen::VectorXd extension_params;       // numExtensionParams(model, extension)
-  std::vector<int> estimated;             // kinematic parameters estimated
-  std::vector<int> estimated_extension;   // extension parameters estimated (others held at 0: not identifiable)
   std::vector<std::string> extension_names;
   // Rows the fit left out: with a backlash, those where its joint had not moved yet (play state unknown).
   int rows_left_out = 0;
-  // Covariance (SI) of the estimated parameters at the solution, (A^T A)^-1 of the whitened Jacobian: rows/cols are
-  // `estimated` then `estimated_extension`, in those orders. It assumes the readings' sigmas: scale it by the
-  // residual's ratio to them when the model leaves more than noise.
-  Eigen::MatrixXd covariance;
-  int numEstimatedExtension() const { return static_cast<int>(estimated_extension.size()); }
-  // 1-sigma of kinematic parameter i / extension parameter k (NaN when not estimated).
-  double paramStddev(int i) const;
-  double extensionStddev(int k) const;
 };
 
 // "joint_compliance joint 2", "thermal_drift (lengths)", "thermal_drift joint 3, warm-up 1.6 h",
@@ -81,17 +73,17 @@ ExtendedFit fitExtendedRobust(const RobotModel& model, const Eigen::VectorXd& st
 // `covariance` (A^T A)^-1 of the whitened Jacobian over them, SI, in that order. `variance_factor` (optional)
 // receives r^T r / (rows - columns returned): the ratio of what the fit leaves to the readings' sigmas, by which the
 // covariance is to be scaled when it is above 1.
-std::vector<int> conditionalCovariance(const RobotModel& model, const ExtendedFit& fit,
+std::vector<int> conditionalCovariance(const RobotModel& model, const CalibratedModel& fit,
                                        const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                        const std::vector<int>& columns, Eigen::MatrixXd* covariance,
                                        double* variance_factor = nullptr);
 
 // Screening of rows a fit predicts (e.g. verification rows): their errors against the robust scale of their own.
-OutlierScreen screenRows(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+OutlierScreen screenRows(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                          const std::vector<Drivers>& drivers, const OutlierOptions& options);
 
 // measured - model position (m) of each observation under a fit.
-std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const ExtendedFit& fit,
+std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const CalibratedModel& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers);
 
 struct ErrorStats {
@@ -99,7 +91,7 @@ struct ErrorStats {
   double mean_mm = 0, rms_mm = 0, max_mm = 0;     // position
   double mean_deg = 0, rms_deg = 0, max_deg = 0;  // orientation (6D rows only)
 };
-ErrorStats errorStats(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+ErrorStats errorStats(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers);
 // The same figures accumulated one observation and predicted pose at a time.
 class ErrorStatsAccumulator {

@@ -72,12 +72,12 @@ struct PredictionModel {
 struct VarianceFactors {
   double position = 1.0, orientation = 1.0;
 };
-VarianceFactors residualVarianceFactors(const RobotModel& model, const ExtendedFit& fit,
+VarianceFactors residualVarianceFactors(const RobotModel& model, const CalibratedModel& fit,
                                         const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                         int estimated);
 
 // The posterior of `fit` on its identification rows (those it was fitted on, gross errors left out).
-PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit, const std::vector<Observation>& obs,
+PredictionModel predictionModel(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                                 const std::vector<Drivers>& drivers, const PredictionOptions& options = {});
 
 // The prediction of a calibrated model carried to another set-up, its frames registered again on `obs` at `fit`
@@ -97,7 +97,7 @@ PredictionModel predictionModel(const RobotModel& model, const ExtendedFit& fit,
 // entirely (a base offset) predicts nothing; one they cannot (a link length) predicts what it does at q less what the frames took on these rows.
 // The error the model makes only on this set-up (a cause it does not hold that acts differently here) is not in it:
 // the ratio of actual to predicted on held-out rows says so.
-PredictionModel carriedPrediction(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& carried,
+PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& carried,
                                   const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                   const std::vector<int>& frames, const VarianceFactors& noise);
 
@@ -124,13 +124,13 @@ struct ExtensionTransfer {
   std::vector<BeyondRange> beyond() const;  // those with sigma_at_1_rad > 0
   std::string text;                         // one line per joint and a line for what was not measured
 };
-ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const ExtendedFit& fit,
+ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const CalibratedModel& fit,
                                     const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                     const DiagnosisOptions& options = {});
 
 // Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
 // 3D position error the model makes there, reading noise not included), prediction.beyond's errors included.
-double predictedPositionSigma(const RobotModel& model, const ExtendedFit& fit, const PredictionModel& prediction,
+double predictedPositionSigma(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& prediction,
                               const Eigen::VectorXd& q_rad, const Drivers& drivers);
 
 // Predicted 1-sigma position error (m) of a kinematic estimate at q: sqrt(trace(J P J^T)) over the position rows,

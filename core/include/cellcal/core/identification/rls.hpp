@@ -127,7 +127,7 @@ class RlsCalibrator {
                 RlsCalibratorOptions options = {});
 
   // Starts from an extended fit (fitExtended): its parameters, estimated sets and covariance.
-  RlsCalibrator(const RobotModel& model, const ExtendedFit& initial, RlsCalibratorOptions options = {});
+  RlsCalibrator(const RobotModel& model, const CalibratedModel& initial, RlsCalibratorOptions options = {});
 
   // Linearize at the current estimate and update. Returns the normalized innovation squared. `drivers` (the pose's
   // thermal driver and play state) is required when the state has extension parameters.
@@ -160,6 +160,8 @@ class RlsCalibrator {
   const std::vector<Extension>& extensions() const { return extensions_; }
   const Eigen::VectorXd& extensionParams() const { return extension_params_; }
   const std::vector<int>& estimatedExtension() const { return estimated_extension_; }
+  // The estimate as a calibrated model (calibrated_model.hpp): the covariance over the whole state.
+  CalibratedModel model() const;
   GaussianPrior asPrior() const;  // kinematic part of the estimate and covariance, e.g. for a batch solve
 
  private:
