@@ -1,6 +1,5 @@
-// `cellcal cell`'s application and judge: the launcher's own participant.
+// `cellcal cell`'s judge: every calibration and compensated target scored against the simulator's truth.
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -18,44 +17,36 @@ namespace cellcal::cli {
 
 using namespace cellcal::components;
 
-// The launcher's own participant: the cell's application (TargetPoses at --targets-hz) and its judge (scores every
-// calibration and compensated target it receives against the simulator's truth). DDS callbacks only record
-// (receipt time, sample): one receive thread serves every reader, so scoring in a callback would delay the others
-// and inflate the latencies measured; score() does the work on the caller's thread.
+// The judge's DDS callbacks only record (receipt time, sample): one receive thread serves every reader, so scoring in
+// a callback would delay the others and inflate the latencies measured; score() does the work on the caller's thread.
 class CellJudge::Impl {
  public:
-  Impl(const CellConfig& cell, const CellArgs& a) : cell_(cell), a_(a), node_(cell, "cellcal_cell_launcher", identity::kApplication),
-        targets_(node_.writer<msg::TargetPose>()), target_rng_(cell.simulation.seed + 777) {
+  Impl(const CellConfig& cell, const CellArgs& a, SentTargets& sent) : cell_(cell), a_(a), sent_(sent) {
     for (size_t i = 0; i < cell.robots.size(); ++i) {
       Judge j(&cell.robots[i], makeSimulatedCell(cell.robots[i], cell.simulation, static_cast<int>(i)));
-      std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);
+      std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);  // the application's targets follow (cell_application)
       j.holdout = j.sim.randomConfigurations(a.holdout_poses, rng);
-      j.target_qs = j.sim.randomConfigurations(200, rng);
       j.identified.params = j.sim.nominalParams();
       judges_.push_back(std::move(j));
     }
-    node_.reader<sim::RobotTruth>([this](const sim::RobotTruth& t, const fdds::SampleInfo&) {
+  }
+
+  void attach(DdsNode& node) {
+    node.reader<sim::RobotTruth>([this](const sim::RobotTruth& t, const fdds::SampleInfo&) {
       std::lock_guard<std::mutex> lock(mutex_);
       if (!program_start_) program_start_ = std::chrono::steady_clock::now();
       if (Judge* j = find(t.robot_id().to_string())) j->cell_time_s = std::max(j->cell_time_s, t.cell_time_s());
     });
-    node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+    node.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) {
       const std::int64_t now = wallNs();
       std::lock_guard<std::mutex> lock(mutex_);
       states_in_.emplace_back(now, m);
     });
-    node_.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
+    node.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
       const std::int64_t now = wallNs();
       std::lock_guard<std::mutex> lock(mutex_);
       compensated_in_.emplace_back(now, m);
     });
-    if (a.servo) {
-      servo_.emplace(node_.writer<msg::ServoSetpoint>());
-      node_.reader<msg::ServoCorrection>([this](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
-        ++servo_answered_;
-        if (m.applied()) ++servo_applied_;
-      });
-    }
   }
 
   double elapsed() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count(); }
@@ -66,34 +57,6 @@ class CellJudge::Impl {
     std::lock_guard<std::mutex> lock(mutex_);
     if (!program_start_) return elapsed() > 30 ? a_.duration_s : 0.0;
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - *program_start_).count();
-  }
-
-  // One TargetPose per robot: the nominal pose of a random configuration, to be compensated.
-  void sendTargets() {
-    for (auto& j : judges_) {
-      const Eigen::VectorXd& q = j.target_qs[std::uniform_int_distribution<size_t>(0, j.target_qs.size() - 1)(target_rng_)];
-      KinematicsData d(j.sim.model());
-      const Pose desired = forwardKinematics(j.sim.model(), d, j.sim.nominalParams(), q);
-      msg::TargetPose t;
-      t.robot_id(j.robot->robot_id);
-      t.sequence_number(++j.target_seq);
-      fromPose(desired, t.position_m(), t.orientation_xyzw());
-      t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
-      const std::int64_t now = wallNs();
-      t.source_stamp_ns(static_cast<std::uint64_t>(now));
-      j.sent[j.target_seq] = {now, q};
-      targets_.write(t);
-      if (servo_) {  // the robot holding the target's joints, one setpoint per cycle
-        servo_sample_.robot_id(j.robot->robot_id);
-        servo_sample_.sequence_number(j.target_seq);  // one setpoint per target: the same count
-        servo_sample_.source_stamp_ns(static_cast<std::uint64_t>(now));
-        servo_sample_.cycle_stamp_ns(static_cast<std::uint64_t>(now));
-        servo_sample_.cartesian(false);
-        servo_sample_.joint_position_rad().assign(q.data(), q.data() + q.size());
-        servo_->write(servo_sample_);
-        ++servo_sent_;
-      }
-    }
   }
 
   // Scores what arrived since the last call; a line per calibration update unless --quiet.
@@ -107,12 +70,6 @@ class CellJudge::Impl {
     }
     for (const auto& [now, m] : states) scoreCalibration(now, m);
     for (const auto& [now, m] : comps) scoreCompensation(now, m);
-  }
-
-  // Leaves the domain (no callback after this) and scores what is left.
-  void finish() {
-    node_.shutdown();
-    score();
   }
 
   // The summary of the run (processes and their topic counts: mergeProcessStats) and its two printed lines.
@@ -181,12 +138,6 @@ class CellJudge::Impl {
                 "p50 %.0f us, p99 %.0f us\n",
                 percentile(tracker_to_state_us_, 0.5), percentile(tracker_to_state_us_, 0.99),
                 percentile(target_to_compensated_us_, 0.5), percentile(target_to_compensated_us_, 0.99));
-    if (servo_) {
-      s["servo"] = {{"sent", servo_sent_}, {"answered", servo_answered_.load()}, {"applied", servo_applied_.load()}};
-      std::printf("cell: servo stream: %llu joint setpoints, %llu answered on cellcal/servo_correction (%llu applied)\n",
-                  static_cast<unsigned long long>(servo_sent_), static_cast<unsigned long long>(servo_answered_.load()),
-                  static_cast<unsigned long long>(servo_applied_.load()));
-    }
     if (cell_.simulation.follow_pose_requests)
       for (const auto& r : robots)
         std::printf("cell: %s: %llu poses of the program taken from the engine's proposals (cellcal/pose_request)\n",
@@ -201,8 +152,6 @@ class CellJudge::Impl {
                     why.first > 1 ? " (the last of them)" : "");
     }
   }
-
-  nlohmann::json topicStats() const { return node_.stats(); }
 
  private:
   static double mean(const std::vector<double>& v) {
@@ -274,11 +223,12 @@ class CellJudge::Impl {
   void scoreCompensation(std::int64_t now, const msg::CompensatedTarget& m) {
     Judge* j = find(m.robot_id().to_string());
     if (!j) return;
-    auto it = j->sent.find(m.target_sequence());
-    if (it == j->sent.end()) return;
-    target_to_compensated_us_.push_back((now - it->second.first) / 1e3);
-    const Eigen::VectorXd q_nominal = it->second.second;
-    j->sent.erase(it);
+    auto& sent = sent_[j->robot->robot_id];
+    auto it = sent.find(m.target_sequence());
+    if (it == sent.end()) return;
+    target_to_compensated_us_.push_back((now - it->second.stamp_ns) / 1e3);
+    const Eigen::VectorXd q_nominal = it->second.q_nominal;
+    sent.erase(it);
     if (!m.applied()) {
       ++j->refused;
       // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
@@ -315,22 +265,15 @@ class CellJudge::Impl {
   std::vector<std::pair<std::int64_t, msg::CalibrationState>> states_in_;
   std::vector<std::pair<std::int64_t, msg::CompensatedTarget>> compensated_in_;
   std::vector<double> tracker_to_state_us_, target_to_compensated_us_;
-  std::atomic<std::uint64_t> servo_answered_{0}, servo_applied_{0};  // --servo: corrections received
-  DdsNode node_;  // after the state its callbacks use: deleted (and its callbacks stopped) before it
-  Writer<msg::TargetPose> targets_;
-  std::optional<Writer<msg::ServoSetpoint>> servo_;  // --servo
-  msg::ServoSetpoint servo_sample_;
-  std::uint64_t servo_sent_ = 0;
-  std::mt19937_64 target_rng_;
+  SentTargets& sent_;  // the application's (cell_application.cpp); scored answers are taken out
 };
 
-CellJudge::CellJudge(const CellConfig& cell, const CellArgs& a) : impl_(std::make_unique<Impl>(cell, a)) {}
+CellJudge::CellJudge(const CellConfig& cell, const CellArgs& a, SentTargets& sent)
+    : impl_(std::make_unique<Impl>(cell, a, sent)) {}
 CellJudge::~CellJudge() = default;
+void CellJudge::attach(DdsNode& node) { impl_->attach(node); }
 double CellJudge::runningSeconds() { return impl_->runningSeconds(); }
-void CellJudge::sendTargets() { impl_->sendTargets(); }
 void CellJudge::score() { impl_->score(); }
-void CellJudge::finish() { impl_->finish(); }
 void CellJudge::summarize(nlohmann::json* summary) const { impl_->summarize(summary); }
-nlohmann::json CellJudge::topicStats() const { return impl_->topicStats(); }
 
 }  // namespace cellcal::cli

@@ -1,7 +1,8 @@
 // `cellcal cell`'s roles beside the four processes it launches: the launcher (cell_launcher.cpp: start the
-// processes, merge their --stats-json), the cell's application and judge (cell_judge.cpp: one participant of the
-// launcher's that publishes TargetPoses and scores every calibration against the simulator's truth) and the in-process
-// reference (cell_reference.cpp: core's CalibrationEngine on the same inputs, no DDS).
+// processes, merge their --stats-json), the cell's application (cell_application.cpp: publishes TargetPoses and
+// servo setpoints) and its judge (cell_judge.cpp: scores every calibration and compensated target against the
+// simulator's truth), both on the launcher's one participant, and the in-process reference (cell_reference.cpp: core's
+// CalibrationEngine on the same inputs, no DDS).
 #pragma once
 
 #include <array>
@@ -20,6 +21,10 @@
 #include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
+
+namespace cellcal::components {
+class DdsNode;
+}  // namespace cellcal::components
 
 namespace cellcal::cli {
 
@@ -65,19 +70,17 @@ struct Judge {
   const CellRobot* robot;
   SimulatedCell sim;
   std::vector<Eigen::VectorXd> holdout;
-  std::vector<Eigen::VectorXd> target_qs;
   double cell_time_s = 0;
   std::uint64_t version = 0;
   CalibratedModel identified;  // the latest calibration received (with its model extensions, if any)
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
-  std::uint64_t target_seq = 0, applied = 0, refused = 0;
+  std::uint64_t applied = 0, refused = 0;
   // The compensation publisher's reasons, grouped without their figures: how many, and the last one as it was said.
   std::map<std::string, std::pair<std::uint64_t, std::string>> refused_why;
   std::string health = "uncalibrated";  // of the latest CalibrationState
   std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last
   size_t landed_reported = 0;           // compensated_error_mm up to here is in a printed line
-  std::map<std::uint64_t, std::pair<std::int64_t, Eigen::VectorXd>> sent;  // seq -> (send time, nominal joints)
   // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
   std::vector<std::array<double, 4>> history;
 
@@ -127,22 +130,54 @@ std::optional<ReadingsApplied> readingsApplied(const nlohmann::json& summary, co
 // The poses the simulated program took from the engine's proposals (the joint-state adapter's followed_poses).
 std::map<long long, Eigen::VectorXd> followedPoses(const nlohmann::json& summary, const std::string& robot_id);
 
-// The launcher's own participant: the cell's application (TargetPoses at --targets-hz, and a servo setpoint with each
-// with --servo) and its judge (scores every calibration and compensated target it receives against the simulator's
-// truth; cell_judge.cpp).
+// The targets the application sent whose answers the judge has not scored yet, per robot: target sequence -> when it
+// was sent and the nominal joints it was made from. Touched on the launcher's main thread only.
+struct SentTarget {
+  std::int64_t stamp_ns = 0;
+  Eigen::VectorXd q_nominal;
+};
+using SentTargets = std::map<std::string, std::map<std::uint64_t, SentTarget>>;
+
+// The two roles share the launcher's participant. Each is constructed first (its state), then the participant, then
+// attach() creates its writers and readers on it: the participant goes first at the end, and with it every callback
+// into a role (Fast DDS examples: entities deleted in the reverse of their creation).
+//
+//   CellApplication app(cell, a);
+//   CellJudge judge(cell, a, app.sent());
+//   DdsNode node(cell, "cellcal_cell_launcher", identity::kApplication);
+//   app.attach(node), judge.attach(node);
+
+// The cell's application: per robot and call, a TargetPose (the nominal pose of a random configuration, to be
+// compensated) and, with --servo, a joint setpoint with it (the robot holding the target's joints, one per cycle); it
+// counts the servo corrections it gets back (cell_application.cpp).
+class CellApplication {
+ public:
+  CellApplication(const CellConfig& cell, const CellArgs& a);
+  ~CellApplication();
+  void attach(components::DdsNode& node);
+  void sendTargets();
+  SentTargets& sent();
+  // The servo stream's counts (--servo) into the summary and its printed line.
+  void summarize(nlohmann::json* summary) const;
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// The cell's judge: scores every calibration and compensated target it receives against the simulator's truth
+// (cell_judge.cpp).
 class CellJudge {
  public:
-  CellJudge(const CellConfig& cell, const CellArgs& a);
+  CellJudge(const CellConfig& cell, const CellArgs& a, SentTargets& sent);
   ~CellJudge();
+  void attach(components::DdsNode& node);
   // --duration-s counts from the moment the robot program runs (start-up and discovery excluded), so a loaded
   // machine still sees the whole program; at most 30 s are allowed for start-up.
   double runningSeconds();
-  void sendTargets();  // one TargetPose per robot: the nominal pose of a random configuration, to be compensated
-  void score();        // scores what arrived since the last call; a line per calibration update unless --quiet
-  void finish();       // leaves the domain (no callback after this) and scores what is left
+  void score();  // scores what arrived since the last call; a line per calibration update unless --quiet
   // The summary of the run (processes and their topic counts: mergeProcessStats) and its printed lines.
   void summarize(nlohmann::json* summary) const;
-  nlohmann::json topicStats() const;
 
  private:
   class Impl;

@@ -1,8 +1,8 @@
 // `cellcal cell`: the four-process cell on localhost against the simulated robot(s) of the cell file.
 // Launches cellcal_calibration_engine, cellcal_compensation_publisher, cellcal_tracker_adapter (sim) and
 // cellcal_joint_state_adapter (sim) as separate processes, and joins the domain itself as the cell's application
-// and its judge: it publishes TargetPoses, and scores every published calibration against the simulator's truth
-// on a hold-out pose set (the engine never sees the truth).
+// and its judge (cell_roles.hpp): it publishes TargetPoses, and scores every published calibration against the
+// simulator's truth on a hold-out pose set (the engine never sees the truth).
 #include <cstdio>
 #include <filesystem>
 #include <set>
@@ -72,7 +72,12 @@ int runCell(const CellArgs& a) {
   fs::create_directories(a.work_dir);
   const std::string state_dir = (fs::path(a.work_dir) / "state").string();
   if (!a.resume) fs::remove_all(state_dir);
-  CellJudge judge(cell, a);
+  // The launcher's participant: the application and the judge, then the participant they share (deleted first).
+  CellApplication application(cell, a);
+  CellJudge judge(cell, a, application.sent());
+  DdsNode node(cell, "cellcal_cell_launcher", identity::kApplication);
+  application.attach(node);
+  judge.attach(node);
   std::vector<Child> children = startProcesses(cell, a, state_dir);
   std::printf("cell: %zu processes on domain %d (%s), cell time x%g, %zu robot(s); logs in %s\n", children.size(),
               cell.dds.domain_id, cell.dds.participant_profile.c_str(), cell.time_compression, cell.robots.size(),
@@ -97,7 +102,7 @@ int runCell(const CellArgs& a) {
       }
     if (child_died) break;
     judge.score();
-    judge.sendTargets();
+    application.sendTargets();
   }
   // Stopped in the reverse of their start: the cell's processes, which flush what they published last (a reliable
   // writer waits for its acknowledgements on a clean exit), then the recorder, so the recording holds it.
@@ -106,11 +111,13 @@ int runCell(const CellArgs& a) {
   stopAll(cell_processes);
   stopAll(recorder);
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  judge.finish();
+  node.shutdown();  // no callback after this
+  judge.score();    // what is left
 
   nlohmann::json summary;
-  const int failures = mergeProcessStats(children, judge.topicStats(), &summary);
+  const int failures = mergeProcessStats(children, node.stats(), &summary);
   judge.summarize(&summary);
+  application.summarize(&summary);
   if (!a.summary_json.empty()) {
     writeJsonFile(a.summary_json, summary);
     std::printf("cell: summary in %s\n", a.summary_json.c_str());

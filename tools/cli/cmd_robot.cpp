@@ -1,6 +1,7 @@
 // `cellcal robot import`: a URDF as a robot file. `cellcal robot export`: a calibrated robot file back into the robot
 // stack: the nominal URDF with the chain's joint origins calibrated, the `kinematics:` YAML of Universal Robots'
-// driver, or the calibrated DH table; each says what the format cannot carry and what that costs.
+// driver, or the calibrated DH table (core's write(): files/export.hpp); each says what the format cannot carry and
+// what that costs.
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -8,6 +9,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "cellcal/core/files/export.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/urdf.hpp"
@@ -70,10 +72,6 @@ Pose parseFrameMmDeg(const std::string& text, const std::string& option) {
   return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
 }
 
-Pose frameOf(const Eigen::VectorXd& p, int first) {
-  return poseFromXyzRpy(p[first], p[first + 1], p[first + 2], p[first + 3], p[first + 4], p[first + 5]);
-}
-
 // The held-out error of the full calibrated model and of its geometric part (what the formats carry) on the rows it was
 // calibrated on (provenance data_file, split), when that file is there.
 struct ExportCost {
@@ -115,23 +113,13 @@ int runExport(const ExportArgs& a) {
   const RobotFile rf = loadRobotFile(a.robot);
   const RobotModel& m = rf.model;
   nlohmann::json j = {{"robot", a.robot}, {"format", a.format}, {"out", a.out}};
-  std::vector<std::string> not_carried;
-  if (rf.calibration && !rf.calibration->extensions.empty())
-    not_carried.push_back("the model extensions (" + modelLabel(rf.calibration->extensions) +
-                          "): only the geometric part is exported");
-  // The tip's correction: where the calibrated tool frame puts the target against its nominal place on the flange.
-  Pose tip_correction = Pose::Identity();
-  const Pose tool = frameOf(m.nominal, m.toolParam(FrameParam::kX));
-  if (!a.target_in_flange.empty()) {
-    tip_correction = tool * parseFrameMmDeg(a.target_in_flange, "--target-in-flange").inverse();
-  } else if (rf.calibration) {
-    not_carried.push_back("what the target's frame absorbed of the robot (joint " + std::to_string(m.numJoints()) +
-                          "'s flange-side parameters): give the target's nominal place with --target-in-flange to carry it");
-  }
-  const Eigen::Matrix<double, 6, 1> tc = xyzRpyFromPose(tip_correction);
-  j["tip_correction"] = {{"x_mm", tc[0] * 1e3}, {"y_mm", tc[1] * 1e3}, {"z_mm", tc[2] * 1e3}, {"roll_deg", radToDeg(tc[3])},
-                         {"pitch_deg", radToDeg(tc[4])}, {"yaw_deg", radToDeg(tc[5])}};
-  if (a.format == "urdf" || a.format == "ur-kinematics") {
+  const std::optional<ExportFormat> format = exportFormatFromName(a.format);
+  if (!format) throw ConfigError("--format " + a.format + ": expected urdf, ur-kinematics or dh-table");
+  ExportOptions o;
+  if (!a.target_in_flange.empty()) o.target_in_flange = parseFrameMmDeg(a.target_in_flange, "--target-in-flange");
+  o.base_frame_link = a.base_frame_link;
+  o.ur_hash = a.ur_hash;
+  if (*format != ExportFormat::kDhTable) {
     std::string urdf = a.urdf;
     if (urdf.empty()) {  // the URDF the robot file was imported from
       std::string why;
@@ -141,81 +129,37 @@ int runExport(const ExportArgs& a) {
       urdf = origin->path;
       std::printf("robot export: the nominal description is %s (the robot file's source)\n", urdf.c_str());
     }
-    UrdfImportOptions o;  // the chain the robot file was imported with (else the URDF's default chain)
-    for (const auto& [k, v] : rf.source) {
-      if (k == "base_link") o.base_link = v;
-      if (k == "tip_link") o.tip_link = v;
+    for (const auto& [k, v] : rf.source) {  // the chain the robot file was imported with (else the URDF's default)
+      if (k == "base_link") o.chain.base_link = v;
+      if (k == "tip_link") o.chain.tip_link = v;
     }
-    const std::string xml = readText(urdf);
-    const UrdfImport u = importUrdf(xml, urdf, o);
-    // The calibrated file must be of this description: same joints, same fixed transforms around the chain.
-    if (const std::string mismatch = urdfMismatch(u, m); !mismatch.empty())
-      throw ConfigError(urdf + ": not the description " + a.robot + " was calibrated from (" + mismatch +
-                        "): nothing written");
-    std::string out = exportUrdf(xml, urdf, u, m.nominal, tip_correction);
-    // The registered base as a fixed joint from a named link, if asked.
-    if (!a.base_frame_link.empty()) {
-      const Eigen::Matrix<double, 6, 1> b = m.nominal.segment<6>(m.baseParam(FrameParam::kX));
-      char joint[512];
-      std::snprintf(joint, sizeof joint,
-                    "  <link name=\"%s\"/>\n  <joint name=\"%s_to_%s\" type=\"fixed\">\n    <parent link=\"%s\"/>\n"
-                    "    <child link=\"%s\"/>\n    <origin xyz=\"%.17g %.17g %.17g\" rpy=\"%.17g %.17g %.17g\"/>\n  </joint>\n",
-                    a.base_frame_link.c_str(), a.base_frame_link.c_str(), u.base_link.c_str(), a.base_frame_link.c_str(),
-                    u.base_link.c_str(), b[0], b[1], b[2], b[3], b[4], b[5]);
-      const auto end = out.rfind("</robot>");
-      if (end == std::string::npos) throw ConfigError(urdf + ": no </robot>");
-      out.insert(end, joint);
-    }
-    if (a.format == "urdf") {
-      writeText(a.out, out);
-    } else {
-      double rest_m = 0, rest_rad = 0;
-      const std::string y = "# written by `cellcal robot export --format ur-kinematics` from " + a.robot +
-                            "\n# for ur_robot_driver's kinematics_params_file (ur_calibration's format)\n" +
-                            exportUrKinematics(xml, urdf, u, m.nominal, tip_correction, a.ur_hash, &rest_m, &rest_rad);
-      if (rest_m * 1e3 > 1e-6 || radToDeg(rest_rad) > 1e-6) {
-        char buf[300];
-        std::snprintf(buf, sizeof buf,
-                      "%.4f mm and %.4f deg of the flange's calibration beyond joint 6's turn and shift (ur_description's "
-                      "fixed joints after wrist_3 are its own)", rest_m * 1e3, radToDeg(rest_rad));
-        not_carried.push_back(buf);
-      }
-      j["not_carried_beyond_joint6_mm"] = rest_m * 1e3;
-      j["not_carried_beyond_joint6_deg"] = radToDeg(rest_rad);
-      if (a.ur_hash.empty())
-        not_carried.push_back("the controller's calibration hash (--ur-hash): written empty, so the driver cannot check "
-                              "the file against the robot");
-      writeText(a.out, y);
-    }
-  } else if (a.format == "dh-table") {
-    // The calibrated modified-DH table, CSV and JSON, per joint.
-    std::ostringstream csv;
-    csv << "joint,name,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,parallel_to_next,lower_deg,upper_deg\n";
+    o.nominal_urdf_xml = readText(urdf);
+    o.nominal_urdf_source = urdf;
+    o.header = "written by `cellcal robot export --format ur-kinematics` from " + a.robot +
+               "\nfor ur_robot_driver's kinematics_params_file (ur_calibration's format)";
+  }
+  o.model_source = a.robot;
+  const RobotExport e = write(m, calibratedModel(rf), *format, o);
+  writeText(a.out, e.text);
+  const Eigen::Matrix<double, 6, 1> tc = xyzRpyFromPose(e.tip_correction);
+  j["tip_correction"] = {{"x_mm", tc[0] * 1e3}, {"y_mm", tc[1] * 1e3}, {"z_mm", tc[2] * 1e3}, {"roll_deg", radToDeg(tc[3])},
+                         {"pitch_deg", radToDeg(tc[4])}, {"yaw_deg", radToDeg(tc[5])}};
+  if (*format == ExportFormat::kUrKinematics) {
+    j["not_carried_beyond_joint6_mm"] = e.not_carried_beyond_joint6_m * 1e3;
+    j["not_carried_beyond_joint6_deg"] = radToDeg(e.not_carried_beyond_joint6_rad);
+  }
+  if (*format == ExportFormat::kDhTable) {
     nlohmann::json rows = nlohmann::json::array();
-    for (int jn = 0; jn < m.numJoints(); ++jn) {
-      auto v = [&](JointParam p) { return m.toHuman(m.jointParam(jn, p), m.nominal[m.jointParam(jn, p)]); };
-      const std::string name = m.joint_names.empty() ? "joint" + std::to_string(jn + 1) : m.joint_names[static_cast<size_t>(jn)];
-      char buf[400];
-      std::snprintf(buf, sizeof buf, "%d,%s,%.12g,%.12g,%.12g,%.12g,%.12g,%s,%.12g,%.12g\n", jn + 1, name.c_str(),
-                    v(JointParam::kThetaOffset), v(JointParam::kD), v(JointParam::kA), v(JointParam::kAlpha),
-                    v(JointParam::kBeta), m.parallel_to_next[static_cast<size_t>(jn)] ? "true" : "false",
-                    radToDeg(m.limits[static_cast<size_t>(jn)].lower_rad), radToDeg(m.limits[static_cast<size_t>(jn)].upper_rad));
-      csv << buf;
-      rows.push_back({{"joint", jn + 1}, {"name", name}, {"theta_offset_deg", v(JointParam::kThetaOffset)},
-                      {"d_mm", v(JointParam::kD)}, {"a_mm", v(JointParam::kA)}, {"alpha_deg", v(JointParam::kAlpha)},
-                      {"beta_deg", v(JointParam::kBeta)}, {"parallel_to_next", static_cast<bool>(m.parallel_to_next[static_cast<size_t>(jn)])}});
-    }
-    writeText(a.out, csv.str());
+    for (const DhRow& r : e.dh_rows)
+      rows.push_back({{"joint", r.joint}, {"name", r.name}, {"theta_offset_deg", r.theta_offset_deg}, {"d_mm", r.d_mm},
+                      {"a_mm", r.a_mm}, {"alpha_deg", r.alpha_deg}, {"beta_deg", r.beta_deg},
+                      {"parallel_to_next", r.parallel_to_next}});
     const auto b = m.nominal.segment<6>(m.baseParam(FrameParam::kX)), t = m.nominal.segment<6>(m.toolParam(FrameParam::kX));
     j["dh"] = rows;
     j["base_in_tracker"] = {b[0] * 1e3, b[1] * 1e3, b[2] * 1e3, radToDeg(b[3]), radToDeg(b[4]), radToDeg(b[5])};
     j["tool_in_flange"] = {t[0] * 1e3, t[1] * 1e3, t[2] * 1e3, radToDeg(t[3]), radToDeg(t[4]), radToDeg(t[5])};
-    if (m.hasMount() || m.hasFlange())
-      not_carried.push_back("the fixed transforms around the chain (mount, flange): a controller's DH table has none; they "
-                            "are in the JSON");
-  } else {
-    throw ConfigError("--format " + a.format + ": expected urdf, ur-kinematics or dh-table");
   }
+  const std::vector<std::string>& not_carried = e.not_carried;
   // What it costs not to carry the extensions: the geometric part against the full model on the calibration rows.
   const ExportCost cost = exportCost(rf);
   std::printf("robot export: %s -> %s (%s)\n", a.robot.c_str(), a.out.c_str(), a.format.c_str());

@@ -11,11 +11,13 @@
 #include <tinyxml.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
 
+#include "cellcal/core/files/export.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/urdf.hpp"
 #include "cellcal/core/identification/calibration.hpp"
@@ -162,6 +164,109 @@ TEST(Urdf, AnExportedModelGivesKdlTheModelsPoses) {
       EXPECT_LE(changed, static_cast<int>(u.chain_joints.size()));
       // The export reads back as the same structure.
       EXPECT_EQ(importUrdf(out, "exported.urdf").model.numJoints(), m.numJoints());
+    }
+  }
+}
+
+// write() (export.hpp) of a calibrated model -- every joint moved, a tracker frame 1.5-4 m away turned at random, a
+// target on the flange -- into the arm's URDF with the registered base as a link: KDL from that link to the tip, then
+// the target's nominal place, gives the model's pose in the tracker frame to 1e-9. The DH table reads back as the
+// parameters; what the formats cannot carry (extensions; the target's frame without its nominal place; the mount and
+// flange in a DH table) is said; another arm's URDF is refused naming both files.
+TEST(Urdf, WriteExportsTheCalibratedModelWithItsBaseTargetAndWhatItCannotCarry) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto randomPose = [&](double reach_m) {
+    Pose T = Pose::Identity();
+    T.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    T.translation() = reach_m * Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    return T;
+  };
+  for (int draw = 0; draw < 4; ++draw) {
+    const fs::path f = files[rng() % files.size()];
+    SCOPED_TRACE(f.filename().string());
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    CalibratedModel c = CalibratedModel::geometric(m.nominal);
+    for (int i : m.canonicalParams()) {
+      if (i < 5 * m.numJoints()) c.params[i] += m.isLength(i) ? 3e-4 * g(rng) : degToRad(0.03 * g(rng));
+      c.estimated.push_back(i);
+    }
+    const Pose base = randomPose(1.5 + 2.5 * u01(rng)), target_nominal = randomPose(0.15 * u01(rng));
+    const Pose target_calibrated = target_nominal * poseFromXyzRpy(3e-4 * g(rng), 3e-4 * g(rng), 3e-4 * g(rng),
+                                                                   degToRad(0.03 * g(rng)), degToRad(0.03 * g(rng)),
+                                                                   degToRad(0.03 * g(rng)));
+    c.params.segment<6>(m.baseParam(FrameParam::kX)) = xyzRpyFromPose(base);
+    c.params.segment<6>(m.toolParam(FrameParam::kX)) = xyzRpyFromPose(target_calibrated);
+    ExportOptions o;
+    o.nominal_urdf_xml = xml;
+    o.nominal_urdf_source = f.string();
+    o.target_in_flange = target_nominal;
+    o.base_frame_link = "tracker";
+    o.model_source = "calibrated.yaml";
+    const RobotExport e = write(m, c, ExportFormat::kUrdf, o);
+    EXPECT_TRUE(e.not_carried.empty()) << e.not_carried.front();
+    const KdlChain kdl(e.text, "tracker", u.tip_link);
+    KinematicsData data(m);
+    double worst_m = 0, worst_rad = 0;
+    for (int k = 0; k < 100; ++k) {
+      const Eigen::VectorXd q = randomQ(m, rng);
+      const auto [dp, dr] = difference(forwardKinematics(m, data, c.params, q), kdl.at(q) * target_nominal);
+      worst_m = std::max(worst_m, dp);
+      worst_rad = std::max(worst_rad, dr);
+    }
+    EXPECT_LT(worst_m, 1e-9);
+    EXPECT_LT(worst_rad, 1e-9);
+
+    // The DH table: one row per joint, each value the parameter's in mm and deg.
+    CalibratedModel extended = c;
+    for (Cause cause : extensionCauses())
+      if (extended.extensions.empty() && applicable(m, Extension{cause, 1}, true)) extended.extensions.push_back({cause, 1});
+    extended.extension_params = Eigen::VectorXd::Zero(numExtensionParams(m, extended.extensions));
+    const RobotExport dh = write(m, extended, ExportFormat::kDhTable, ExportOptions{});
+    std::istringstream lines(dh.text);
+    std::string line;
+    ASSERT_TRUE(std::getline(lines, line));
+    EXPECT_EQ(line, "joint,name,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,parallel_to_next,lower_deg,upper_deg");
+    int j = 0;
+    for (; std::getline(lines, line); ++j) {
+      std::vector<std::string> cells;
+      std::stringstream cs(line);
+      for (std::string cell; std::getline(cs, cell, ',');) cells.push_back(cell);
+      ASSERT_EQ(cells.size(), 10u) << line;
+      EXPECT_EQ(std::stoi(cells[0]), j + 1);
+      const JointParam kinds[] = {JointParam::kThetaOffset, JointParam::kD, JointParam::kA, JointParam::kAlpha,
+                                  JointParam::kBeta};
+      for (int k = 0; k < 5; ++k) {
+        const int i = m.jointParam(j, kinds[k]);
+        const double si = c.params[i], human = m.isLength(i) ? si * 1e3 : radToDeg(si);
+        EXPECT_NEAR(std::stod(cells[static_cast<size_t>(2 + k)]), human, 1e-9 * (1 + std::abs(human))) << line;
+      }
+      EXPECT_EQ(cells[7], m.parallel_to_next[static_cast<size_t>(j)] ? "true" : "false");
+    }
+    EXPECT_EQ(j, m.numJoints());
+    // What it cannot carry: the extensions first, the target's frame (no nominal place given), the mount and flange.
+    ASSERT_FALSE(dh.not_carried.empty());
+    EXPECT_EQ(dh.not_carried.front().rfind("the model extensions (", 0), 0u) << dh.not_carried.front();
+    EXPECT_NE(dh.not_carried[1].find("what the target's frame absorbed"), std::string::npos) << dh.not_carried[1];
+    EXPECT_EQ(dh.not_carried.size() == 3, m.hasMount() || m.hasFlange());
+
+    // Another arm's URDF.
+    const fs::path other = files[(std::find(files.begin(), files.end(), f) - files.begin() + 1) % files.size()];
+    ExportOptions wrong = o;
+    wrong.nominal_urdf_xml = readText(other);
+    wrong.nominal_urdf_source = other.string();
+    try {
+      write(m, c, ExportFormat::kUrdf, wrong);
+      ADD_FAILURE() << other << " accepted";
+    } catch (const ConfigError& err) {
+      const std::string what = err.what();
+      EXPECT_NE(what.find(other.string() + ": not the description calibrated.yaml was calibrated from"), std::string::npos)
+          << what;
     }
   }
 }
