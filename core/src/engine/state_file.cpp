@@ -1,5 +1,6 @@
 #include "cellcal/core/engine/state_file.hpp"
 
+#include "state_fields.hpp"
 #include "write_all.hpp"
 
 #include <fcntl.h>
@@ -53,63 +54,174 @@ std::vector<double> values(const V& v) {
   return std::vector<double>(v.data(), v.data() + v.size());
 }
 
-Eigen::VectorXd vectorOf(const std::vector<double>& v) {
-  return Eigen::Map<const Eigen::VectorXd>(v.data(), static_cast<Eigen::Index>(v.size()));
-}
+using state_fields::Presence;
 
-// A square matrix stored column-major.
-Eigen::MatrixXd squareOf(const std::vector<double>& v, const char* what) {
-  const auto n = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(v.size()))));
-  if (n * n != static_cast<Eigen::Index>(v.size())) throw std::runtime_error(std::string(what) + " is not square");
-  return Eigen::Map<const Eigen::MatrixXd>(v.data(), n, n);
-}
+// The state file's codec (state_fields.hpp): a JSON object by name; a tuple is an array by position.
+class JsonWriter {
+ public:
+  static constexpr bool kReads = false;
+  explicit JsonWriter(json& node, bool positional = false) : node_(node), positional_(positional) {}
+  void text(const char* n, std::string& v, Presence = Presence::kRequired) { put(n, v); }
+  template <class Stored, class T>
+  void number(const char* n, T& v, Presence = Presence::kRequired) { put(n, v); }
+  void flag(const char* n, bool& v, Presence = Presence::kRequired) { put(n, v); }
+  void vec(const char* n, Eigen::VectorXd& v, Presence = Presence::kRequired) { put(n, values(v)); }
+  void doubles(const char* n, std::vector<double>& v, Presence = Presence::kRequired) { put(n, v); }
+  void ints(const char* n, std::vector<int>& v, Presence = Presence::kRequired) { put(n, v); }
+  void square(const char* n, Eigen::MatrixXd& v, Presence = Presence::kRequired) { put(n, values(v)); }
+  void texts(const char* n, std::vector<std::string>& v, Presence = Presence::kRequired) { put(n, v); }
+  template <class E>
+  void choice(const char* n, E& v, std::initializer_list<const char*> names, Presence = Presence::kRequired) {
+    put(n, names.begin()[static_cast<int>(v)]);
+  }
+  template <class E>
+  void choice(const char* n, std::optional<E>& v, std::initializer_list<const char*> names, Presence p) {
+    if (v) choice(n, *v, names, p);
+  }
+  template <class T, class F>
+  void object(const char* n, std::optional<T>& v, F fields, Presence = Presence::kOptional) {
+    if (!v) return;
+    json o = json::object();
+    JsonWriter w(o);
+    fields(w, *v);
+    put(n, o);
+  }
+  template <class Seq, class F>
+  void objects(const char* n, Seq& v, std::size_t, F fields) { put(n, items(v, fields, false)); }
+  template <class Seq, class F>
+  void tuples(const char* n, Seq& v, std::size_t, F fields) { put(n, items(v, fields, true)); }
+  template <class T, class F>
+  void tuple(const char* n, T& v, F fields) {
+    json a = json::array();
+    JsonWriter w(a, true);
+    fields(w, v);
+    put(n, a);
+  }
+  void pose(Pose& T) {
+    const Eigen::Quaterniond q(T.linear());
+    put("position_m", std::vector<double>{T.translation().x(), T.translation().y(), T.translation().z()});
+    put("orientation_xyzw", std::vector<double>{q.x(), q.y(), q.z(), q.w()});
+  }
 
-json driversToJson(const Drivers& d) {
-  return {{"motion_direction", values(d.motion_direction)}, {"recent_steps_rad", values(d.recent_steps_rad)}};
-}
+ private:
+  template <class V>
+  void put(const char* n, const V& v) {
+    if (positional_) node_.push_back(v);
+    else node_[n] = v;
+  }
+  template <class Seq, class F>
+  static json items(Seq& v, F fields, bool positional) {
+    json a = json::array();
+    for (auto& x : v) {
+      json o = positional ? json::array() : json::object();
+      JsonWriter w(o, positional);
+      fields(w, x);
+      a.push_back(std::move(o));
+    }
+    return a;
+  }
+  json& node_;
+  bool positional_;
+};
 
-Drivers driversFromJson(const json& j) {
-  Drivers d;
-  const auto m = j.at("motion_direction").get<std::vector<double>>();
-  const auto r = j.at("recent_steps_rad").get<std::vector<double>>();
-  d.motion_direction = vectorOf(m);
-  if (r.size() != m.size() * kPlayHistory) throw std::runtime_error("recent_steps_rad size");
-  d.recent_steps_rad = Eigen::Map<const Eigen::MatrixXd>(r.data(), static_cast<Eigen::Index>(m.size()), kPlayHistory);
-  return d;
-}
+class JsonReader {
+ public:
+  static constexpr bool kReads = true;
+  explicit JsonReader(const json& node, bool positional = false) : node_(node), positional_(positional) {}
+  void text(const char* n, std::string& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<std::string>();
+  }
+  template <class Stored, class T>
+  void number(const char* n, T& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<T>();
+  }
+  void flag(const char* n, bool& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<bool>();
+  }
+  void vec(const char* n, Eigen::VectorXd& v, Presence p = Presence::kRequired) {
+    if (!has(n, p)) return;
+    const auto x = get(n).get<std::vector<double>>();
+    v = Eigen::Map<const Eigen::VectorXd>(x.data(), static_cast<Eigen::Index>(x.size()));
+  }
+  void doubles(const char* n, std::vector<double>& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<std::vector<double>>();
+  }
+  void ints(const char* n, std::vector<int>& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<std::vector<int>>();
+  }
+  // A square matrix stored column-major.
+  void square(const char* n, Eigen::MatrixXd& v, Presence p = Presence::kRequired) {
+    if (!has(n, p)) return;
+    const auto x = get(n).get<std::vector<double>>();
+    const auto k = static_cast<Eigen::Index>(std::llround(std::sqrt(static_cast<double>(x.size()))));
+    if (k * k != static_cast<Eigen::Index>(x.size())) throw std::runtime_error(std::string(n) + " is not square");
+    v = Eigen::Map<const Eigen::MatrixXd>(x.data(), k, k);
+  }
+  void texts(const char* n, std::vector<std::string>& v, Presence p = Presence::kRequired) {
+    if (has(n, p)) v = get(n).get<std::vector<std::string>>();
+  }
+  template <class E>
+  void choice(const char* n, E& v, std::initializer_list<const char*> names, Presence p = Presence::kRequired) {
+    if (!has(n, p)) return;
+    const std::string x = get(n).get<std::string>();
+    for (std::size_t i = 0; i < names.size(); ++i)
+      if (x == names.begin()[i]) {
+        v = static_cast<E>(i);
+        return;
+      }
+    throw std::runtime_error(std::string(n) + ": unknown value '" + x + "'");
+  }
+  template <class E>
+  void choice(const char* n, std::optional<E>& v, std::initializer_list<const char*> names, Presence p) {
+    if (!node_.contains(n)) return;
+    E e{};
+    choice(n, e, names, p);
+    v = e;
+  }
+  template <class T, class F>
+  void object(const char* n, std::optional<T>& v, F fields, Presence = Presence::kOptional) {
+    if (!node_.contains(n)) return;
+    T x{};
+    JsonReader r(node_.at(n));
+    fields(r, x);
+    v = std::move(x);
+  }
+  template <class Seq, class F>
+  void objects(const char* n, Seq& v, std::size_t, F fields) { items(n, v, fields, false); }
+  template <class Seq, class F>
+  void tuples(const char* n, Seq& v, std::size_t, F fields) { items(n, v, fields, true); }
+  template <class T, class F>
+  void tuple(const char* n, T& v, F fields) {
+    JsonReader r(get(n), true);
+    fields(r, v);
+  }
+  void pose(Pose& T) {
+    const auto p = get("position_m").get<std::vector<double>>();
+    const auto q = get("orientation_xyzw").get<std::vector<double>>();
+    T = Pose::Identity();
+    T.translation() = Eigen::Vector3d(p.at(0), p.at(1), p.at(2));
+    T.linear() = Eigen::Quaterniond(q.at(3), q.at(0), q.at(1), q.at(2)).normalized().toRotationMatrix();
+  }
 
-json readingToJson(const PairedReading& p) {
-  const Observation& o = p.observation;
-  const Eigen::Quaterniond qn(o.measured_in_tracker.linear());
-  return {{"q_rad", values(o.q_rad)},
-          {"position_m", {o.measured_in_tracker.translation().x(), o.measured_in_tracker.translation().y(),
-                          o.measured_in_tracker.translation().z()}},
-          {"orientation_xyzw", {qn.x(), qn.y(), qn.z(), qn.w()}},
-          {"pose6d", o.kind == MeasurementKind::kPose6D},
-          {"sigma_position_m", o.sigma_position_m},
-          {"sigma_orientation_rad", o.sigma_orientation_rad},
-          {"tracker_stamp_ns", p.tracker_stamp_ns},
-          {"tracker_sequence", p.tracker_sequence},
-          {"joint_stamp_ns", p.joint_stamp_ns}};
-}
-
-PairedReading readingFromJson(const json& j) {
-  PairedReading p;
-  p.observation.q_rad = vectorOf(j.at("q_rad").get<std::vector<double>>());
-  const auto pos = j.at("position_m").get<std::vector<double>>();
-  const auto ori = j.at("orientation_xyzw").get<std::vector<double>>();
-  p.observation.measured_in_tracker = Pose::Identity();
-  p.observation.measured_in_tracker.translation() = Eigen::Vector3d(pos.at(0), pos.at(1), pos.at(2));
-  p.observation.measured_in_tracker.linear() =
-      Eigen::Quaterniond(ori.at(3), ori.at(0), ori.at(1), ori.at(2)).normalized().toRotationMatrix();
-  p.observation.kind = j.at("pose6d").get<bool>() ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-  p.observation.sigma_position_m = j.at("sigma_position_m").get<double>();
-  p.observation.sigma_orientation_rad = j.at("sigma_orientation_rad").get<double>();
-  p.tracker_stamp_ns = j.at("tracker_stamp_ns").get<std::int64_t>();
-  p.tracker_sequence = j.at("tracker_sequence").get<std::uint64_t>();
-  p.joint_stamp_ns = j.at("joint_stamp_ns").get<std::int64_t>();
-  return p;
-}
+ private:
+  bool has(const char* n, Presence p) {
+    if (positional_ || p == Presence::kRequired) return true;  // absent required fields throw in get()
+    return node_.contains(n);
+  }
+  const json& get(const char* n) { return positional_ ? node_.at(index_++) : node_.at(n); }
+  template <class Seq, class F>
+  void items(const char* n, Seq& v, F fields, bool positional) {
+    for (const auto& o : get(n)) {
+      typename Seq::value_type x{};
+      JsonReader r(o, positional);
+      fields(r, x);
+      v.push_back(std::move(x));
+    }
+  }
+  const json& node_;
+  bool positional_;
+  std::size_t index_ = 0;
+};
 
 }  // namespace
 
@@ -124,57 +236,8 @@ std::string unusableStateMessage(const std::string& path, const std::string& why
 std::string engineStateToJson(const EngineState& s) {
   json j;
   j["format"] = kStateFormat;
-  j["robot_id"] = s.robot_id;
-  j["robot_name"] = s.robot_name;
-  j["num_params"] = s.num_params;
-  j["version"] = s.version;
-  j["poses_used"] = s.poses_used;
-  j["mode"] = s.mode == EngineMode::kContinuous ? "continuous" : "periodic";
-  j["last_measurement_stamp_ns"] = s.last_measurement_stamp_ns;
-  j["last_tracker_sequence"] = s.last_tracker_sequence;
-  j["last_update_stamp_ns"] = s.last_update_stamp_ns;
-  j["nominal"] = values(s.nominal);
-  j["params"] = values(s.params);
-  j["estimated"] = s.estimated;
-  j["covariance"] = values(s.covariance);
-  j["consecutive_outliers"] = s.consecutive_outliers;
-  j["gate_window"] = s.gate_window;
-  if (s.last_good) {
-    const EngineState::Good& g = *s.last_good;
-    j["last_good"] = {{"version", g.version},
-                      {"params", values(g.params)},
-                      {"extension_params", values(g.extension_params)},
-                      {"estimated", g.estimated},
-                      {"covariance", values(g.covariance)}};
-  }
-  j["extensions"] = s.extensions;
-  j["extension_params"] = values(s.extension_params);
-  j["estimated_extension"] = s.estimated_extension;
-  if (s.play) {
-    json play = json::array();
-    for (const auto& J : s.play->joints) {
-      json turns = json::array();
-      for (const auto& t : J.turns) turns.push_back({t.stamp_ns, t.q_rad});
-      play.push_back({{"turns", turns}, {"direction", J.direction}, {"extreme", {J.extreme.stamp_ns, J.extreme.q_rad}}});
-    }
-    j["play"] = {{"joints", play}, {"last_stamp_ns", s.play->last_stamp_ns}};
-  }
-  json recent = json::array();
-  for (const auto& r : s.recent) recent.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
-  j["recent"] = recent;
-  json batch = json::array();
-  for (const auto& b : s.pending_batch) {
-    json o = readingToJson(b.reading);
-    if (b.drivers) o["drivers"] = driversToJson(*b.drivers);
-    batch.push_back(o);
-  }
-  j["pending_batch"] = batch;
-  if (s.started_from)
-    j["started_from"] = *s.started_from == EngineState::Start::kNominal           ? "nominal"
-                        : *s.started_from == EngineState::Start::kCalibrationFile ? "calibration_file"
-                                                                                  : "nominal_calibration_file_refused";
-  j["file_drift_pending_since_ns"] = s.file_drift_pending_since_ns;
-  j["start_warning"] = s.start_warning;
+  JsonWriter w(j);
+  state_fields::writeFields(w, s);
   return j.dump();
 }
 
@@ -188,62 +251,8 @@ EngineState engineStateFromJson(const std::string& text) {
   EngineState s;
   try {
     if (j.at("format") != kStateFormat) throw std::runtime_error("unknown format '" + j.at("format").dump() + "'");
-    s.robot_id = j.at("robot_id").get<std::string>();
-    s.robot_name = j.at("robot_name").get<std::string>();
-    s.num_params = j.at("num_params").get<int>();
-    s.mode = j.contains("mode") && j.at("mode") == "periodic" ? EngineMode::kPeriodic : EngineMode::kContinuous;
-    s.nominal = vectorOf(j.at("nominal").get<std::vector<double>>());
-    s.params = vectorOf(j.at("params").get<std::vector<double>>());
-    s.estimated = j.at("estimated").get<std::vector<int>>();
-    s.covariance = squareOf(j.at("covariance").get<std::vector<double>>(), "covariance");
-    if (j.contains("extensions")) s.extensions = j.at("extensions").get<std::vector<std::string>>();
-    if (j.contains("extension_params")) s.extension_params = vectorOf(j.at("extension_params").get<std::vector<double>>());
-    if (j.contains("estimated_extension")) s.estimated_extension = j.at("estimated_extension").get<std::vector<int>>();
-    if (j.contains("play")) {
-      const json& pl = j.at("play");
-      EngineState::Play play;
-      for (const auto& J : pl.at("joints")) {
-        PlayTracker::Joint x;
-        for (const auto& t : J.at("turns")) x.turns.push_back({t.at(0).get<std::int64_t>(), t.at(1).get<double>()});
-        x.direction = J.at("direction").get<int>();
-        x.extreme = {J.at("extreme").at(0).get<std::int64_t>(), J.at("extreme").at(1).get<double>()};
-        play.joints.push_back(std::move(x));
-      }
-      play.last_stamp_ns = pl.at("last_stamp_ns").get<std::int64_t>();
-      s.play = std::move(play);
-    }
-    s.version = j.at("version").get<std::uint64_t>();
-    s.poses_used = j.at("poses_used").get<std::uint32_t>();
-    s.last_measurement_stamp_ns = j.at("last_measurement_stamp_ns").get<std::int64_t>();
-    s.last_tracker_sequence = j.at("last_tracker_sequence").get<std::uint64_t>();
-    s.last_update_stamp_ns = j.at("last_update_stamp_ns").get<std::int64_t>();
-    for (const auto& r : j.at("recent"))
-      s.recent.push_back({r.at(0).get<double>(), r.at(1).get<double>(), r.at(2).get<double>(), r.at(3).get<double>()});
-    for (const auto& b : j.at("pending_batch"))
-      s.pending_batch.push_back(
-          {readingFromJson(b), b.contains("drivers") ? std::optional<Drivers>(driversFromJson(b.at("drivers"))) : std::nullopt});
-    if (j.contains("consecutive_outliers")) s.consecutive_outliers = j.at("consecutive_outliers").get<int>();
-    if (j.contains("gate_window")) s.gate_window = j.at("gate_window").get<std::vector<double>>();
-    if (j.contains("last_good")) {
-      const json& g = j.at("last_good");
-      EngineState::Good good;
-      good.version = g.at("version").get<std::uint64_t>();
-      good.params = vectorOf(g.at("params").get<std::vector<double>>());
-      good.extension_params = vectorOf(g.at("extension_params").get<std::vector<double>>());
-      good.estimated = g.at("estimated").get<std::vector<int>>();
-      good.covariance = squareOf(g.at("covariance").get<std::vector<double>>(), "last_good: covariance");
-      s.last_good = std::move(good);
-    }
-    if (j.contains("started_from")) {
-      const std::string v = j.at("started_from").get<std::string>();
-      if (v == "nominal") s.started_from = EngineState::Start::kNominal;
-      else if (v == "calibration_file") s.started_from = EngineState::Start::kCalibrationFile;
-      else if (v == "nominal_calibration_file_refused") s.started_from = EngineState::Start::kNominalFileRefused;
-      else throw std::runtime_error("started_from: unknown value '" + v + "'");
-    }
-    if (j.contains("file_drift_pending_since_ns"))
-      s.file_drift_pending_since_ns = j.at("file_drift_pending_since_ns").get<std::int64_t>();
-    if (j.contains("start_warning")) s.start_warning = j.at("start_warning").get<std::string>();
+    JsonReader r(j);
+    state_fields::engineState(r, s);
   } catch (const json::exception& e) {
     throw std::runtime_error(std::string("missing or malformed field: ") + e.what());
   }

@@ -14,6 +14,7 @@
 
 #include "cellcal/core/engine/state_file.hpp"
 #include "cellcal/core/files/crc32.hpp"
+#include "state_fields.hpp"
 #include "write_all.hpp"
 
 namespace cellcal {
@@ -121,37 +122,137 @@ class Reader {
   std::size_t at = 0;
 };
 
-void writeReading(Writer& w, const PairedReading& p) {
-  const Observation& o = p.observation;
-  w.vec(o.q_rad);
+using state_fields::Presence;
+
+// The journal's codecs (state_fields.hpp): the fields in the list's order, names only for messages.
+class BinaryWriter {
+ public:
+  static constexpr bool kReads = false;
+  explicit BinaryWriter(Writer& w) : w_(w) {}
+  void text(const char*, std::string& v, Presence = Presence::kRequired) { w_.str(v); }
+  template <class Stored, class T>
+  void number(const char*, T& v, Presence = Presence::kRequired) { w_.pod(static_cast<Stored>(v)); }
+  void flag(const char*, bool& v, Presence = Presence::kRequired) { w_.pod(static_cast<std::uint8_t>(v)); }
+  void vec(const char*, Eigen::VectorXd& v, Presence = Presence::kRequired) { w_.vec(v); }
+  void doubles(const char*, std::vector<double>& v, Presence = Presence::kRequired) { w_.vec(v); }
+  void ints(const char*, std::vector<int>& v, Presence = Presence::kRequired) { w_.ints(v); }
+  void square(const char*, Eigen::MatrixXd& v, Presence = Presence::kRequired) { w_.square(v); }
+  void texts(const char*, std::vector<std::string>& v, Presence = Presence::kRequired) {
+    w_.size(v.size());
+    for (const auto& x : v) w_.str(x);
+  }
+  template <class E>
+  void choice(const char*, E& v, std::initializer_list<const char*>, Presence = Presence::kRequired) {
+    w_.pod(static_cast<std::uint8_t>(v));
+  }
+  template <class E>
+  void choice(const char* n, std::optional<E>& v, std::initializer_list<const char*> names, Presence p) {
+    w_.pod(static_cast<std::uint8_t>(v.has_value()));
+    if (v) choice(n, *v, names, p);
+  }
+  template <class T, class F>
+  void object(const char*, std::optional<T>& v, F fields, Presence = Presence::kOptional) {
+    w_.pod(static_cast<std::uint8_t>(v.has_value()));
+    if (v) fields(*this, *v);
+  }
+  template <class Seq, class F>
+  void objects(const char*, Seq& v, std::size_t, F fields) {
+    w_.size(v.size());
+    for (auto& x : v) fields(*this, x);
+  }
+  template <class Seq, class F>
+  void tuples(const char* n, Seq& v, std::size_t bytes, F fields) { objects(n, v, bytes, fields); }
+  template <class T, class F>
+  void tuple(const char*, T& v, F fields) { fields(*this, v); }
   // The pose whole (translation, rotation matrix column-major): a record restores it bit for bit, where the snapshot
   // keeps its quaternion.
-  const Eigen::Matrix4d m = o.measured_in_tracker.matrix();
-  for (int c = 0; c < 4; ++c)
-    for (int r = 0; r < 3; ++r) w.pod(m(r, c));
-  w.pod(static_cast<std::uint8_t>(o.kind == MeasurementKind::kPose6D));
-  w.pod(o.sigma_position_m);
-  w.pod(o.sigma_orientation_rad);
-  w.pod(p.tracker_stamp_ns);
-  w.pod(p.tracker_sequence);
-  w.pod(p.joint_stamp_ns);
-}
+  void pose(Pose& T) {
+    const Eigen::Matrix4d m = T.matrix();
+    for (int c = 0; c < 4; ++c)
+      for (int r = 0; r < 3; ++r) w_.pod(m(r, c));
+  }
 
-PairedReading readReading(Reader& r) {
-  PairedReading p;
-  p.observation.q_rad = r.vec("q_rad");
-  p.observation.measured_in_tracker = Pose::Identity();
-  Eigen::Matrix4d& m = p.observation.measured_in_tracker.matrix();
-  for (int c = 0; c < 4; ++c)
-    for (int k = 0; k < 3; ++k) m(k, c) = r.pod<double>("pose");
-  p.observation.kind = r.flag("pose6d") ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
-  p.observation.sigma_position_m = r.pod<double>("sigma_position_m");
-  p.observation.sigma_orientation_rad = r.pod<double>("sigma_orientation_rad");
-  p.tracker_stamp_ns = r.pod<std::int64_t>("tracker_stamp_ns");
-  p.tracker_sequence = r.pod<std::uint64_t>("tracker_sequence");
-  p.joint_stamp_ns = r.pod<std::int64_t>("joint_stamp_ns");
-  return p;
-}
+ private:
+  Writer& w_;
+};
+
+class BinaryReader {
+ public:
+  static constexpr bool kReads = true;
+  explicit BinaryReader(Reader& r) : r_(r) {}
+  void text(const char* n, std::string& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.str(n);
+  }
+  template <class Stored, class T>
+  void number(const char* n, T& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = static_cast<T>(r_.pod<Stored>(n));
+  }
+  void flag(const char* n, bool& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.flag(n);
+  }
+  void vec(const char* n, Eigen::VectorXd& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.vec(n);
+  }
+  void doubles(const char* n, std::vector<double>& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.doubles(n);
+  }
+  void ints(const char* n, std::vector<int>& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.ints(n);
+  }
+  void square(const char* n, Eigen::MatrixXd& v, Presence p = Presence::kRequired) {
+    if (present(p)) v = r_.square(n);
+  }
+  void texts(const char* n, std::vector<std::string>& v, Presence p = Presence::kRequired) {
+    if (!present(p)) return;
+    const std::size_t k = r_.size(8, n);
+    for (std::size_t i = 0; i < k; ++i) v.push_back(r_.str(n));
+  }
+  template <class E>
+  void choice(const char* n, E& v, std::initializer_list<const char*> names, Presence p = Presence::kRequired) {
+    if (!present(p)) return;
+    const auto x = r_.pod<std::uint8_t>(n);
+    if (x >= names.size()) throw std::runtime_error(std::string(n) + ": unknown value " + std::to_string(x));
+    v = static_cast<E>(x);
+  }
+  template <class E>
+  void choice(const char* n, std::optional<E>& v, std::initializer_list<const char*> names, Presence p) {
+    if (!present(p) || !r_.flag(n)) return;
+    E e{};
+    choice(n, e, names);
+    v = e;
+  }
+  template <class T, class F>
+  void object(const char* n, std::optional<T>& v, F fields, Presence = Presence::kOptional) {
+    if (!r_.flag(n)) return;
+    T x{};
+    fields(*this, x);
+    v = std::move(x);
+  }
+  template <class Seq, class F>
+  void objects(const char* n, Seq& v, std::size_t bytes, F fields) {
+    const std::size_t k = r_.size(bytes, n);
+    for (std::size_t i = 0; i < k; ++i) {
+      typename Seq::value_type x{};
+      fields(*this, x);
+      v.push_back(std::move(x));
+    }
+  }
+  template <class Seq, class F>
+  void tuples(const char* n, Seq& v, std::size_t bytes, F fields) { objects(n, v, bytes, fields); }
+  template <class T, class F>
+  void tuple(const char*, T& v, F fields) { fields(*this, v); }
+  void pose(Pose& T) {
+    T = Pose::Identity();
+    Eigen::Matrix4d& m = T.matrix();
+    for (int c = 0; c < 4; ++c)
+      for (int k = 0; k < 3; ++k) m(k, c) = r_.pod<double>("pose");
+  }
+
+ private:
+  // A field appended since the first records is absent from a record that ends before it.
+  bool present(Presence p) const { return p != Presence::kAppended || !r_.done(); }
+  Reader& r_;
+};
 
 // The whole file; "" when there is none.
 std::string readWholeFile(const std::string& path) {
@@ -186,67 +287,8 @@ std::string stateJournalPath(const std::string& state_file) {
 std::string engineStateToBinary(const EngineState& s) {
   Writer w;
   w.pod(kPayloadFormat);
-  w.str(s.robot_id);
-  w.str(s.robot_name);
-  w.pod(static_cast<std::int32_t>(s.num_params));
-  w.pod(s.version);
-  w.pod(s.poses_used);
-  w.pod(static_cast<std::uint8_t>(s.mode == EngineMode::kPeriodic));
-  w.pod(s.last_measurement_stamp_ns);
-  w.pod(s.last_tracker_sequence);
-  w.pod(s.last_update_stamp_ns);
-  w.vec(s.nominal);
-  w.vec(s.params);
-  w.ints(s.estimated);
-  w.square(s.covariance);
-  w.pod(static_cast<std::int32_t>(s.consecutive_outliers));
-  w.vec(s.gate_window);
-  w.pod(static_cast<std::uint8_t>(s.last_good.has_value()));
-  if (s.last_good) {
-    w.pod(s.last_good->version);
-    w.vec(s.last_good->params);
-    w.vec(s.last_good->extension_params);
-    w.ints(s.last_good->estimated);
-    w.square(s.last_good->covariance);
-  }
-  w.size(s.extensions.size());
-  for (const auto& e : s.extensions) w.str(e);
-  w.vec(s.extension_params);
-  w.ints(s.estimated_extension);
-  w.pod(static_cast<std::uint8_t>(s.play.has_value()));
-  if (s.play) {
-    w.size(s.play->joints.size());
-    for (const auto& j : s.play->joints) {
-      w.size(j.turns.size());
-      for (const auto& t : j.turns) {
-        w.pod(t.stamp_ns);
-        w.pod(t.q_rad);
-      }
-      w.pod(static_cast<std::int32_t>(j.direction));
-      w.pod(j.extreme.stamp_ns);
-      w.pod(j.extreme.q_rad);
-    }
-    w.pod(s.play->last_stamp_ns);
-  }
-  w.size(s.recent.size());
-  for (const auto& r : s.recent)
-    for (double v : {r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row}) w.pod(v);
-  w.size(s.pending_batch.size());
-  for (const auto& b : s.pending_batch) {
-    writeReading(w, b.reading);
-    w.pod(static_cast<std::uint8_t>(b.drivers.has_value()));
-    if (b.drivers) {
-      if (b.drivers->recent_steps_rad.size() != b.drivers->motion_direction.size() * kPlayHistory)
-        throw std::runtime_error("pending_batch drivers: recent_steps_rad size");
-      w.vec(b.drivers->motion_direction);
-      w.doubles(b.drivers->recent_steps_rad.data(), static_cast<std::size_t>(b.drivers->recent_steps_rad.size()));
-    }
-  }
-  // Appended fields (records written before them end above and read as their defaults).
-  w.pod(static_cast<std::uint8_t>(s.started_from.has_value()));
-  if (s.started_from) w.pod(static_cast<std::uint8_t>(*s.started_from));
-  w.pod(s.file_drift_pending_since_ns);
-  w.str(s.start_warning);
+  BinaryWriter bw(w);
+  state_fields::writeFields(bw, s);
   return std::move(w.out);
 }
 
@@ -255,87 +297,8 @@ EngineState engineStateFromBinary(const std::string& bytes) {
   const auto format = r.pod<std::uint32_t>("format");
   if (format != kPayloadFormat) throw std::runtime_error("unknown record format " + std::to_string(format));
   EngineState s;
-  s.robot_id = r.str("robot_id");
-  s.robot_name = r.str("robot_name");
-  s.num_params = r.pod<std::int32_t>("num_params");
-  s.version = r.pod<std::uint64_t>("version");
-  s.poses_used = r.pod<std::uint32_t>("poses_used");
-  s.mode = r.flag("mode") ? EngineMode::kPeriodic : EngineMode::kContinuous;
-  s.last_measurement_stamp_ns = r.pod<std::int64_t>("last_measurement_stamp_ns");
-  s.last_tracker_sequence = r.pod<std::uint64_t>("last_tracker_sequence");
-  s.last_update_stamp_ns = r.pod<std::int64_t>("last_update_stamp_ns");
-  s.nominal = r.vec("nominal");
-  s.params = r.vec("params");
-  s.estimated = r.ints("estimated");
-  s.covariance = r.square("covariance");
-  s.consecutive_outliers = r.pod<std::int32_t>("consecutive_outliers");
-  s.gate_window = r.doubles("gate_window");
-  if (r.flag("last_good")) {
-    EngineState::Good g;
-    g.version = r.pod<std::uint64_t>("last_good.version");
-    g.params = r.vec("last_good.params");
-    g.extension_params = r.vec("last_good.extension_params");
-    g.estimated = r.ints("last_good.estimated");
-    g.covariance = r.square("last_good.covariance");
-    s.last_good = std::move(g);
-  }
-  const std::size_t n_ext = r.size(8, "extensions");
-  for (std::size_t i = 0; i < n_ext; ++i) s.extensions.push_back(r.str("extensions"));
-  s.extension_params = r.vec("extension_params");
-  s.estimated_extension = r.ints("estimated_extension");
-  if (r.flag("play")) {
-    EngineState::Play play;
-    const std::size_t joints = r.size(8 + 4 + 16, "play.joints");
-    for (std::size_t j = 0; j < joints; ++j) {
-      PlayTracker::Joint x;
-      const std::size_t turns = r.size(16, "play.turns");
-      for (std::size_t t = 0; t < turns; ++t) {
-        const auto stamp = r.pod<std::int64_t>("play.turns");
-        x.turns.push_back({stamp, r.pod<double>("play.turns")});
-      }
-      x.direction = r.pod<std::int32_t>("play.direction");
-      const auto stamp = r.pod<std::int64_t>("play.extreme");
-      x.extreme = {stamp, r.pod<double>("play.extreme")};
-      play.joints.push_back(std::move(x));
-    }
-    play.last_stamp_ns = r.pod<std::int64_t>("play.last_stamp_ns");
-    s.play = std::move(play);
-  }
-  const std::size_t n_recent = r.size(32, "recent");
-  for (std::size_t i = 0; i < n_recent; ++i) {
-    EngineState::Recent x;
-    x.prior_error_m = r.pod<double>("recent");
-    x.post_error_m = r.pod<double>("recent");
-    x.post_error_rad = r.pod<double>("recent");
-    x.nis_per_row = r.pod<double>("recent");
-    s.recent.push_back(x);
-  }
-  const std::size_t n_batch = r.size(8, "pending_batch");
-  for (std::size_t i = 0; i < n_batch; ++i) {
-    EngineState::PendingPose p;
-    p.reading = readReading(r);
-    if (r.flag("pending_batch.drivers")) {
-      Drivers d;
-      d.motion_direction = r.vec("drivers.motion_direction");
-      const auto steps = r.doubles("drivers.recent_steps_rad");
-      if (steps.size() != static_cast<std::size_t>(d.motion_direction.size()) * kPlayHistory)
-        throw std::runtime_error("recent_steps_rad size");
-      d.recent_steps_rad =
-          Eigen::Map<const Eigen::MatrixXd>(steps.data(), d.motion_direction.size(), kPlayHistory);
-      p.drivers = std::move(d);
-    }
-    s.pending_batch.push_back(std::move(p));
-  }
-  if (!r.done()) {  // the fields appended since the first records
-    if (r.flag("started_from")) {
-      const auto v = r.pod<std::uint8_t>("started_from");
-      if (v > static_cast<std::uint8_t>(EngineState::Start::kNominalFileRefused))
-        throw std::runtime_error("started_from: unknown value " + std::to_string(v));
-      s.started_from = static_cast<EngineState::Start>(v);
-    }
-    s.file_drift_pending_since_ns = r.pod<std::int64_t>("file_drift_pending_since_ns");
-    s.start_warning = r.str("start_warning");
-  }
+  BinaryReader br(r);
+  state_fields::engineState(br, s);
   if (!r.done()) throw std::runtime_error("bytes after the state");
   return s;
 }

@@ -318,5 +318,26 @@ TEST_F(JournalTest, DamageThatIsNotACrashIsRefusedWithTheFileNamedAndNeverCrashe
   EXPECT_GT(refused, 0);
 }
 
+// Files written before the field list (state_fields.hpp), by 59b9ca6's two hand-written codecs, for one random state
+// with every part: golden/engine_state_v1.json (the state file) and .bin (a journal record's payload), the JSON with
+// the keys older files lack removed (.stripped.json) and the record cut before the fields appended since the first
+// records (.cut.bin); beside each, what that code read from it, as a record (*read.bin). Today's code reads each as it
+// did, and writes the state it read from the record as those files were written.
+TEST(StateFormats, FilesWrittenBeforeTheFieldListReadAsThey) {
+  const std::string dir = std::string(CELLCAL_CONFIG_DIR) + "/../tests/core/engine/golden/engine_state_v1";
+  auto bytes = [&](const std::string& suffix) { return test::readTextFile(dir + suffix); };
+  const std::string record = bytes(".bin");
+  ASSERT_GT(record.size(), 1000u);
+  const EngineState s = engineStateFromBinary(record);
+  ASSERT_TRUE(s.last_good && s.play && s.started_from && !s.pending_batch.empty() && s.pending_batch[0].drivers &&
+              !s.recent.empty() && !s.start_warning.empty())
+      << "the golden state lost a part";
+  EXPECT_EQ(engineStateToBinary(s), record);
+  EXPECT_EQ(engineStateToJson(s), bytes(".json"));
+  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".json"))), bytes(".jsonread.bin"));
+  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".stripped.json"))), bytes(".strippedread.bin"));
+  EXPECT_EQ(engineStateToBinary(engineStateFromBinary(bytes(".cut.bin"))), bytes(".cutread.bin"));
+}
+
 }  // namespace
 }  // namespace cellcal
