@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "cellcal/core/engine/calibration_start.hpp"
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
@@ -37,16 +38,6 @@ std::int64_t steadyNs() {
 }
 
 }  // namespace
-
-const char* healthName(Health h) {
-  switch (h) {
-    case Health::kUncalibrated: return "uncalibrated";
-    case Health::kOk: return "ok";
-    case Health::kDegraded: return "degraded";
-    case Health::kHoldLastGood: return "hold_last_good";
-  }
-  return "?";
-}
 
 CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression)
     : robot_(&robot),
@@ -92,71 +83,20 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   const RobotModel& m = robot_->model;
   const RobotCalibration& cal = *file.calibration;
   const auto& exts = robot_->extensions;
-  // The estimate: the file's kinematics and frames (the campaign's registration; a tracker moved since shows as poses
-  // beyond the outlier gate, and the engine then says to re-register).
-  const Eigen::VectorXd params = file.model.nominal;
-  // The state the engine estimates when it starts from nominal, and its uncalibrated prior widths.
-  const GaussianPrior prior =
-      diagonalPrior(m, params, m.canonicalParams(), settings_->prior_length_m, settings_->prior_angle_rad);
-  const RlsCalibrator plain(m, params, prior, robot_->measurement);
-  const std::vector<int> est = plain.estimated();
-  const Eigen::VectorXd ext_sigma = extensionPriorSigma(m, params, exts, settings_->prior_angle_rad);
-  std::vector<int> acting;
-  for (Eigen::Index k = 0; k < ext_sigma.size(); ++k)
-    if (ext_sigma[k] > 0) acting.push_back(static_cast<int>(k));
-  const auto ne = static_cast<Eigen::Index>(est.size()), n = ne + static_cast<Eigen::Index>(acting.size());
-  const std::vector<std::string> ext_names = extensionParamNames(m, exts);
-  std::vector<std::string> names;
-  Eigen::VectorXd prior_sd(n);
-  for (Eigen::Index k = 0; k < ne; ++k) {
-    names.push_back(m.paramName(est[static_cast<size_t>(k)]));
-    prior_sd[k] = std::sqrt(plain.covariance()(k, k));
-  }
-  for (size_t k = 0; k < acting.size(); ++k) {
-    names.push_back(ext_names[static_cast<size_t>(acting[k])]);
-    prior_sd[ne + static_cast<Eigen::Index>(k)] = ext_sigma[acting[k]];
-  }
-  // Each state entry's column in the file (-1: the file does not cover it).
-  std::map<std::string, int> file_column;
-  for (size_t j = 0; j < cal.columns.size(); ++j) file_column[cal.columnName(file.model, cal.columns[j])] = static_cast<int>(j);
-  std::vector<int> col(static_cast<size_t>(n), -1);
-  int covered = 0;
-  for (Eigen::Index k = 0; k < n; ++k) {
-    const auto it = file_column.find(names[static_cast<size_t>(k)]);
-    if (it != file_column.end()) {
-      col[static_cast<size_t>(k)] = it->second;
-      ++covered;
-    }
-  }
-  // The file's covariance covers every parameter a prediction depends on, those its fit held at their prior width:
-  // parameters in the span of others (joint 1's offset and the base yaw) are individually wide and strongly
-  // correlated. The engine holds the parameters outside its state at the file's values, so its prior is the
-  // covariance of its state given those (Gaussian conditioning); entries the file does not cover keep their prior.
-  std::vector<int> e_rows, e_cols;
-  for (Eigen::Index k = 0; k < n; ++k)
-    if (col[static_cast<size_t>(k)] >= 0) {
-      e_rows.push_back(static_cast<int>(k));
-      e_cols.push_back(col[static_cast<size_t>(k)]);
-    }
-  const Eigen::MatrixXd Pee = conditionalGaussianCovariance(cal.covariance, e_cols);
-  Eigen::MatrixXd P = prior_sd.array().square().matrix().asDiagonal();
-  for (size_t a = 0; a < e_rows.size(); ++a)
-    for (size_t b = 0; b < e_rows.size(); ++b)
-      P(e_rows[a], e_rows[b]) = Pee(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b));
-  // The extension values the file fitted (same names); the others start at zero, no effect.
-  Eigen::VectorXd ext_params = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ext_names.size()));
-  const std::vector<std::string> file_ext_names = extensionParamNames(file.model, cal.extensions);
-  for (size_t k = 0; k < ext_names.size(); ++k)
-    for (size_t j = 0; j < file_ext_names.size(); ++j)
-      if (ext_names[k] == file_ext_names[j]) ext_params[static_cast<Eigen::Index>(k)] = cal.extension_params[static_cast<Eigen::Index>(j)];
-  // Each variance at most the uncalibrated prior's. The drift since the file's date is added at the first reading,
-  // over the hours from the date to that reading's stamp (the engine takes time from its inputs: a replay of the
-  // same readings gives the same result whenever it runs).
+  // The file's kinematics, frames and extension values, the file's covariance conditioned on what the engine does not
+  // estimate (calibration_start.hpp). The drift since the file's date is added at the first reading, over the hours
+  // from the date to that reading's stamp (the engine takes time from its inputs: a replay of the same readings gives
+  // the same result whenever it runs).
+  const CalibrationStart start = calibrationStart(m, file, exts, settings_->prior_length_m, settings_->prior_angle_rad,
+                                                  robot_->measurement);
+  const CalibratedModel& c = start.model;
   const auto date_ns = cal.dateUtcNs();
   file_date_ns_ = date_ns.value_or(0);
-  start_prior_sd_ = prior_sd;
-  const int capped = capVariances(P, prior_sd);
-  rls_ = std::make_unique<RlsCalibrator>(m, params, est, exts, ext_params, acting, P);
+  start_prior_sd_ = start.prior_sd;
+  const int covered = start.covered, capped = start.capped;
+  const Eigen::Index n = c.numEstimated();
+  rls_ = std::make_unique<RlsCalibrator>(m, c.params, c.estimated, exts, c.extension_params, c.estimated_extension,
+                                         c.covariance);
   started_calibrated_ = true;
   std::ostringstream note;
   note << "started from " << path << ": calibrated " << (date_ns ? cal.provenanceValue("date_utc") : "(no date)");
@@ -188,19 +128,6 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   refreshStatistics();
   decideHealth();
   ++state_revision_;
-}
-
-// Scales row and column k of P so that its variance is at most sd[k]^2; returns how many were scaled.
-int CalibrationEngine::capVariances(Eigen::MatrixXd& P, const Eigen::VectorXd& sd) {
-  int capped = 0;
-  for (Eigen::Index k = 0; k < P.rows() && k < sd.size(); ++k)
-    if (P(k, k) > sd[k] * sd[k]) {
-      const double f = sd[k] / std::sqrt(P(k, k));
-      P.row(k) *= f;
-      P.col(k) *= f;
-      ++capped;
-    }
-  return capped;
 }
 
 // The drift of the parameters from the calibration file's date to the first reading's stamp (wall-clock hours, as
@@ -546,56 +473,27 @@ double CalibrationEngine::predictionSigma() {
   return worst;
 }
 
-// Healthy once there are enough poses for every estimated parameter twice over (rows per pose: 6 or 3); then ok,
-// degraded (drift alarm) or hold_last_good (outliers in a row, predicted error above the bound).
+// The health rule (health.hpp) on this estimate; a hold publishes the last good version's model.
 void CalibrationEngine::decideHealth() {
-  const size_t rows = robot_->measurement == MeasurementKind::kPose6D ? 6 : 3;
-  const size_t state = rls_->estimated().size() + rls_->estimatedExtension().size();
-  const size_t needed = started_calibrated_ ? 0 : 2 * ((state + rows - 1) / rows);
   snap_.prediction_sigma_position_m = predictionSigma();
-  snap_.health_reason.clear();
-  snap_.held_version = 0;
-  std::ostringstream why;
-  if (consecutive_outliers_ >= settings_->outlier_hold_after) {
-    why << consecutive_outliers_ << " poses in a row beyond the outlier gate: the robot, the target or the tracker "
-        << "moved (check the station and the target, then re-register if it was bumped)";
-    snap_.drift_alarm = true;
-  } else if (snap_.prediction_sigma_position_m > settings_->hold_prediction_sigma_m) {
-    why << "predicted position error " << snap_.prediction_sigma_position_m * 1e3 << " mm (1 sigma) above the bound "
-        << settings_->hold_prediction_sigma_m * 1e3 << " mm: the recent poses do not pin the model down";
-  }
-  if (snap_.poses_used < needed) {
-    publishEstimate();
-    snap_.health = Health::kUncalibrated;
-    snap_.health_reason = std::to_string(snap_.poses_used) + " of the " + std::to_string(needed) + " poses needed" +
-                          (refused_file_ ? " (started from nominal: the calibration file does not fit this cell)" : "");
-    return;
-  }
-  if (!why.str().empty()) {
-    if (last_good_) {
-      snap_.health = Health::kHoldLastGood;
-      snap_.held_version = last_good_->version;
-      static_cast<CalibratedModel&>(snap_) = *last_good_;
-      snap_.health_reason = "holding v" + std::to_string(last_good_->version) + ": " + why.str();
-    } else {
-      publishEstimate();
-      snap_.health = Health::kUncalibrated;
-      snap_.health_reason = "nothing good to hold yet: " + why.str();
-    }
-    return;
-  }
-  publishEstimate();
-  if (snap_.drift_alarm) {
-    snap_.health = Health::kDegraded;
-    std::ostringstream d;
-    d << "drift alarm: recent normalized innovation " << snap_.recent_nis_per_row << " per row (alarm above "
-      << settings_->drift_alarm_nis_per_row << "): the estimate follows something the noise and drift models do not "
-      << "allow (a biased tracker, a missing model effect)";
-    snap_.health_reason = d.str();
-    return;
-  }
-  snap_.health = Health::kOk;
-  last_good_ = EngineState::Good{snap_, snap_.version};
+  HealthFacts f;
+  f.poses_used = snap_.poses_used;
+  f.poses_needed = posesNeeded(rls_->estimated().size() + rls_->estimatedExtension().size(), robot_->measurement,
+                               started_calibrated_);
+  f.consecutive_outliers = consecutive_outliers_;
+  f.prediction_sigma_m = snap_.prediction_sigma_position_m;
+  f.drift_alarm = snap_.drift_alarm;
+  f.recent_nis_per_row = snap_.recent_nis_per_row;
+  if (last_good_) f.good_version = last_good_->version;
+  f.refused_file = refused_file_;
+  const HealthVerdict v = judgeHealth(f, *settings_);
+  snap_.drift_alarm = v.drift_alarm;
+  snap_.health = v.health;
+  snap_.health_reason = v.reason;
+  snap_.held_version = v.hold ? last_good_->version : 0;
+  if (v.hold) static_cast<CalibratedModel&>(snap_) = *last_good_;
+  else publishEstimate();
+  if (v.health == Health::kOk) last_good_ = EngineState::Good{snap_, snap_.version};
 }
 
 void CalibrationEngine::refreshStatistics() {

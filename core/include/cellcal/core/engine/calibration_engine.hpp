@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/engine_state.hpp"
+#include "cellcal/core/engine/health.hpp"
 #include "cellcal/core/engine/input_watch.hpp"
 #include "cellcal/core/engine/outlier_gate.hpp"
 #include "cellcal/core/engine/pairing.hpp"
@@ -45,8 +46,6 @@
 
 namespace cellcal {
 
-enum class Health { kUncalibrated = 0, kOk = 1, kDegraded = 2, kHoldLastGood = 3 };
-const char* healthName(Health h);
 
 // What the engine publishes: the calibrated model (calibrated_model.hpp: the RLS estimate, or the held version's;
 // extensions are the cell file's, CellRobot::extensions; the covariance is over every estimated kinematic, then
@@ -163,7 +162,6 @@ class CalibrationEngine {
   bool onProbation() const { return started_calibrated_ && !refused_file_ && snap_.poses_used == 0; }
   bool refuseCalibrationFile(double gate);
   void addDriftSinceFile(std::int64_t stamp_ns);
-  static int capVariances(Eigen::MatrixXd& P, const Eigen::VectorXd& sd);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
   double predictionSigma();
