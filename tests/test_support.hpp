@@ -10,7 +10,9 @@
 #include <random>
 #include <string>
 
+#include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/identification/observation.hpp"
 
 namespace cellcal::test {
 
@@ -47,6 +49,15 @@ inline std::uint64_t testSeed() {
   ::testing::Test::RecordProperty("seed", std::to_string(seed));
   std::printf("[   SEED   ] CELLCAL_TEST_SEED=%llu\n", static_cast<unsigned long long>(seed));
   return seed;
+}
+
+// A measurement file's row of a simulated reading at joints q (its orientation when the reading is 6D).
+inline MeasurementRow measuredRow(const Eigen::VectorXd& q, const Observation& o) {
+  MeasurementRow r;
+  r.q_rad = q;
+  r.position_m = o.measured_in_tracker.translation();
+  if (o.kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+  return r;
 }
 
 }  // namespace cellcal::test

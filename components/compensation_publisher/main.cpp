@@ -5,21 +5,21 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app;
-  applyManPage(app, "cellcal_compensation_publisher");  // docs/man/cellcal_compensation_publisher.txt
-  CompensationPublisher::Options o;
-  addCommonOptions(app, o.process);
-  app.add_option("--wait-for-calibration-s", o.wait_for_calibration_s,
-                 "at start, wait this long for every robot's calibration before taking targets")
-      ->capture_default_str();
-  app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
-  app.add_option("--ros-pose-topic", o.ros_pose_topic,
-                 "also publish each applied correction as geometry_msgs/PoseStamped on this ROS 2 topic "
-                 "(several robots: <topic>/<robot_id>)");
-  app.add_option("--ros-frame-id", o.ros_frame_id, "header.frame_id of those poses (the targets' frame)")
-      ->capture_default_str();
-  app.add_option("--ros-description-topic", o.ros_description_topic,
-                 "also publish the robot's URDF with the calibrated joint origins as std_msgs/String on this ROS 2 topic "
-                 "after each new ok calibration (transient local; several robots: <topic>/<robot_id>)");
-  return runMain("cellcal_compensation_publisher", argc, argv, app, [&] { return CompensationPublisher(o).run(); });
+  return componentMain<CompensationPublisher>(
+      "cellcal_compensation_publisher", argc, argv, [](CLI::App& app, CompensationPublisher::Options& o) {
+        addCommonOptions(app, o.process);
+        app.add_option("--wait-for-calibration-s", o.wait_for_calibration_s,
+                       "at start, wait this long for every robot's calibration before taking targets")
+            ->capture_default_str();
+        app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+        app.add_option("--ros-pose-topic", o.ros_pose_topic,
+                       "also publish each applied correction as geometry_msgs/PoseStamped on this ROS 2 topic "
+                       "(several robots: <topic>/<robot_id>)");
+        app.add_option("--ros-frame-id", o.ros_frame_id, "header.frame_id of those poses (the targets' frame)")
+            ->capture_default_str();
+        app.add_option("--ros-description-topic", o.ros_description_topic,
+                       "also publish the robot's URDF with the calibrated joint origins as std_msgs/String on this "
+                       "ROS 2 topic after each new ok calibration (transient local; several robots: "
+                       "<topic>/<robot_id>)");
+      });
 }

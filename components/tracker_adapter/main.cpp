@@ -5,13 +5,14 @@
 using namespace cellcal::components;
 
 int main(int argc, char** argv) {
-  CLI::App app;
-  applyManPage(app, "cellcal_tracker_adapter");  // docs/man/cellcal_tracker_adapter.txt
-  TrackerAdapter::Options o;
-  addSourceOptions(app, o.input);
-  app.add_option("--sigma-position-mm", o.sigma_position_mm, "csv: 1-sigma position noise of the tracker")->capture_default_str();
-  app.add_option("--wait-for-readers", o.wait_for_readers,
-                 "sim: start measuring once TrackerPose has N readers (at most 10 s)");
-  app.add_option("--sigma-orientation-deg", o.sigma_orientation_deg, "csv: 1-sigma orientation noise")->capture_default_str();
-  return runMain("cellcal_tracker_adapter", argc, argv, app, [&] { return TrackerAdapter(o).run(); });
+  return componentMain<TrackerAdapter>(
+      "cellcal_tracker_adapter", argc, argv, [](CLI::App& app, TrackerAdapter::Options& o) {
+        addSourceOptions(app, o.input);
+        app.add_option("--sigma-position-mm", o.sigma_position_mm, "csv: 1-sigma position noise of the tracker")
+            ->capture_default_str();
+        app.add_option("--wait-for-readers", o.wait_for_readers,
+                       "sim: start measuring once TrackerPose has N readers (at most 10 s)");
+        app.add_option("--sigma-orientation-deg", o.sigma_orientation_deg, "csv: 1-sigma orientation noise")
+            ->capture_default_str();
+      });
 }

@@ -166,6 +166,13 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
   // One generic loop; `update` moves the estimate with the poses of one group.
   using Chooser = std::function<std::vector<Observation>(int group, int k)>;
   const Chooser first_k = [&](int g, int k) { return firstN(groups[g].ident, k); };
+  auto newRun = [](const std::string& mode, const std::string& algorithm, int updated_poses) {
+    MaintenanceRun run;
+    run.mode = mode;
+    run.algorithm = algorithm;
+    run.updated_poses = updated_poses;
+    return run;
+  };
   auto run_maintenance = [&](MaintenanceRun run, int per_group,
                              const std::function<void(int group, const std::vector<Observation>&)>& update,
                              const std::function<const Eigen::VectorXd&()>& params, const Chooser& choose) {
@@ -204,10 +211,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     // RLS: prior at group 0, process noise between groups (a random walk toward the previous estimate).
     {
       RlsCalibrator rls(model, p0, prior0, cfg.kind);
-      MaintenanceRun run;
-      run.mode = mode;
-      run.algorithm = "rls";
-      run.updated_poses = k;
+      MaintenanceRun run = newRun(mode, "rls", k);
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
@@ -229,10 +233,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
           cfg.sim.tracker.sigmaPosition(model.nominal.segment<3>(model.baseParam(FrameParam::kX)).norm()),
           cfg.sim.repeatability_m / 2);
       sel.sigma_orientation_rad = cfg.sim.tracker.sigmaOrientation();
-      MaintenanceRun run;
-      run.mode = mode;
-      run.algorithm = "rls";
-      run.updated_poses = k;
+      MaintenanceRun run = newRun(mode, "rls", k);
       run.pose_selection = "i-optimal";
       const Chooser choose = [&](int g, int count) {
         if (g == 0) return firstN(groups[g].ident, count);
@@ -257,10 +258,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     // LM as in the paper: warm start from the previous estimate, fresh poses only.
     {
       Eigen::VectorXd params = p0;
-      MaintenanceRun run;
-      run.mode = mode;
-      run.algorithm = "lm";
-      run.updated_poses = k;
+      MaintenanceRun run = newRun(mode, "lm", k);
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
@@ -275,11 +273,8 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     {
       Eigen::VectorXd params = p0;
       GaussianPrior prior = prior0;
-      MaintenanceRun run;
-      run.mode = mode;
-      run.algorithm = "lm";
+      MaintenanceRun run = newRun(mode, "lm", k);
       run.prior = true;
-      run.updated_poses = k;
       run_maintenance(
           run, k,
           [&](int g, const std::vector<Observation>& used) {
@@ -305,10 +300,7 @@ PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperE
     RlsCalibrator probe(model, p0, prior0, cfg.kind);
     opts.rls.max_covariance_diag = probe.covariance().diagonal();
     RlsCalibrator rls(model, p0, prior0, cfg.kind, opts);
-    MaintenanceRun run;
-    run.mode = "continuous";
-    run.algorithm = "rls";
-    run.updated_poses = k;
+    MaintenanceRun run = newRun("continuous", "rls", k);
     run.forgetting = cfg.forgetting;
     run_maintenance(
         run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },

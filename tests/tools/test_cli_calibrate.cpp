@@ -27,15 +27,6 @@ SimulationConfig placement(const SimulationConfig& sc, int s, std::mt19937_64& r
   return c;
 }
 
-// A measurement file's row of a simulated reading at joints q (its orientation when the reading is 6D).
-MeasurementRow measuredRow(const Eigen::VectorXd& q, const Observation& o) {
-  MeasurementRow r;
-  r.q_rad = q;
-  r.position_m = o.measured_in_tracker.translation();
-  if (o.kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-  return r;
-}
-
 TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
@@ -67,6 +58,32 @@ TEST(CliCalibrate, RegistersAndCalibratesAFileToTheNoiseFloor) {
   EXPECT_GT(before, 0.2) << p.log();
   EXPECT_LT(after, 1.3 * floor_mm) << "floor " << floor_mm << " mm\n" << p.log();
   EXPECT_LT(j["solve_time_s"].get<double>(), 5.0);
+}
+
+// Every set-up's verification mean is lower with the extension (calibrate's JSON x) than geometric (g), printed.
+void expectEverySetUpBetterWith(const nlohmann::json& g, const nlohmann::json& x, const std::string& with,
+                                const std::string& log) {
+  for (size_t s = 0; s < x["setups"].size(); ++s) {
+    const double xs = x["setups"][s]["verification"]["after"]["mean_mm"], gs = g["setups"][s]["verification"]["after"]["mean_mm"];
+    std::printf("  set-up %zu: verification mean %.4f mm with the %s, %.4f mm geometric\n", s + 1, xs, with.c_str(), gs);
+    EXPECT_LT(xs, gs) << "set-up " << s + 1 << "\n" << log;
+  }
+}
+
+// The robot file calibrate saved holds one extension, `spec`.
+void expectSavedExtension(const std::string& path, const std::string& spec) {
+  const RobotFile saved = loadRobotFile(path);
+  ASSERT_TRUE(saved.calibration);
+  ASSERT_EQ(saved.calibration->extensions.size(), 1u);
+  EXPECT_EQ(extensionSpec(saved.calibration->extensions[0]), spec);
+}
+
+// Writes set-up s's rows to dir/setup<s+1>.csv (its comment: `what`, set-up s+1) and returns the path.
+std::string writeSetupFile(const std::string& dir, int s, const MeasurementFile& f, const std::string& what) {
+  const std::string path = dir + "/setup" + std::to_string(s + 1) + ".csv";
+  std::ofstream out(path);
+  writeMeasurementCsv(out, f, 6, what + ", set-up " + std::to_string(s + 1));
+  return path;
 }
 
 // `cellcal calibrate` of the set-ups in `files` (--data each) with --model model_spec, writing <dir>/<name>.json and
@@ -115,35 +132,24 @@ TEST(CliCalibrate, SeveralSetUpsShareOneExtendedModel) {
     const SimulatedCell cell(model, c);
     MeasurementFile f;
     for (const auto& q : cell.randomConfigurations(120, rng)) f.rows.push_back(measuredRow(q, cell.measure(q, 0.0, rng)));
-    files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
-    std::ofstream out(files.back());
-    writeMeasurementCsv(out, f, 6, "simulated UR10 with joint 2 compliance, set-up " + std::to_string(s + 1));
+    files.push_back(writeSetupFile(dir, s, f, "simulated UR10 with joint 2 compliance"));
   }
-  auto calibrate = [&](const std::string& name, const std::string& model_spec) {
-    return calibrateSetUps(dir, name, ur10, files, model_spec);
-  };
-  const auto [gc, glog] = calibrate("geometric", "geometric");
+  const auto [gc, glog] = calibrateSetUps(dir, "geometric", ur10, files, "geometric");
   ASSERT_EQ(gc, 0) << glog;
-  const auto [xc, xlog] = calibrate("extended", "joint_compliance:2");
+  const auto [xc, xlog] = calibrateSetUps(dir, "extended", ur10, files, "joint_compliance:2");
   ASSERT_EQ(xc, 0) << xlog;
   EXPECT_NE(xlog.find("one kinematic model (joint_compliance joint 2)"), std::string::npos) << xlog;
   EXPECT_NE(xlog.find("extension parameters (every set-up's):"), std::string::npos) << xlog;
   const auto g = readJson(dir + "/geometric.json"), x = readJson(dir + "/extended.json");
   ASSERT_EQ(x["extension_params"].size(), 1u) << xlog;
-  for (int s = 0; s < 2; ++s) {
-    const double xs = x["setups"][s]["verification"]["after"]["mean_mm"], gs = g["setups"][s]["verification"]["after"]["mean_mm"];
-    std::printf("  set-up %d: verification mean %.4f mm with the compliance, %.4f mm geometric\n", s + 1, xs, gs);
-    EXPECT_LT(xs, gs) << "set-up " << s + 1 << "\n" << xlog;
-  }
+  expectEverySetUpBetterWith(g, x, "compliance", xlog);
+  ASSERT_NO_FATAL_FAILURE(expectSavedExtension(dir + "/extended.yaml", "joint_compliance:2"));
   const RobotFile saved = loadRobotFile(dir + "/extended.yaml");
-  ASSERT_TRUE(saved.calibration);
-  ASSERT_EQ(saved.calibration->extensions.size(), 1u);
-  EXPECT_EQ(extensionSpec(saved.calibration->extensions[0]), "joint_compliance:2");
   ASSERT_EQ(saved.calibration->extension_params.size(), 1);
   EXPECT_NEAR(saved.calibration->extension_params[0], x["extension_params"].begin()->get<double>(),
               1e-9 * std::abs(saved.calibration->extension_params[0]));
   // --model auto: `diagnose` on each set-up's rows names the same cause, which is then fitted as if named.
-  const auto [ac, alog] = calibrate("auto", "auto");
+  const auto [ac, alog] = calibrateSetUps(dir, "auto", ur10, files, "auto");
   ASSERT_EQ(ac, 0) << alog;
   EXPECT_NE(alog.find("--model auto: every set-up names joint_compliance joint 2"), std::string::npos) << alog;
   EXPECT_EQ(readJson(dir + "/auto.json")["extension_params"], x["extension_params"]) << alog;
@@ -192,16 +198,11 @@ TEST(CliCalibrate, SeveralSetUpsShareOneBacklash) {
       if (i) state = cell.advanceHiddenState(state, qs[i - 1], qs[i]);
       f.rows.push_back(measuredRow(qs[i], cell.measure(qs[i], &state, 0.0, rng)));
     }
-    files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
-    std::ofstream out(files.back());
-    writeMeasurementCsv(out, f, 6, "simulated UR10 with joint 2 backlash, set-up " + std::to_string(s + 1));
+    files.push_back(writeSetupFile(dir, s, f, "simulated UR10 with joint 2 backlash"));
   }
-  auto calibrate = [&](const std::string& name, const std::string& model_spec) {
-    return calibrateSetUps(dir, name, ur10, files, model_spec);
-  };
-  const auto [gc, glog] = calibrate("geometric", "geometric");
+  const auto [gc, glog] = calibrateSetUps(dir, "geometric", ur10, files, "geometric");
   ASSERT_EQ(gc, 0) << glog;
-  const auto [xc, xlog] = calibrate("backlash", "backlash:2");
+  const auto [xc, xlog] = calibrateSetUps(dir, "backlash", ur10, files, "backlash:2");
   ASSERT_EQ(xc, 0) << xlog;
   EXPECT_NE(xlog.find("before the backlash joint first moved in this set-up left out of the fit"), std::string::npos)
       << xlog;
@@ -210,16 +211,9 @@ TEST(CliCalibrate, SeveralSetUpsShareOneBacklash) {
   const double width = -x["extension_params"].begin()->get<double>();
   std::printf("  width %.4f mrad (true %.4f)\n", width * 1e3, sc.hidden.backlash_width_rad * 1e3);
   EXPECT_NEAR(width, sc.hidden.backlash_width_rad, 0.25 * sc.hidden.backlash_width_rad) << xlog;
-  for (int s = 0; s < 2; ++s) {
-    EXPECT_GE(x["setups"][s]["rows_left_out_backlash"].get<int>(), 1) << xlog;
-    const double xs = x["setups"][s]["verification"]["after"]["mean_mm"], gs = g["setups"][s]["verification"]["after"]["mean_mm"];
-    std::printf("  set-up %d: verification mean %.4f mm with the backlash, %.4f mm geometric\n", s + 1, xs, gs);
-    EXPECT_LT(xs, gs) << "set-up " << s + 1 << "\n" << xlog;
-  }
-  const RobotFile saved = loadRobotFile(dir + "/backlash.yaml");
-  ASSERT_TRUE(saved.calibration);
-  ASSERT_EQ(saved.calibration->extensions.size(), 1u);
-  EXPECT_EQ(extensionSpec(saved.calibration->extensions[0]), "backlash:2");
+  for (int s = 0; s < 2; ++s) EXPECT_GE(x["setups"][s]["rows_left_out_backlash"].get<int>(), 1) << xlog;
+  expectEverySetUpBetterWith(g, x, "backlash", xlog);
+  expectSavedExtension(dir + "/backlash.yaml", "backlash:2");
 }
 
 // Gross errors in several set-ups: a few identification rows of each set-up bumped by 1-3 mm (a target knocked), at
@@ -260,12 +254,8 @@ TEST(CliCalibrate, SeveralSetUpsLeaveOutTheirGrossErrors) {
       const bool dropped = std::count(bump.begin(), bump.end() - 1, i) || std::count(bump.begin(), bump.end() - 1, i - 1);
       if (!dropped) reference.rows.push_back(f.rows.back());
     }
-    files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
+    files.push_back(writeSetupFile(dir, s, f, "simulated TX60 with bumped rows"));
     clean.push_back(dir + "/clean" + std::to_string(s + 1) + ".csv");
-    {
-      std::ofstream out(files.back());
-      writeMeasurementCsv(out, f, 6, "simulated TX60 with bumped rows, set-up " + std::to_string(s + 1));
-    }
     std::ofstream out(clean.back());
     writeMeasurementCsv(out, reference, 6, "the same without the bumped identification rows");
   }
@@ -318,9 +308,7 @@ TEST(CliCalibrate, SeveralSetUpsShareOneKinematicModel) {
       const Observation o = cell.measure(q, 0.0, rng);
       f.rows.push_back(measuredRow(q, o));
     }
-    files.push_back(dir + "/setup" + std::to_string(s + 1) + ".csv");
-    std::ofstream out(files.back());
-    writeMeasurementCsv(out, f, 6, "simulated TX60, set-up " + std::to_string(s + 1));
+    files.push_back(writeSetupFile(dir, s, f, "simulated TX60"));
     parts.push_back(f);
   }
   // The same rows in one file, the two set-ups interleaved at random and named in a setup column (set-up 1 first:

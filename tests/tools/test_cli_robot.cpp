@@ -54,14 +54,8 @@ TEST(CliRobot, AUrdfImportedCalibratedAndExported) {
   d.sc.seed = seed;
   const SimulatedCell cell(direct, d.sc);
   MeasurementFile f;
-  for (const auto& q : cell.randomConfigurations(160, rng)) {
-    const Observation o = cell.measure(q, 0.0, rng, d.kind);
-    MeasurementRow r;
-    r.q_rad = q;
-    r.position_m = o.measured_in_tracker.translation();
-    if (o.kind == MeasurementKind::kPose6D) r.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-    f.rows.push_back(r);
-  }
+  for (const auto& q : cell.randomConfigurations(160, rng))
+    f.rows.push_back(measuredRow(q, cell.measure(q, 0.0, rng, d.kind)));
   {
     std::ofstream out(dir + "/m.csv");
     writeMeasurementCsv(out, f, direct.numJoints(), "simulated " + direct.name);

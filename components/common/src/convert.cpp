@@ -1,9 +1,6 @@
 #include "cellcal/components/convert.hpp"
 
 #include <Eigen/Geometry>
-#include <algorithm>
-#include <cmath>
-#include <map>
 
 namespace cellcal::components {
 
@@ -97,47 +94,13 @@ void fillCalibrationState(const CellRobot& robot, const CalibrationSnapshot& s, 
   m.mode(s.mode == EngineMode::kContinuous ? msg::MODE_CONTINUOUS : msg::MODE_PERIODIC);
   m.health(static_cast<msg::CalibrationHealth>(static_cast<int>(s.health)));
   m.poses_used(s.poses_used);
-  Eigen::VectorXd sigma = Eigen::VectorXd::Zero(model.numParams());
-  for (size_t k = 0; k < s.estimated.size(); ++k)
-    sigma[s.estimated[k]] = std::sqrt(std::max(0.0, s.covariance(static_cast<Eigen::Index>(k), static_cast<Eigen::Index>(k))));
-  m.parameter_values().clear();
-  m.parameter_stddevs().clear();
-  m.parameter_correlations().clear();
   if (!same_names) {
-    m.parameter_names().clear();
     m.model_extensions().clear();
-    for (int i = 0; i < model.numParams(); ++i) m.parameter_names().push_back(model.paramName(i));
     for (const auto& e : s.extensions) m.model_extensions().push_back(extensionSpec(e));
-    for (const auto& name : extensionParamNames(model, s.extensions)) m.parameter_names().push_back(name);
+    m.parameter_names().clear();
+    for (const auto& name : parameterNames(model, s.extensions)) m.parameter_names().push_back(name);
   }
-  for (int i = 0; i < model.numParams(); ++i) {
-    m.parameter_values().push_back(s.params[i]);
-    m.parameter_stddevs().push_back(sigma[i]);
-  }
-  Eigen::VectorXd ext_sigma = Eigen::VectorXd::Zero(s.extension_params.size());
-  const auto nk = static_cast<Eigen::Index>(s.estimated.size());
-  for (size_t k = 0; k < s.estimated_extension.size(); ++k) {
-    const auto c = nk + static_cast<Eigen::Index>(k);
-    ext_sigma[s.estimated_extension[k]] = std::sqrt(std::max(0.0, s.covariance(c, c)));
-  }
-  for (Eigen::Index k = 0; k < s.extension_params.size(); ++k) {
-    m.parameter_values().push_back(s.extension_params[k]);
-    m.parameter_stddevs().push_back(ext_sigma[k]);
-  }
-  // Correlations over the parameters with a stddev, in wire order: the estimated kinematic ones by index, then the
-  // estimated extension ones by index; each with its row of the snapshot's covariance.
-  std::vector<std::pair<int, Eigen::Index>> order;  // (wire position, covariance row)
-  for (size_t k = 0; k < s.estimated.size(); ++k) order.emplace_back(s.estimated[k], static_cast<Eigen::Index>(k));
-  for (size_t k = 0; k < s.estimated_extension.size(); ++k)
-    order.emplace_back(model.numParams() + s.estimated_extension[k], nk + static_cast<Eigen::Index>(k));
-  std::sort(order.begin(), order.end());
-  m.parameter_correlations().reserve(order.size() * (order.size() - 1) / 2);  // 0 for no order: 0 * anything
-  for (size_t a = 0; a < order.size(); ++a)
-    for (size_t b = a + 1; b < order.size(); ++b) {
-      const Eigen::Index i = order[a].second, j = order[b].second;
-      const double d = std::sqrt(std::max(0.0, s.covariance(i, i)) * std::max(0.0, s.covariance(j, j)));
-      m.parameter_correlations().push_back(d > 0 ? s.covariance(i, j) / d : 0.0);
-    }
+  parametersByName(model, s, m.parameter_values(), m.parameter_stddevs(), m.parameter_correlations());
   m.residual_rms_position_m(s.residual_rms_position_m);
   m.residual_rms_orientation_rad(s.residual_rms_orientation_rad);
   m.verification_mean_position_m(s.verification_mean_position_m);
@@ -199,66 +162,17 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
       return fail(std::string("model_extensions: ") + e.what());
     }
   }
-  // Kinematic parameters at their index; extension parameters after them, by their names.
-  std::map<std::string, int> index;
-  for (int i = 0; i < model.numParams(); ++i) index[model.paramName(i)] = i;
-  int next = model.numParams();
-  for (const auto& n : extensionParamNames(model, r.extensions)) index[n] = next++;
-  Eigen::VectorXd values(next);
-  values << model.nominal, Eigen::VectorXd::Zero(next - model.numParams());
-  std::vector<bool> given(static_cast<size_t>(next), false);
-  if (m.parameter_values().size() != m.parameter_names().size())
-    return fail("parameter_names and parameter_values differ in length");
-  for (size_t k = 0; k < m.parameter_names().size(); ++k) {
-    const std::string name = m.parameter_names()[k].to_string();
-    const auto it = index.find(name);
-    if (it == index.end()) return fail("unknown parameter '" + name + "'");
-    if (!std::isfinite(m.parameter_values()[k])) return fail("parameter '" + name + "' is not finite");
-    values[it->second] = m.parameter_values()[k];
-    given[static_cast<size_t>(it->second)] = true;
-  }
-  // An extension's parameters must all be there (a missing one would silently mean "no effect").
-  for (int i = model.numParams(); i < next; ++i)
-    if (!given[static_cast<size_t>(i)]) {
-      for (const auto& [n, idx] : index)
-        if (idx == i) return fail("extension parameter '" + n + "' missing");
-    }
-  r.params = values.head(model.numParams());
-  r.extension_params = values.tail(next - model.numParams());
-  // The covariance of the estimated kinematic parameters, when the correlations were sent.
-  if (m.parameter_stddevs().size() != m.parameter_names().size())
-    return fail("parameter_names and parameter_stddevs differ in length");
-  std::vector<int> with_sd;    // wire positions with a stddev
-  std::vector<double> sd;
-  for (size_t k = 0; k < m.parameter_stddevs().size(); ++k) {
-    const double v = m.parameter_stddevs()[k];
-    if (!(v >= 0) || !std::isfinite(v)) return fail("parameter_stddevs[" + std::to_string(k) + "] is not a stddev");
-    if (v > 0) {
-      with_sd.push_back(static_cast<int>(k));
-      sd.push_back(v);
-    }
-  }
-  const size_t n = with_sd.size();
-  if (!m.parameter_correlations().empty()) {
-    if (m.parameter_correlations().size() != n * (n - 1) / 2)
-      return fail("parameter_correlations: " + std::to_string(m.parameter_correlations().size()) + " values, expected " +
-                  std::to_string(n * (n - 1) / 2) + " for " + std::to_string(n) + " parameters with a stddev");
-    Eigen::MatrixXd C(static_cast<Eigen::Index>(n), static_cast<Eigen::Index>(n));
-    size_t c = 0;
-    for (size_t a = 0; a < n; ++a) {
-      C(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a)) = sd[a] * sd[a];
-      for (size_t b = a + 1; b < n; ++b) {
-        const double rho = m.parameter_correlations()[c++];
-        if (!(std::abs(rho) <= 1.0 + 1e-9)) return fail("parameter_correlations: " + std::to_string(rho) + " is not a correlation");
-        C(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) = C(static_cast<Eigen::Index>(b), static_cast<Eigen::Index>(a)) =
-            rho * sd[a] * sd[b];
-      }
-    }
-    // The kinematic block (the wire names the parameters in RobotModel order, kinematic first).
-    for (size_t k = 0; k < n && with_sd[k] < model.numParams(); ++k) r.estimated.push_back(with_sd[k]);
-    const auto nk = static_cast<Eigen::Index>(r.estimated.size());
-    r.covariance = C.topLeftCorner(nk, nk);
-  }
+  std::vector<std::string> names;
+  names.reserve(m.parameter_names().size());
+  for (const auto& n : m.parameter_names()) names.push_back(n.to_string());
+  std::string why;
+  auto model_back = modelFromParameters(model, r.extensions, names, m.parameter_values(), m.parameter_stddevs(),
+                                        m.parameter_correlations(), &why);
+  if (!model_back) return fail(why);
+  // The consumers predict from the kinematic block (the extension parameters' uncertainty is not applied).
+  model_back->covariance = model_back->kinematicCovariance();
+  model_back->estimated_extension.clear();
+  static_cast<CalibratedModel&>(r) = std::move(*model_back);
   r.version = m.version();
   r.health = m.health();
   r.last_measurement_stamp_ns = m.last_measurement_stamp_ns();

@@ -44,22 +44,6 @@ double savedSigma(const PredictionModel& pm, int column) {
 
 namespace internal {
 
-ExtendedFit asFit(const Eigen::VectorXd& params) {
-  ExtendedFit f;
-  f.params = params;
-  return f;
-}
-
-ExtendedFit asFit(const CalibrationResult& r) {
-  ExtendedFit f = asFit(r.params);
-  f.estimated = r.estimated;
-  f.covariance = r.covariance;
-  f.converged = r.converged;
-  f.iterations = r.iterations;
-  f.message = r.message;
-  return f;
-}
-
 DiagnosisResult diagnoseForAuto(const CampaignProblem& problem, const CampaignInput& in, const std::string& stage) {
   DiagnosisOptions o;
   o.identifiability.rank_tolerance = problem.identifiability.rank_tolerance;
@@ -95,7 +79,6 @@ CampaignErrors campaignErrors(const RobotModel& robot, const ExtendedFit& before
 
 namespace {
 
-using internal::asFit;
 
 PredictionCheck checkPrediction(const RobotModel& robot, const ExtendedFit& fit, const PredictionModel& pm,
                                 const std::vector<Observation>& ident, const std::vector<Drivers>& idr,
@@ -271,7 +254,7 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
     std::string why;
     if (!p.IsValid(&why)) throw std::runtime_error(why);
     r = problem.solver == CampaignSolver::kLevenbergMarquardt ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
-    after = asFit(r);
+    after = geometricFit(r);
     rep.held = held;
     ident_outliers = r.outliers;
     rep.model_label = "geometric";
@@ -301,7 +284,7 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
     }
   }
   rep.solve_s = std::chrono::duration<double>(Clock::now() - t1).count();
-  rep.before = asFit(start);
+  rep.before = geometricFit(start);
   rep.errors = internal::campaignErrors(robot, rep.before, after, in.data, ident_outliers, p.outliers);
   const CampaignErrors& e = rep.errors;
   const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), e.verification_outliers.rows);

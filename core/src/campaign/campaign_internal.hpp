@@ -7,9 +7,6 @@
 
 namespace cellcal::internal {
 
-ExtendedFit asFit(const Eigen::VectorXd& params);
-ExtendedFit asFit(const CalibrationResult& result);
-
 // `diagnose` on a set-up's rows with the campaign's identifiability, gross-error, excitation and region settings; its
 // progress reported under `stage`.
 DiagnosisResult diagnoseForAuto(const CampaignProblem& problem, const CampaignInput& setup, const std::string& stage);

@@ -88,7 +88,7 @@ CampaignReport calibrateSetups(const CampaignProblem& problem) {
     }
   for (size_t s = 0; s < ins.size(); ++s) {
     SetupReport sr;
-    const ExtendedFit before = asFit(ins[s].start), after = setupFit(pr, fit, s);
+    const ExtendedFit before = geometricFit(ins[s].start), after = setupFit(pr, fit, s);
     // Gross errors as for one set-up: the identification rows the fit left out, the verification rows judged against
     // the calibrated model, each set-up against its own robust scale; the figures without them.
     sr.errors = campaignErrors(robot, before, after, ins[s].data, ident_screens[s], problem.outliers);

@@ -6,7 +6,6 @@
 #include <iomanip>
 #include <cmath>
 #include <limits>
-#include <map>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -15,7 +14,6 @@
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
-#include "cellcal/core/identification/statistics.hpp"
 
 namespace cellcal {
 
@@ -162,19 +160,7 @@ void CalibrationEngine::addDriftSinceFile(std::int64_t stamp_ns) {
 // nominal model and the cell file's registration, then takes those readings.
 bool CalibrationEngine::refuseCalibrationFile(double gate) {
   const RobotModel& m = robot_->model;
-  std::ostringstream why;
-  why << "calibration_file " << robot_->calibration_file << " does not fit this cell: its first " << probe_.size()
-      << " poses lie";
-  double least_nis = std::numeric_limits<double>::infinity();
-  for (size_t k = 0; k < probe_.size(); ++k) {
-    why << (k ? ", " : " ") << std::fixed << std::setprecision(2) << probe_[k].prior_error_m * 1e3;
-    least_nis = std::min(least_nis, probe_[k].nis_per_row);
-  }
-  why << " mm from where it predicts them (normalized innovation " << std::scientific << std::setprecision(2)
-      << least_nis << " per row or more, gate " << std::defaultfloat << gate
-      << "): calibrated on another set-up, the tracker moved, or another robot. Started from the nominal model and "
-         "the cell file's registration instead (to keep the file's kinematics: `cellcal calibrate --frames-only` on a "
-         "few poses of this cell, then start from that file)";
+  const std::string why = probation_.refusal(robot_->calibration_file, gate);
   const GaussianPrior prior =
       diagonalPrior(m, m.nominal, m.canonicalParams(), settings_->prior_length_m, settings_->prior_angle_rad);
   rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot_->measurement);
@@ -189,10 +175,9 @@ bool CalibrationEngine::refuseCalibrationFile(double gate) {
   gated_q_.resize(0);
   used_q_.resize(0);
   snap_.last_update_stamp_ns = 0;
-  snap_.start_warning = why.str();
-  notes_.push_back("WARNING: " + why.str());
-  std::vector<Probe> held = std::move(probe_);
-  probe_.clear();
+  snap_.start_warning = why;
+  notes_.push_back("WARNING: " + why);
+  const std::vector<FileProbation::Held> held = probation_.take();
   ++snap_.version;  // the file's model is withdrawn at once: compensation must stop applying it
   publishEstimate();
   refreshStatistics();
@@ -258,23 +243,8 @@ bool CalibrationEngine::samePose(const PairedReading& p, const Eigen::VectorXd& 
 }
 
 std::string CalibrationEngine::clockWarning() const {
-  const auto h = pairing_.clockOffsetHint();
-  if (!h) return "";
-  std::ostringstream m;
-  m << std::fixed << std::setprecision(1);
-  auto lead = [&](double ahead_s, double lo_s, double hi_s) {
-    m << std::abs(ahead_s) * 1e3 << " ms " << (ahead_s > 0 ? "ahead of" : "behind") << " (a lead of " << lo_s * 1e3
-      << " to " << hi_s * 1e3 << " ms fits)";
-  };
-  m << "tracker stamps ";
-  lead(h->tracker_ahead_s, h->tracker_ahead_min_s, h->tracker_ahead_max_s);
-  if (h->other_ahead_s) {
-    m << " or ";
-    lead(*h->other_ahead_s, h->other_ahead_min_s, h->other_ahead_max_s);
-  }
-  m << " the joint states: " << h->fit_with_shift << " of the last " << h->readings << " readings fit a stand-still "
-    << "shifted so, " << h->fit_without_shift << " as stamped; synchronize the hosts' clocks (NTP/PTP)";
-  return m.str();
+  const auto hint = pairing_.clockOffsetHint();
+  return hint ? clockOffsetText(*hint) : "";
 }
 
 std::string CalibrationEngine::staleInputs(std::int64_t now_ns) const { return inputs_.staleInputs(now_ns); }
@@ -328,13 +298,12 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
       // stand-stills are held; kProbationPoses in a row beyond the gate mean it does not fit this cell.
       if (new_stand_still && onProbation()) {
         const Pose predicted = rls_->predict(p.observation.q_rad, extended ? &pending.drivers : nullptr);
-        probe_.push_back({pending, m.str(),
-                          (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
-                          nis / rows});
+        const bool refused = probation_.hold(
+            {pending, m.str(), (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
+             nis / rows});
         gated_q_ = p.observation.q_rad;
         gated_joint_stamp_ns_ = p.joint_stamp_ns;
-        if (probe_.size() >= kProbationPoses) return refuseCalibrationFile(gate);
-        return false;
+        return refused && refuseCalibrationFile(gate);
       }
       reject(Rejection::kOutlier, m.str());
       if (new_stand_still) {
@@ -349,8 +318,7 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
     }
   }
   // A pose passed the gate: readings held on probation were outliers after all.
-  for (const auto& h : probe_) reject(Rejection::kOutlier, h.rejection);
-  probe_.clear();
+  for (const auto& h : probation_.take()) reject(Rejection::kOutlier, h.rejection);
   consecutive_outliers_ = 0;
   gated_q_.resize(0);
   ++counters_.paired;
@@ -621,7 +589,7 @@ void CalibrationEngine::importState(const EngineState& s) {
     if (started_calibrated_) file_date_ns_ = s.file_drift_pending_since_ns;
     snap_.start_warning = s.start_warning;
   }
-  probe_.clear();
+  probation_.take();  // readings held before the import are not the resumed state's
   if (robot_->start)
     note += std::string(note.empty() ? "" : "; ") + "resumed from its state file: calibration_file " +
             robot_->calibration_file + " (the start of a new cell) is not used";

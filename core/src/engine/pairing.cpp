@@ -3,9 +3,28 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
 #include <sstream>
 
 namespace cellcal {
+
+std::string clockOffsetText(const ClockOffsetHint& h) {
+  std::ostringstream m;
+  m << std::fixed << std::setprecision(1);
+  auto lead = [&](double ahead_s, double lo_s, double hi_s) {
+    m << std::abs(ahead_s) * 1e3 << " ms " << (ahead_s > 0 ? "ahead of" : "behind") << " (a lead of " << lo_s * 1e3
+      << " to " << hi_s * 1e3 << " ms fits)";
+  };
+  m << "tracker stamps ";
+  lead(h.tracker_ahead_s, h.tracker_ahead_min_s, h.tracker_ahead_max_s);
+  if (h.other_ahead_s) {
+    m << " or ";
+    lead(*h.other_ahead_s, h.other_ahead_min_s, h.other_ahead_max_s);
+  }
+  m << " the joint states: " << h.fit_with_shift << " of the last " << h.readings << " readings fit a stand-still "
+    << "shifted so, " << h.fit_without_shift << " as stamped; synchronize the hosts' clocks (NTP/PTP)";
+  return m.str();
+}
 namespace {
 
 std::int64_t toNs(double s) { return static_cast<std::int64_t>(std::llround(s * 1e9)); }

@@ -146,7 +146,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   if (ps.IsDefined() && !ps.IsNull()) {
     if (!ps.IsSequence()) r.fail(ps, f + ".parameters", "expected a list of {name, stddev, estimated}");
     const auto names = columnNames(m, cal.extensions);
-    std::vector<double> sd;
+    std::vector<double> sd_read;
     for (size_t i = 0; i < ps.size(); ++i) {
       const std::string fi = f + ".parameters[" + std::to_string(i) + "]";
       r.requireMap(ps[i], fi);
@@ -159,23 +159,25 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       cal.columns.push_back(it->second);
       const double v = r.number(r.required(ps[i], "stddev", fi + ".stddev"), fi + ".stddev");
       if (!(v >= 0)) r.fail(ps[i]["stddev"], fi + ".stddev", "must be >= 0");
-      sd.push_back(v / columnScale(m, it->second));
+      sd_read.push_back(v / columnScale(m, it->second));
       cal.estimated.push_back(r.boolean(r.required(ps[i], "estimated", fi + ".estimated"), fi + ".estimated"));
     }
-    const auto n = static_cast<Eigen::Index>(sd.size());
+    const Eigen::VectorXd sd = Eigen::Map<const Eigen::VectorXd>(sd_read.data(), static_cast<Eigen::Index>(sd_read.size()));
+    const Eigen::Index n = sd.size();
     const YAML::Node cr = r.required(c, "correlation", f + ".correlation");
     if (!cr.IsSequence() || static_cast<Eigen::Index>(cr.size()) != n)
       r.fail(cr, f + ".correlation", "expected " + std::to_string(n) + " rows (one per parameter)");
-    cal.covariance.resize(n, n);
+    Eigen::MatrixXd correlation(n, n);
     for (Eigen::Index i = 0; i < n; ++i) {
       const std::string fi = f + ".correlation[" + std::to_string(i) + "]";
       const auto row = r.vector(cr[static_cast<size_t>(i)], fi, static_cast<size_t>(n));
       for (Eigen::Index j = 0; j < n; ++j) {
         if (std::abs(row[static_cast<size_t>(j)]) > 1 + 1e-9 || (i == j && std::abs(row[static_cast<size_t>(j)] - 1) > 1e-9))
           r.fail(cr[static_cast<size_t>(i)], fi, "a correlation matrix has 1 on the diagonal and |r| <= 1");
-        cal.covariance(i, j) = row[static_cast<size_t>(j)] * sd[static_cast<size_t>(i)] * sd[static_cast<size_t>(j)];
+        correlation(i, j) = row[static_cast<size_t>(j)];
       }
     }
+    cal.covariance = covarianceOf(sd, correlation);
     if ((cal.covariance - cal.covariance.transpose()).cwiseAbs().maxCoeff() >
         1e-9 * std::max(1e-300, cal.covariance.cwiseAbs().maxCoeff()))
       r.fail(cr, f + ".correlation", "not symmetric");
@@ -423,8 +425,8 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
     const auto ext_names = extensionParamNames(m, cal->extensions);
     auto name = [&](int c) { return c < m.numParams() ? m.paramNameHuman(c) : ext_names[static_cast<size_t>(c - m.numParams())]; };
     const auto n = static_cast<Eigen::Index>(cal->columns.size());
-    Eigen::VectorXd sd(n);
-    for (Eigen::Index i = 0; i < n; ++i) sd[i] = std::sqrt(std::max(0.0, cal->covariance(i, i)));
+    const Eigen::VectorXd sd = stddevsOf(cal->covariance);
+    const Eigen::MatrixXd correlation = correlationOf(cal->covariance);
     o << "  # 1 sigma of every parameter a prediction depends on, in the unit of its name (estimated: false = not\n"
          "  # estimated from the data, its prior width), and their correlation\n  parameters:\n";
     for (Eigen::Index i = 0; i < n; ++i) {
@@ -435,10 +437,7 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
     o << "  correlation:\n";
     for (Eigen::Index i = 0; i < n; ++i) {
       o << "    - [";
-      for (Eigen::Index j = 0; j < n; ++j) {
-        const double r = i == j ? 1.0 : (sd[i] > 0 && sd[j] > 0 ? cal->covariance(i, j) / (sd[i] * sd[j]) : 0.0);
-        o << (j ? ", " : "") << num(std::clamp(r, -1.0, 1.0));
-      }
+      for (Eigen::Index j = 0; j < n; ++j) o << (j ? ", " : "") << num(std::clamp(correlation(i, j), -1.0, 1.0));
       o << "]\n";
     }
   }

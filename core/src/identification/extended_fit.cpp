@@ -254,6 +254,21 @@ IdentifiabilityOptions internal::withExtensionRanges(const IdentifiabilityOption
   return out;
 }
 
+ExtendedFit geometricFit(const CalibrationResult& r) {
+  ExtendedFit f;
+  static_cast<CalibratedModel&>(f) = CalibratedModel::geometric(r.params, r.estimated, r.covariance);
+  f.converged = r.converged;
+  f.iterations = r.iterations;
+  f.message = r.message;
+  return f;
+}
+
+ExtendedFit geometricFit(const Eigen::VectorXd& params) {
+  ExtendedFit f;
+  f.params = params;
+  return f;
+}
+
 ExtendedFit fitExtended(const RobotModel& model, const Eigen::VectorXd& start, const std::vector<Observation>& obs,
                         const std::vector<Drivers>& drivers, const Extension& extension, const SolverOptions& solver,
                         const IdentifiabilityOptions& identifiability, const Eigen::VectorXd* warm_start) {

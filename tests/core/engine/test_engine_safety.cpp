@@ -38,6 +38,13 @@ struct SafetyFixture : ::testing::Test {
     fs::remove_all(config.engine.state_dir);
   }
   void TearDown() override { fs::remove_all(config.engine.state_dir); }
+  // What each test starts from: the default cell's first robot, its simulated cell, the test's random stream, an
+  // engine of that robot and the stream of readings that feeds it.
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng{seed};
+  CalibrationEngine engine{robot, config.engine, 1.0};
+  Stream st{sim, rng};
 };
 
 double maxAbsDiff(const Eigen::VectorXd& a, const Eigen::VectorXd& b) { return (a - b).cwiseAbs().maxCoeff(); }
@@ -68,9 +75,6 @@ TEST(ChiSquare, TailProbabilitiesMatchTables) {
 // random size: gated, counted, and the estimate afterwards is the one an engine that never saw it has. The same
 // stream through an engine without the gate shows the reading would have moved the estimate.
 TEST_F(SafetyFixture, AGrossOutlierIsGatedAndTheEstimateIsAsIfItNeverCame) {
-  const CellRobot& robot = config.robots[0];
-  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
-  std::mt19937_64 rng(seed);
   const auto qs = sim.randomConfigurations(81, rng);
   const int at = std::uniform_int_distribution<int>(20, 70)(rng);
   const int kind = std::uniform_int_distribution<int>(0, 2)(rng);
@@ -82,7 +86,6 @@ TEST_F(SafetyFixture, AGrossOutlierIsGatedAndTheEstimateIsAsIfItNeverCame) {
     TrackerSample s;
   };
   std::vector<Event> clean_events, dirty_events;
-  Stream st{sim, rng};
   std::string what;
   for (int k = 0; k < 80; ++k) {
     st.advance(60);
@@ -135,11 +138,6 @@ TEST_F(SafetyFixture, AGrossOutlierIsGatedAndTheEstimateIsAsIfItNeverCame) {
 
 // Non-finite, out-of-range and impossible samples never reach the estimate, whatever their order.
 TEST_F(SafetyFixture, NonFiniteAndImplausibleSamplesAreRejectedWithTheirReason) {
-  const CellRobot& robot = config.robots[0];
-  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
-  std::mt19937_64 rng(seed);
-  CalibrationEngine engine(robot, config.engine, 1.0);
-  Stream st{sim, rng};
   const auto qs = sim.randomConfigurations(40, rng);
   std::map<Rejection, int> expected;
   const double kInf = std::numeric_limits<double>::infinity(), kNan = std::nan("");
@@ -183,11 +181,6 @@ TEST_F(SafetyFixture, NonFiniteAndImplausibleSamplesAreRejectedWithTheirReason) 
 // opens (most recent poses look like outliers: something changed), the estimate absorbs the new station, the alarm
 // says so (health degraded, not ok) and it never becomes NaN.
 TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm) {
-  const CellRobot& robot = config.robots[0];
-  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
-  std::mt19937_64 rng(seed);
-  CalibrationEngine engine(robot, config.engine, 1.0);
-  Stream st{sim, rng};
   const auto qs = sim.randomConfigurations(120, rng);
   const Eigen::Vector3d offset = randomDirection(rng) * std::uniform_real_distribution<double>(1e-3, 5e-3)(rng);
   const int bump_at = std::uniform_int_distribution<int>(50, 60)(rng);
@@ -235,11 +228,6 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
 // model drift unseen, the predicted error grows past hold_prediction_sigma_m, and the engine publishes the last good
 // calibration while it keeps learning; varied poses bring it back to ok with a new estimate.
 TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration) {
-  const CellRobot& robot = config.robots[0];
-  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
-  std::mt19937_64 rng(seed);
-  CalibrationEngine engine(robot, config.engine, 1.0);
-  Stream st{sim, rng};
   for (const auto& q : sim.randomConfigurations(60, rng)) {
     st.advance(30);
     st.feed(engine, q, st.reading(q));
@@ -288,11 +276,6 @@ TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration)
 // 0 of 500 at 0.025; CELLCAL_TEST_SEED=13910792018323412112 drew 0.020 mm and peaked at 2.88 in a CI run of
 // 0e2f024, when this test drew 0.02-0.05): the test draws from 0.025 mm up.
 TEST_F(SafetyFixture, ASlowlyBiasedTrackerDegradesHealth) {
-  const CellRobot& robot = config.robots[0];
-  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
-  std::mt19937_64 rng(seed);
-  CalibrationEngine engine(robot, config.engine, 1.0);
-  Stream st{sim, rng};
   const Eigen::Vector3d dir = randomDirection(rng);
   const double creep_m_per_pose = std::uniform_real_distribution<double>(0.025e-3, 0.05e-3)(rng);
   const auto qs = sim.randomConfigurations(140, rng);

@@ -111,6 +111,15 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
 }
 
 // `good` with its first `from` replaced by `to` is refused, the message naming `what` after the file's name.
+// Each edit of `good` (replace `from` by `to`) refused, naming `what`.
+struct Edit {
+  std::string from, to, what;
+};
+void expectRefused(const std::string& good, const std::string& from, const std::string& to, const std::string& what);
+void expectEachRefused(const std::string& good, const std::vector<Edit>& edits) {
+  for (const auto& e : edits) expectRefused(good, e.from, e.to, e.what);
+}
+
 void expectRefused(const std::string& good, const std::string& from, const std::string& to, const std::string& what) {
   std::string text = good;
   const auto at = text.find(from);
@@ -188,11 +197,11 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   cal.covariance = Eigen::Matrix2d::Identity() * 1e-8;
   const std::string good = robotFileText(m, &cal, "");
   EXPECT_NO_THROW(parseRobotFile(good, "<good>"));
-  expectRefused(good, "joint_compliance:2", "joint_compliance:9", "calibration.extensions[0].spec");
-  expectRefused(good, "name: joint1.theta_offset_deg", "name: joint1.theta_offset_rad", "calibration.parameters[0].name");
-  expectRefused(good, "- [1, 0]", "- [1, 2]", "calibration.correlation[0]");
-  expectRefused(good, "estimated: true", "estimated: maybe", "calibration.parameters[0].estimated");
-  expectRefused(good, "variance_factor_position:", "variance_factorposition:", "unknown key");
+  expectEachRefused(good, {{"joint_compliance:2", "joint_compliance:9", "calibration.extensions[0].spec"},
+                           {"name: joint1.theta_offset_deg", "name: joint1.theta_offset_rad", "calibration.parameters[0].name"},
+                           {"- [1, 0]", "- [1, 2]", "calibration.correlation[0]"},
+                           {"estimated: true", "estimated: maybe", "calibration.parameters[0].estimated"},
+                           {"variance_factor_position:", "variance_factorposition:", "unknown key"}});
   // The geometric calibration beside it: every parameter, by name, in order.
   cal.geometric_params = m.nominal;
   const std::string with = robotFileText(m, &cal, "");
@@ -210,11 +219,10 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   cal.beyond_data = {b};
   const std::string beyond = robotFileText(m, &cal, "");
   EXPECT_NO_THROW(parseRobotFile(beyond, "<good>"));
-  expectRefused(beyond, "{ joint: 2,", "{ joint: 9,", "calibration.beyond_data[0]");
-  expectRefused(beyond, "growth: 1,", "growth: 3,", "calibration.beyond_data[0]");
-  expectRefused(beyond, "growth: 1,", "growth: 1.5,", "calibration.beyond_data[0]");
-  expectRefused(beyond, "lower_deg: -57", "lower_deg: 57", "calibration.beyond_data[0]");
-  expectRefused(beyond, "sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -", "calibration.beyond_data[0]");
+  for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
+           {"{ joint: 2,", "{ joint: 9,"}, {"growth: 1,", "growth: 3,"}, {"growth: 1,", "growth: 1.5,"},
+           {"lower_deg: -57", "lower_deg: 57"}, {"sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -"}})
+    expectRefused(beyond, from, to, "calibration.beyond_data[0]");
 }
 
 // A residual map (calibrate --residual-map) in the calibration section: rows and kernel drawn at random, saved and

@@ -29,15 +29,6 @@ Draw draw(std::mt19937_64& rng) {
   return {r.name, r.kind, test::robot(r.name), r.sc};
 }
 
-ExtendedFit asFit(const CalibrationResult& r) {
-  ExtendedFit f;
-  f.params = r.params;
-  f.estimated = r.estimated;
-  f.covariance = r.covariance;
-  f.converged = r.converged;
-  return f;
-}
-
 // Predicted sigma of the model's position error against the true error (simulator truth, no reading noise) on
 // held-out configurations: the RMS of their ratio is 1 when the covariance can be trusted.
 TEST(Prediction, SigmaOfTheModelErrorMatchesTheTrueErrorOnRandomRobots) {
@@ -58,7 +49,7 @@ TEST(Prediction, SigmaOfTheModelErrorMatchesTheTrueErrorOnRandomRobots) {
     for (const auto& q : cell.randomConfigurations(poses, rng)) ident.push_back(cell.measure(q, 0.0, rng, kind));
     const RegistrationResult reg = registerFrames(file_model, file_model.nominal, ident);
     const CalibrationProblem p{&file_model, reg.params, ident, std::nullopt, {}, {}};
-    const ExtendedFit fit = asFit(solveGaussNewton(p));
+    const ExtendedFit fit = geometricFit(solveGaussNewton(p));
     const std::vector<Drivers> drivers(ident.size());
     const PredictionModel pm = predictionModel(file_model, fit, ident, drivers);
     KinematicsData data(file_model);
@@ -125,7 +116,7 @@ Carried carry(std::mt19937_64& rng, Draw dr, double orientation_sigma_scale) {
   }
   c.campaign_poses = ident.size();
   const RegistrationResult reg = registerFrames(model, model.nominal, ident);
-  const ExtendedFit fit = asFit(solveGaussNewton(CalibrationProblem{&model, reg.params, ident, std::nullopt, {}, {}}));
+  const ExtendedFit fit = geometricFit(solveGaussNewton(CalibrationProblem{&model, reg.params, ident, std::nullopt, {}, {}}));
   c.pm = predictionModel(model, fit, ident, std::vector<Drivers>(ident.size()));
   c.drivers.resize(c.rows.size());
   c.carried.params = refineFrames(model, registerFrames(model, fit.params, c.rows).params, {}, {}, c.rows, c.drivers).params;

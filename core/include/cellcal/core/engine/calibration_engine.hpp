@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/engine_state.hpp"
+#include "cellcal/core/engine/file_probation.hpp"
 #include "cellcal/core/engine/health.hpp"
 #include "cellcal/core/engine/input_watch.hpp"
 #include "cellcal/core/engine/outlier_gate.hpp"
@@ -94,10 +95,11 @@ class CalibrationEngine {
   // hours from the file's date to that reading's stamp (at most to the uncalibrated prior's): the engine takes time
   // from its inputs, never from the clock. Parameters the file does not cover (an extension it did not fit) start from
   // the engine's prior. startNote() says what was taken.
-  // The file is on probation until a pose passes the outlier gate: when its first kProbationPoses stand-stills are all
-  // beyond the gate (calibrated on another set-up, a moved tracker), the engine says so (snapshot().start_warning,
-  // takeNotes()), starts from the nominal model and the cell file's registration, and applies those readings.
-  static constexpr size_t kProbationPoses = 3;
+  // The file is on probation until a pose passes the outlier gate (file_probation.hpp): when its first
+  // kProbationPoses stand-stills are all beyond the gate (calibrated on another set-up, a moved tracker), the engine
+  // says so (snapshot().start_warning, takeNotes()), starts from the nominal model and the cell file's registration,
+  // and applies those readings.
+  static constexpr size_t kProbationPoses = FileProbation::kPoses;
   CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression);
 
   // Resumes from a saved state. Throws std::runtime_error saying why when the state does not fit this robot (another
@@ -148,16 +150,7 @@ class CalibrationEngine {
   std::vector<std::string> takeNotes();
 
  private:
-  struct Pending {
-    PairedReading reading;
-    Drivers drivers;  // play state when it was paired (the joint history moves on while a batch fills)
-  };
-  struct Probe {  // a reading held while the calibration file is on probation
-    Pending pending;
-    std::string rejection;       // what its rejection as an outlier would say
-    double prior_error_m = 0;    // |measured - predicted| position
-    double nis_per_row = 0;
-  };
+  using Pending = DrivenReading;  // the play state when it was paired (the joint history moves on while a batch fills)
   bool handlePaired(const Pending& pending);
   bool onProbation() const { return started_calibrated_ && !refused_file_ && snap_.poses_used == 0; }
   bool refuseCalibrationFile(double gate);
@@ -186,7 +179,7 @@ class CalibrationEngine {
   bool refused_file_ = false;        // its first poses contradicted it: started from nominal
   std::int64_t file_date_ns_ = 0;    // the file's date while the drift since it is not yet added
   Eigen::VectorXd start_prior_sd_;   // the uncalibrated prior's widths over the state (caps the file's variances)
-  std::vector<Probe> probe_;
+  FileProbation probation_;
   std::deque<std::string> notes_;
   PairingBuffer pairing_;
   std::unique_ptr<RlsCalibrator> rls_;

@@ -98,6 +98,11 @@ struct ClockOffsetHint {
   int readings = 0;             // recent readings judged (those with a stand-still within 0.5 s)
 };
 
+// What an operator reads of a hint: "tracker stamps 12.0 ms ahead of (a lead of 10.0 to 14.0 ms fits) the joint
+// states: 11 of the last 12 readings fit a stand-still shifted so, 2 as stamped; synchronize the hosts' clocks
+// (NTP/PTP)"; with the other lead that fits as well, when there is one.
+std::string clockOffsetText(const ClockOffsetHint& hint);
+
 struct PairingOutcome {
   std::vector<PairedReading> paired;
   std::vector<std::pair<Rejection, std::string>> rejected;  // reason and detail (stream, sequence, values)

@@ -33,6 +33,11 @@ struct ExtendedFit : CalibratedModel {
   int rows_left_out = 0;
 };
 
+// A geometric solve's outcome (calibration.hpp) as a fit: no extension, its estimated set, covariance and outcome.
+ExtendedFit geometricFit(const CalibrationResult& result);
+// The geometric model with these kinematic parameters as a fit: nothing estimated, not a solve's outcome.
+ExtendedFit geometricFit(const Eigen::VectorXd& params);
+
 // "joint_compliance joint 2", "thermal_drift (lengths)", "thermal_drift joint 3, warm-up 1.6 h",
 // "link_deflection link 3"; a model: the labels joined by " + ", "geometric" when empty.
 std::string extensionLabel(const Extension& ext);

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,5 +56,29 @@ struct CalibratedModel {
   // empty or square over numEstimated() with a finite, non-negative diagonal. The first fault, named, in *error.
   bool IsValid(const RobotModel& model, std::string* error) const;
 };
+
+// A covariance as files and messages carry it: the 1-sigmas, and the correlations (1 on the diagonal, 0 where either
+// sigma is 0). covarianceOf is the inverse.
+Eigen::VectorXd stddevsOf(const Eigen::MatrixXd& covariance);
+Eigen::MatrixXd correlationOf(const Eigen::MatrixXd& covariance);
+Eigen::MatrixXd covarianceOf(const Eigen::VectorXd& stddevs, const Eigen::MatrixXd& correlation);
+
+// A calibrated model by parameter name, as the CalibrationState message carries it (components/convert.hpp): every
+// kinematic parameter in RobotModel order, then every extension parameter; names from parameterNames (the SI unit in
+// each). `values` and `stddevs` (0: not estimated) follow that order; `correlations` are those of the estimated
+// parameters in that order, the upper triangle without the diagonal, row by row (n (n - 1) / 2 values). The vectors
+// are cleared and filled, their capacity kept (a publisher reuses them).
+std::vector<std::string> parameterNames(const RobotModel& model, const std::vector<Extension>& extensions);
+void parametersByName(const RobotModel& model, const CalibratedModel& m, std::vector<double>& values,
+                      std::vector<double>& stddevs, std::vector<double>& correlations);
+// The inverse, for parameters named in any order: a kinematic parameter left out keeps its nominal value, every
+// extension parameter must be given. The estimated parameters are those with a stddev > 0, with their covariance when
+// `correlations` is not empty (else none is estimated). nullopt with the first fault in *error, naming the field
+// ("unknown parameter 'x'", "parameter_correlations: 20 values, expected 21 for 7 parameters with a stddev", ...).
+std::optional<CalibratedModel> modelFromParameters(const RobotModel& model, const std::vector<Extension>& extensions,
+                                                   const std::vector<std::string>& names,
+                                                   const std::vector<double>& values,
+                                                   const std::vector<double>& stddevs,
+                                                   const std::vector<double>& correlations, std::string* error);
 
 }  // namespace cellcal
