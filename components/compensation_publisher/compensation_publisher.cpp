@@ -17,6 +17,10 @@
 
 namespace cellcal::components {
 
+namespace {
+constexpr const char* kPassThroughReason = "pass-through (--pass-through): not corrected";
+}  // namespace
+
 CompensationPublisher::CompensationPublisher(const Options& options)
     : options_(options),
       cell_(loadCell(options.process)),
@@ -41,10 +45,15 @@ CompensationPublisher::CompensationPublisher(const Options& options)
   }
   if (!options_.ros_description_topic.empty())
     for (auto& [id, r] : robots_) openDescription(id, r);
-  node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) { onCalibrationState(m); });
-  node_.reader<msg::CalibrationDiagnostics>(
-      [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
-  waitForCalibrations();
+  if (!options_.pass_through) {
+    node_.reader<msg::CalibrationState>([this](const msg::CalibrationState& m, const fdds::SampleInfo&) { onCalibrationState(m); });
+    node_.reader<msg::CalibrationDiagnostics>(
+        [this](const msg::CalibrationDiagnostics& d, const fdds::SampleInfo&) { onDiagnostics(d); });
+    waitForCalibrations();
+  } else {
+    std::cerr << "compensation_publisher: --pass-through: every target and setpoint answered unchanged, no "
+                 "calibration applied\n";
+  }
   node_.reader<msg::TargetPose>([this](const msg::TargetPose& t, const fdds::SampleInfo&) { onTarget(t); });
   node_.reader<msg::ServoSetpoint>([this](const msg::ServoSetpoint& sp, const fdds::SampleInfo&) { onServoSetpoint(sp); });
   std::cerr << "compensation_publisher: " << robots_.size() << " robot(s), bound "
@@ -291,6 +300,7 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   } else {
     a = sp.cartesian() ? r.servo->answerPose(stamp, toPose(sp.position_m(), sp.orientation_xyzw()), q)
                        : r.servo->answerJoints(stamp, q);
+    if (options_.pass_through) a.reason = kPassThroughReason;  // (no version is ever installed: a is the setpoint)
   }
   msg::ServoCorrection& out = servo_out_;
   out.robot_id(sp.robot_id());
@@ -337,6 +347,8 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
   noticeEngine(r);
   if (!usablePose(t.position_m(), t.orientation_xyzw())) {
     out.reason("target rejected: non-finite position or non-unit quaternion");
+  } else if (options_.pass_through) {
+    out.reason(kPassThroughReason);
   } else if (!r.calibration) {
     out.reason("no calibration received yet");
   } else if (!r.last_ok) {
@@ -406,7 +418,7 @@ int CompensationPublisher::run() {
   stats::writeProcessStats(options_.process.stats_json, "compensation_publisher", node_.stats(),
                            {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
                             {"residual_map_applied", residual_map_applied_},
-                            {"bad_calibration_states", bad_states_}, {"calibration_versions", versions},
+                            {"bad_calibration_states", bad_states_}, {"pass_through", options_.pass_through}, {"calibration_versions", versions},
                             {"descriptions", descriptions}, {stats::kOutcomes, outcomes},
                             {stats::kTargetCpuUs, target_cpu_.json()},
                             {stats::kServo, {{"answered", servo_answered_}, {"applied", servo_applied_},

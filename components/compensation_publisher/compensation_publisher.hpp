@@ -59,6 +59,9 @@ class CompensationPublisher {
     std::string ros_pose_topic;         // empty: no ROS 2 output; with several robots, <topic>/<robot_id> each
     std::string ros_frame_id = "cellcal_tracker";
     std::string ros_description_topic;  // empty: none; with several robots, <topic>/<robot_id> each
+    // Every target and setpoint answered unchanged, no calibration read or applied: a controller bridge commissioned
+    // before there is a calibration, and the transport's floor beside the compensation (bench-cell --pass-through).
+    bool pass_through = false;
   };
   explicit CompensationPublisher(const Options& options);
   int run();

@@ -12,6 +12,9 @@ int main(int argc, char** argv) {
                        "at start, wait this long for every robot's calibration before taking targets")
             ->capture_default_str();
         app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+        app.add_flag("--pass-through", o.pass_through,
+                     "answer every target and setpoint unchanged, reading and applying no calibration (a controller "
+                     "bridge commissioned before a calibration; bench-cell --pass-through: the transport's floor)");
         app.add_option("--ros-pose-topic", o.ros_pose_topic,
                        "also publish each applied correction as geometry_msgs/PoseStamped on this ROS 2 topic "
                        "(several robots: <topic>/<robot_id>)");

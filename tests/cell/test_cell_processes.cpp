@@ -7,8 +7,10 @@
 #include <netinet/in.h>
 #include <sys/socket.h>
 
+#include <array>
 #include <atomic>
 #include <fstream>
+#include <map>
 #include <random>
 #include <mutex>
 
@@ -316,18 +318,34 @@ TEST(CellProcesses, ShardOptionsAreChecked) {
   EXPECT_NE(shards.log().find("--shards 2: the cell has 1 robot(s)"), std::string::npos) << shards.log();
 }
 
+// One TX60 whose 30-pose campaign the engine runs (it ends after ~1.3 s; then the robot works and the calibration
+// stays put), and a probe of the cell: where a test of the compensation publisher starts.
+struct CampaignCell {
+  CampaignCell(const std::string& dir, std::uint64_t seed)
+      : cfg(writeCell(dir, domainForTest(), seed, {{"tx60", "tx60_target"}}, "  initial_poses: 30\n  groups: 1\n")),
+        cell(loadCellConfig(cfg)),
+        engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"}),
+        tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg}),
+        joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--wait-for-readers", "1"}),
+        probe(cell) {}
+  // The campaign's versions have come (at most 20 s).
+  ::testing::AssertionResult calibrated() {
+    if (waitUntil([&] { return probe.latestVersion("tx60") >= 25; }, 20)) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << engine.log() << joints.log();
+  }
+  const std::string cfg;
+  const CellConfig cell;
+  Process engine, tracker, joints;
+  Probe probe;
+};
+
 TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   const std::string dir = testDir();
-  const int domain = domainForTest();
-  const std::string cfg = writeCell(dir, domain, testSeed(), {{"tx60", "tx60_target"}},
-                                    "  initial_poses: 30\n  groups: 1\n");
-  const CellConfig cell = loadCellConfig(cfg);
-  Process engine(dir, "engine", {"cellcal_calibration_engine", "--config", cfg, "--quiet"});
-  Process tracker(dir, "tracker", {"cellcal_tracker_adapter", "--config", cfg});
-  Process joints(dir, "joints", {"cellcal_joint_state_adapter", "--config", cfg, "--wait-for-readers", "1"});
-  Probe probe(cell);
-  // The 30-pose campaign ends after ~1.3 s; then the robot works and the calibration stays put.
-  ASSERT_TRUE(waitUntil([&] { return probe.latestVersion("tx60") >= 25; }, 20)) << engine.log() << joints.log();
+  CampaignCell c(dir, testSeed());
+  const std::string& cfg = c.cfg;
+  const CellConfig& cell = c.cell;
+  Probe& probe = c.probe;
+  ASSERT_TRUE(c.calibrated());
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
   const std::uint64_t latest = probe.latestVersion("tx60");
   Process comp(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg});
@@ -347,6 +365,93 @@ TEST(CellProcesses, LateCompensationPublisherGetsTheLatestCalibrationAtOnce) {
   EXPECT_TRUE(first.applied()) << first.reason();
   EXPECT_EQ(first.calibration_version(), latest);
   EXPECT_GT(first.correction_position_m(), 1e-5);  // the hidden errors are corrected
+}
+
+// --pass-through beside a compensation publisher that corrects, on the same calibration and the same random targets
+// and setpoints: the one corrects (the calibration was there to apply), the other answers every request unchanged --
+// not applied, the corrected pose the desired one to the bit, the setpoint's own joints -- and says why.
+TEST(CellProcesses, APassThroughPublisherAnswersUnchangedBesideOneThatCorrects) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  CampaignCell c(dir, seed);
+  const std::string& cfg = c.cfg;
+  const CellConfig& cell = c.cell;
+  Probe& probe = c.probe;
+  ASSERT_TRUE(c.calibrated());
+  std::mutex mutex;
+  std::vector<msg::ServoCorrection> servo;
+  components::DdsNode servo_node(cell, "cellcal_test_servo_reader", components::identity::kObserver);
+  servo_node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection& c, const components::fdds::SampleInfo&) {
+    std::lock_guard<std::mutex> l(mutex);
+    servo.push_back(c);
+  });
+  Process comp(dir, "compensation", {"cellcal_compensation_publisher", "--config", cfg});
+  Process pass(dir, "pass", {"cellcal_compensation_publisher", "--config", cfg, "--pass-through"});
+  auto targets = probe.node.writer<msg::TargetPose>();
+  auto setpoints = probe.node.writer<msg::ServoSetpoint>();
+  const RobotModel& m = cell.robots[0].model;
+  KinematicsData d(m);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 0.6);
+  auto passed = [](const auto& reason) { return reason.to_string().find("pass-through") != std::string::npos; };
+  auto counts = [&] {
+    std::lock_guard<std::mutex> l(probe.mutex), l2(mutex);
+    int p = 0, c = 0, sp = 0;
+    for (const auto& t : probe.compensated) (passed(t.reason()) ? p : c) += 1;
+    for (const auto& a : servo) sp += passed(a.reason());
+    return std::array<int, 3>{p, c, sp};
+  };
+  std::map<std::uint64_t, Eigen::VectorXd> sent_q;
+  std::uint64_t seq = 0;
+  ASSERT_TRUE(waitUntil([&] {
+    const Eigen::VectorXd q = Eigen::VectorXd::NullaryExpr(m.numJoints(), [&] { return u(rng); });
+    msg::TargetPose t;
+    t.robot_id("tx60");
+    t.sequence_number(++seq);
+    components::fromPose(forwardKinematics(m, d, m.nominal, q), t.position_m(), t.orientation_xyzw());
+    t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+    targets.write(t);
+    msg::ServoSetpoint sp;
+    sp.robot_id("tx60");
+    sp.sequence_number(seq);
+    sp.cycle_stamp_ns(1'000'000'000ULL + seq * 20'000'000ULL);
+    sp.joint_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
+    setpoints.write(sp);
+    sent_q[seq] = q;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const auto n = counts();
+    return n[0] >= 30 && n[1] >= 30 && n[2] >= 30;
+  }, 20)) << comp.log() << pass.log();
+  const auto n = counts();
+  std::lock_guard<std::mutex> l(probe.mutex), l2(mutex);
+  int corrected = 0;
+  for (const auto& t : probe.compensated) {
+    if (!passed(t.reason())) {
+      corrected += t.applied() && t.correction_position_m() > 1e-5;
+      continue;
+    }
+    EXPECT_FALSE(t.applied());
+    EXPECT_EQ(t.corrected_position_m(), t.desired_position_m());
+    EXPECT_EQ(t.corrected_orientation_xyzw(), t.desired_orientation_xyzw());
+    EXPECT_TRUE(t.joint_position_rad().empty());
+    EXPECT_EQ(t.calibration_version(), 0u);
+  }
+  int servo_applied = 0;
+  for (const auto& a : servo) {
+    if (!passed(a.reason())) {
+      servo_applied += a.applied();
+      continue;
+    }
+    EXPECT_FALSE(a.applied());
+    const Eigen::VectorXd& q = sent_q.at(a.setpoint_sequence());
+    EXPECT_EQ(a.joint_position_rad(), std::vector<double>(q.data(), q.data() + q.size()));
+    EXPECT_EQ(a.calibration_version(), 0u);
+  }
+  std::printf("  %llu targets and setpoints: pass-through answered %d targets and %d setpoints unchanged; the other "
+              "publisher corrected %d of %d targets and applied %d setpoints\n",
+              static_cast<unsigned long long>(seq), n[0], n[2], corrected, n[1], servo_applied);
+  EXPECT_GE(2 * corrected, n[1]) << "the calibration was there to apply: most targets corrected by the other";
+  EXPECT_GT(servo_applied, 0);
 }
 
 // A servo loop streams joint setpoints at 500 Hz (the robot holding one configuration, so each answer's change from

@@ -7,6 +7,8 @@
 #   in the process: the callback's CPU per target or setpoint (take, compensate, write; the publisher's --stats-json)
 #     against BM_InverseKinematics of the same run, every one answered, request -> answer p99 (targets: 1 robot
 #     < 1 ms, 8 robots < 2 ms) and tracker -> state p50 of the first and the last third (not growing)
+#   the floor: the same bench with the compensation publisher in --pass-through (no compensation), for what the
+#     transport and the machine leave of those targets
 # Prints each figure with its target and "met" or "NOT met"; exit 1 when an in-memory ratio misses its target (the
 # process figures depend on what else the machine runs: reported, not judged).
 #   tools/bench/hot_path.sh [BUILD_DIR] [SECONDS]
@@ -36,16 +38,24 @@ awk -v r="$r_comp" 'BEGIN { exit !(r <= 4) }' || status=1
 awk -v r="$r_pose" 'BEGIN { exit !(r <= 5) }' || status=1
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-for run in "1 target" "8 target" "1 servo" "8 servo"; do
+# Then the same cells with the compensation publisher in --pass-through (every request answered unchanged): the floor
+# the transport and the machine set, beside the compensated runs of the same bench.
+for run in "1 target" "8 target" "1 servo" "8 servo" "1 servo pass" "8 target pass" "8 servo pass"; do
   set -- $run
-  robots=$1 stream=$2
+  robots=$1 stream=$2 pass=${3:-}
   "$build/bin/cellcal" bench-cell --robots "$robots" --rate-hz 1000 --targets-hz 500 --duration-s "$seconds" \
-    $([ "$stream" = servo ] && echo --servo) --domain-id $((200 + robots)) --json "$work/bench.json" \
-    > "$work/bench.log" 2>&1 || { cat "$work/bench.log"; exit 1; }
-  python3 - "$work/bench.json" "$robots" "$ik" "$stream" <<'EOF'
+    $([ "$stream" = servo ] && echo --servo) $([ -n "$pass" ] && echo --pass-through) --domain-id $((200 + robots)) \
+    --json "$work/bench.json" > "$work/bench.log" 2>&1 || { cat "$work/bench.log"; exit 1; }
+  python3 - "$work/bench.json" "$robots" "$ik" "$stream" "$pass" <<'EOF'
 import json, sys
 j = json.load(open(sys.argv[1])); robots = int(sys.argv[2]); ik = float(sys.argv[3]); stream = sys.argv[4]
 what = "servo setpoints" if stream == "servo" else "targets"
+if sys.argv[5]:
+    c = j["target_to_compensated_us"]; comp = j.get("compensation", {})
+    print(f"hot_path: {robots} x 500 {what}/s answered unchanged (--pass-through, the floor): answered {c['samples']} "
+          f"of {c['sent']}; request -> answer p50 {c['p50']:.0f} us, p99 {c['p99']:.0f} us; the process "
+          f"{comp.get('process_cpu_us_per_target', float('nan')):.0f} us each")
+    sys.exit(0)
 
 c = j["target_to_compensated_us"]; t = j["tracker_to_state_us"]; comp = j.get("compensation", {})
 cpu = comp.get("target_callback_cpu_us", {}).get("mean", float("nan"))

@@ -36,6 +36,7 @@ struct BenchArgs {
   std::string series_csv;  // once a second: RSS of the processes, calibration error against the truth
   std::string dds_profile = "cellcal_loopback";
   bool servo = false;  // the targets as a servo stream (ServoSetpoint -> ServoCorrection)
+  bool pass_through = false;  // the compensation publisher answers unchanged (--pass-through): the transport's floor
 };
 
 // utime + stime of a process, seconds.
@@ -51,17 +52,22 @@ std::string writeBenchCellFile(const fs::path& dir, const BenchArgs& a);
 // The processes under test, their logs and counts in dir: the engine, the compensation publisher and, with
 // --record, a recorder of every topic beside them (does it keep up?).
 struct BenchProcesses {
-  BenchProcesses(const fs::path& dir, const std::string& cfg, const std::string& record)
+  BenchProcesses(const fs::path& dir, const std::string& cfg, const std::string& record, bool pass_through)
       : engine(bin("cellcal_calibration_engine"), {"--config", cfg, "--quiet", "--stats-json", (dir / "engine.json").string()},
                (dir / "engine.log").string()),
-        compensation(bin("cellcal_compensation_publisher"),
-                     {"--config", cfg, "--wait-for-calibration-s", "0", "--stats-json", (dir / "comp.json").string()},
+        compensation(bin("cellcal_compensation_publisher"), compensationArgs(dir, cfg, pass_through),
                      (dir / "comp.log").string()) {
     if (!record.empty())
       recorder.emplace(fs::read_symlink("/proc/self/exe").string(),
                        std::vector<std::string>{"record", "--config", cfg, "--out", fs::absolute(record).string(),
                                                 "--quiet", "--json", (dir / "record.json").string()},
                        (dir / "record.log").string());
+  }
+  static std::vector<std::string> compensationArgs(const fs::path& dir, const std::string& cfg, bool pass_through) {
+    std::vector<std::string> args = {"--config", cfg, "--wait-for-calibration-s", "0", "--stats-json",
+                                     (dir / "comp.json").string()};
+    if (pass_through) args.push_back("--pass-through");
+    return args;
   }
   static std::string bin(const std::string& name) { return (fs::read_symlink("/proc/self/exe").parent_path() / name).string(); }
   void stop() {

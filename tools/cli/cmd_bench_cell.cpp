@@ -47,6 +47,9 @@ void addOptions(CLI::App& cmd, BenchArgs& a) {
   cmd.add_flag("--servo", a.servo,
                "send the targets as a servo loop's stream instead (cellcal/servo_setpoint, joint setpoints stamped "
                "with the cycle, best effort; answered on cellcal/servo_correction)");
+  cmd.add_flag("--pass-through", a.pass_through,
+               "run the compensation publisher with --pass-through (every request answered unchanged): the same "
+               "processes, topics and QoS without the compensation, the transport's floor on this host");
   cmd.add_option("--dds-profile", a.dds_profile,
                  "participant profile of every process (config/dds/cellcal_qos.xml): cellcal_loopback (UDP on "
                  "127.0.0.1), cellcal_loopback_shm (shared memory first)")
@@ -69,7 +72,7 @@ int runBench(const BenchArgs& a) {
   const fs::path dir = fs::temp_directory_path() / ("cellcal_bench_cell_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   const CellConfig cell = loadCellConfig(writeBenchCellFile(dir, a));
-  BenchProcesses p(dir, cell.source, a.record);
+  BenchProcesses p(dir, cell.source, a.record, a.pass_through);
   const pid_t engine = p.engine.pid(), comp = p.compensation.pid();
   const pid_t recorder = p.recorder ? p.recorder->pid() : -1;
 
@@ -108,7 +111,8 @@ int runBench(const BenchArgs& a) {
   const auto kernel_drops0 = udpReceiveBufferErrors();
   const double uncalibrated_mm = robots.meanErrorMm(rx.latest);
   std::printf("bench-cell: %d robots, joint states and tracker readings at %.0f Hz each per robot, targets at %.0f Hz "
-              "per robot, %.0f s...\n", a.robots, a.rate_hz, a.targets_hz, a.duration_s);
+              "per robot, %.0f s%s...\n", a.robots, a.rate_hz, a.targets_hz, a.duration_s,
+              a.pass_through ? " (compensation publisher with --pass-through: answered unchanged)" : "");
   std::fflush(stdout);
   const BenchPlayed played = play(a, cell, robots, rx, js, tp, tg, sv, p);
   const double wall = played.wall_s;
@@ -126,7 +130,7 @@ int runBench(const BenchArgs& a) {
   const std::uint64_t js_pub = static_cast<std::uint64_t>(played.ticks) * a.robots, js_rx = es.is_discarded() ? 0 : es[stats::kTopics]["cellcal/joint_state"].value(stats::kReceived, 0ULL);
   const std::uint64_t tp_rx = es.is_discarded() ? 0 : es[stats::kTopics]["cellcal/tracker_pose"].value(stats::kReceived, 0ULL);
   nlohmann::json out = {
-      {"robots", a.robots}, {"rate_hz_per_stream", a.rate_hz}, {"targets_hz_per_robot", a.targets_hz}, {"duration_s", wall},
+      {"robots", a.robots}, {"pass_through", a.pass_through}, {"rate_hz_per_stream", a.rate_hz}, {"targets_hz_per_robot", a.targets_hz}, {"duration_s", wall},
       {"tracker_to_state_us", {{"p50", percentile(l.state_us, 0.5)}, {"p99", percentile(l.state_us, 0.99)}, {"samples", l.state_us.size()},
                                {"p50_first_third", percentile(l.first_third, 0.5)}, {"p50_last_third", percentile(l.last_third, 0.5)}}},
       {"target_to_compensated_us", {{"p50", percentile(l.comp_us, 0.5)}, {"p99", percentile(l.comp_us, 0.99)}, {"samples", l.comp_us.size()},
