@@ -265,7 +265,7 @@ ExtendedFit geometricFit(const CalibrationResult& r) {
 
 ExtendedFit geometricFit(const Eigen::VectorXd& params) {
   ExtendedFit f;
-  f.params = params;
+  static_cast<CalibratedModel&>(f) = CalibratedModel::geometric(params);
   return f;
 }
 

@@ -86,20 +86,15 @@ int usageExit(CLI::App& app, const CLI::ParseError& e);
 int runMain(const char* program, int argc, char** argv, CLI::App& app, const std::function<int()>& body);
 
 // A component's main(): the app with the man page named `program` (docs/man/<program>.txt), the options `add`
-// declares on it, then Process(options).run() under runMain. `before_run` (if given) runs once the options are parsed,
-// before the process is made.
+// declares on it, then Process(options).run() under runMain.
 template <class Process>
 int componentMain(const char* program, int argc, char** argv,
-                  const std::function<void(CLI::App&, typename Process::Options&)>& add,
-                  const std::function<void()>& before_run = {}) {
+                  const std::function<void(CLI::App&, typename Process::Options&)>& add) {
   CLI::App app;
   applyManPage(app, program);
   typename Process::Options options;
   add(app, options);
-  return runMain(program, argc, argv, app, [&] {
-    if (before_run) before_run();
-    return Process(options).run();
-  });
+  return runMain(program, argc, argv, app, [&] { return Process(options).run(); });
 }
 
 }  // namespace cellcal::components

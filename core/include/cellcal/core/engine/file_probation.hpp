@@ -41,7 +41,6 @@ class FileProbation {
   std::string refusal(const std::string& file, double gate) const;
   // The held readings in the order held; none are held after.
   std::vector<Held> take();
-  bool empty() const { return held_.empty(); }
 
  private:
   std::vector<Held> held_;
