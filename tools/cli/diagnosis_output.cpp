@@ -8,12 +8,14 @@ std::string regionCheckText(const DiagnosisResult& d) {
   if (d.region_checks.empty() && d.region_note.empty()) return "";
   std::string out =
       "region check (each cause fitted on part of the rows and judged beyond them: past either end of its joint's "
-      "range, or on the other half of the workspace):\n";
+      "range, or on the other half of the workspace; the gain is that of the mean squared error less what the fits' "
+      "uncertainty explains there, its sigma in parentheses):\n";
   for (size_t i = 0; i < d.region_checks.size(); ++i) {
     const RegionCheck& c = d.region_checks[i];
     char b[400];
-    std::snprintf(b, sizeof b, "  %-36s by %-9s mean %.4f -> %.4f mm, gain %+.1f %%, z %.1f: %s",
-                  extensionLabel(c.cause).c_str(), c.split.c_str(), c.mean_without_mm, c.mean_with_mm, c.gain_pct, c.z,
+    std::snprintf(b, sizeof b, "  %-36s by %-9s mean %.4f -> %.4f mm (sigma %.4f -> %.4f), gain %+.1f %%, z %.1f: %s",
+                  extensionLabel(c.cause).c_str(), c.split.c_str(), c.mean_without_mm, c.mean_with_mm,
+                  c.sigma_without_mm, c.sigma_with_mm, c.gain_pct, c.z,
                   c.transfers ? "transfers" : "does not transfer, left out");
     out += b;
     if (!c.transfers && d.not_transferred.size() > 1) {
@@ -32,7 +34,8 @@ nlohmann::json regionCheckJson(const DiagnosisResult& d) {
   nlohmann::json causes = nlohmann::json::array(), left_out = nlohmann::json::array();
   for (const auto& c : d.region_checks)
     causes.push_back({{"label", extensionLabel(c.cause)}, {"split", c.split}, {"mean_without_mm", c.mean_without_mm},
-                      {"mean_with_mm", c.mean_with_mm}, {"gain_pct", c.gain_pct}, {"z", c.z},
+                      {"mean_with_mm", c.mean_with_mm}, {"sigma_without_mm", c.sigma_without_mm},
+                      {"sigma_with_mm", c.sigma_with_mm}, {"gain_pct", c.gain_pct}, {"z", c.z},
                       {"transfers", c.transfers}, {"judged_rows", c.judged_rows[0] + c.judged_rows[1]}});
   for (const auto& e : d.not_transferred) left_out.push_back(extensionLabel(e));
   return {{"ran", !d.region_checks.empty()},

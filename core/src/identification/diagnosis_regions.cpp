@@ -65,6 +65,22 @@ std::vector<internal::Fold> internal::regionFolds(const std::vector<Observation>
   return {up, down};
 }
 
+namespace {
+
+// The judged rows of one model in a region check.
+struct JudgedRows {
+  std::vector<Eigen::Vector3d> residuals;
+  std::vector<double> variance_m2;  // of the position error, from the fit's parameters' uncertainty
+};
+
+double meanOf(const std::vector<double>& x) {
+  double m = 0;
+  for (double v : x) m += v;
+  return x.empty() ? 0.0 : m / static_cast<double>(x.size());
+}
+
+}  // namespace
+
 std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::VectorXd& start,
                                       const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                       const ExtendedFit& geometric, const std::vector<SelectionStep>& steps,
@@ -96,9 +112,9 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
       }
       break;
     }
-    // A model's judged residuals: those of both folds together.
+    // A model's judged rows, both folds together: their residuals, and what the fold's fit leaves uncertain there.
     auto judged = [&](const std::vector<Extension>& exts, const Eigen::VectorXd* warm, const Eigen::VectorXd* warm_ext) {
-      std::vector<Eigen::Vector3d> res;
+      JudgedRows out;
       for (const auto& fold : folds) {
         const std::vector<int> fit_rows = thin(fold.first);
         const std::vector<Observation> FO = subset(obs, fit_rows), JO = subset(obs, fold.second);
@@ -109,20 +125,27 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
             io.held.push_back(d.column);
         const ExtendedFit fit = fitExtended(model, start, FO, FD, exts, options.solver, io, warm, warm_ext);
         const std::vector<Eigen::Vector3d> r = positionResiduals(model, fit, JO, JD);
-        res.insert(res.end(), r.begin(), r.end());
+        out.residuals.insert(out.residuals.end(), r.begin(), r.end());
+        for (double s : estimatePositionSigmas(model, fit, FO, FD, JO, JD)) out.variance_m2.push_back(s * s);
       }
-      return res;
+      return out;
     };
-    const std::vector<Eigen::Vector3d> without =
-        judged(kept, &kept_fit->params, kept.empty() ? nullptr : &kept_fit->extension_params);
+    const JudgedRows without = judged(kept, &kept_fit->params, kept.empty() ? nullptr : &kept_fit->extension_params);
     std::vector<Extension> exts = kept;
     exts.push_back(step.added);
-    const std::vector<Eigen::Vector3d> with = judged(exts, &step.result.fit.params, &step.result.fit.extension_params);
-    const internal::ResidualMeans m0 = internal::residualMeans(without), m1 = internal::residualMeans(with);
+    const JudgedRows with = judged(exts, &step.result.fit.params, &step.result.fit.extension_params);
+    const internal::ResidualMeans m0 = internal::residualMeans(without.residuals), m1 = internal::residualMeans(with.residuals);
     c.mean_without_mm = m0.mean_mm;
     c.mean_with_mm = m1.mean_mm;
-    c.gain_pct = 100.0 * (1.0 - m1.mse_m2 / m0.mse_m2);
-    c.z = internal::pairedZ(without, with);
+    c.sigma_without_mm = 1e3 * std::sqrt(meanOf(without.variance_m2));
+    c.sigma_with_mm = 1e3 * std::sqrt(meanOf(with.variance_m2));
+    // Row by row, each model's squared error less its fit's variance there: what its form gets wrong.
+    std::vector<double> d(without.residuals.size());
+    for (size_t i = 0; i < d.size(); ++i)
+      d[i] = (without.residuals[i].squaredNorm() - without.variance_m2[i]) -
+             (with.residuals[i].squaredNorm() - with.variance_m2[i]);
+    c.gain_pct = 100.0 * meanOf(d) / m0.mse_m2;
+    c.z = internal::meanZ(d);
     c.transfers = !(c.gain_pct < 0 && c.z < -options.region_z);
     out.push_back(c);
     if (!c.transfers) break;

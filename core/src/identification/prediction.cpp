@@ -221,6 +221,21 @@ double predictedPositionSigma(const RobotModel& model, const CalibratedModel& fi
   return std::sqrt(std::max(0.0, var));
 }
 
+std::vector<double> estimatePositionSigmas(const RobotModel& model, const CalibratedModel& fit,
+                                           const std::vector<Observation>& fitted,
+                                           const std::vector<Drivers>& fitted_drivers,
+                                           const std::vector<Observation>& at, const std::vector<Drivers>& at_drivers) {
+  if (at.size() != at_drivers.size()) throw std::invalid_argument("estimatePositionSigmas: one Drivers entry per row");
+  std::vector<double> sigma(at.size(), 0.0);
+  if (!fit.hasCovariance()) return sigma;
+  PredictionModel pm;
+  pm.columns = fit.columns(model);
+  pm.covariance =
+      fit.covariance * residualVarianceFactors(model, fit, fitted, fitted_drivers, fit.numEstimated()).position;
+  for (size_t i = 0; i < at.size(); ++i) sigma[i] = predictedPositionSigma(model, fit, pm, at[i].q_rad, at_drivers[i]);
+  return sigma;
+}
+
 double kinematicPositionSigma(const RobotModel& model, KinematicsData& data, const Eigen::VectorXd& params,
                               const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
                               const Eigen::VectorXd& q_rad) {

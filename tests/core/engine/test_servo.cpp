@@ -121,7 +121,9 @@ TEST_F(ServoFixture, ANewVersionIsBlendedInWithoutAStep) {
       answerable = answerable && r.applied &&
                    (r.q_rad - qs[k]).cwiseAbs().maxCoeff() <= config.compensation.max_joint_correction_rad;
     if (!a.applied || !answerable) {
-      if (!a.applied) EXPECT_EQ(a.q_rad, qs[k]) << a.reason;
+      if (!a.applied) {
+        EXPECT_EQ(a.q_rad, qs[k]) << a.reason;
+      }
       last_blended.resize(0);
       continue;
     }
@@ -162,7 +164,9 @@ TEST_F(ServoFixture, ANewVersionIsBlendedInWithoutAStep) {
   EXPECT_GE(answered, cycles / 2);
   EXPECT_LT(worst_ref, 1e-12);
   EXPECT_LE(worst_excess, 1e-12);
-  if (switch_seen) EXPECT_GT(stepped_extra, 5 * blended_extra);
+  if (switch_seen) {
+    EXPECT_GT(stepped_extra, 5 * blended_extra);
+  }
   EXPECT_EQ(blended.version(), third ? 3u : 2u);
   EXPECT_FALSE(blended.blending());
 }

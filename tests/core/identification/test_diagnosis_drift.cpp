@@ -108,7 +108,9 @@ TEST(DriftCheck, ABaseThatDriftsIsNeverPassedOffAsTheRobotsDrift) {
                 d.verdict_text.c_str(), driftOutcomeName(c.outcome), c.mean_chosen_mm, c.mean_alternative_mm,
                 c.mean_both_mm, c.z_drift, c.z_frame);
     // Whatever the check found of the frame, the verdict says so.
-    if (frame) EXPECT_NE(d.verdict_text.find("base frame"), std::string::npos) << d.verdict_text;
+    if (frame) {
+      EXPECT_NE(d.verdict_text.find("base frame"), std::string::npos) << d.verdict_text;
+    }
     if (!namesADrift(d)) continue;
     ++drift_named;
     const bool in_verdict = d.verdict_text.find("base frame") != std::string::npos;

@@ -173,7 +173,9 @@ TEST(RegionCheck, LibraryCausesAreKept) {
   std::printf("  summary: %d draws, %d causes left out; causes above the noise named first %d/%d without the check, "
               "%d/%d with it; mean beyond the campaign: geometric %.4f, without the check %.4f, with it %.4f mm\n",
               draws, dropped, named_off, real, named_on, real, sum_geo / draws, sum_off / draws, sum_on / draws);
-  // Measured over 100 draws: one cause left out (CELLCAL_DIAGNOSIS_DRAWS=100).
+  // Measured over 300 draws (CELLCAL_TEST_SEED=11 CELLCAL_DIAGNOSIS_DRAWS=300): none left out, the lowest z 2.8. Before
+  // the fits' variances were taken off the judged errors, seed 787736568605020234 left out a true cyclic error of the
+  // UR10's joint 1 near the noise (-15.9 %, z -2.2; now +10.3 %, z 1.4) and failed the mean below.
   EXPECT_LE(dropped, 1);
   EXPECT_GE(named_on, named_off - 1);
   EXPECT_LE(sum_on, 1.02 * sum_off);
@@ -200,11 +202,12 @@ TEST(RegionCheck, ACyclicTermFittedOnPartOfAJointsRangeIsLeftOut) {
               "left out)\n",
               draws, worse_off, worse_on, left_out);
   // Measured over 40 draws (CELLCAL_DIAGNOSIS_DRAWS=40): worse beyond without the check in 37 (by 0.65-111 mm), never
-  // with it; over 3 x 40 more, 109 without, never with. One draw in about 130 slips through: seed
+  // with it; over 3 x 40 more, 109 without, never with; over 60 (CELLCAL_TEST_SEED=12), 55 without, never with, as
+  // before the fits' variances were taken off. One draw in about 130 slips through: seed
   // 17643739216847302122, a 0.067 deg bump on the UR10's joint 3, judged 6.9 % worse at the ends of the campaign's
-  // range (z -0.9, not significant) and kept; beyond the campaign 0.215 mm against the geometric 0.028 mm. The check
-  // sees 15 % of the range beyond the fit, the grading 40 %: a weak cause that hurts only far out escapes it (issue
-  // #35, regions the model never saw). So one such draw in 8 is allowed, two are not (0.2 % of runs by that rate).
+  // range (z -0.9, not significant; +4.1 %, z 0.5 with the variances off) and kept; beyond the campaign 0.215 mm
+  // against the geometric 0.028 mm. The check sees 15 % of the range beyond the fit, the grading 40 %: a weak cause
+  // that hurts only far out escapes it (issue #35, regions the model never saw). So one such draw in 8 is allowed, two are not (0.2 % of runs by that rate).
   EXPECT_GE(worse_off, draws / 2) << "the draws do not make the failure the check is for";
   EXPECT_LE(worse_on, 1);
 }

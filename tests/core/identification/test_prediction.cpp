@@ -10,6 +10,7 @@
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/cause.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "core/identification/hidden_effect.hpp"
 #include "test_support.hpp"
@@ -75,6 +76,87 @@ TEST(Prediction, SigmaOfTheModelErrorMatchesTheTrueErrorOnRandomRobots) {
               draws, rms, per_draw.front(), per_draw[per_draw.size() / 2], per_draw.back());
   EXPECT_GT(rms, 0.7);
   EXPECT_LT(rms, 1.4);
+}
+
+// estimatePositionSigmas against a plain reference: refits of the same configurations with fresh reading noise, and
+// their scatter at configurations beyond the part of a joint's range the fit saw (how the region check uses it). The
+// truth is what the model holds: geometric errors and a cyclic error or scale of a joint drawn at random
+// (0.05-0.2 deg RMS), fitted as such on 60-150 poses up to that joint's upper or lower quartile, the others beyond.
+// The readings' stated sigmas are 0.5-2x their true noise, so the variance factor must be applied to be right.
+TEST(Prediction, AnEstimatesSigmaIsWhatRefitsWithFreshNoiseScatterBy) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const int draws = 4, refits = 60;
+  double sum_predicted = 0, sum_scatter = 0;
+  for (int d = 0; d < draws; ++d) {
+    const Draw dr = draw(rng);
+    const RobotModel& model = dr.model;
+    SimulationConfig sc = dr.config;
+    sc.warmup_K = 0;
+    sc.zero_drift_per_K_max_rad = 0;
+    sc.zero_wear_per_h_max_rad = 0;
+    const int j = static_cast<int>(u(rng) * model.numJoints());
+    const Extension ext{u(rng) < 0.5 ? Cause::kCyclicTransmission : Cause::kJointScale, j};
+    const SimulatedCell plain(model, sc);
+    const std::vector<Eigen::VectorXd> qs = plain.randomConfigurations(80 + static_cast<int>(120 * u(rng)), rng);
+    sc.hidden = scaledHiddenEffect(model, plain.trueParams(0), ext.cause, j, (0.05 + 0.15 * u(rng)) * kPi / 180, {},
+                                   qs, rng);
+    const SimulatedCell cell(model, sc);
+    std::vector<double> angle;
+    for (const auto& q : qs) angle.push_back(q[j]);
+    std::sort(angle.begin(), angle.end());
+    const bool upper = u(rng) < 0.5;  // the rows beyond: above the upper quartile, or below the lower one
+    const double cut = angle[upper ? angle.size() * 3 / 4 : angle.size() / 4];
+    std::vector<Eigen::VectorXd> fitted_q, beyond_q;
+    for (const auto& q : qs) ((upper ? q[j] > cut : q[j] < cut) ? beyond_q : fitted_q).push_back(q);
+    const double stated = 0.5 + 1.5 * u(rng);
+    auto measure = [&](const std::vector<Eigen::VectorXd>& at) {
+      std::vector<Observation> rows;
+      for (const auto& q : at) {
+        rows.push_back(cell.measure(q, 0.0, rng, dr.kind));
+        rows.back().sigma_position_m *= stated;
+        rows.back().sigma_orientation_rad *= stated;
+      }
+      return rows;
+    };
+    const std::vector<Observation> fitted = measure(fitted_q), beyond = measure(beyond_q);
+    const std::vector<Drivers> fitted_drivers(fitted.size()), beyond_drivers(beyond.size());
+    const Eigen::VectorXd start = registerFrames(model, model.nominal, fitted).params;
+    const ExtendedFit fit = fitExtended(model, start, fitted, fitted_drivers, std::vector<Extension>{ext});
+    ASSERT_TRUE(fit.hasCovariance());
+    double predicted = 0;
+    for (double s : estimatePositionSigmas(model, fit, fitted, fitted_drivers, beyond, beyond_drivers))
+      predicted += s * s / static_cast<double>(beyond.size());
+    // The reference: the refits' predictions at each row beyond (the same readings there, so their residuals differ
+    // by what the predictions do), their variance about their mean, averaged over the rows.
+    std::vector<std::vector<Eigen::Vector3d>> r(refits);
+    for (auto& rk : r) {
+      const std::vector<Observation> again = measure(fitted_q);
+      const ExtendedFit f = fitExtended(model, start, again, fitted_drivers, std::vector<Extension>{ext}, {}, {},
+                                        &fit.params, &fit.extension_params);
+      ASSERT_EQ(f.estimated, fit.estimated);
+      rk = positionResiduals(model, f, beyond, beyond_drivers);
+    }
+    double scatter = 0;
+    for (size_t i = 0; i < beyond.size(); ++i) {
+      Eigen::Vector3d m = Eigen::Vector3d::Zero();
+      for (const auto& rk : r) m += rk[i] / refits;
+      for (const auto& rk : r) scatter += (rk[i] - m).squaredNorm() / (refits - 1) / static_cast<double>(beyond.size());
+    }
+    sum_predicted += predicted;
+    sum_scatter += scatter;
+    std::printf("draw %d: %s %s, %s joint %d, %zu poses fitted, %zu beyond, stated sigma x%.2f: predicted %.4f mm, "
+                "refits' scatter %.4f mm (RMS over the rows beyond)\n",
+                d, dr.name.c_str(), dr.kind == MeasurementKind::kPose6D ? "6D" : "points",
+                causeModel(ext.cause).name(), j + 1, fitted.size(), beyond.size(), stated,
+                1e3 * std::sqrt(predicted), 1e3 * std::sqrt(scatter));
+    EXPECT_GT(std::sqrt(scatter / predicted), 0.6);
+    EXPECT_LT(std::sqrt(scatter / predicted), 1.6);
+  }
+  const double ratio = std::sqrt(sum_scatter / sum_predicted);
+  std::printf("refits' scatter / predicted over %d draws x %d refits: %.3f\n", draws, refits, ratio);
+  EXPECT_GT(ratio, 0.8);
+  EXPECT_LT(ratio, 1.25);
 }
 
 // A model carried to a new set-up (carriedPrediction): a campaign calibrated on few poses, then the tracker and target

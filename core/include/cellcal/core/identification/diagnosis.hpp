@@ -60,13 +60,21 @@ std::vector<bool> regionSplit(const std::vector<Observation>& obs);
 // its upper quantile (1 - region_joint_end) fitted and those beyond it judged, and the same at the lower end (a
 // periodic or stiffness term fitted on part of a joint's range, carried beyond it). For other causes, by the workspace
 // (regionSplit): each half fitted, the other judged.
+// What is judged is the model's form, not the fold's estimate: a fold's fit has fewer rows and a narrower range than
+// the campaign's, so a true cause near the noise can predict worse beyond it only because its extra parameters are
+// less certain there. Each model's squared error on a judged row is taken less its fit's variance there (the
+// parameters it estimated, their covariance scaled by the residual scatter it left on its rows); what is left is what
+// its form gets wrong, plus the readings' noise, the same for both.
 struct RegionCheck {
   Extension cause;                   // the cause judged, fitted with the causes kept before it
   std::string split;                 // "q2" (by joint 2's angle) or "workspace"
   int judged_rows[2] = {0, 0};       // observations judged in each fold
-  double mean_without_mm = 0, mean_with_mm = 0;         // mean position error on the judged rows
-  double gain_pct = 0;               // of the mean squared position error there, without -> with the cause
-  double z = 0;                      // paired improvement there, in standard errors (positive: the cause helps)
+  double mean_without_mm = 0, mean_with_mm = 0;    // mean position error on the judged rows
+  double sigma_without_mm = 0, sigma_with_mm = 0;  // RMS there of the position error the fits' uncertainty explains
+  // Without -> with the cause, of the mean squared position error there less each fit's variance, as a share of the
+  // mean squared error without it (positive: the cause helps).
+  double gain_pct = 0;
+  double z = 0;                      // that difference row by row, in standard errors of its mean
   bool transfers = true;             // not (gain_pct < 0 and z < -region_z)
 };
 // RegionCheck::split for a cause: "q<joint>" (1-based) or "workspace".
@@ -130,8 +138,9 @@ struct DiagnosisOptions {
   // larger file); 0: all of them. The fits use every row.
   int screen_rows = 2000;
   // Check each chosen cause on a half of the rows its fit never saw (RegionCheck: by its joint's angle or by the
-  // workspace, over the rows kept, both ways round) against the model without it: a cause that makes the error there
-  // worse, by more than region_z standard errors of the paired difference, is left out with those chosen after it.
+  // workspace, over the rows kept, both ways round) against the model without it: a cause whose form makes the error
+  // there worse (beyond what the fits' uncertainty explains), by more than region_z standard errors of the paired
+  // difference, is left out with those chosen after it.
   // Not run for a cause whose halves hold fewer than region_min_rows observations (DiagnosisResult::region_note).
   bool region_check = true;
   double region_z = 2.0;

@@ -140,6 +140,17 @@ double kinematicPositionSigma(const RobotModel& model, KinematicsData& data, con
                               const std::vector<int>& estimated, const Eigen::MatrixXd& covariance,
                               const Eigen::VectorXd& q_rad);
 
+// The 1-sigma position error (m) `fit` makes at each of `at` from the uncertainty of the parameters it estimated,
+// and from nothing else: sqrt of the trace of J C J^T over its estimated columns, C its covariance scaled by the
+// position rows' variance factor on `fitted` (the rows it was fitted on: residualVarianceFactors). Columns it held add
+// nothing (they are part of the model's form, as are the causes it does not hold); no prior, unlike predictionModel.
+// What refits of the same rows with fresh noise would scatter by at `at` (RegionCheck takes it off each model's
+// error). Zeros without a covariance.
+std::vector<double> estimatePositionSigmas(const RobotModel& model, const CalibratedModel& fit,
+                                           const std::vector<Observation>& fitted,
+                                           const std::vector<Drivers>& fitted_drivers,
+                                           const std::vector<Observation>& at, const std::vector<Drivers>& at_drivers);
+
 // Excitation deficits: parameters the identification rows barely move while other rows of the same data move them
 // strongly. Estimating one would extrapolate: its value would rest on rows where it hardly acts and then decide the
 // prediction where it acts most (e.g. a gravity moment of link 4 near zero on every identification pose and 9.81 N m
