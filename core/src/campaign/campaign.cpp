@@ -79,7 +79,6 @@ CampaignErrors campaignErrors(const RobotModel& robot, const ExtendedFit& before
 
 namespace {
 
-
 PredictionCheck checkPrediction(const RobotModel& robot, const ExtendedFit& fit, const PredictionModel& pm,
                                 const std::vector<Observation>& ident, const std::vector<Drivers>& idr,
                                 const std::vector<Observation>& verify, const std::vector<Drivers>& vdr) {

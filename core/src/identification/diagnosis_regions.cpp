@@ -73,12 +73,6 @@ struct JudgedRows {
   std::vector<double> variance_m2;  // of the position error, from the fit's parameters' uncertainty
 };
 
-double meanOf(const std::vector<double>& x) {
-  double m = 0;
-  for (double v : x) m += v;
-  return x.empty() ? 0.0 : m / static_cast<double>(x.size());
-}
-
 }  // namespace
 
 std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::VectorXd& start,
@@ -137,14 +131,14 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
     const internal::ResidualMeans m0 = internal::residualMeans(without.residuals), m1 = internal::residualMeans(with.residuals);
     c.mean_without_mm = m0.mean_mm;
     c.mean_with_mm = m1.mean_mm;
-    c.sigma_without_mm = 1e3 * std::sqrt(meanOf(without.variance_m2));
-    c.sigma_with_mm = 1e3 * std::sqrt(meanOf(with.variance_m2));
+    c.sigma_without_mm = 1e3 * std::sqrt(mean(without.variance_m2));
+    c.sigma_with_mm = 1e3 * std::sqrt(mean(with.variance_m2));
     // Row by row, each model's squared error less its fit's variance there: what its form gets wrong.
     std::vector<double> d(without.residuals.size());
     for (size_t i = 0; i < d.size(); ++i)
       d[i] = (without.residuals[i].squaredNorm() - without.variance_m2[i]) -
              (with.residuals[i].squaredNorm() - with.variance_m2[i]);
-    c.gain_pct = 100.0 * meanOf(d) / m0.mse_m2;
+    c.gain_pct = 100.0 * mean(d) / m0.mse_m2;
     c.z = internal::meanZ(d);
     c.transfers = !(c.gain_pct < 0 && c.z < -options.region_z);
     out.push_back(c);
