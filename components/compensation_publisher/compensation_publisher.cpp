@@ -92,7 +92,8 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
   if (c->health == msg::HEALTH_OK) {
     r.last_ok = *c;
     r.applied_model = IdentifiedModel(*c);
-    if (r.robot->start) attachResidualMap(*r.robot->start, *r.applied_model);  // teach points (compensation.hpp)
+    // Teach points, and how far the extensions were judged beyond their data (compensation.hpp).
+    if (r.robot->start) attachRobotFile(*r.robot->start, *r.applied_model);
     r.servo->setCalibration(c->version, *r.applied_model);
   }
   r.calibration = std::move(c);

@@ -71,7 +71,8 @@ json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
   json ranges = json::array();
   for (const auto& b : rep.beyond)
     ranges.push_back({{"joint", b.joint + 1}, {"lower_deg", b.lower_rad * 180 / kPi}, {"upper_deg", b.upper_rad * 180 / kPi},
-                      {"sigma_at_1_rad_deg", b.sigma_at_1_rad * 180 / kPi}, {"growth", b.growth}});
+                      {"sigma_at_1_rad_deg", b.sigma_at_1_rad * 180 / kPi}, {"growth", b.growth},
+                      {"checked_deg", b.checked_rad * 180 / kPi}});
   json folds = json::array();
   if (rep.transfer)
     for (const auto& t : rep.transfer->joints)

@@ -155,10 +155,10 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
   }
   if (a.frames_only)
     for (const auto& b : rep.beyond)
-      std::printf("carried beyond the campaign's data: joint %d outside [%.1f, %.1f] deg, a further joint error of %.3g deg%s "
-                  "(the robot file's beyond_data)\n",
+      std::printf("carried beyond the campaign's data: joint %d outside [%.1f, %.1f] deg, a further joint error of %.3g deg%s, "
+                  "judged up to %.1f deg beyond (the robot file's beyond_data)\n",
                   b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.sigma_at_1_rad * 180 / kPi,
-                  b.growthText());
+                  b.growthText(), b.checked_rad * 180 / kPi);
   if (rep.carried)
     std::printf("%s%s\n", rep.carried->text.c_str(),
                 rep.carried->extensions_transfer ? ""
@@ -208,8 +208,9 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
   std::printf("check: the verification errors against that uncertainty and the residual together: RMS ratio %.2f (1: "
               "the predicted errors can be trusted)\n", trust.ratio_rms);
   if (trust.beyond_checked > 0)
-    std::printf("  %d verification rows lie farther beyond a joint's calibrated range than the region folds judged: the "
-                "error beyond it is held at its value there, itself an extrapolation\n", trust.beyond_checked);
+    std::printf("  %d verification rows lie farther beyond a joint's calibrated range than the region folds judged the "
+                "model's extensions: what they do there was never tested, their predicted error there is an "
+                "extrapolation\n", trust.beyond_checked);
   if (trust.extrapolated > 0)
     std::printf("  %d verification rows lie outside the calibrated region (predicted error more than 3x the largest on "
                 "the identification rows)\n", trust.extrapolated);

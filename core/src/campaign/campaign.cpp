@@ -98,11 +98,7 @@ PredictionCheck checkPrediction(const RobotModel& robot, const ExtendedFit& fit,
     sq += s * s;
     t.verification_max_mm = std::max(t.verification_max_mm, s);
     if (s > 3 * t.identification_max_mm) ++t.extrapolated;
-    for (const BeyondRange& b : pm.beyond)
-      if (b.sigma_at_1_rad > 0 && b.beyondRad(verify[i].q_rad[b.joint]) > b.checked_rad) {
-        ++t.beyond_checked;
-        break;
-      }
+    if (firstUnjudged(pm.beyond, verify[i].q_rad)) ++t.beyond_checked;
     const Eigen::VectorXd p = extendedParams(robot, fit.params, fit.extensions, fit.extension_params, verify[i].q_rad, vdr[i]);
     const double actual_mm =
         (forwardKinematics(robot, data, p, verify[i].q_rad).translation() - verify[i].measured_in_tracker.translation()).norm() * 1e3;

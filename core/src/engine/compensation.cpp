@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "cellcal/core/identification/prediction.hpp"
@@ -45,6 +46,17 @@ void attachResidualMap(const RobotFile& start, IdentifiedModel& model) {
   };
   model.residual_map = &*start.calibration->residual_map;
   model.residual_map_rotation = baseRotation(model.params) * baseRotation(start.model.nominal).transpose();
+}
+
+void attachRobotFile(const RobotFile& start, IdentifiedModel& model) {
+  attachResidualMap(start, model);
+  if (!start.calibration || model.extensions.empty()) return;
+  std::vector<std::string> file, mine;
+  for (const Extension& e : start.calibration->extensions) file.push_back(extensionSpec(e));
+  for (const Extension& e : model.extensions) mine.push_back(extensionSpec(e));
+  std::sort(file.begin(), file.end());
+  std::sort(mine.begin(), mine.end());
+  if (file == mine) model.beyond_data = start.calibration->beyond_data;
 }
 
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
@@ -119,12 +131,27 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     return out;
   }
   KinematicsData data(nominal);
+  // Where the extensions were never judged (beyond_data), their correction is not known.
+  const BeyondRange* unjudged = model.extensions.empty() ? nullptr : firstUnjudged(model.beyond_data, ik.q_rad);
+  if (unjudged && s.max_predicted_sigma_m > 0) {
+    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
+    out.outcome = CompensationOutcome::kOutsideCalibration;
+    out.reason = unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) +
+                 ": the extensions' correction there was never tested, passed through uncorrected";
+    return out;
+  }
   if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
     // The kinematic block (the whole covariance unless it also covers extension parameters).
     out.predicted_sigma_position_m =
         model.estimated_extension.empty()
             ? kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad)
             : kinematicPositionSigma(nominal, data, identified, model.estimated, model.kinematicCovariance(), ik.q_rad);
+    if (!model.extensions.empty() && !model.beyond_data.empty()) {  // what the extensions may do beyond their data
+      Eigen::MatrixXd J(6, nominal.numParams());
+      computePoseJacobian(nominal, data, J);  // at identified, q*: kinematicPositionSigma's forward kinematics
+      out.predicted_sigma_position_m = std::sqrt(std::pow(out.predicted_sigma_position_m, 2) +
+                                                 beyondPositionVariance(nominal, J, model.beyond_data, ik.q_rad));
+    }
     if (out.residual_map_applied) {
       const double map_sigma = model.residual_map->sigmaBound_m(ik.q_rad);
       out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);
@@ -139,6 +166,7 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       return out;
     }
   }
+  if (unjudged) out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();  // guard off: said, applied
   const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
   const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
   out.correction_position_m = c.head<3>().norm();

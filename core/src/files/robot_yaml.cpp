@@ -414,7 +414,9 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
   }
   if (!cal->beyond_data.empty()) {
     o << "  # beyond the joint ranges of the campaign's data, a further joint error of sigma x (rad beyond)^growth\n"
-         "  # (calibrate's region folds; predictions carried to other rows include it)\n  beyond_data:\n";
+         "  # (calibrate's region folds; predictions carried to other rows include it), judged up to checked_deg\n"
+         "  # beyond the range: farther, the extensions' correction is an extrapolation (compensation passes it by)\n"
+         "  beyond_data:\n";
     for (const auto& b : cal->beyond_data)
       o << "    - { joint: " << b.joint + 1 << ", lower_deg: " << num(b.lower_rad * 180 / kPi) << ", upper_deg: "
         << num(b.upper_rad * 180 / kPi) << ", sigma_at_1_rad_deg: " << num(b.sigma_at_1_rad * 180 / kPi)

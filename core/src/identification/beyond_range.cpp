@@ -2,6 +2,7 @@
 // which measures it, so that the robot file's parser (and its fuzz target) reaches it without the solvers.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include "cellcal/core/identification/prediction.hpp"
@@ -17,6 +18,25 @@ double BeyondRange::sigmaRad(double q_rad) const {
   if (d <= 0 || sigma_at_1_rad <= 0) return 0.0;
   if (checked_rad > 0) d = std::min(d, checked_rad);
   return sigma_at_1_rad * std::pow(d, growth);
+}
+
+bool BeyondRange::judged(double q_rad) const { return beyondRad(q_rad) <= checked_rad; }
+
+const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad) {
+  for (const BeyondRange& b : ranges)
+    if (b.joint >= 0 && b.joint < q_rad.size() && !b.judged(q_rad[b.joint])) return &b;
+  return nullptr;
+}
+
+std::string unjudgedText(const BeyondRange& b, double q_rad) {
+  char t[300];
+  std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg beyond [%.1f, %.1f] deg, the range its model extensions "
+                "were fitted on; ", b.joint + 1, q_rad * 180 / kPi, b.beyondRad(q_rad) * 180 / kPi,
+                b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi);
+  char u[80];
+  if (b.checked_rad > 0) std::snprintf(u, sizeof u, "they were judged up to %.1f deg beyond it", b.checked_rad * 180 / kPi);
+  else std::snprintf(u, sizeof u, "they were not judged beyond it");
+  return std::string(t) + u;
 }
 
 const char* BeyondRange::growthText() const {

@@ -11,8 +11,7 @@ namespace cellcal {
 
 std::vector<BeyondRange> ExtensionTransfer::beyond() const {
   std::vector<BeyondRange> out;
-  for (const auto& j : joints)
-    if (j.beyond.sigma_at_1_rad > 0) out.push_back(j.beyond);
+  for (const auto& j : joints) out.push_back(j.beyond);
   return out;
 }
 
@@ -91,10 +90,12 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     }
     std::vector<Judged> rows;
     std::string skipped;
-    double checked = std::numeric_limits<double>::infinity();  // the smaller of the two ends' farthest judged row
+    // The smaller of the two ends' farthest judged row; 0 when an end was not judged (one number stands for both).
+    double checked = std::numeric_limits<double>::infinity();
     for (const internal::Fold& fold : internal::regionFolds(obs, e, options.region_joint_end)) {
       if (static_cast<int>(fold.first.size()) < options.region_min_rows || fold.second.size() < 8) {
         skipped = "too few rows at an end of the joint's range";
+        checked = 0;
         continue;
       }
       // The fitted rows' range of the joint, with a unit constant error beyond it: beyondRad gives a judged row's
@@ -119,10 +120,12 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
         ff = fitExtended(model, start, FO, FD, fit.extensions, options.solver, io, &fit.params, &fit.extension_params);
       } catch (const std::invalid_argument&) {  // e.g. no row of a known backlash play state on this side
         skipped = "a fold could not be fitted";
+        checked = 0;
         continue;
       }
       if (!ff.converged) {
         skipped = "a fold's fit did not converge";
+        checked = 0;
         continue;
       }
       const PredictionModel pm = predictionModel(model, ff, FO, FD);
@@ -142,7 +145,7 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     }
     jt.judged_rows = static_cast<int>(rows.size());
     jt.beyond.checked_rad = std::isfinite(checked) ? checked : 0.0;
-    char b[400];
+    char b[600];
     if (rows.empty()) {
       std::snprintf(b, sizeof b, "joint %d: not measured (%s)", e.joint + 1, skipped.c_str());
       out.text += (out.text.empty() ? "" : "\n") + std::string(b);
@@ -159,19 +162,25 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
       }
       jt.ratio_rms_with = ratioRms(rows, jt.beyond.sigma_at_1_rad, jt.beyond.growth);
     }
+    char judged[160];
+    if (jt.beyond.checked_rad > 0)
+      std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond [%.1f, %.1f] deg, farther it is extrapolated",
+                    jt.beyond.checked_rad * 180 / kPi, jt.beyond.lower_rad * 180 / kPi, jt.beyond.upper_rad * 180 / kPi);
+    else
+      std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond [%.1f, %.1f] deg it is extrapolated",
+                    skipped.c_str(), jt.beyond.lower_rad * 180 / kPi, jt.beyond.upper_rad * 180 / kPi);
     if (jt.beyond.sigma_at_1_rad == 0)
       std::snprintf(b, sizeof b,
                     "joint %d: fitted short of either end of its range, the model predicts the rows beyond within its "
-                    "uncertainty (%d rows, RMS ratio %.2f)",
-                    e.joint + 1, jt.judged_rows, jt.ratio_rms_without);
+                    "uncertainty (%d rows, RMS ratio %.2f; %s)",
+                    e.joint + 1, jt.judged_rows, jt.ratio_rms_without, judged);
     else
       std::snprintf(b, sizeof b,
                     "joint %d: fitted short of either end of its range, the model errs %.2fx its predicted uncertainty "
-                    "on the rows beyond (%d rows); outside [%.1f, %.1f] deg it is given a further joint error of %.3g deg%s "
-                    "(ratio then %.2f; judged up to %.1f deg beyond, farther it is extrapolated)",
-                    e.joint + 1, jt.ratio_rms_without, jt.judged_rows, jt.beyond.lower_rad * 180 / kPi,
-                    jt.beyond.upper_rad * 180 / kPi, jt.beyond.sigma_at_1_rad * 180 / kPi, jt.beyond.growthText(),
-                    jt.ratio_rms_with, jt.beyond.checked_rad * 180 / kPi);
+                    "on the rows beyond (%d rows); outside its range it is given a further joint error of %.3g deg%s "
+                    "(ratio then %.2f; %s)",
+                    e.joint + 1, jt.ratio_rms_without, jt.judged_rows, jt.beyond.sigma_at_1_rad * 180 / kPi,
+                    jt.beyond.growthText(), jt.ratio_rms_with, judged);
     out.text += (out.text.empty() ? "" : "\n") + std::string(b);
     out.joints.push_back(jt);
   }

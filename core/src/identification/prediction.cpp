@@ -213,12 +213,19 @@ double predictedPositionSigma(const RobotModel& model, const CalibratedModel& fi
   const auto n = static_cast<Eigen::Index>(prediction.columns.size());
   Eigen::MatrixXd Jp(3, n);
   for (Eigen::Index c = 0; c < n; ++c) Jp.col(c) = J.col(prediction.columns[c]);
-  double var = (Jp * prediction.covariance * Jp.transpose()).trace();
-  for (const BeyondRange& b : prediction.beyond) {  // a joint error: the position moves as with the joint's offset
+  const double var = (Jp * prediction.covariance * Jp.transpose()).trace() +
+                    beyondPositionVariance(model, J.leftCols(model.numParams()), prediction.beyond, q_rad);
+  return std::sqrt(std::max(0.0, var));
+}
+
+double beyondPositionVariance(const RobotModel& model, const Eigen::Ref<const Eigen::MatrixXd>& J,
+                              const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad) {
+  double var = 0;
+  for (const BeyondRange& b : ranges) {  // a joint error: the position moves as with the joint's offset
     const double s = b.sigmaRad(q_rad[b.joint]);
     if (s > 0) var += s * s * J.col(model.jointParam(b.joint, JointParam::kThetaOffset)).head<3>().squaredNorm();
   }
-  return std::sqrt(std::max(0.0, var));
+  return var;
 }
 
 std::vector<double> estimatePositionSigmas(const RobotModel& model, const CalibratedModel& fit,

@@ -267,6 +267,131 @@ TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {
 // from one corner of the workspace (every joint within 10 deg of one random configuration): its predicted error is
 // checked against a plain Monte Carlo reference (parameters drawn from the covariance), is small at targets in the
 // corner and large far from it, and compensate() passes every target above the bound through uncorrected.
+// An extended model with the ranges its extensions were judged over (a robot file's beyond_data, drawn at random:
+// joint, range, judged distance, sigma, growth). Inside the range the predicted sigma is the model's own; between the
+// range and the judged distance it adds sigmaRad(q*)^2 |dp/dq_joint|^2, checked against a central difference of the
+// forward kinematics; farther, the correction is not known: passed through with the joint named, or, with the guard
+// off, applied with an infinite sigma.
+TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNeverJudged) {
+  const std::uint64_t seed = test::testSeed();
+  const CellConfig config = loadCellConfig(kCell);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int inside = 0, near = 0, beyond = 0, grown = 0;
+  for (int draw = 0; draw < 4; ++draw) {
+    SimulationSettings ss = config.simulation;
+    ss.seed = rng();
+    const SimulatedCell cell = makeSimulatedCell(config.robots[0], ss, 0);
+    const RobotModel& m = cell.model();
+    const Eigen::VectorXd truth = cell.trueParams(0.0);
+    std::vector<int> estimated;
+    for (int k = 0; k < m.numParams(); ++k)
+      if (u(rng) < 0.5) estimated.push_back(k);
+    const auto n = static_cast<Eigen::Index>(estimated.size());
+    const Eigen::MatrixXd A = Eigen::MatrixXd::Random(n, n) * 1e-5;
+    IdentifiedModel model(CalibratedModel::geometric(truth, estimated, A * A.transpose()));
+    const int joint = std::uniform_int_distribution<int>(0, m.numJoints() - 2)(rng);
+    model.extensions = {Extension{Cause::kCyclicTransmission, joint}};
+    model.extension_params = Eigen::VectorXd::Random(numExtensionParams(m, model.extensions)) * 2e-4;
+    // The range about the middle of the targets' angles of the joint, judged part of the way to their ends.
+    const std::vector<Eigen::VectorXd> targets = cell.randomConfigurations(30, rng);
+    std::vector<double> qj;
+    for (const auto& q : targets) qj.push_back(q[joint]);
+    std::sort(qj.begin(), qj.end());
+    BeyondRange b;
+    b.joint = joint;
+    b.lower_rad = qj[static_cast<size_t>(7 + 3 * u(rng))];
+    b.upper_rad = qj[static_cast<size_t>(19 + 3 * u(rng))];
+    b.checked_rad = (0.3 + 0.4 * u(rng)) * std::min(b.lower_rad - qj.front(), qj.back() - b.upper_rad);
+    b.growth = std::uniform_int_distribution<int>(0, 2)(rng);
+    // 0.01-0.06 deg at the judged distance: a model's own sigma there is 0.05-0.15 mm.
+    b.sigma_at_1_rad = (0.01 + 0.05 * u(rng)) * kPi / 180 / std::pow(b.checked_rad, b.growth);
+    IdentifiedModel plain = model;
+    model.beyond_data = {b};
+    CompensationSettings off = config.compensation;
+    off.max_predicted_sigma_m = 0;
+    off.max_correction_m = 1;
+    off.max_correction_rad = 1;
+    KinematicsData d(m);
+    const std::string what = "joint " + std::to_string(joint + 1) + ", seed " + std::to_string(seed);
+    for (const auto& q : targets) {
+      const Pose desired = forwardKinematics(m, d, m.nominal, q);
+      const CompensationResult without = compensate(m, plain, desired, q, off);
+      const CompensationResult with = compensate(m, model, desired, q, off);
+      if (!without.applied) continue;
+      ASSERT_TRUE(with.applied) << with.reason;
+      ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
+      const double qj = with.q_rad[joint], dist = b.beyondRad(qj);
+      if (dist == 0) {
+        EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
+        ++inside;
+      } else if (dist <= b.checked_rad) {
+        // Plain reference: dp/dq_joint by a central difference at the identified kinematics.
+        const double h = 1e-6;
+        Eigen::VectorXd qp = with.q_rad, qm = with.q_rad;
+        qp[joint] += h;
+        qm[joint] -= h;
+        const Eigen::Vector3d p_plus = forwardKinematics(m, d, truth, qp).translation();
+        const Eigen::Vector3d p_minus = forwardKinematics(m, d, truth, qm).translation();
+        const Eigen::Vector3d dp = (p_plus - p_minus) / (2 * h);
+        const double s = b.sigma_at_1_rad * std::pow(dist, b.growth);
+        const double expected = std::sqrt(std::pow(without.predicted_sigma_position_m, 2) + s * s * dp.squaredNorm());
+        EXPECT_NEAR(with.predicted_sigma_position_m, expected, 1e-6 * expected) << what;
+        grown += expected > 1.1 * without.predicted_sigma_position_m;
+        ++near;
+      } else {
+        EXPECT_TRUE(std::isinf(with.predicted_sigma_position_m)) << what;
+        CompensationSettings guarded = off;
+        guarded.max_predicted_sigma_m = 1.0;  // no kinematic sigma comes near a metre: only the judged range refuses
+        const CompensationResult g = compensate(m, model, desired, q, guarded);
+        EXPECT_FALSE(g.applied) << what;
+        EXPECT_EQ(g.outcome, CompensationOutcome::kOutsideCalibration) << what;
+        EXPECT_NE(g.reason.find("joint " + std::to_string(joint + 1) + " at"), std::string::npos) << g.reason;
+        EXPECT_TRUE(g.corrected_in_tracker.isApprox(desired, 0)) << what;
+        EXPECT_TRUE(compensate(m, plain, desired, q, guarded).applied) << what;
+        ++beyond;
+      }
+    }
+  }
+  std::printf("  %d targets inside the range, %d within the judged distance (%d of them with a sigma 10 %% larger), %d "
+              "beyond it\n", inside, near, grown, beyond);
+  EXPECT_GE(inside, 5);
+  EXPECT_GE(near, 5);
+  EXPECT_GE(grown, 3);
+  EXPECT_GE(beyond, 5);
+}
+
+// attachRobotFile takes the file's beyond_data only for the file's own extensions (in any order).
+TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
+  const CellConfig config = loadCellConfig(kCell);
+  RobotFile file;
+  file.model = config.robots[0].model;
+  RobotCalibration cal;
+  cal.extensions = {Extension{Cause::kCyclicTransmission, 1}, Extension{Cause::kJointScale, 2}};
+  cal.extension_params = Eigen::VectorXd::Zero(numExtensionParams(file.model, cal.extensions));
+  BeyondRange b;
+  b.joint = 1;
+  b.lower_rad = -0.5;
+  b.upper_rad = 0.5;
+  b.checked_rad = 0.1;
+  cal.beyond_data = {b};
+  file.calibration = cal;
+  IdentifiedModel same(CalibratedModel::geometric(file.model.nominal));
+  same.extensions = {cal.extensions[1], cal.extensions[0]};
+  same.extension_params = Eigen::VectorXd::Zero(numExtensionParams(file.model, same.extensions));
+  attachRobotFile(file, same);
+  ASSERT_EQ(same.beyond_data.size(), 1u);
+  EXPECT_EQ(same.beyond_data[0].joint, 1);
+  IdentifiedModel other = same;
+  other.beyond_data.clear();
+  other.extensions = {cal.extensions[0]};
+  attachRobotFile(file, other);
+  EXPECT_TRUE(other.beyond_data.empty());
+  IdentifiedModel geometric(CalibratedModel::geometric(file.model.nominal));
+  attachRobotFile(file, geometric);
+  EXPECT_TRUE(geometric.beyond_data.empty());
+}
+
 TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {
   const std::uint64_t seed = test::testSeed();
   CellConfig config = loadCellConfig(kCell);

@@ -72,7 +72,7 @@ struct PredictionCheck {
   double identification_rms_mm = 0, identification_max_mm = 0, verification_rms_mm = 0, verification_max_mm = 0;
   double ratio_rms = 0;
   int extrapolated = 0;    // verification rows predicted more than 3x the largest identification row
-  int beyond_checked = 0;  // verification rows farther beyond a joint's range than its folds judged (BeyondRange)
+  int beyond_checked = 0;  // verification rows farther beyond a joint's range than its folds judged (firstUnjudged)
 };
 
 // The residual map judged on the verification rows: the held-out mean with the map where it applies against without

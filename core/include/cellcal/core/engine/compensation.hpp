@@ -21,6 +21,12 @@
 // rows (the kinematic part, as the engine's hold bound); above CompensationSettings::max_predicted_sigma_m the target
 // is passed through uncorrected (applied = false) with the reason.
 //
+// With model extensions and the ranges they were judged over (IdentifiedModel::beyond_data, the robot file's, see
+// prediction.hpp's BeyondRange), the predicted sigma adds what the extensions may do beyond their data's joint ranges;
+// a target whose joints lie farther beyond a range than the extensions were judged is one where their correction was
+// never tested: its predicted sigma is infinite and, with max_predicted_sigma_m set, it is passed through uncorrected
+// (outside_calibration) with the joint named.
+//
 // With a residual map (IdentifiedModel::residual_map: what the calibrated model still leaves where the robot was
 // measured, residual_map.hpp), near those poses the real robot lands at the model's position plus the map's correction
 // c(q): q* is the fixed point of q = IK(model, desired - c(q)) (c changes little with q, as B e does), and the
@@ -51,7 +57,7 @@ enum class CompensationOutcome {
   kUnusableModel,        // the identified parameters are the wrong size or not finite
   kUnreachable,          // the identified model's joints for the target were not found from the seed
   kNotSettled,           // with model extensions: the fixed point q = IK(params(q)) did not settle
-  kOutsideCalibration,   // predicted 1-sigma error above max_predicted_sigma_m
+  kOutsideCalibration,   // predicted 1-sigma error above max_predicted_sigma_m (or not known: beyond_data)
   kOverBound,            // correction above the bound, refused
   kClampUnreachable,     // correction above the bound, and the clamped pose unreachable
   kJointJump,            // a servo setpoint's joints corrected by more than max_joint_correction_rad (servo.hpp)
@@ -88,6 +94,9 @@ struct IdentifiedModel : CalibratedModel {
   // (identity when the registration is the same).
   const ResidualMap* residual_map = nullptr;
   Eigen::Matrix3d residual_map_rotation = Eigen::Matrix3d::Identity();
+  // The joint ranges the extensions' data covered and how far beyond them they were judged (a calibrated robot file's
+  // beyond_data); empty: not known, no such guard.
+  std::vector<BeyondRange> beyond_data;
 };
 
 // The residual map of a calibrated robot file (`calibrate --residual-map --save-robot`; none: nothing changes) attached
@@ -95,6 +104,10 @@ struct IdentifiedModel : CalibratedModel {
 // corrections turn with the base from there into the frame of model.params' base (the cell's registration, or the
 // engine's estimate of it).
 void attachResidualMap(const RobotFile& start, IdentifiedModel& model);
+// Both things a calibrated robot file gives compensation beside the model: its residual map (as above) and, where the
+// model's extensions are the file's (the same list, in any order), the file's beyond_data. The engine's later poses
+// do not widen those ranges: it does not judge its extensions beyond its data.
+void attachRobotFile(const RobotFile& start, IdentifiedModel& model);
 
 CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& identified,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,

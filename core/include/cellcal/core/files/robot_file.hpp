@@ -40,8 +40,9 @@ struct RobotCalibration {
   // Empty: none. Key geometric_parameters.
   Eigen::VectorXd geometric_params;
   // What the extensions may do beyond the joint ranges of the campaign's data (extensionTransfer, prediction.hpp):
-  // predictions carried to other rows (calibrate --frames-only) include it. Empty: the folds' predictions held, or not
-  // measured. Key beyond_data.
+  // predictions carried to other rows (calibrate --frames-only) include it, and how far beyond each range the folds
+  // judged it: farther, compensation calls the extensions' correction unknown (compensation.hpp). One entry per joint
+  // with extensions (sigma 0 where the folds' predictions held); empty without extensions. Key beyond_data.
   std::vector<BeyondRange> beyond_data;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
   // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.

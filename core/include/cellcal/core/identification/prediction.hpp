@@ -29,10 +29,15 @@ namespace cellcal {
 
 // A joint's error beyond the range of the data a model was fitted on: 1 sigma sigma_at_1_rad * d^growth (rad), d the
 // angle by which q_rad[joint] lies outside [lower_rad, upper_rad] (rad; 0 inside: there the posterior holds), at most
-// checked_rad (when > 0: the farthest the folds judged it; farther, the growth is not known and the error is held at
-// its value there, the configuration flagged as extrapolated by the caller). What an extension of that joint (a
-// periodic term, a scale, a stiffness fitted on part of the joint's range) may do beyond it that its posterior does
-// not say (extensionTransfer).
+// checked_rad when that is > 0. What an extension of that joint (a periodic term, a scale, a stiffness fitted on part
+// of the joint's range) may do beyond it that its posterior does not say (extensionTransfer).
+//
+// checked_rad is how far beyond the range the region folds judged the extensions' predictions (0: nowhere, e.g. too
+// few rows at an end of the range). Within it the sigma above is measured (0 where the predictions held). Farther, an
+// extension's form has never been put to the test: a periodic term standing for an error that grows, fitted on the
+// whole range, can be right at every fold and many times its predicted error there. judged() is false there; the
+// sigma is held at its value at checked_rad, and the caller says the configuration is extrapolated (the campaign's
+// prediction check counts it, compensation refuses to call its correction known).
 struct BeyondRange {
   int joint = 0;
   double lower_rad = 0, upper_rad = 0;
@@ -41,9 +46,15 @@ struct BeyondRange {
   double checked_rad = 0;
   double beyondRad(double q_rad) const;  // d
   double sigmaRad(double q_rad) const;
+  bool judged(double q_rad) const;       // d <= checked_rad
   const char* growthText() const;        // "", " per rad beyond", " per rad^2 beyond": the unit sigma is read in
   bool IsValid(int num_joints, std::string* error) const;
 };
+// The first range whose joint at q_rad lies farther beyond it than it was judged; nullptr where all were judged.
+const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad);
+// "joint 2 at 131.0 deg lies 41.0 deg beyond [-20.0, 90.0] deg, the range its model extensions were fitted on; they
+// were judged up to 12.0 deg beyond it": what firstUnjudged found, for a message.
+std::string unjudgedText(const BeyondRange& range, double q_rad);
 
 struct PredictionOptions {
   double prior_length_m = kPlausibleLengthM;            // 1 sigma of a length no one calibrated
@@ -114,19 +125,26 @@ PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel
 // the joint's over `obs`. Extensions of no joint (thermal drift of the lengths, link deflection, frame drift) are not
 // measured: `not_measured` names them.
 struct JointTransfer {
-  BeyondRange beyond;                               // sigma_at_1_rad 0: the folds' predictions held
+  BeyondRange beyond;  // sigma_at_1_rad 0: the folds' predictions held (or checked_rad 0: not measured)
   int folds = 0, judged_rows = 0;
   double ratio_rms_without = 0, ratio_rms_with = 0;  // on the judged rows
 };
 struct ExtensionTransfer {
   std::vector<JointTransfer> joints;
   std::vector<std::string> not_measured;  // extensionLabel of each extension not measured, with why
-  std::vector<BeyondRange> beyond() const;  // those with sigma_at_1_rad > 0
+  // Every joint's: its range, the sigma measured beyond it (0 where the folds' predictions held) and how far beyond
+  // it that was judged (0 for a joint not measured).
+  std::vector<BeyondRange> beyond() const;
   std::string text;                         // one line per joint and a line for what was not measured
 };
 ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const CalibratedModel& fit,
                                     const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
                                     const DiagnosisOptions& options = {});
+
+// The position variance (m^2) that `ranges`' joint errors add at q: the sum of sigmaRad(q)^2 |dp/dq_joint|^2, the
+// position's derivative by the joint read from J, the pose Jacobian at q (6 x numParams, its theta offset column).
+double beyondPositionVariance(const RobotModel& model, const Eigen::Ref<const Eigen::MatrixXd>& J,
+                              const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad);
 
 // Predicted 1-sigma error (m) of the target position at q: sqrt of the trace of its 3x3 covariance (the RMS of the
 // 3D position error the model makes there, reading noise not included), prediction.beyond's errors included.
