@@ -626,12 +626,14 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
     const RobotFile saved = loadRobotFile(dir + "/campaign.yaml");
     ASSERT_TRUE(saved.calibration.has_value());
     const std::vector<BeyondRange> beyond_data = saved.calibration->beyond_data;
+    EXPECT_EQ(beyond_data.size(), 1u) << what;  // every joint with an extension, held or not
     for (const auto& b : beyond_data) EXPECT_EQ(b.joint, j) << what;
     if (!beyond_data.empty()) {
       RobotCalibration stripped = *saved.calibration;
       stripped.beyond_data.clear();
       saveRobotFile(dir + "/stripped.yaml", saved.model, &stripped, "", &saved.source);
       double ratio[2] = {0, 0};
+      int flagged = 0;  // rows of beyond.csv farther beyond the range than the folds judged
       for (int w = 0; w < 2; ++w) {
         Process k(dir, "carry", {"cellcal", "calibrate", "--robot", dir + (w ? "/campaign.yaml" : "/stripped.yaml"), "--data",
                                  dir + "/beyond.csv", "--frames-only", "--keep-extensions", "--json", dir + "/c.json"});
@@ -642,10 +644,22 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
         EXPECT_EQ(kj["beyond_data"]["ranges"].size(), w ? beyond_data.size() : 0u) << k.log();
         if (w) {
           EXPECT_NE(k.log().find("carried beyond the campaign's data: joint " + std::to_string(j + 1)), std::string::npos) << k.log();
+          flagged = kj["prediction"]["verification_rows_beyond_checked_range"];
+        } else {
+          EXPECT_EQ(kj["prediction"]["verification_rows_beyond_checked_range"], 0) << k.log();
         }
       }
-      std::printf("  %s: beyond_data carried: actual / predicted %.2f without it, %.2f with it\n", what.c_str(), ratio[0], ratio[1]);
-      EXPECT_LT(ratio[1], ratio[0]) << what;  // every row of beyond.csv lies beyond the campaign's range of joint j
+      const BeyondRange& b = beyond_data.front();
+      std::printf("  %s: beyond_data carried (sigma %.3g deg, judged %.1f deg beyond): actual / predicted %.2f without "
+                  "it, %.2f with it; %d verification rows farther than judged\n",
+                  what.c_str(), b.sigma_at_1_rad * 180 / kPi, b.checked_rad * 180 / kPi, ratio[0], ratio[1], flagged);
+      // Every row of beyond.csv lies beyond the campaign's range of joint j: a sigma there raises the prediction; a
+      // joint whose folds held (sigma 0) keeps its range and judged distance only, and predicts as without it.
+      if (b.sigma_at_1_rad > 0) {
+        EXPECT_LT(ratio[1], ratio[0]) << what;
+      } else {
+        EXPECT_NEAR(ratio[1], ratio[0], 1e-6 * ratio[0]) << what;  // the stripped file is the saved one written again
+      }
     }
     Process f(dir, "frames", {"cellcal", "calibrate", "--robot", dir + "/campaign.yaml", "--data", dir + "/beyond.csv",
                               "--frames-only", "--json", dir + "/f.json"});
@@ -686,7 +700,7 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
 // real UR5 grid gave (issue #35): a Cartesian grid at one tool orientation, points, the target 0.1-0.2 mm off the
 // flange axis, a compliance of joint 2 or 3 the geometric model does not hold (random size), on the UR10 at random
 // placements. Drawn until `calibrate` with rank alone deciding (--plausible-length-mm 0 --plausible-angle-deg 0
-// --rank-tolerance 1e-8 --excitation-ratio 0) does not converge (about one file in fifteen; the TX60 converged in every draw tried): then
+// --rank-tolerance 1e-8 --excitation-ratio 0) does not converge (about one file in 25; the TX60 converged in every draw tried): then
 // `calibrate --model auto` on that file with the same options exits 3 and saves nothing, `diagnose` exits 3 when its
 // geometric or extended fit did not converge, by default (plausible ranges) `calibrate` converges, and `calibrate
 // --model auto` exits 3 exactly when its fit did not converge.
@@ -704,8 +718,11 @@ TEST(CliCalibrate, AFitThatDidNotConvergeNeverExitsZero) {
     const int code = p.wait(120);
     return std::make_pair(code, p.log());
   };
+  // About one file in 25 (first such draw at 23, 11, 1, 26, 74 and 29 for seeds 11-16): 60 draws missed in one CI run
+  // in ten (addb831's skipped it); 200 miss with odds of about 4e-4, and a draw takes 0.2 s.
+  constexpr int kMaxDraws = 200;
   int draws = 0;
-  for (; draws < 60; ++draws) {
+  for (; draws < kMaxDraws; ++draws) {
     const std::string name = "ur10";
     const std::string robot_file = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + name + ".yaml";
     const RobotModel model = robot(name);
@@ -767,7 +784,7 @@ TEST(CliCalibrate, AFitThatDidNotConvergeNeverExitsZero) {
     if (def_auto_code == 3) std::printf("default --model auto did not converge either (exit 3)\n");
     break;
   }
-  if (draws == 60) GTEST_SKIP() << "no draw of 60 where rank alone does not converge";
+  if (draws == kMaxDraws) GTEST_SKIP() << "no draw of " << kMaxDraws << " where rank alone does not converge";
 }
 
 TEST(CliCalibrate, BadFilesAreNamedWithLineAndColumn) {

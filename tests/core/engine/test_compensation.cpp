@@ -361,7 +361,8 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
   EXPECT_GE(beyond, 5);
 }
 
-// attachRobotFile takes the file's beyond_data only for the file's own extensions (in any order).
+// attachRobotFile takes the file's beyond_data only for the file's own extensions (in any order, named as a cell file
+// names them).
 TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
   const CellConfig config = loadCellConfig(kCell);
   RobotFile file;
@@ -377,7 +378,7 @@ TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
   cal.beyond_data = {b};
   file.calibration = cal;
   IdentifiedModel same(CalibratedModel::geometric(file.model.nominal));
-  same.extensions = {cal.extensions[1], cal.extensions[0]};
+  same.extensions = parseExtensionList("joint_scale:3, cyclic_transmission:2", file.model);  // as a cell file names them
   same.extension_params = Eigen::VectorXd::Zero(numExtensionParams(file.model, same.extensions));
   attachRobotFile(file, same);
   ASSERT_EQ(same.beyond_data.size(), 1u);
