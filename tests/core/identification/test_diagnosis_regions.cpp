@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdlib>
 
 #include "cellcal/core/identification/prediction.hpp"
@@ -225,6 +226,10 @@ struct Carried {
   double far_with = 0;    // the same on the rows farther (firstUnjudged: flagged as extrapolated)
   int far = 0;
   int bad = 0, bad_flagged = 0;  // rows predicted more than 3x too low with the beyond term; of them flagged
+  Cause cause = Cause::kJointScale;
+  // Sum of actual^2 / (predicted^2 + noise) with the beyond term, and rows, by distance beyond the range in quarters
+  // of the judged distance (the last bin: 2 or more).
+  std::array<double, 9> by_distance_sum{}, by_distance_rows{};
   ExtensionTransfer transfer;
   std::string text;
 };
@@ -274,6 +279,7 @@ Carried carriedBeyond(bool library, std::mt19937_64& rng) {
   const ExtendedFit fit = fitExtended(model, c.start, c.data.identification, c.data.identification_drivers, {e}, o.solver,
                                       o.identifiability);
   Carried out;
+  out.cause = cause;
   out.transfer = extensionTransfer(model, c.start, fit, c.data.identification, c.data.identification_drivers, o);
   const PredictionModel pm = predictionModel(model, fit, c.data.identification, c.data.identification_drivers);
   PredictionModel wide = pm;
@@ -291,6 +297,11 @@ Carried carriedBeyond(bool library, std::mt19937_64& rng) {
     const double q = c.beyond[i].q_rad[j];
     const bool flagged = firstUnjudged(wide.beyond, c.beyond[i].q_rad) != nullptr;
     const double r1 = res[i].squaredNorm() / (p1 * p1 + noise2);
+    if (br.checked_rad > 0) {
+      const auto bin = static_cast<size_t>(std::min(8.0, std::floor(4 * br.beyondRad(q) / br.checked_rad)));
+      out.by_distance_sum[bin] += r1;
+      ++out.by_distance_rows[bin];
+    }
     if (r1 > 9) ++out.bad, out.bad_flagged += flagged;
     if (flagged) out.far_with += r1, ++out.far;
     if ((q < br.lower_rad && br.lower_rad - q <= br.checked_rad) || (q > br.upper_rad && q - br.upper_rad <= br.checked_rad)) {
@@ -332,10 +343,15 @@ TEST(ExtensionTransfer, APredictionBeyondTheDataCoversWhatTheExtensionsDoThere) 
   std::mt19937_64 rng(test::testSeed());
   std::vector<double> problem_without, problem_with, true_change;
   int bad = 0, bad_flagged = 0;
+  std::array<double, 9> by_distance[2][2] = {};  // [cyclic?][sum, rows], partial draws
   for (int k = 0; k < draws; ++k) {
     const Carried p = carriedBeyond(false, rng);
     bad += p.bad;
     bad_flagged += p.bad_flagged;
+    for (size_t b = 0; b < 9; ++b) {
+      by_distance[p.cause == Cause::kCyclicTransmission][0][b] += p.by_distance_sum[b];
+      by_distance[p.cause == Cause::kCyclicTransmission][1][b] += p.by_distance_rows[b];
+    }
     if (p.near > 0 && p.near_without > 1.5) {
       problem_without.push_back(p.near_without);
       problem_with.push_back(p.near_with);
@@ -362,6 +378,19 @@ TEST(ExtensionTransfer, APredictionBeyondTheDataCoversWhatTheExtensionsDoThere) 
               "distance (flagged as extrapolated)\n",
               problem_without.size(), draws, median(problem_without), median(problem_with), median(true_change),
               bad_flagged, bad);
+  // Where within and past the judged distance the partial draws' predictions fail: the RMS ratio by quarter of it.
+  for (int cyclic = 0; cyclic < 2; ++cyclic) {
+    std::string line;
+    for (size_t b = 0; b < 9; ++b) {
+      char t[64];
+      const double n = by_distance[cyclic][1][b];
+      std::snprintf(t, sizeof t, " %s%.2f (%d)", b == 8 ? ">=2: " : "", n > 0 ? std::sqrt(by_distance[cyclic][0][b] / n) : 0.0,
+                    static_cast<int>(n));
+      line += t;
+    }
+    std::printf("  partial %s, RMS ratio with the beyond term by quarter of the judged distance beyond the range:%s\n",
+                cyclic ? "cyclic_transmission" : "joint_scale", line.c_str());
+  }
   ASSERT_GT(bad, 0) << "the draws do not make the failure the flag is for";
   EXPECT_GE(bad_flagged, 0.85 * bad);
   ASSERT_GE(problem_without.size(), 2u) << "the draws do not make the failure the beyond term is for";
