@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <ctime>
 #include <fstream>
 #include <iostream>
@@ -94,6 +95,18 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
     r.applied_model = IdentifiedModel(*c);
     // Teach points, and how far the extensions were judged beyond their data (compensation.hpp).
     if (r.robot->start) attachRobotFile(*r.robot->start, *r.applied_model);
+    if (!r.judged_ranges_said && !r.applied_model->beyond_data.empty()) {
+      for (const BeyondRange& b : r.applied_model->beyond_data) {
+        char t[200];
+        std::snprintf(t, sizeof t, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
+                      b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.checked_rad * 180 / kPi);
+        std::cerr << "compensation_publisher: " << it->first << ": the robot file's " << t << ": targets farther are "
+                  << (cell_.compensation.max_predicted_sigma_m > 0
+                          ? "passed through uncorrected (outside_calibration)\n"
+                          : "corrected with their predicted error not known (compensation.max_predicted_sigma_mm 0)\n");
+      }
+      r.judged_ranges_said = true;
+    }
     r.servo->setCalibration(c->version, *r.applied_model);
   }
   r.calibration = std::move(c);

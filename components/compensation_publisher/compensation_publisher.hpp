@@ -87,6 +87,7 @@ class CompensationPublisher {
     // Prepared once per ok calibration version (what every target is solved with), and the note said with every
     // answer, rebuilt only when the health, the engine's warning or its presence changes.
     std::optional<IdentifiedModel> applied_model;
+    bool judged_ranges_said = false;  // the robot file's beyond_data, said once when first attached
     std::string note;
     bool engine_gone = false;
     // cellcal/servo_setpoint: the stream's compensator (blends between versions) and the last setpoint answered.
