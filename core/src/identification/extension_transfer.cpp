@@ -90,12 +90,12 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     }
     std::vector<Judged> rows;
     std::string skipped;
-    // The smaller of the two ends' farthest judged row; 0 when an end was not judged (one number stands for both).
+    // The smaller of the two ends' farthest judged row; 0 when an end was not judged (`skipped` says why: one number
+    // stands for both ends).
     double checked = std::numeric_limits<double>::infinity();
     for (const internal::Fold& fold : internal::regionFolds(obs, e, options.region_joint_end)) {
       if (static_cast<int>(fold.first.size()) < options.region_min_rows || fold.second.size() < 8) {
         skipped = "too few rows at an end of the joint's range";
-        checked = 0;
         continue;
       }
       // The fitted rows' range of the joint, with a unit constant error beyond it: beyondRad gives a judged row's
@@ -120,12 +120,10 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
         ff = fitExtended(model, start, FO, FD, fit.extensions, options.solver, io, &fit.params, &fit.extension_params);
       } catch (const std::invalid_argument&) {  // e.g. no row of a known backlash play state on this side
         skipped = "a fold could not be fitted";
-        checked = 0;
         continue;
       }
       if (!ff.converged) {
         skipped = "a fold's fit did not converge";
-        checked = 0;
         continue;
       }
       const PredictionModel pm = predictionModel(model, ff, FO, FD);
@@ -144,7 +142,7 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
       ++jt.folds;
     }
     jt.judged_rows = static_cast<int>(rows.size());
-    jt.beyond.checked_rad = std::isfinite(checked) ? checked : 0.0;
+    jt.beyond.checked_rad = std::isfinite(checked) && skipped.empty() ? checked : 0.0;
     char b[600];
     if (rows.empty()) {
       std::snprintf(b, sizeof b, "joint %d: not measured (%s)", e.joint + 1, skipped.c_str());
