@@ -77,7 +77,9 @@ json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
   if (rep.transfer)
     for (const auto& t : rep.transfer->joints)
       folds.push_back({{"joint", t.beyond.joint + 1}, {"folds", t.folds}, {"judged_rows", t.judged_rows},
-                       {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with}});
+                       {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with},
+                       {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
+                       {"width_power", t.width_power}});
   return {{"ranges", ranges}, {"carried", a.frames_only}, {"folds", folds},
           {"not_measured", rep.transfer ? rep.transfer->not_measured : std::vector<std::string>{}},
           {"text", rep.transfer ? rep.transfer->text : ""}};

@@ -121,12 +121,18 @@ PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel
 // (predictionModel of that fit, and the readings' noise 3 s^2 sigma_reading^2 beside it). Where the actual errors
 // there exceed that (RMS of actual / sqrt(predicted^2 + noise) above 1), a BeyondRange of the joint is fitted on the
 // judged rows by maximum likelihood (Gaussian position errors of that variance plus the BeyondRange's, d measured from
-// the fitted rows' range): the growth (0, 1 or 2) that explains them best and its sigma. The result's ranges are
-// the joint's over `obs`. Extensions of no joint (thermal drift of the lengths, link deflection, frame drift) are not
+// the fitted rows' range): the growth (0, 1 or 2) that explains them best and its sigma. The folds' models are fitted
+// on less of the range than the campaign's, and an error that grows with the range fitted (a periodic term standing
+// for a curve bends away from it the farther it was made to follow it) would be understated: each fold's fitted rows
+// are folded again at the same end, and where the rows of both levels are explained better with the sigma scaled by
+// (fitted width / the campaign's)^p, p 1 or 2 (a likelihood ratio test at 1 %), the sigma is that carried to the
+// campaign's whole width (JointTransfer::width_power). The result's ranges are the joint's over `obs`. Extensions of no joint (thermal drift of the lengths, link deflection, frame drift) are not
 // measured: `not_measured` names them.
 struct JointTransfer {
   BeyondRange beyond;  // sigma_at_1_rad 0: the folds' predictions held (or checked_rad 0: not measured)
   int folds = 0, judged_rows = 0;
+  int inner_folds = 0, inner_rows = 0;  // the folds of each fold's fitted rows at its end, and their judged rows
+  int width_power = 0;  // 1 or 2: beyond.sigma_at_1_rad is the folds' carried to the whole range as width^p
   double ratio_rms_without = 0, ratio_rms_with = 0;  // on the judged rows
 };
 struct ExtensionTransfer {
