@@ -47,6 +47,7 @@ struct RobotEntry {
   std::string robot_id, target_id, robot_file = "staubli_tx60.yaml";
   std::string base = "{ x_mm: 2200, y_mm: 400, z_mm: -300, roll_deg: 0, pitch_deg: 0, yaw_deg: 160 }";
   std::string extensions = "";  // e.g. "[joint_compliance:2]"
+  std::string calibration_file = "";  // a calibrated robot file the engine starts from (absolute path)
 };
 
 // A cell file for a test: loopback profile, its own domain and state folder, a short simulated program.
@@ -63,7 +64,8 @@ inline std::string writeCell(const std::string& dir, int domain, std::uint64_t s
     y << "  - { robot_id: " << r.robot_id << ", target_id: " << r.target_id << ", robot_file: " << CELLCAL_CONFIG_DIR
       << "/robots/" << r.robot_file << ", base_in_tracker: " << r.base
       << ", tool_in_flange: { x_mm: 30, y_mm: 0, z_mm: 60, roll_deg: 0, pitch_deg: 0, yaw_deg: 0 }"
-      << (r.extensions.empty() ? "" : ", extensions: " + r.extensions) << " }\n";
+      << (r.extensions.empty() ? "" : ", extensions: " + r.extensions)
+      << (r.calibration_file.empty() ? "" : ", calibration_file: " + r.calibration_file) << " }\n";
   y << "engine:\n  state_dir: " << dir << "/state\n" << engine_extra
     << "simulation:\n  seed: " << seed << "\n"
     << (simulation_extra.find("joint_rate_hz") == std::string::npos ? "  joint_rate_hz: 1000\n" : "") << simulation_extra;

@@ -159,6 +159,76 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
   EXPECT_NE(text.find("model extensions: joint_compliance:" + std::to_string(joint)), std::string::npos) << text;
 }
 
+// A calibrated robot file's judged ranges reach the compensation publisher: a first run of the cell is recorded,
+// exported and calibrated with joint_compliance of a joint drawn at random (`cellcal calibrate --save-robot`); the
+// file's beyond_data entry of that joint is then given a window of the joint drawn at random (a share of the file's
+// range, judged a drawn distance beyond it), and a second run starts its engine from that file. The publisher must
+// say the window once, pass through as outside_calibration the targets past it, naming the joint, and correct others.
+TEST(CellProcesses, TargetsBeyondTheRobotFilesJudgedRangesArePassedThrough) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  std::mt19937_64 rng(seed);
+  const int joint = std::uniform_int_distribution<int>(2, 3)(rng);
+  RobotEntry robot{"tx60", "tx60_target"};
+  robot.extensions = "[joint_compliance:" + std::to_string(joint) + "]";
+  const std::string program = std::string(kShortProgram) + "  hidden_effect: { cause: joint_compliance, joint: " +
+                              std::to_string(joint) + ", size_deg: 0.04 }\n";
+  const std::string cfg = writeCell(dir, domainForTest(), seed, {robot}, program);
+  ASSERT_FALSE(runCell(dir, cfg, "9", {"--record", dir + "/first.mcap"}).is_discarded());
+  Process exported(dir, "export", {"cellcal", "export", dir + "/first.mcap", "--config", cfg, "--out", dir + "/first.csv"});
+  ASSERT_EQ(exported.wait(60), 0) << exported.log();
+  Process calibrated(dir, "calibrate", {"cellcal", "calibrate", "--robot", std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml",
+                                        "--data", dir + "/first.csv", "--model", "joint_compliance:" + std::to_string(joint),
+                                        "--save-robot", dir + "/calibrated.yaml"});
+  ASSERT_EQ(calibrated.wait(60), 0) << calibrated.log();
+  // The file's entry of the joint, replaced by the drawn window.
+  std::ifstream in(dir + "/calibrated.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string key = "- { joint: " + std::to_string(joint) + ", lower_deg: ";
+  const size_t at = text.find(key);
+  ASSERT_NE(at, std::string::npos) << "no beyond_data entry of joint " << joint << " in\n" << text;
+  const size_t end = text.find('}', at);
+  const double lower = std::stod(text.substr(at + key.size()));
+  const size_t up = text.find("upper_deg: ", at);
+  ASSERT_LT(up, end);
+  const double upper = std::stod(text.substr(up + 11));
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double share = 0.2 + 0.3 * u(rng), centre = lower + (upper - lower) * (0.3 + 0.4 * u(rng));
+  const double lo = centre - share * (upper - lower) / 2, hi = centre + share * (upper - lower) / 2;
+  const double checked = 10 * u(rng);
+  char entry[300];
+  std::snprintf(entry, sizeof entry, "- { joint: %d, lower_deg: %.6f, upper_deg: %.6f, sigma_at_1_rad_deg: 0, growth: 0, checked_deg: %.6f }",
+                joint, lo, hi, checked);
+  text.replace(at, end + 1 - at, entry);
+  std::ofstream(dir + "/calibrated.yaml") << text;
+  robot.calibration_file = dir + "/calibrated.yaml";
+  std::filesystem::create_directories(dir + "/second");
+  const std::string second = writeCell(dir + "/second", domainForTest(), seed, {robot}, program);
+  const auto s = runCell(dir + "/second", second, "9");
+  ASSERT_FALSE(s.is_discarded());
+  const auto& r = s["robots"][0];
+  const std::string what = "joint " + std::to_string(joint) + " window [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                           "] deg judged " + std::to_string(checked) + " deg beyond";
+  int beyond = 0;
+  std::string last;
+  for (const auto& [reason, v] : r["targets_refused_why"].items())
+    if (reason.find("the range its model extensions were fitted on") != std::string::npos) {
+      beyond += v["count"].get<int>();
+      last = v["last"].get<std::string>();
+    }
+  std::printf("  %s: %d targets passed through beyond it, %d corrected, %d refused in all\n", what.c_str(), beyond,
+              r["targets_applied"].get<int>(), r["targets_refused"].get<int>());
+  EXPECT_GT(beyond, 0) << what << "\n" << r.dump(1);
+  EXPECT_NE(last.find("joint " + std::to_string(joint) + " at "), std::string::npos) << last;
+  EXPECT_GT(r["targets_applied"].get<int>(), 0) << r.dump(1);
+  std::ifstream log(dir + "/second/run/compensation_publisher.log");
+  const std::string said((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  char window[200];
+  std::snprintf(window, sizeof window, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
+                joint, lo, hi, checked);
+  EXPECT_NE(said.find(window), std::string::npos) << window << "\n" << said;
+}
+
 // `cellcal status` beside a running cell: once (JSON) it reports the robot's version, health, poses, verification
 // estimate and the corrections sent, agreeing with what a probe of its own receives; --watch redraws.
 TEST(CellProcesses, StatusShowsTheRunningCell) {
