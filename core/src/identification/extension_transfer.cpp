@@ -74,16 +74,18 @@ Form fitSigma(const std::vector<Judged>& rows, int growth, int width_power) {
   return {std::exp(0.5 * (a + b)), growth, width_power};
 }
 
-// The best form of the given width powers by nll, against no further error at all (sigma 0).
-Form bestForm(const std::vector<Judged>& rows, int min_power, int max_power, double* best_nll) {
+// The best form of the given width powers by nll, against no further error at all (sigma 0); its nll in *best_nll
+// when given.
+Form bestForm(const std::vector<Judged>& rows, int min_power, int max_power, double* best_nll = nullptr) {
   Form best;
-  *best_nll = nll(rows, best);
+  double least = nll(rows, best);
   for (int p = min_power; p <= max_power; ++p)
     for (int growth = 0; growth <= 2; ++growth) {
       const Form f = fitSigma(rows, growth, p);
       const double v = nll(rows, f);
-      if (v < *best_nll) *best_nll = v, best = f;
+      if (v < least) least = v, best = f;
     }
+  if (best_nll) *best_nll = least;
   return best;
 }
 
@@ -168,9 +170,8 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
       jt.beyond.upper_rad = std::max(jt.beyond.upper_rad, o.q_rad[e.joint]);
     }
     const double width_rad = jt.beyond.upper_rad - jt.beyond.lower_rad;
-    // rows: each fold's judged rows; inner: the same folds made of each fold's fitted rows, at the same end (a model
-    // fitted on a narrower range judged the same way), to see whether the error beyond grows with the fitted width.
-    std::vector<Judged> rows, inner;
+    std::vector<Judged> rows;  // each fold's judged rows
+    std::vector<size_t> judged_folds;  // the folds judged (regionFolds' order: the upper end, then the lower)
     std::string skipped;
     // The smaller of the two ends' farthest judged row; 0 when an end was not judged (`skipped` says why: one number
     // stands for both ends).
@@ -186,14 +187,9 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
       }
       checked = std::min(checked, side_max);
       ++jt.folds;
-      const std::vector<Observation> FO = subset(obs, folds[k].first);
-      const std::vector<Drivers> FD = subset(drivers, folds[k].first);
-      const std::vector<internal::Fold> within = internal::regionFolds(FO, e, options.region_joint_end);
-      judgeFold(model, start, fit, FO, FD, within[k].first, within[k].second, e.joint, width_rad, options, &inner, &why);
-      if (why.empty()) ++jt.inner_folds;
+      judged_folds.push_back(k);
     }
     jt.judged_rows = static_cast<int>(rows.size());
-    jt.inner_rows = static_cast<int>(inner.size());
     jt.beyond.checked_rad = std::isfinite(checked) && skipped.empty() ? checked : 0.0;
     char b[700];
     if (rows.empty()) {
@@ -204,22 +200,30 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     }
     jt.ratio_rms_without = jt.ratio_rms_with = ratioRms(rows, {});
     Form form;
-    double best = 0;
-    if (jt.ratio_rms_without > 1) form = bestForm(rows, 0, 0, &best);
-    // Does the error beyond grow with the width of the range fitted? The folds' and the inner folds' rows together,
-    // the sigma scaled by (fitted width / the campaign's)^p: p 1 or 2 is kept only where it explains them better than
-    // p 0 by a likelihood ratio test at 1 % (nll lower by chi2(1, 0.99) / 2). The sigma is then the folds' own rows'
-    // (the nearest the campaign's width) with that p: carried from their width to the campaign's by the law both
-    // levels show. Only where the folds' own rows err beyond their prediction, as above.
-    if (jt.ratio_rms_without > 1 && !inner.empty()) {
+    if (jt.ratio_rms_without > 1) {
+      form = bestForm(rows, 0, 0);
+      // Does the error beyond grow with the width of the range fitted? Each judged fold's fitted rows are folded
+      // again at the same end (a model fitted on a narrower range, judged the same way); their judged rows and the
+      // folds' together, the sigma scaled by (fitted width / the campaign's)^p: p 1 or 2 is kept only where it
+      // explains them better than p 0 by a likelihood ratio test at 1 % (nll lower by chi2(1, 0.99) / 2). The sigma
+      // is then the folds' own rows' (the nearest the campaign's width) with that p: carried from their width to the
+      // campaign's by the law both levels show. Only where the folds' own rows err beyond their prediction, as above.
       std::vector<Judged> both = rows;
-      both.insert(both.end(), inner.begin(), inner.end());
-      double flat = 0, grown = 0, own = 0;
+      for (size_t k : judged_folds) {
+        const std::vector<Observation> FO = subset(obs, folds[k].first);
+        const std::vector<Drivers> FD = subset(drivers, folds[k].first);
+        const std::vector<internal::Fold> within = internal::regionFolds(FO, e, options.region_joint_end);
+        std::string why;
+        const size_t before = both.size();
+        judgeFold(model, start, fit, FO, FD, within[k].first, within[k].second, e.joint, width_rad, options, &both, &why);
+        if (why.empty()) ++jt.inner_folds;
+        jt.inner_rows += static_cast<int>(both.size() - before);
+      }
+      double flat = 0, grown = 0;
       bestForm(both, 0, 0, &flat);
       const Form wide = bestForm(both, 1, 2, &grown);
-      if (wide.width_power > 0 && grown < flat - 6.635 / 2) {
-        form = bestForm(rows, wide.width_power, wide.width_power, &own);  // sigma 0: width_power 0
-      }
+      if (jt.inner_rows > 0 && wide.width_power > 0 && grown < flat - 6.635 / 2)
+        form = bestForm(rows, wide.width_power, wide.width_power);  // sigma 0: width_power 0
     }
     jt.beyond.sigma_at_1_rad = form.sigma;
     jt.beyond.growth = form.growth;

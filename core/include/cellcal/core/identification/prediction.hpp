@@ -131,7 +131,9 @@ PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel
 struct JointTransfer {
   BeyondRange beyond;  // sigma_at_1_rad 0: the folds' predictions held (or checked_rad 0: not measured)
   int folds = 0, judged_rows = 0;
-  int inner_folds = 0, inner_rows = 0;  // the folds of each fold's fitted rows at its end, and their judged rows
+  // The folds of each fold's fitted rows at its end, and their judged rows: made only where the folds' rows err
+  // beyond their prediction (ratio_rms_without above 1), for width_power.
+  int inner_folds = 0, inner_rows = 0;
   int width_power = 0;  // 1 or 2: beyond.sigma_at_1_rad is the folds' carried to the whole range as width^p
   double ratio_rms_without = 0, ratio_rms_with = 0;  // on the judged rows
 };
