@@ -95,16 +95,25 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
     r.applied_model = IdentifiedModel(*c);
     // Teach points, and how far the extensions were judged beyond their data (compensation.hpp).
     if (r.robot->start) attachRobotFile(*r.robot->start, *r.applied_model);
-    if (!r.judged_ranges_said && !r.applied_model->beyond_data.empty()) {
+    if (!r.judged_ranges_said && (!r.applied_model->beyond_data.empty() || !r.applied_model->beyond_drivers.empty())) {
+      std::vector<std::string> said;
       for (const BeyondRange& b : r.applied_model->beyond_data) {
         char t[200];
         std::snprintf(t, sizeof t, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
                       b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.checked_rad * 180 / kPi);
+        said.push_back(t);
+      }
+      for (const DriverRange& d : r.applied_model->beyond_drivers) {
+        char t[300];
+        std::snprintf(t, sizeof t, "%s was fitted on %s and %s", extensionLabel(d.extension).c_str(),
+                      d.rangeText().c_str(), d.judgedText().c_str());
+        said.push_back(t);
+      }
+      for (const std::string& t : said)
         std::cerr << "compensation_publisher: " << it->first << ": the robot file's " << t << ": targets farther are "
                   << (cell_.compensation.max_predicted_sigma_m > 0
                           ? "passed through uncorrected (outside_calibration)\n"
                           : "corrected with their predicted error not known (compensation.max_predicted_sigma_mm 0)\n");
-      }
       r.judged_ranges_said = true;
     }
     r.servo->setCalibration(c->version, *r.applied_model);

@@ -5,6 +5,7 @@
 #include "cell/cell_test_support.hpp"
 #include "cellcal/lab/ipa_dataset.hpp"
 #include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/model/cause.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "core/identification/hidden_effect.hpp"
@@ -694,6 +695,113 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
   }
   std::printf("  %d of 4 draws judged\n", judged);
   EXPECT_GE(judged, 2);
+}
+
+// An extension a driver bounds, carried beyond the driver's range of its campaign: a link deflection (a drawn beam
+// link) that is quadratic in the gravity across the link (outside the library, whose deflection is linear in it),
+// measured on the 60 % of rows with the least gravity across it; `calibrate --model link_deflection:L` saves the
+// range of that gravity, how far its folds judged it and the further error they measured (beyond_drivers); a set-up
+// measuring the other rows carries it with --frames-only: said, in --json, in the prediction (a sigma raises it) and
+// rows farther than judged are counted. Robot, measurement type, placements, size drawn at random.
+TEST(CliCalibrate, ALinkDeflectionsRangeOfLoadIsSavedAndCarried) {
+  const std::string dir = testDir();
+  std::mt19937_64 rng(testSeed() + 7);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int d = 0; d < 2; ++d) {
+    const RandomDraw draw = randomDraw(rng);
+    const RobotModel model = robot(draw.name);
+    const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + draw.name + ".yaml";
+    SimulationConfig sc = draw.sc;
+    sc.warmup_K = 0;
+    sc.zero_drift_per_K_max_rad = sc.zero_wear_per_h_max_rad = 0;
+    const SimulatedCell campaign(model, sc), moved(model, placement(sc, 1, rng));
+    const Eigen::VectorXd truth = campaign.trueParams(0);
+    std::vector<int> beams;
+    for (int j = 0; j < model.numJoints(); ++j)
+      if (applicable(model, Extension{Cause::kLinkDeflection, j}, false)) beams.push_back(j);
+    const int link = beams[static_cast<size_t>(u(rng) * beams.size())];
+    const Extension e{Cause::kLinkDeflection, link};
+    const std::vector<Eigen::VectorXd> qs = campaign.randomConfigurations(1200, rng);
+    std::vector<double> x;
+    for (const auto& q : qs) x.push_back(causeModel(Cause::kLinkDeflection).rangeValue(model, truth, e, q, Drivers{}));
+    std::vector<double> sorted = x;
+    std::sort(sorted.begin(), sorted.end());
+    const double cut = sorted[sorted.size() * 6 / 10], mean_in = sorted[sorted.size() * 3 / 10];
+    const double size_rad = (0.05 + 0.1 * u(rng)) * kPi / 180 * (u(rng) < 0.5 ? 1 : -1);
+    const double length = linkLength(model, truth, link);
+    test::detail::Cartesian bend;
+    bend.link = link;
+    MeasurementFile inside, beyond;
+    std::vector<size_t> written;  // the rows of beyond.csv
+    for (size_t i = 0; i < qs.size(); ++i) {
+      const double f = x[i] / mean_in;  // quadratic in the gravity across the link
+      bend.sag_m = size_rad * length * f;
+      bend.slope_rad = 1.4 * size_rad * f;
+      const bool in = x[i] < cut;
+      const SimulatedCell& cell = in ? campaign : moved;
+      const Eigen::VectorXd cell_truth = cell.trueParams(0);
+      const Pose T = bend.apply(model, cell_truth, qs[i], forwardKinematics(model, cell_truth, qs[i]), 0.0);
+      if ((in ? inside : beyond).rows.size() < 400) {
+        (in ? inside : beyond).rows.push_back(measuredRow(qs[i], cell.measurePose(T, qs[i], rng, draw.kind)));
+        if (!in) written.push_back(i);
+      }
+    }
+    for (auto* f : {&inside, &beyond}) {
+      std::ofstream out(dir + (f == &inside ? "/campaign.csv" : "/beyond.csv"));
+      writeMeasurementCsv(out, *f, model.numJoints(), "simulated");
+    }
+    const std::string what = draw.name + (draw.kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", link " +
+                             std::to_string(link + 1);
+    Process c(dir, "campaign", {"cellcal", "calibrate", "--robot", nominal, "--data", dir + "/campaign.csv", "--model",
+                                extensionSpec(e), "--save-robot", dir + "/campaign.yaml"});
+    ASSERT_EQ(c.wait(120), 0) << what << "\n" << c.log();
+    EXPECT_NE(c.log().find("link_deflection link " + std::to_string(link + 1) + " by gravity across link"),
+              std::string::npos) << c.log();
+    const RobotFile saved = loadRobotFile(dir + "/campaign.yaml");
+    ASSERT_TRUE(saved.calibration.has_value());
+    ASSERT_EQ(saved.calibration->beyond_drivers.size(), 1u) << what << "\n" << c.log();
+    const DriverRange r = saved.calibration->beyond_drivers.front();
+    EXPECT_EQ(extensionSpec(r.extension), extensionSpec(e));
+    EXPECT_LT(r.upper, cut + 0.02) << what;  // the campaign's gravity (at the fitted kinematics)
+    EXPECT_GT(r.upper, sorted[sorted.size() * 5 / 10]) << what;
+    RobotCalibration stripped = *saved.calibration;
+    stripped.beyond_drivers.clear();
+    saveRobotFile(dir + "/stripped.yaml", saved.model, &stripped, "", &saved.source);
+    double ratio[2] = {0, 0};
+    int flagged = 0;
+    for (int w = 0; w < 2; ++w) {
+      Process k(dir, "carry", {"cellcal", "calibrate", "--robot", dir + (w ? "/campaign.yaml" : "/stripped.yaml"), "--data",
+                               dir + "/beyond.csv", "--frames-only", "--keep-extensions", "--json", dir + "/c.json"});
+      const int kc = k.wait(120);
+      ASSERT_TRUE(kc == 0 || kc == 4) << k.log();
+      const auto kj = readJson(dir + "/c.json");
+      ratio[w] = kj["prediction"]["actual_over_predicted_rms"];
+      EXPECT_EQ(kj["beyond_data"]["driver_ranges"].size(), w ? 1u : 0u) << k.log();
+      if (w) {
+        EXPECT_NE(k.log().find("carried beyond the campaign's data: link_deflection link " + std::to_string(link + 1)),
+                  std::string::npos) << k.log();
+        flagged = kj["prediction"]["verification_rows_beyond_checked_range"];
+      }
+    }
+    std::printf("  %s, deflection %.3f deg at 1 g: beyond_drivers carried (%s, sigma %.3g mm%s, %s): actual / predicted "
+                "%.2f without it, %.2f with it; %d verification rows farther than judged\n",
+                what.c_str(), size_rad * 180 / kPi, r.rangeText().c_str(), r.sigma_at_1_m * 1e3, r.growthText().c_str(),
+                r.judgedText().c_str(), ratio[0], ratio[1], flagged);
+    // The rows of beyond.csv farther than judged, by the gravity at the true kinematics (a margin for the fitted ones).
+    int far = 0, near = 0;
+    for (size_t i : written) {
+      far += x[i] > r.upper + r.checked_above + 0.01;
+      near += x[i] < r.upper + r.checked_above - 0.01;
+    }
+    if (far > 0) EXPECT_GT(flagged, 0) << what;
+    if (near == 0) EXPECT_GT(flagged, 0) << what;
+    EXPECT_LT(flagged, static_cast<int>(beyond.rows.size())) << what;
+    if (r.sigma_at_1_m > 0) {
+      EXPECT_LT(ratio[1], ratio[0]) << what;
+    } else {
+      EXPECT_NEAR(ratio[1], ratio[0], 1e-6 * ratio[0]) << what;
+    }
+  }
 }
 
 // A fit that did not converge never exits 0, and by default the fit converges where rank alone does not. Files as a

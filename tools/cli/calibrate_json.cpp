@@ -80,7 +80,18 @@ json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
                        {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with},
                        {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
                        {"width_power", t.width_power}});
-  return {{"ranges", ranges}, {"carried", a.frames_only}, {"folds", folds},
+  json driver_ranges = json::array();
+  for (const auto& d : rep.beyond_drivers)
+    driver_ranges.push_back({{"extension", extensionSpec(d.extension)}, {"driver", d.label}, {"lower", d.lower},
+                             {"upper", d.upper}, {"sigma_at_1_mm", d.sigma_at_1_m * 1e3}, {"growth", d.growth},
+                             {"checked_below", d.checked_below}, {"checked_above", d.checked_above}});
+  if (rep.transfer)
+    for (const auto& t : rep.transfer->drivers)
+      folds.push_back({{"extension", extensionSpec(t.range.extension)}, {"folds", t.folds}, {"judged_rows", t.judged_rows},
+                       {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with},
+                       {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
+                       {"width_power", t.width_power}});
+  return {{"ranges", ranges}, {"driver_ranges", driver_ranges}, {"carried", a.frames_only}, {"folds", folds},
           {"not_measured", rep.transfer ? rep.transfer->not_measured : std::vector<std::string>{}},
           {"text", rep.transfer ? rep.transfer->text : ""}};
 }

@@ -159,6 +159,12 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
                   "judged up to %.1f deg beyond (the robot file's beyond_data)\n",
                   b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.sigma_at_1_rad * 180 / kPi,
                   b.growthText(), b.checked_rad * 180 / kPi);
+  if (a.frames_only)
+    for (const auto& d : rep.beyond_drivers)
+      std::printf("carried beyond the campaign's data: %s outside %s, a further position error of %.3g mm%s, %s "
+                  "(the robot file's beyond_drivers)\n",
+                  extensionLabel(d.extension).c_str(), d.rangeText().c_str(), d.sigma_at_1_m * 1e3,
+                  d.growthText().c_str(), d.judgedText().c_str());
   if (rep.carried)
     std::printf("%s%s\n", rep.carried->text.c_str(),
                 rep.carried->extensions_transfer ? ""

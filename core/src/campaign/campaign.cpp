@@ -98,7 +98,9 @@ PredictionCheck checkPrediction(const RobotModel& robot, const ExtendedFit& fit,
     sq += s * s;
     t.verification_max_mm = std::max(t.verification_max_mm, s);
     if (s > 3 * t.identification_max_mm) ++t.extrapolated;
-    if (firstUnjudged(pm.beyond, verify[i].q_rad)) ++t.beyond_checked;
+    if (firstUnjudged(pm.beyond, verify[i].q_rad) ||
+        firstUnjudged(robot, fit.params, pm.beyond_drivers, verify[i].q_rad, vdr[i], nullptr))
+      ++t.beyond_checked;
     const Eigen::VectorXd p = extendedParams(robot, fit.params, fit.extensions, fit.extension_params, verify[i].q_rad, vdr[i]);
     const double actual_mm =
         (forwardKinematics(robot, data, p, verify[i].q_rad).translation() - verify[i].measured_in_tracker.translation()).norm() * 1e3;
@@ -308,6 +310,10 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
   rep.beyond = rep.transfer ? rep.transfer->beyond()
                : problem.frames_only && in.calibration && !after.extensions.empty() ? in.calibration->beyond_data
                                                                                   : std::vector<BeyondRange>{};
+  rep.beyond_drivers = rep.transfer ? rep.transfer->beyondDrivers()
+                       : problem.frames_only && in.calibration && !after.extensions.empty()
+                           ? in.calibration->beyond_drivers
+                           : std::vector<DriverRange>{};
   // How far the model can be trusted: its predicted position error on every kept row, against the actual one. With
   // frames only, the robot file's covariance carried to these rows less what the new frames take up of it
   // (carriedPrediction); a robot file without a calibration section carries the priors of a model no one calibrated.
@@ -315,6 +321,7 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
     if (!problem.frames_only) {
       PredictionModel own = predictionModel(robot, after, ident_kept, idr_kept);
       own.beyond = rep.beyond;
+      own.beyond_drivers = rep.beyond_drivers;
       return own;
     }
     PredictionModel carried;
@@ -333,6 +340,7 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
     // The readings' noise on these rows as the frames leave it, position and orientation rows apart (their sigmas may
     // not be the campaign's, and a tracker may understate one kind).
     carried.beyond = rep.beyond;  // what the extensions may do beyond the campaign's joint ranges (its region folds)
+    carried.beyond_drivers = rep.beyond_drivers;  // and its drivers' ranges
     return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated,
                              residualVarianceFactors(robot, after, ident_kept, idr_kept,
                                                      static_cast<int>(after.estimated.size())));
@@ -354,7 +362,7 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
   RobotCalibration& cal = rep.calibration;
   cal = robotCalibration(robot, after, pm);
   cal.residual_map = rep.residual_map;
-  if (!after.extensions.empty()) cal.beyond_data = rep.beyond;
+  if (!after.extensions.empty()) cal.beyond_data = rep.beyond, cal.beyond_drivers = rep.beyond_drivers;
   // Beside an extended model, the same campaign's geometric calibration (a new set-up judges the extensions by it).
   if (!after.extensions.empty())
     cal.geometric_params = !problem.frames_only ? r.params

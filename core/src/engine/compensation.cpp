@@ -56,7 +56,10 @@ void attachRobotFile(const RobotFile& start, IdentifiedModel& model) {
   for (const Extension& e : model.extensions) mine.push_back(extensionSpec(e));
   std::sort(file.begin(), file.end());
   std::sort(mine.begin(), mine.end());
-  if (file == mine) model.beyond_data = start.calibration->beyond_data;
+  if (file == mine) {
+    model.beyond_data = start.calibration->beyond_data;
+    model.beyond_drivers = start.calibration->beyond_drivers;
+  }
 }
 
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified, const Pose& desired,
@@ -100,6 +103,10 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     *applies = p.applies;
     return model.residual_map_rotation * p.correction_m;
   };
+  // The drivers of the extensions at q: the path to it (a play state; no thermal driver: 0).
+  auto driversAt = [&](const Eigen::VectorXd& q) {
+    return moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, q);
+  };
   if ((!model.extensions.empty() || mapped) && ik.ok()) {
     // Fixed point q = IK(params(q), desired - c(q)).
     constexpr int kPasses = 10;
@@ -108,8 +115,7 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       const Eigen::VectorXd p =
           model.extensions.empty()
               ? identified
-              : extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad,
-                               moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, ik.q_rad));
+              : extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad, driversAt(ik.q_rad));
       Pose target = desired;
       if (mapped) target.translation() -= mapCorrection(ik.q_rad, &out.residual_map_applied);
       IkResult next = solveInverseKinematics(nominal, p, target, ik.q_rad, ik_options);
@@ -133,10 +139,15 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   KinematicsData data(nominal);
   // Where the extensions were never judged (beyond_data), their correction is not known.
   const BeyondRange* unjudged = model.extensions.empty() ? nullptr : firstUnjudged(model.beyond_data, ik.q_rad);
-  if (unjudged && s.max_predicted_sigma_m > 0) {
+  const Drivers at = model.beyond_drivers.empty() ? Drivers{} : driversAt(ik.q_rad);
+  double driver_x = 0;
+  const DriverRange* unjudged_driver =
+      model.extensions.empty() ? nullptr
+                               : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
+  if ((unjudged || unjudged_driver) && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kOutsideCalibration;
-    out.reason = unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) +
+    out.reason = (unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x)) +
                  ": the extensions' correction there was never tested, passed through uncorrected";
     return out;
   }
@@ -152,6 +163,10 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       out.predicted_sigma_position_m = std::sqrt(std::pow(out.predicted_sigma_position_m, 2) +
                                                  beyondPositionVariance(nominal, J, model.beyond_data, ik.q_rad));
     }
+    if (!model.extensions.empty() && !model.beyond_drivers.empty())  // and beyond their drivers' ranges
+      out.predicted_sigma_position_m =
+          std::sqrt(std::pow(out.predicted_sigma_position_m, 2) +
+                    driverRangeVariance(nominal, identified, model.beyond_drivers, ik.q_rad, at));
     if (out.residual_map_applied) {
       const double map_sigma = model.residual_map->sigmaBound_m(ik.q_rad);
       out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);
@@ -166,7 +181,8 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       return out;
     }
   }
-  if (unjudged) out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();  // guard off: said, applied
+  if (unjudged || unjudged_driver)  // guard off: said, applied
+    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
   const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
   const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
   out.correction_position_m = c.head<3>().norm();

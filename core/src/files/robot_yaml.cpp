@@ -51,7 +51,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   const std::string f = "calibration";
   r.requireMap(c, f);
   r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
-                     "correlation", "residual_map", "geometric_parameters", "beyond_data"});
+                     "correlation", "residual_map", "geometric_parameters", "beyond_data", "beyond_drivers"});
   RobotCalibration cal;
   if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
     r.requireMap(pv, f + ".provenance");
@@ -136,6 +136,38 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       if (joint != std::floor(joint) || growth != std::floor(growth) || !b.IsValid(m.numJoints(), &why))
         r.fail(bd[i], fi, why.empty() ? "joint and growth must be whole numbers" : why);
       cal.beyond_data.push_back(b);
+    }
+  }
+  if (const YAML::Node bd = c["beyond_drivers"]; bd.IsDefined() && !bd.IsNull()) {
+    if (!bd.IsSequence())
+      r.fail(bd, f + ".beyond_drivers", "expected a list of {extension, driver, lower, upper, sigma_at_1_mm, growth, checked_below, checked_above}");
+    for (size_t i = 0; i < bd.size(); ++i) {
+      const std::string fi = f + ".beyond_drivers[" + std::to_string(i) + "]";
+      r.requireMap(bd[i], fi);
+      r.checkKeys(bd[i], fi, {"extension", "driver", "lower", "upper", "sigma_at_1_mm", "growth", "checked_below",
+                                    "checked_above"});
+      DriverRange d;
+      const YAML::Node spec = r.required(bd[i], "extension", fi + ".extension");
+      // One of the calibration's extensions (its time constant sets a warm-up driver's value).
+      const auto it = std::find_if(cal.extensions.begin(), cal.extensions.end(), [&](const Extension& e) {
+        return spec.IsScalar() && extensionSpec(e) == spec.Scalar();
+      });
+      if (it == cal.extensions.end()) r.fail(spec, fi + ".extension", "expected one of this calibration's extensions");
+      d.extension = *it;
+      const YAML::Node label = r.required(bd[i], "driver", fi + ".driver");
+      if (!label.IsScalar()) r.fail(label, fi + ".driver", "expected the driver's name and unit, e.g. \"gravity across link 2 (g)\"");
+      d.label = label.Scalar();
+      const double growth = r.number(r.required(bd[i], "growth", fi + ".growth"), fi + ".growth");
+      d.growth = static_cast<int>(growth);
+      d.lower = r.number(r.required(bd[i], "lower", fi + ".lower"), fi + ".lower");
+      d.upper = r.number(r.required(bd[i], "upper", fi + ".upper"), fi + ".upper");
+      d.sigma_at_1_m = r.number(r.required(bd[i], "sigma_at_1_mm", fi + ".sigma_at_1_mm"), fi + ".sigma_at_1_mm") * 1e-3;
+      d.checked_below = r.number(r.required(bd[i], "checked_below", fi + ".checked_below"), fi + ".checked_below");
+      d.checked_above = r.number(r.required(bd[i], "checked_above", fi + ".checked_above"), fi + ".checked_above");
+      std::string why;
+      if (growth != std::floor(growth) || !d.IsValid(m, &why))
+        r.fail(bd[i], fi, why.empty() ? "growth must be a whole number" : why);
+      cal.beyond_drivers.push_back(d);
     }
   }
   if (const YAML::Node vf = c["variance_factor_position"]; vf.IsDefined() && !vf.IsNull()) {
@@ -335,6 +367,13 @@ bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) cons
     std::string why;
     if (!b.IsValid(model.numJoints(), &why)) return fail("beyond_data: " + why);
   }
+  for (const auto& d : beyond_drivers) {
+    std::string why;
+    if (!d.IsValid(model, &why)) return fail("beyond_drivers: " + why);
+    if (std::none_of(extensions.begin(), extensions.end(),
+                     [&](const Extension& e) { return extensionSpec(e) == extensionSpec(d.extension); }))
+      return fail("beyond_drivers: " + extensionSpec(d.extension) + " is not one of the extensions");
+  }
   return true;
 }
 
@@ -421,6 +460,17 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
       o << "    - { joint: " << b.joint + 1 << ", lower_deg: " << num(b.lower_rad * 180 / kPi) << ", upper_deg: "
         << num(b.upper_rad * 180 / kPi) << ", sigma_at_1_rad_deg: " << num(b.sigma_at_1_rad * 180 / kPi)
         << ", growth: " << b.growth << ", checked_deg: " << num(b.checked_rad * 180 / kPi) << " }\n";
+  }
+  if (!cal->beyond_drivers.empty()) {
+    o << "  # beyond the ranges of the drivers of extensions no joint bounds, a further position error of sigma x\n"
+         "  # (driver beyond, in its unit)^growth, judged up to checked_below / checked_above beyond either end:\n"
+         "  # farther, the extension's correction is an extrapolation (compensation passes it by)\n"
+         "  beyond_drivers:\n";
+    for (const auto& d : cal->beyond_drivers)
+      o << "    - { extension: " << extensionSpec(d.extension) << ", driver: " << quoted(d.label) << ", lower: "
+        << num(d.lower) << ", upper: " << num(d.upper) << ", sigma_at_1_mm: " << num(d.sigma_at_1_m * 1e3)
+        << ", growth: " << d.growth << ", checked_below: " << num(d.checked_below) << ", checked_above: "
+        << num(d.checked_above) << " }\n";
   }
   o << "  variance_factor_position: " << num(cal->variance_factor_position) << "\n";
   if (!cal->columns.empty()) {

@@ -1,4 +1,5 @@
-// BeyondRange (prediction.hpp): a joint's error beyond the range of a model's data. Apart from extensionTransfer,
+// BeyondRange and DriverRange (prediction.hpp): a joint's error, or a position error, beyond the range of a model's
+// data. Apart from extensionTransfer,
 // which measures it, so that the robot file's parser (and its fuzz target) reaches it without the solvers.
 #include <algorithm>
 #include <cmath>
@@ -6,6 +7,7 @@
 #include <string>
 
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/model/cause.hpp"
 
 namespace cellcal {
 
@@ -55,6 +57,112 @@ bool BeyondRange::IsValid(int num_joints, std::string* error) const {
   if (growth < 0 || growth > 2) return fail("growth must be 0, 1 or 2");
   if (!(checked_rad >= 0) || !std::isfinite(checked_rad)) return fail("checked must be finite and >= 0");
   return true;
+}
+
+double DriverRange::beyond(double x) const { return x < lower ? lower - x : x > upper ? x - upper : 0.0; }
+
+double DriverRange::checked(double x) const { return x < lower ? checked_below : x > upper ? checked_above : 0.0; }
+
+double DriverRange::sigmaM(double x) const {
+  double d = beyond(x);
+  if (d <= 0 || sigma_at_1_m <= 0) return 0.0;
+  if (checked(x) > 0) d = std::min(d, checked(x));
+  return sigma_at_1_m * std::pow(d, growth);
+}
+
+bool DriverRange::judged(double x) const { return beyond(x) <= checked(x); }
+
+double DriverRange::value(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad,
+                          const Drivers& drivers) const {
+  return causeModel(extension.cause).rangeValue(model, params, extension, q_rad, drivers);
+}
+
+bool DriverRange::IsValid(const RobotModel& model, std::string* error) const {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = m;
+    return false;
+  };
+  if (extension.cause == Cause::kNone) return fail("no extension");
+  const CauseModel& c = causeModel(extension.cause);
+  if (c.regionJoint(extension) >= 0 || std::isnan(c.rangeValue(model, model.nominal, extension,
+                                                               Eigen::VectorXd::Zero(model.numJoints()), Drivers{})))
+    return fail(extensionSpec(extension) + " is bounded by a joint's range or by none, not by a driver");
+  if (!std::isfinite(lower) || !std::isfinite(upper) || lower > upper)
+    return fail("lower and upper must be finite, lower <= upper");
+  if (!(sigma_at_1_m >= 0) || !std::isfinite(sigma_at_1_m)) return fail("sigma must be finite and >= 0");
+  if (growth < 0 || growth > 2) return fail("growth must be 0, 1 or 2");
+  for (double c : {checked_below, checked_above})
+    if (!(c >= 0) || !std::isfinite(c)) return fail("checked_below and checked_above must be finite and >= 0");
+  return true;
+}
+
+const DriverRange* firstUnjudged(const RobotModel& model, const Eigen::VectorXd& params,
+                                 const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad,
+                                 const Drivers& drivers, double* x) {
+  for (const DriverRange& r : ranges) {
+    const double v = r.value(model, params, q_rad, drivers);
+    if (std::isfinite(v) && !r.judged(v)) {
+      if (x) *x = v;
+      return &r;
+    }
+  }
+  return nullptr;
+}
+
+std::string DriverRange::quantity() const {
+  const size_t open = label.rfind(" (");
+  return open != std::string::npos && !label.empty() && label.back() == ')' ? label.substr(0, open) : label;
+}
+
+std::string DriverRange::unit() const {
+  const size_t open = label.rfind(" (");
+  return open != std::string::npos && !label.empty() && label.back() == ')'
+             ? label.substr(open + 2, label.size() - open - 3)
+             : "";
+}
+
+std::string DriverRange::growthText() const {
+  return growth == 0 ? "" : " per " + unit() + (growth == 1 ? "" : "^2") + " beyond";
+}
+
+std::string DriverRange::rangeText() const {
+  char t[300];
+  std::snprintf(t, sizeof t, "%s [%.3g, %.3g] %s", quantity().c_str(), lower, upper, unit().c_str());
+  return t;
+}
+
+std::string DriverRange::judgedText() const {
+  auto end = [&](double c, const char* side) {
+    char t[80];
+    if (c > 0) std::snprintf(t, sizeof t, "%.3g %s %s it", c, unit().c_str(), side);
+    else std::snprintf(t, sizeof t, "not %s it", side);
+    return std::string(t);
+  };
+  if (checked_below <= 0 && checked_above <= 0) return "not judged beyond it";
+  return "judged up to " + end(checked_below, "below") + " and " + end(checked_above, "above");
+}
+
+std::string unjudgedText(const DriverRange& r, double x) {
+  const std::string u = r.unit();
+  char t[500];
+  std::snprintf(t, sizeof t, "%s at %.3g %s lies %.3g %s beyond [%.3g, %.3g] %s, the range %s was fitted on; ",
+                r.quantity().c_str(), x, u.c_str(), r.beyond(x), u.c_str(), r.lower, r.upper, u.c_str(),
+                causeModel(r.extension.cause).label(r.extension).c_str());
+  char c[120];
+  if (r.checked(x) > 0) std::snprintf(c, sizeof c, "it was judged up to %.3g %s beyond it", r.checked(x), u.c_str());
+  else std::snprintf(c, sizeof c, "it was not judged beyond it");
+  return std::string(t) + c;
+}
+
+double driverRangeVariance(const RobotModel& model, const Eigen::VectorXd& params,
+                           const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad, const Drivers& drivers) {
+  double v = 0;
+  for (const DriverRange& r : ranges) {
+    if (r.sigma_at_1_m <= 0) continue;
+    const double x = r.value(model, params, q_rad, drivers);
+    if (std::isfinite(x)) v += std::pow(r.sigmaM(x), 2);
+  }
+  return v;
 }
 
 }  // namespace cellcal

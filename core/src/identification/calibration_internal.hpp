@@ -51,6 +51,9 @@ using Fold = std::pair<std::vector<int>, std::vector<int>>;
 // The two folds RegionCheck judges `cause` on: by the angle of its joint (the rows beyond the `joint_end` quantile
 // at either end judged, the others fitted) or by the workspace (regionSplit: each half fitted, the other judged).
 std::vector<Fold> regionFolds(const std::vector<Observation>& obs, const Extension& cause, double joint_end);
+// The two folds by a value per row: the rows above its (1 - end) quantile judged and the others fitted, then the rows
+// below its `end` quantile judged and the others fitted (regionFolds by a joint's angle).
+std::vector<Fold> endFolds(const std::vector<double>& x, double end);
 // Indices 0..n-1, every one when n <= max_rows (or max_rows <= 0), else every k-th evenly through them, at most
 // max_rows.
 std::vector<int> evenlyThinned(size_t n, int max_rows);

@@ -43,7 +43,6 @@ std::vector<internal::Fold> internal::regionFolds(const std::vector<Observation>
                                                  double joint_end) {
   // By the workspace: each half fitted, the other judged. By a joint: the rows up to its angle's upper quantile
   // fitted and those beyond it judged, and the same at the lower end.
-  std::vector<Fold> folds;
   if (regionSplitName(cause) == "workspace") {
     const std::vector<bool> side = regionSplit(obs);
     std::vector<int> half[2];
@@ -52,12 +51,17 @@ std::vector<internal::Fold> internal::regionFolds(const std::vector<Observation>
   }
   std::vector<double> x;
   for (const auto& o : obs) x.push_back(o.q_rad[cause.joint]);
+  return endFolds(x, joint_end);
+}
+
+std::vector<internal::Fold> internal::endFolds(const std::vector<double>& x, double end) {
+  if (x.empty()) return {Fold{}, Fold{}};
   std::vector<double> sorted = x;
   std::sort(sorted.begin(), sorted.end());
-  const double lo = sorted[static_cast<size_t>(joint_end * (sorted.size() - 1))];
-  const double hi = sorted[static_cast<size_t>((1 - joint_end) * (sorted.size() - 1))];
+  const double lo = sorted[static_cast<size_t>(end * (sorted.size() - 1))];
+  const double hi = sorted[static_cast<size_t>((1 - end) * (sorted.size() - 1))];
   Fold up, down;
-  for (size_t i = 0; i < obs.size(); ++i) {
+  for (size_t i = 0; i < x.size(); ++i) {
     const int r = static_cast<int>(i);
     (x[i] > hi ? up.second : up.first).push_back(r);
     (x[i] < lo ? down.second : down.first).push_back(r);

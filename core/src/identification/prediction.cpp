@@ -198,6 +198,7 @@ PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel
   pm.rows = rows_total;
   pm.estimated = static_cast<int>(nf);
   pm.beyond = carried.beyond;
+  pm.beyond_drivers = carried.beyond_drivers;
   return pm;
 }
 
@@ -214,7 +215,8 @@ double predictedPositionSigma(const RobotModel& model, const CalibratedModel& fi
   Eigen::MatrixXd Jp(3, n);
   for (Eigen::Index c = 0; c < n; ++c) Jp.col(c) = J.col(prediction.columns[c]);
   const double var = (Jp * prediction.covariance * Jp.transpose()).trace() +
-                    beyondPositionVariance(model, J.leftCols(model.numParams()), prediction.beyond, q_rad);
+                    beyondPositionVariance(model, J.leftCols(model.numParams()), prediction.beyond, q_rad) +
+                    driverRangeVariance(model, fit.params, prediction.beyond_drivers, q_rad, drivers);
   return std::sqrt(std::max(0.0, var));
 }
 

@@ -267,6 +267,34 @@ TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {
 // from one corner of the workspace (every joint within 10 deg of one random configuration): its predicted error is
 // checked against a plain Monte Carlo reference (parameters drawn from the covariance), is small at targets in the
 // corner and large far from it, and compensate() passes every target above the bound through uncorrected.
+// A geometric model at the true kinematics with a random half of the parameters estimated and a random covariance.
+IdentifiedModel randomIdentified(const RobotModel& m, const Eigen::VectorXd& truth, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<int> estimated;
+  for (int k = 0; k < m.numParams(); ++k)
+    if (u(rng) < 0.5) estimated.push_back(k);
+  const auto n = static_cast<Eigen::Index>(estimated.size());
+  const Eigen::MatrixXd A = Eigen::MatrixXd::Random(n, n) * 1e-5;
+  return IdentifiedModel(CalibratedModel::geometric(truth, estimated, A * A.transpose()));
+}
+
+// A target farther beyond a judged range than it was judged (`with`: compensated with the guard off): an infinite
+// predicted sigma; with a guard no kinematic sigma comes near (1 m), passed through uncorrected with the reason naming
+// `named`, where the same model without the judged ranges (`plain`) corrects it.
+void expectPassedThrough(const RobotModel& m, const IdentifiedModel& model, const IdentifiedModel& plain,
+                         const Pose& desired, const Eigen::VectorXd& q, const CompensationSettings& off,
+                         const CompensationResult& with, const std::string& named, const std::string& what) {
+  EXPECT_TRUE(std::isinf(with.predicted_sigma_position_m)) << what;
+  CompensationSettings guarded = off;
+  guarded.max_predicted_sigma_m = 1.0;
+  const CompensationResult g = compensate(m, model, desired, q, guarded);
+  EXPECT_FALSE(g.applied) << what;
+  EXPECT_EQ(g.outcome, CompensationOutcome::kOutsideCalibration) << what;
+  EXPECT_NE(g.reason.find(named), std::string::npos) << g.reason;
+  EXPECT_TRUE(g.corrected_in_tracker.isApprox(desired, 0)) << what;
+  EXPECT_TRUE(compensate(m, plain, desired, q, guarded).applied) << what;
+}
+
 // An extended model with the ranges its extensions were judged over (a robot file's beyond_data, drawn at random:
 // joint, range, judged distance, sigma, growth). Inside the range the predicted sigma is the model's own; between the
 // range and the judged distance it adds sigmaRad(q*)^2 |dp/dq_joint|^2, checked against a central difference of the
@@ -284,12 +312,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     const SimulatedCell cell = makeSimulatedCell(config.robots[0], ss, 0);
     const RobotModel& m = cell.model();
     const Eigen::VectorXd truth = cell.trueParams(0.0);
-    std::vector<int> estimated;
-    for (int k = 0; k < m.numParams(); ++k)
-      if (u(rng) < 0.5) estimated.push_back(k);
-    const auto n = static_cast<Eigen::Index>(estimated.size());
-    const Eigen::MatrixXd A = Eigen::MatrixXd::Random(n, n) * 1e-5;
-    IdentifiedModel model(CalibratedModel::geometric(truth, estimated, A * A.transpose()));
+    IdentifiedModel model = randomIdentified(m, truth, rng);
     const int joint = std::uniform_int_distribution<int>(0, m.numJoints() - 2)(rng);
     model.extensions = {Extension{Cause::kCyclicTransmission, joint}};
     model.extension_params = Eigen::VectorXd::Random(numExtensionParams(m, model.extensions)) * 2e-4;
@@ -340,15 +363,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
         grown += expected > 1.1 * without.predicted_sigma_position_m;
         ++near;
       } else {
-        EXPECT_TRUE(std::isinf(with.predicted_sigma_position_m)) << what;
-        CompensationSettings guarded = off;
-        guarded.max_predicted_sigma_m = 1.0;  // no kinematic sigma comes near a metre: only the judged range refuses
-        const CompensationResult g = compensate(m, model, desired, q, guarded);
-        EXPECT_FALSE(g.applied) << what;
-        EXPECT_EQ(g.outcome, CompensationOutcome::kOutsideCalibration) << what;
-        EXPECT_NE(g.reason.find("joint " + std::to_string(joint + 1) + " at"), std::string::npos) << g.reason;
-        EXPECT_TRUE(g.corrected_in_tracker.isApprox(desired, 0)) << what;
-        EXPECT_TRUE(compensate(m, plain, desired, q, guarded).applied) << what;
+        expectPassedThrough(m, model, plain, desired, q, off, with, "joint " + std::to_string(joint + 1) + " at", what);
         ++beyond;
       }
     }
@@ -361,6 +376,91 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
   EXPECT_GE(beyond, 5);
 }
 
+// The same for an extension a driver bounds (a robot file's beyond_drivers): a link deflection of a drawn beam link,
+// its range of the gravity across the link drawn from the targets' (each end judged its own drawn distance). The
+// driver at q* is checked against a plain computation (the chain's frames, gravity turned into the tracker frame, its
+// part across the link); between the range and the judged distance the predicted sigma adds sigmaM(x)^2; farther the
+// target is passed through with the driver named.
+TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectionWasJudgedAt) {
+  const std::uint64_t seed = test::testSeed();
+  const CellConfig config = loadCellConfig(kCell);
+  std::mt19937_64 rng(seed + 1);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int inside = 0, near = 0, beyond = 0;
+  for (int draw = 0; draw < 4; ++draw) {
+    SimulationSettings ss = config.simulation;
+    ss.seed = rng();
+    const SimulatedCell cell = makeSimulatedCell(config.robots[0], ss, 0);
+    const RobotModel& m = cell.model();
+    const Eigen::VectorXd truth = cell.trueParams(0.0);
+    std::vector<int> beams;
+    for (int j = 0; j < m.numJoints(); ++j)
+      if (applicable(m, Extension{Cause::kLinkDeflection, j}, false)) beams.push_back(j);
+    ASSERT_FALSE(beams.empty());
+    const int link = beams[static_cast<size_t>(u(rng) * beams.size())];
+    IdentifiedModel model = randomIdentified(m, truth, rng);
+    model.extensions = {Extension{Cause::kLinkDeflection, link}};
+    model.extension_params = Eigen::VectorXd::Random(numExtensionParams(m, model.extensions)) * 1e-4;
+    // Plain reference of the driver: |gravity across the link| in g.
+    auto across = [&](const Eigen::VectorXd& q) {
+      const std::vector<Pose> F = chainFrames(m, truth, q);
+      const Eigen::Vector3d dir = (F[link + 1].translation() - F[link].translation()).normalized();
+      const Eigen::Vector3d g = F[0].linear() * m.gravity_in_base_mps2 / m.gravity_in_base_mps2.norm();
+      return (g - g.dot(dir) * dir).norm();
+    };
+    const std::vector<Eigen::VectorXd> targets = cell.randomConfigurations(40, rng);
+    std::vector<double> x;
+    for (const auto& q : targets) x.push_back(across(q));
+    std::sort(x.begin(), x.end());
+    DriverRange r;
+    r.extension = model.extensions[0];
+    r.label = "gravity across link " + std::to_string(link + 1) + " (g)";
+    r.lower = x[static_cast<size_t>(8 + 4 * u(rng))];
+    r.upper = x[static_cast<size_t>(26 + 4 * u(rng))];
+    r.checked_below = (0.2 + 0.6 * u(rng)) * (r.lower - x.front());
+    r.checked_above = (0.2 + 0.6 * u(rng)) * (x.back() - r.upper);
+    r.growth = std::uniform_int_distribution<int>(0, 2)(rng);
+    r.sigma_at_1_m = (0.05 + 0.2 * u(rng)) * 1e-3 / std::pow(std::max(r.checked_below, r.checked_above), r.growth);
+    IdentifiedModel plain = model;
+    model.beyond_drivers = {r};
+    CompensationSettings off = config.compensation;
+    off.max_predicted_sigma_m = 0;
+    off.max_correction_m = 1;
+    off.max_correction_rad = 1;
+    KinematicsData d(m);
+    const std::string what = "link " + std::to_string(link + 1) + ", seed " + std::to_string(seed);
+    for (const auto& q : targets) {
+      const Pose desired = forwardKinematics(m, d, m.nominal, q);
+      const CompensationResult without = compensate(m, plain, desired, q, off);
+      const CompensationResult with = compensate(m, model, desired, q, off);
+      if (!without.applied) continue;
+      ASSERT_TRUE(with.applied) << with.reason;
+      ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
+      const double v = across(with.q_rad);
+      EXPECT_NEAR(r.value(m, truth, with.q_rad, Drivers{}), v, 1e-12) << what;
+      const double dist = v < r.lower ? r.lower - v : v > r.upper ? v - r.upper : 0.0;
+      const double judged = v < r.lower ? r.checked_below : r.checked_above;
+      if (dist == 0) {
+        EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
+        ++inside;
+      } else if (dist <= judged) {
+        const double s = r.sigma_at_1_m * std::pow(dist, r.growth);
+        const double expected = std::hypot(without.predicted_sigma_position_m, s);
+        EXPECT_NEAR(with.predicted_sigma_position_m, expected, 1e-9 * expected) << what;
+        ++near;
+      } else {
+        expectPassedThrough(m, model, plain, desired, q, off, with, "gravity across link " + std::to_string(link + 1) + " at",
+                            what);
+        ++beyond;
+      }
+    }
+  }
+  std::printf("  %d targets inside the range, %d within the judged distance, %d beyond it\n", inside, near, beyond);
+  EXPECT_GE(inside, 5);
+  EXPECT_GE(near, 3);
+  EXPECT_GE(beyond, 5);
+}
+
 // attachRobotFile takes the file's beyond_data only for the file's own extensions (in any order, named as a cell file
 // names them).
 TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
@@ -368,7 +468,8 @@ TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
   RobotFile file;
   file.model = config.robots[0].model;
   RobotCalibration cal;
-  cal.extensions = {Extension{Cause::kCyclicTransmission, 1}, Extension{Cause::kJointScale, 2}};
+  cal.extensions = {Extension{Cause::kCyclicTransmission, 1}, Extension{Cause::kJointScale, 2},
+                    Extension{Cause::kLinkDeflection, 1}};
   cal.extension_params = Eigen::VectorXd::Zero(numExtensionParams(file.model, cal.extensions));
   BeyondRange b;
   b.joint = 1;
@@ -376,21 +477,31 @@ TEST(Compensation, AttachRobotFileTakesTheJudgedRangesOfTheFilesOwnExtensions) {
   b.upper_rad = 0.5;
   b.checked_rad = 0.1;
   cal.beyond_data = {b};
+  DriverRange r;
+  r.extension = cal.extensions[2];
+  r.lower = 0.2;
+  r.upper = 0.8;
+  cal.beyond_drivers = {r};
   file.calibration = cal;
   IdentifiedModel same(CalibratedModel::geometric(file.model.nominal));
-  same.extensions = parseExtensionList("joint_scale:3, cyclic_transmission:2", file.model);  // as a cell file names them
+  same.extensions = parseExtensionList("joint_scale:3, link_deflection:2, cyclic_transmission:2", file.model);  // as a cell file names them
   same.extension_params = Eigen::VectorXd::Zero(numExtensionParams(file.model, same.extensions));
   attachRobotFile(file, same);
   ASSERT_EQ(same.beyond_data.size(), 1u);
   EXPECT_EQ(same.beyond_data[0].joint, 1);
+  ASSERT_EQ(same.beyond_drivers.size(), 1u);
+  EXPECT_EQ(same.beyond_drivers[0].upper, 0.8);
   IdentifiedModel other = same;
   other.beyond_data.clear();
+  other.beyond_drivers.clear();
   other.extensions = {cal.extensions[0]};
   attachRobotFile(file, other);
   EXPECT_TRUE(other.beyond_data.empty());
+  EXPECT_TRUE(other.beyond_drivers.empty());
   IdentifiedModel geometric(CalibratedModel::geometric(file.model.nominal));
   attachRobotFile(file, geometric);
   EXPECT_TRUE(geometric.beyond_data.empty());
+  EXPECT_TRUE(geometric.beyond_drivers.empty());
 }
 
 TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {

@@ -7,6 +7,7 @@
 
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
+#include "cellcal/core/model/cause.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "test_support.hpp"
 
@@ -22,6 +23,7 @@ RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
     c.extensions.push_back(Extension{u(rng) < 0.5 ? Cause::kJointCompliance : Cause::kCyclicTransmission, j});
   }
   if (u(rng) < 0.3) c.extensions.push_back(Extension{Cause::kThermalDrift, -1, 0.5 + 3 * u(rng)});
+  if (u(rng) < 0.3) c.extensions.push_back(Extension{Cause::kLinkDeflection, 1});  // a beam on both robots
   const int k = numExtensionParams(m, c.extensions);
   c.extension_params = Eigen::VectorXd::NullaryExpr(k, [&] { return 1e-6 * g(rng); });
   c.columns = m.canonicalParams();
@@ -44,6 +46,19 @@ RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
       b.growth = static_cast<int>(3 * u(rng)) % 3;
       b.checked_rad = 0.5 * u(rng);
       c.beyond_data.push_back(b);
+    }
+  for (const auto& e : c.extensions)  // and beyond the ranges of the drivers of the others
+    if (causeModel(e.cause).regionJoint(e) < 0 && u(rng) < 0.7) {
+      DriverRange d;
+      d.extension = e;
+      d.label = causeModel(e.cause).rangeLabel(e, u(rng) < 0.5 ? "temperature_c" : "stamp_s");
+      d.lower = 2 * u(rng) - 1;
+      d.upper = d.lower + u(rng);
+      d.sigma_at_1_m = 1e-3 * u(rng);
+      d.growth = static_cast<int>(3 * u(rng)) % 3;
+      d.checked_below = u(rng) < 0.2 ? 0 : 0.5 * u(rng);
+      d.checked_above = 0.5 * u(rng);
+      c.beyond_drivers.push_back(d);
     }
   return c;
 }
@@ -88,6 +103,18 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
       for (double q = -4; q < 4; q += 0.37) EXPECT_NEAR(y.sigmaRad(q), x.sigmaRad(q), 1e-12 * (1 + x.sigmaRad(q))) << q;
       EXPECT_NEAR(y.checked_rad, x.checked_rad, 1e-12);
     }
+    ASSERT_EQ(c2.beyond_drivers.size(), cal.beyond_drivers.size());
+    for (size_t i = 0; i < cal.beyond_drivers.size(); ++i) {
+      const DriverRange &x = cal.beyond_drivers[i], &y = c2.beyond_drivers[i];
+      EXPECT_EQ(extensionSpec(y.extension), extensionSpec(x.extension));
+      EXPECT_EQ(y.extension.time_constant_h, x.extension.time_constant_h);  // the calibration's extension's
+      EXPECT_EQ(y.label, x.label);
+      EXPECT_EQ(y.growth, x.growth);
+      for (double v = -2; v < 3; v += 0.037) {
+        EXPECT_NEAR(y.sigmaM(v), x.sigmaM(v), 1e-12 * (1 + x.sigmaM(v))) << v;
+        EXPECT_EQ(y.judged(v), x.judged(v)) << v;
+      }
+    }
     worst_cov = std::max(worst_cov, (c2.covariance - cal.covariance).cwiseAbs().maxCoeff() / cal.covariance.cwiseAbs().maxCoeff());
     // Predictions (with the extensions) at random configurations.
     KinematicsData a(calibrated), b(back.model);
@@ -129,7 +156,7 @@ void expectRefused(const std::string& good, const std::string& from, const std::
     parseRobotFile(text, "<bad>");
     ADD_FAILURE() << "accepted: " << to;
   } catch (const ConfigError& e) {
-    EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what() << "\n(edit: " << from << " -> " << to << ")";
     EXPECT_EQ(std::string(e.what()).rfind("<bad>:", 0), 0u) << e.what();
   }
 }
@@ -195,6 +222,9 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   cal.columns = {0, 1};
   cal.estimated = {true, false};
   cal.covariance = Eigen::Matrix2d::Identity() * 1e-8;
+  cal.geometric_params.resize(0);  // given below
+  cal.beyond_data.clear();
+  cal.beyond_drivers.clear();
   const std::string good = robotFileText(m, &cal, "");
   EXPECT_NO_THROW(parseRobotFile(good, "<good>"));
   expectEachRefused(good, {{"joint_compliance:2", "joint_compliance:9", "calibration.extensions[0].spec"},
@@ -223,6 +253,31 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
            {"{ joint: 2,", "{ joint: 9,"}, {"growth: 1,", "growth: 3,"}, {"growth: 1,", "growth: 1.5,"},
            {"lower_deg: -57", "lower_deg: 57"}, {"sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -"}})
     expectRefused(beyond, from, to, "calibration.beyond_data[0]");
+  // And beyond an extension driver's range: one of the calibration's extensions that a driver bounds, a growth of 0-2,
+  // a range, distances judged of 0 or more.
+  cal.extensions = {Extension{Cause::kJointCompliance, 1}, Extension{Cause::kLinkDeflection, 1}};
+  cal.extension_params = Eigen::VectorXd::Constant(numExtensionParams(m, cal.extensions), 1e-6);
+  DriverRange d;
+  d.extension = cal.extensions[1];
+  d.label = "gravity across link 2 (g)";
+  d.lower = 0.25;
+  d.upper = 0.75;
+  d.sigma_at_1_m = 2e-4;
+  d.growth = 1;
+  d.checked_below = 0.125;
+  d.checked_above = 0.0625;
+  cal.beyond_drivers = {d};
+  const std::string driver = robotFileText(m, &cal, "");
+  const RobotFile read = parseRobotFile(driver, "<good>");
+  ASSERT_EQ(read.calibration->beyond_drivers.size(), 1u);
+  EXPECT_EQ(read.calibration->beyond_drivers[0].checked_above, 0.0625);
+  for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
+           {"{ extension: link_deflection:2,", "{ extension: link_deflection:3,"},
+           {"{ extension: link_deflection:2,", "{ extension: joint_compliance:2,"},
+           {"growth: 1, checked_below", "growth: 3, checked_below"}, {"lower: 0.25", "lower: 0.95"},
+           {"sigma_at_1_mm: ", "sigma_at_1_mm: -"}, {"checked_above: ", "checked_above: -"},
+           {", checked_above: 0.0625", ""}, {"upper: 0.75", "upper: 0.75, uper: 1"}})
+    expectRefused(driver, from, to, "calibration.beyond_drivers[0]");
 }
 
 // A residual map (calibrate --residual-map) in the calibration section: rows and kernel drawn at random, saved and

@@ -14,6 +14,7 @@
 #include <cstdlib>
 
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/model/cause.hpp"
 #include "core/identification/hidden_effect.hpp"
 #include "test_support.hpp"
 
@@ -213,6 +214,27 @@ TEST(RegionCheck, ACyclicTermFittedOnPartOfAJointsRangeIsLeftOut) {
   EXPECT_LE(worse_on, 1);
 }
 
+// A campaign of the rows `inside` (rows and drivers in visiting order), a model of `e` fitted on its identification
+// rows as `calibrate` fits it, what extensionTransfer measures of it beyond them, and its prediction there.
+struct FittedCampaign {
+  Campaign c;
+  ExtendedFit fit;
+  ExtensionTransfer transfer;
+  PredictionModel pm;
+};
+FittedCampaign fitCampaign(const RobotModel& model, const std::vector<Observation>& rows,
+                           const std::vector<Eigen::VectorXd>& qs, const std::vector<bool>& inside, const Extension& e) {
+  FittedCampaign f;
+  f.c = campaignOf(model, rows, driversFromSequence(qs, {}, {}).rows, inside, false, "");
+  DiagnosisOptions o;
+  o.identifiability.prior_sigma = plausibleDeviation(model);
+  const DiagnosisData& d = f.c.data;
+  f.fit = fitExtended(model, f.c.start, d.identification, d.identification_drivers, {e}, o.solver, o.identifiability);
+  f.transfer = extensionTransfer(model, f.c.start, f.fit, d.identification, d.identification_drivers, o);
+  f.pm = predictionModel(model, f.fit, d.identification, d.identification_drivers);
+  return f;
+}
+
 // A joint (2 or 3) measured on 60 % of its range, with an error of one of two kinds, and a model that names a cause of
 // that joint (cyclic_transmission or joint_scale, drawn):
 //  - `library`: the named cause is the truth, over the whole range (hidden_effect.hpp's scaling, 0.02-0.1 deg RMS);
@@ -269,19 +291,13 @@ Carried carriedBeyond(bool library, std::mt19937_64& rng) {
     if (!library) qt[j] += curvature * (q[j] - centre) * (q[j] - centre);
     rows.push_back(library ? cell.measure(q, 0.0, rng, d.kind) : cell.measurePose(cell.truePose(qt, 0.0), q, rng, d.kind));
   }
-  const DriverTable dt = driversFromSequence(qs, {}, {});
-  const Campaign c = campaignOf(model, rows, dt.rows, inside, false, "");
-  Extension e;
-  e.cause = cause;
-  e.joint = j;
-  DiagnosisOptions o;
-  o.identifiability.prior_sigma = plausibleDeviation(model);
-  const ExtendedFit fit = fitExtended(model, c.start, c.data.identification, c.data.identification_drivers, {e}, o.solver,
-                                      o.identifiability);
+  const FittedCampaign f = fitCampaign(model, rows, qs, inside, Extension{cause, j});
+  const Campaign& c = f.c;
+  const ExtendedFit& fit = f.fit;
+  const PredictionModel& pm = f.pm;
   Carried out;
   out.cause = cause;
-  out.transfer = extensionTransfer(model, c.start, fit, c.data.identification, c.data.identification_drivers, o);
-  const PredictionModel pm = predictionModel(model, fit, c.data.identification, c.data.identification_drivers);
+  out.transfer = f.transfer;
   PredictionModel wide = pm;
   wide.beyond = out.transfer.beyond();
   const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, c.beyond, c.beyond_drivers);
@@ -404,6 +420,171 @@ TEST(ExtensionTransfer, APredictionBeyondTheDataCoversWhatTheExtensionsDoThere) 
   // The width law is the partial draws' (their error beyond grows with the range the cause was made to follow), not
   // the true causes' (a likelihood ratio test at 1 %).
   EXPECT_GT(widened[0], widened[1]) << "the width law is found as often for true causes as for stand-ins";
+}
+
+// A link's deflection beyond the gravity across it that the campaign saw (link_deflection's driver): the campaign
+// the rows on one side of a quantile of that gravity (drawn: 60 % from below or from above), the rows beyond graded.
+// The truth is a library link deflection (linear in the gravity across the link) or, outside the library, one that is
+// not linear in it: quadratic (a joint that softens under load) or saturating (a play taken up at a load drawn within
+// the campaign's range). Each at a size drawn like the library draws' (a joint error of 0.02-0.1 deg at the link's
+// end), on a drawn robot, measurement kind, tracker placement and target offset.
+struct CarriedDriver {
+  bool library = false;
+  int form = 0;  // 0 linear (library), 1 quadratic, 2 saturating
+  double near_without = 0, near_with = 0;  // RMS actual / predicted on the rows beyond within the judged distance
+  int near = 0;
+  int bad = 0, bad_flagged = 0;  // rows predicted more than 3x too low with the driver term; of them flagged
+  int rows = 0, far = 0;         // rows beyond the campaign; of them flagged (farther than judged)
+  ExtensionTransfer transfer;
+  std::string text;
+};
+CarriedDriver deflectionBeyond(bool library, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const test::RandomDraw d = test::randomDraw(rng);
+  const RobotModel model = test::robot(d.name);
+  SimulationConfig sc = d.sc;
+  sc.warmup_K = 0;
+  sc.zero_drift_per_K_max_rad = 0;
+  sc.zero_wear_per_h_max_rad = 0;
+  const SimulatedCell cell(model, sc);
+  const Eigen::VectorXd truth = cell.trueParams(0);
+  std::vector<int> beams;
+  for (int j = 0; j < model.numJoints(); ++j)
+    if (applicable(model, Extension{Cause::kLinkDeflection, j}, false)) beams.push_back(j);
+  const int link = beams[static_cast<size_t>(u(rng) * beams.size())];
+  const Extension e{Cause::kLinkDeflection, link};
+  const CauseModel& cause = causeModel(Cause::kLinkDeflection);
+  const std::vector<Eigen::VectorXd> qs = cell.randomConfigurations(700, rng);
+  std::vector<double> x;  // the gravity across the link (g)
+  for (const auto& q : qs) x.push_back(cause.rangeValue(model, truth, e, q, Drivers{}));
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  const bool low = u(rng) < 0.5;
+  const double cut = sorted[low ? sorted.size() * 6 / 10 : sorted.size() * 4 / 10];
+  std::vector<bool> inside;
+  for (double v : x) inside.push_back(low ? v < cut : v >= cut);
+  const int form = library ? 0 : 1 + static_cast<int>(u(rng) * 2);  // 0 linear, 1 quadratic, 2 saturating
+  // Saturating: at a load drawn within the campaign's middle half.
+  const double knee = sorted[static_cast<size_t>((low ? 0.15 + 0.3 * u(rng) : 0.55 + 0.3 * u(rng)) * sorted.size())];
+  double mean_in = 0;
+  int n_in = 0;
+  for (size_t i = 0; i < x.size(); ++i)
+    if (inside[i]) mean_in += x[i], ++n_in;
+  mean_in /= n_in;
+  const double size_rad = (0.02 + 0.08 * u(rng)) * kPi / 180 * (u(rng) < 0.5 ? 1 : -1);
+  const double length = linkLength(model, truth, link);
+  test::detail::Cartesian bend;
+  bend.link = link;
+  const double sag_m = size_rad * length, slope_rad = (4.0 / 3.0 + u(rng) / 6.0) * sag_m / length;
+  std::vector<Observation> rows;
+  for (size_t i = 0; i < qs.size(); ++i) {
+    // The factor on a linear deflection (whose sag is sag_m at 1 g across the link).
+    const double f = form == 0 ? 1.0 : form == 1 ? x[i] / mean_in : std::min(x[i], knee) / std::max(x[i], 1e-9);
+    bend.sag_m = sag_m * f;
+    bend.slope_rad = slope_rad * f;
+    const Pose T = bend.apply(model, truth, qs[i], forwardKinematics(model, truth, qs[i]), 0.0);
+    rows.push_back(cell.measurePose(T, qs[i], rng, d.kind));
+  }
+  const FittedCampaign f = fitCampaign(model, rows, qs, inside, e);
+  const Campaign& c = f.c;
+  const ExtendedFit& fit = f.fit;
+  const PredictionModel& pm = f.pm;
+  CarriedDriver out;
+  out.library = library;
+  out.form = form;
+  out.transfer = f.transfer;
+  PredictionModel wide = pm;
+  wide.beyond_drivers = out.transfer.beyondDrivers();
+  const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, c.beyond, c.beyond_drivers);
+  double near0 = 0, near1 = 0;
+  int& far = out.far;
+  out.rows = static_cast<int>(c.beyond.size());
+  const DriverRange* range = out.transfer.drivers.empty() ? nullptr : &out.transfer.drivers.front().range;
+  for (size_t i = 0; i < c.beyond.size() && range; ++i) {
+    const double noise2 = 3 * pm.variance_factor_position * std::pow(c.beyond[i].sigma_position_m, 2);
+    const double p0 = predictedPositionSigma(model, fit, pm, c.beyond[i].q_rad, c.beyond_drivers[i]);
+    const double p1 = predictedPositionSigma(model, fit, wide, c.beyond[i].q_rad, c.beyond_drivers[i]);
+    const double r1 = res[i].squaredNorm() / (p1 * p1 + noise2);
+    const bool flagged =
+        firstUnjudged(model, fit.params, wide.beyond_drivers, c.beyond[i].q_rad, c.beyond_drivers[i], nullptr) != nullptr;
+    if (r1 > 9) ++out.bad, out.bad_flagged += flagged;
+    far += flagged;
+    const double v = range->value(model, fit.params, c.beyond[i].q_rad, c.beyond_drivers[i]);
+    if (range->beyond(v) > 0 && range->judged(v)) {
+      near0 += res[i].squaredNorm() / (p0 * p0 + noise2);
+      near1 += r1;
+      ++out.near;
+    }
+  }
+  out.near_without = out.near ? std::sqrt(near0 / out.near) : 0;
+  out.near_with = out.near ? std::sqrt(near1 / out.near) : 0;
+  char t[600];
+  const char* forms[] = {"linear (library)", "quadratic", "saturating"};
+  std::snprintf(t, sizeof t, "%s %s, link %d, %s deflection %.3f deg, campaign %s %.2f g: %s; beyond: %d rows within the "
+                "judged distance %.2f -> %.2f, %d farther flagged; %d of %d rows over 3x flagged",
+                d.name.c_str(), d.kind == MeasurementKind::kPose6D ? "6D" : "points", link + 1, forms[form],
+                size_rad * 180 / kPi, low ? "below" : "from", cut,
+                range ? (range->rangeText() + ", sigma " + std::to_string(range->sigma_at_1_m * 1e3) + " mm growth " +
+                         std::to_string(range->growth) + ", " + range->judgedText() + ", folds " +
+                         std::to_string(out.transfer.drivers.front().ratio_rms_without) + " -> " +
+                         std::to_string(out.transfer.drivers.front().ratio_rms_with)).c_str()
+                      : "not measured",
+                out.near, out.near_without, out.near_with, far, out.bad_flagged, out.bad);
+  out.text = t;
+  std::printf("  %s\n", t);
+  return out;
+}
+
+// What link_deflection does beyond the gravity its data saw, measured on folds by that gravity (DriverRange).
+TEST(ExtensionTransfer, APredictionBeyondALinksLoadCoversWhatItsDeflectionDoesThere) {
+  const int draws = drawsOr(12);
+  std::mt19937_64 rng(test::testSeed() + 35);
+  std::vector<double> problem_without, problem_with, true_change, by_form[2][2];  // [quadratic, saturating][without, with]
+  int bad = 0, bad_flagged = 0, beyond_rows = 0, flagged_rows = 0;
+  for (int k = 0; k < draws; ++k) {
+    const CarriedDriver p = deflectionBeyond(false, rng);
+    const CarriedDriver t = deflectionBeyond(true, rng);
+    for (const CarriedDriver* c : {&p, &t}) {
+      ASSERT_EQ(c->transfer.drivers.size(), 1u) << c->text << "\n" << c->transfer.text;
+      ASSERT_EQ(c->transfer.beyondDrivers().size(), 1u);
+      const DriverTransfer& dt = c->transfer.drivers.front();
+      EXPECT_GT(std::max(dt.range.checked_below, dt.range.checked_above), 0) << c->text;
+      EXPECT_EQ(dt.range.label, "gravity across link " + std::to_string(dt.range.extension.joint + 1) + " (g)");
+      EXPECT_LE(dt.ratio_rms_with, std::max(1.0, dt.ratio_rms_without) + 1e-9) << c->text;
+      EXPECT_TRUE(c->transfer.not_measured.empty()) << c->transfer.text;
+    }
+    bad += p.bad;
+    bad_flagged += p.bad_flagged;
+    if (p.near > 0 && p.near_without > 1.5) {
+      problem_without.push_back(p.near_without);
+      problem_with.push_back(p.near_with);
+      by_form[p.form - 1][0].push_back(p.near_without);
+      by_form[p.form - 1][1].push_back(p.near_with);
+    }
+    if (t.near > 0) true_change.push_back(t.near_with / t.near_without);
+    EXPECT_GE(t.near_with, 0.4) << t.text;
+    beyond_rows += p.rows + t.rows;
+    flagged_rows += p.far + t.far;
+  }
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0.0 : v[v.size() / 2];
+  };
+  std::printf("  summary: %zu of %d non-linear draws predicted more than 1.5x too low within the judged distance "
+              "(median %.2fx, with the driver term %.2fx); library deflections: median change %.2f; of the non-linear "
+              "draws' rows beyond predicted more than 3x too low with the driver term, %d of %d flagged\n",
+              problem_without.size(), draws, median(problem_without), median(problem_with), median(true_change),
+              bad_flagged, bad);
+  std::printf("  of those, quadratic %zu (median %.2fx -> %.2fx), saturating %zu (%.2fx -> %.2fx); %d of %d rows beyond "
+              "the campaigns flagged as farther than judged\n", by_form[0][0].size(), median(by_form[0][0]),
+              median(by_form[0][1]), by_form[1][0].size(), median(by_form[1][0]), median(by_form[1][1]), flagged_rows,
+              beyond_rows);
+  ASSERT_GE(problem_without.size(), static_cast<size_t>(draws) / 3) << "the draws do not make the failure the term is for";
+  EXPECT_GE(median(problem_without), 1.6) << "the draws do not make the failure the driver term is for";
+  EXPECT_LE(median(problem_with), 1.5);
+  EXPECT_GE(median(true_change), 0.9);
+  // A share of a few rows says little (one draw's rows within the judged distance can be a dozen): judged from 30.
+  if (bad >= 30) EXPECT_GE(bad_flagged, 0.85 * bad);
 }
 
 // regionSplit against a plain computation: the covariance's major axis by power iteration, the median by a full sort.

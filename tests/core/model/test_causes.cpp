@@ -7,6 +7,7 @@
 #include <ceres/jet.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <set>
 
 #include "cellcal/core/model/cause.hpp"
@@ -126,6 +127,34 @@ TEST_P(CauseSuite, NamesAndApplicabilityKeepTheContract) {
   const Eigen::VectorXd sigma = extensionPriorSigma(model_, model_.nominal, usable, 1e-3);
   EXPECT_TRUE(sigma.allFinite());
   EXPECT_GT(sigma.maxCoeff(), 0.0);
+}
+
+// Every extension has a region its data bound (extensionTransfer judges it beyond, compensation refuses farther): a
+// joint's angle (regionJoint), or a driver whose value is finite, deterministic and named with its unit in brackets
+// (rangeValue, rangeLabel); never both. A thermal cause's driver is the thermal value the extension sees.
+TEST_P(CauseSuite, ItsRegionIsAJointsRangeOrADriversRange) {
+  const CauseModel& c = cause();
+  for (const Extension& e : applicableExtensions()) {
+    const std::string what = extensionSpec(e);
+    const Eigen::VectorXd p = randomParams(), q = randomQ();
+    const Drivers d = randomDrivers(0.01);
+    const double x = c.rangeValue(model_, p, e, q, d);
+    if (c.regionJoint(e) >= 0) {
+      EXPECT_LT(c.regionJoint(e), model_.numJoints()) << what;
+      EXPECT_TRUE(std::isnan(x)) << what << ": a joint and a driver";
+      continue;
+    }
+    ASSERT_TRUE(std::isfinite(x)) << what << ": no region";
+    EXPECT_EQ(c.rangeValue(model_, p, e, q, d), x) << what;
+    for (const char* source : {"temperature_c", "stamp_s"}) {
+      const std::string label = c.rangeLabel(e, source);
+      const size_t open = label.rfind(" (");
+      ASSERT_NE(open, std::string::npos) << label;
+      EXPECT_GT(label.size(), open + 3) << label;
+      EXPECT_EQ(label.back(), ')') << label;
+    }
+    if (c.driver() == CauseModel::Driver::kThermal) EXPECT_EQ(x, thermalDriverValue(e, d)) << what;
+  }
 }
 
 // B writes only the rows of the parameters the cause's subject names, is finite and the same on a second call.

@@ -57,6 +57,13 @@ class LinkDeflection final : public CauseModel {
     return "position error along the gravity across link " + std::to_string(joint + 1) + " (mm)";
   }
   double signatureX(const SignatureRow& at) const override { return across(at).norm(); }
+  double rangeValue(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
+                    const Eigen::VectorXd& q_rad, const Drivers&) const override {
+    return causes::linkLoad(model, chainFrames(model, params, q_rad), ext.joint).across.norm();
+  }
+  std::string rangeLabel(const Extension& ext, const std::string&) const override {
+    return "gravity across link " + std::to_string(ext.joint + 1) + " (g)";
+  }
   SignatureAxis signatureAxis(const SignatureRow& at) const override {
     const Eigen::Vector3d a = across(at);
     SignatureAxis axis;

@@ -1,4 +1,6 @@
 // The registry of causes (cause_list.hpp) and what every cause has in common (the defaults of CauseModel).
+#include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "cause_support.hpp"
@@ -52,6 +54,18 @@ std::string CauseModel::label(const Extension& ext) const {
 
 int CauseModel::regionJoint(const Extension& ext) const {
   return subject() == Subject::kJoint && ext.joint >= 0 ? ext.joint : -1;
+}
+
+double CauseModel::rangeValue(const RobotModel&, const Eigen::VectorXd&, const Extension& ext, const Eigen::VectorXd&,
+                              const Drivers& drivers) const {
+  return driver() == Driver::kThermal ? thermalDriverValue(ext, drivers) : std::numeric_limits<double>::quiet_NaN();
+}
+
+std::string CauseModel::rangeLabel(const Extension& ext, const std::string& thermal_source) const {
+  if (driver() != Driver::kThermal) return "";
+  if (thermal_source == "temperature_c") return causes::thermalLabel(thermal_source);
+  return ext.time_constant_h > 0 && std::isfinite(ext.time_constant_h) ? "warm-up since the first row (h)"
+                                                                        : causes::thermalLabel(thermal_source);
 }
 
 std::string CauseModel::signatureXLabel(const RobotModel&, int joint, const std::string& thermal_source) const {

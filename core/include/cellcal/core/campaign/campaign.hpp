@@ -72,7 +72,8 @@ struct PredictionCheck {
   double identification_rms_mm = 0, identification_max_mm = 0, verification_rms_mm = 0, verification_max_mm = 0;
   double ratio_rms = 0;
   int extrapolated = 0;    // verification rows predicted more than 3x the largest identification row
-  int beyond_checked = 0;  // verification rows farther beyond a joint's range than its folds judged (firstUnjudged)
+  // verification rows farther beyond a joint's range, or an extension driver's, than its folds judged (firstUnjudged)
+  int beyond_checked = 0;
 };
 
 // The residual map judged on the verification rows: the held-out mean with the map where it applies against without
@@ -115,6 +116,7 @@ struct CampaignReport {
   std::optional<CarriedComparison> carried;                // frames_only: the file's extensions against its geometry
   std::optional<ExtensionTransfer> transfer;               // extensions: measured on region folds
   std::vector<BeyondRange> beyond;                         // what the extensions may do beyond the data (or carried)
+  std::vector<DriverRange> beyond_drivers;                 // the same beyond their drivers' ranges
   CampaignErrors errors;
   double frames_variance_factor = 1;                       // frames_only: what the frames leave against the sigmas
   PredictionModel prediction;

@@ -25,7 +25,9 @@
 // prediction.hpp's BeyondRange), the predicted sigma adds what the extensions may do beyond their data's joint ranges;
 // a target whose joints lie farther beyond a range than the extensions were judged is one where their correction was
 // never tested: its predicted sigma is infinite and, with max_predicted_sigma_m set, it is passed through uncorrected
-// (outside_calibration) with the joint named.
+// (outside_calibration) with the joint named. The same over the drivers of extensions no joint bounds
+// (IdentifiedModel::beyond_drivers, prediction.hpp's DriverRange: a link's gravity across it, evaluated at q*; a
+// thermal driver, which the publisher does not know at a target, is taken at 0, its campaign's reference).
 //
 // With a residual map (IdentifiedModel::residual_map: what the calibrated model still leaves where the robot was
 // measured, residual_map.hpp), near those poses the real robot lands at the model's position plus the map's correction
@@ -97,6 +99,8 @@ struct IdentifiedModel : CalibratedModel {
   // The joint ranges the extensions' data covered and how far beyond them they were judged (a calibrated robot file's
   // beyond_data); empty: not known, no such guard.
   std::vector<BeyondRange> beyond_data;
+  // The same over the drivers of extensions no joint bounds (the robot file's beyond_drivers).
+  std::vector<DriverRange> beyond_drivers;
 };
 
 // The residual map of a calibrated robot file (`calibrate --residual-map --save-robot`; none: nothing changes) attached

@@ -44,6 +44,9 @@ struct RobotCalibration {
   // judged it: farther, compensation calls the extensions' correction unknown (compensation.hpp). One entry per joint
   // with extensions (sigma 0 where the folds' predictions held); empty without extensions. Key beyond_data.
   std::vector<BeyondRange> beyond_data;
+  // The same for the extensions no joint bounds, over their drivers' ranges (DriverRange: link deflection's gravity
+  // across its link, a thermal drift's driver). Key beyond_drivers.
+  std::vector<DriverRange> beyond_drivers;
   std::string provenanceValue(const std::string& key) const;  // "" when absent
   // provenance date_utc ("YYYY-MM-DDTHH:MM:SSZ") as ns since the epoch; nullopt when absent or malformed.
   std::optional<std::int64_t> dateUtcNs() const;

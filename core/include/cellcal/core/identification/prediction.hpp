@@ -56,6 +56,48 @@ const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const E
 // were judged up to 12.0 deg beyond it": what firstUnjudged found, for a message.
 std::string unjudgedText(const BeyondRange& range, double q_rad);
 
+// The same for an extension that no joint's angle bounds (link deflection: the gravity across its link; thermal drift
+// and frame drift: the thermal driver): the range of its driver over the data it was fitted on (CauseModel::rangeValue,
+// in the unit rangeLabel names) and a further position error (m, 1 sigma) of sigma_at_1_m * d^growth beyond it, d the
+// driver's distance beyond [lower, upper] in its unit, held at its value at the end's checked distance (how far
+// beyond that end the folds judged it; 0: nowhere). Farther the extension's form was never put to the test, as for a
+// BeyondRange: judged() is false there and the caller says the configuration is extrapolated. Each end keeps its own
+// distance (a driver may be bounded at one end, as the gravity across a link is at 1 g, and seen far at the other).
+struct DriverRange {
+  Extension extension;            // whose driver (its time constant sets a warm-up driver's value)
+  std::string label;              // rangeLabel: "gravity across link 2 (g)"
+  double lower = 0, upper = 0;    // the driver's range over the data, in its unit
+  double sigma_at_1_m = 0;
+  int growth = 0;                 // 0, 1 or 2 as BeyondRange's
+  double checked_below = 0, checked_above = 0;  // driver unit
+  double beyond(double x) const;  // d
+  double checked(double x) const; // the checked distance of the end x lies beyond (0 within the range)
+  double sigmaM(double x) const;
+  bool judged(double x) const;    // d <= checked(x)
+  std::string quantity() const;   // the label without its unit: "gravity across link 2"
+  std::string unit() const;       // the label's unit: "g"
+  std::string growthText() const; // "", " per g beyond", " per g^2 beyond": the unit sigma is read in
+  // "gravity across link 2 [0.3, 0.92] g": the range, to 3 significant digits.
+  std::string rangeText() const;
+  // "judged up to 0.09 g below it and 0.015 g above it" ("not below it", "not judged beyond it").
+  std::string judgedText() const;
+  // The driver at q (CauseModel::rangeValue of the extension at the kinematic parameters `params`).
+  double value(const RobotModel& model, const Eigen::VectorXd& params, const Eigen::VectorXd& q_rad,
+               const Drivers& drivers) const;
+  bool IsValid(const RobotModel& model, std::string* error) const;
+};
+// The first driver range whose driver at q lies farther beyond it than it was judged, with that driver's value in
+// *x; nullptr where all were judged.
+const DriverRange* firstUnjudged(const RobotModel& model, const Eigen::VectorXd& params,
+                                 const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad,
+                                 const Drivers& drivers, double* x);
+// "gravity across link 2 at 0.95 g lies 0.2 g beyond [0.3, 0.75] g, the range link_deflection link 2 was fitted on;
+// it was judged up to 0.1 g beyond it".
+std::string unjudgedText(const DriverRange& range, double x);
+// The position variance (m^2) the driver ranges add at q: the sum of sigmaM(value)^2.
+double driverRangeVariance(const RobotModel& model, const Eigen::VectorXd& params,
+                           const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad, const Drivers& drivers);
+
 struct PredictionOptions {
   double prior_length_m = kPlausibleLengthM;            // 1 sigma of a length no one calibrated
   double prior_angle_rad = kPlausibleAngleRad;
@@ -74,6 +116,8 @@ struct PredictionModel {
   // Errors beyond the data's joint ranges (extensionTransfer), added to the parameters' in predictedPositionSigma:
   // sum over them of sigmaRad(q)^2 |dp/dq_joint|^2. carriedPrediction keeps the carried model's.
   std::vector<BeyondRange> beyond;
+  // And beyond the ranges of the drivers of extensions no joint bounds: sum of DriverRange::sigmaM^2.
+  std::vector<DriverRange> beyond_drivers;
 };
 
 // By how much a fit's whitened residuals exceed the readings' sigmas, position rows and orientation rows apart (a
@@ -126,24 +170,34 @@ PredictionModel carriedPrediction(const RobotModel& model, const CalibratedModel
 // for a curve bends away from it the farther it was made to follow it) would be understated: each fold's fitted rows
 // are folded again at the same end, and where the rows of both levels are explained better with the sigma scaled by
 // (fitted width / the campaign's)^p, p 1 or 2 (a likelihood ratio test at 1 %), the sigma is that carried to the
-// campaign's whole width (JointTransfer::width_power). The result's ranges are the joint's over `obs`. Extensions of no joint (thermal drift of the lengths, link deflection, frame drift) are not
-// measured: `not_measured` names them.
-struct JointTransfer {
-  BeyondRange beyond;  // sigma_at_1_rad 0: the folds' predictions held (or checked_rad 0: not measured)
+// campaign's whole width (JointTransfer::width_power). The result's ranges are the joint's over `obs`.
+// An extension no joint bounds (link deflection, thermal drift, frame drift: CauseModel::rangeValue) is judged the same
+// way on folds by its driver's value (DriverTransfer): the rows beyond either end's quantile of the driver judged, a
+// DriverRange fitted on them with the position error itself as its unit (no joint to carry it). One whose driver is
+// the same at every row (nothing to fold by) is not measured: `not_measured` names it.
+struct FoldStats {
   int folds = 0, judged_rows = 0;
   // The folds of each fold's fitted rows at its end, and their judged rows: made only where the folds' rows err
   // beyond their prediction (ratio_rms_without above 1), for width_power.
   int inner_folds = 0, inner_rows = 0;
-  int width_power = 0;  // 1 or 2: beyond.sigma_at_1_rad is the folds' carried to the whole range as width^p
+  int width_power = 0;  // 1 or 2: the sigma is the folds' carried to the whole range as width^p
   double ratio_rms_without = 0, ratio_rms_with = 0;  // on the judged rows
+};
+struct JointTransfer : FoldStats {
+  BeyondRange beyond;  // sigma_at_1_rad 0: the folds' predictions held (or checked_rad 0: not measured)
+};
+struct DriverTransfer : FoldStats {
+  DriverRange range;   // sigma_at_1_m 0: the folds' predictions held (or both checked 0: not measured)
 };
 struct ExtensionTransfer {
   std::vector<JointTransfer> joints;
+  std::vector<DriverTransfer> drivers;
   std::vector<std::string> not_measured;  // extensionLabel of each extension not measured, with why
   // Every joint's: its range, the sigma measured beyond it (0 where the folds' predictions held) and how far beyond
   // it that was judged (0 for a joint not measured).
   std::vector<BeyondRange> beyond() const;
-  std::string text;                         // one line per joint and a line for what was not measured
+  std::vector<DriverRange> beyondDrivers() const;  // the same for every driver measured
+  std::string text;                         // one line per joint and driver and a line for what was not measured
 };
 ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::VectorXd& start, const CalibratedModel& fit,
                                     const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,

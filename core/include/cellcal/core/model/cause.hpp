@@ -97,6 +97,14 @@ class CauseModel {
   // The joint whose angle bounds the regions diagnose judges the cause on beyond its data; -1: halves of the
   // workspace. Default: the joint of a kJoint cause.
   virtual int regionJoint(const Extension& ext) const;
+  // For an extension with no regionJoint (-1): the quantity whose range over a campaign bounds where it was fitted,
+  // its value at a configuration (rangeValue) and its name with its unit (rangeLabel; thermal_source as
+  // DiagnosisData's). Beyond that range its form was never put to the test (extensionTransfer judges it there on
+  // folds, compensation refuses farther). Default: the thermal driver the extension sees (thermalDriverValue) for a
+  // kThermal cause; NaN for the others (a joint's angle bounds them, or nothing does).
+  virtual double rangeValue(const RobotModel& model, const Eigen::VectorXd& params, const Extension& ext,
+                            const Eigen::VectorXd& q_rad, const Drivers& drivers) const;
+  virtual std::string rangeLabel(const Extension& ext, const std::string& thermal_source) const;
 
   // diagnose's signature figure (see SignatureRow). Default x: the joint's angle (deg) for kJointAngle, the thermal
   // driver for kThermal; a cause with another driver says its own.
