@@ -99,8 +99,8 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
       std::vector<std::string> said;
       for (const BeyondRange& b : r.applied_model->beyond_data) {
         char t[200];
-        std::snprintf(t, sizeof t, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
-                      b.joint + 1, b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.checked_rad * 180 / kPi);
+        std::snprintf(t, sizeof t, "extensions of joint %d were fitted on %s and judged %.1f deg beyond it", b.joint + 1,
+                      b.rangeText().c_str(), b.checked_rad * 180 / kPi);
         said.push_back(t);
       }
       for (const DriverRange& d : r.applied_model->beyond_drivers) {

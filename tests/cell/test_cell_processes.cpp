@@ -8,8 +8,10 @@
 #include <sys/socket.h>
 
 #include <array>
+#include <cmath>
 #include <atomic>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <random>
 #include <mutex>
@@ -18,6 +20,7 @@
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/lab/sim_program.hpp"
 
@@ -160,46 +163,33 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
 }
 
 // A calibrated robot file's judged ranges reach the compensation publisher: a first run of the cell is recorded,
-// exported and calibrated with joint_compliance of a joint drawn at random (`cellcal calibrate --save-robot`); the
-// file's beyond_data entry of that joint is then given a window of the joint drawn at random (a share of the file's
-// range, judged a drawn distance beyond it), and a second run starts its engine from that file. The publisher must
-// say the window once, pass through as outside_calibration the targets past it, naming the joint, and correct others.
-TEST(CellProcesses, TargetsBeyondTheRobotFilesJudgedRangesArePassedThrough) {
+// exported and calibrated with `extension` (`cellcal calibrate --save-robot`); `window` then rewrites the file's
+// judged range of it (beyond_data or beyond_drivers) to one drawn at random and says what the publisher must print
+// once when it applies the file's model and what a target beyond it is refused for; a second run starts its engine
+// from that file. The publisher must say the window once, pass through as outside_calibration the targets past it,
+// with the reason naming the joint or driver, and correct others.
+struct JudgedWindow {
+  std::string said, refused, what;  // the publisher's line; the reason's start for a target past it; for messages
+};
+void expectJudgedWindowGuarded(const std::string& extension, const std::string& program,
+                               const std::function<JudgedWindow(std::string*, std::mt19937_64&)>& window) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();
   std::mt19937_64 rng(seed);
-  const int joint = std::uniform_int_distribution<int>(2, 3)(rng);
   RobotEntry robot{"tx60", "tx60_target"};
-  robot.extensions = "[joint_compliance:" + std::to_string(joint) + "]";
-  const std::string program = std::string(kShortProgram) + "  hidden_effect: { cause: joint_compliance, joint: " +
-                              std::to_string(joint) + ", size_deg: 0.04 }\n";
+  robot.extensions = "[" + extension + "]";
   const std::string cfg = writeCell(dir, domainForTest(), seed, {robot}, program);
   ASSERT_FALSE(runCell(dir, cfg, "9", {"--record", dir + "/first.mcap"}).is_discarded());
   Process exported(dir, "export", {"cellcal", "export", dir + "/first.mcap", "--config", cfg, "--out", dir + "/first.csv"});
   ASSERT_EQ(exported.wait(60), 0) << exported.log();
   Process calibrated(dir, "calibrate", {"cellcal", "calibrate", "--robot", std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml",
-                                        "--data", dir + "/first.csv", "--model", "joint_compliance:" + std::to_string(joint),
-                                        "--save-robot", dir + "/calibrated.yaml"});
+                                        "--data", dir + "/first.csv", "--model", extension, "--save-robot",
+                                        dir + "/calibrated.yaml"});
   ASSERT_EQ(calibrated.wait(60), 0) << calibrated.log();
-  // The file's entry of the joint, replaced by the drawn window.
   std::ifstream in(dir + "/calibrated.yaml");
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const std::string key = "- { joint: " + std::to_string(joint) + ", lower_deg: ";
-  const size_t at = text.find(key);
-  ASSERT_NE(at, std::string::npos) << "no beyond_data entry of joint " << joint << " in\n" << text;
-  const size_t end = text.find('}', at);
-  const double lower = std::stod(text.substr(at + key.size()));
-  const size_t up = text.find("upper_deg: ", at);
-  ASSERT_LT(up, end);
-  const double upper = std::stod(text.substr(up + 11));
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  const double share = 0.2 + 0.3 * u(rng), centre = lower + (upper - lower) * (0.3 + 0.4 * u(rng));
-  const double lo = centre - share * (upper - lower) / 2, hi = centre + share * (upper - lower) / 2;
-  const double checked = 10 * u(rng);
-  char entry[300];
-  std::snprintf(entry, sizeof entry, "- { joint: %d, lower_deg: %.6f, upper_deg: %.6f, sigma_at_1_rad_deg: 0, growth: 0, checked_deg: %.6f }",
-                joint, lo, hi, checked);
-  text.replace(at, end + 1 - at, entry);
+  const JudgedWindow w = window(&text, rng);
+  ASSERT_FALSE(w.said.empty()) << "no judged range of " << extension << " in\n" << text;
   std::ofstream(dir + "/calibrated.yaml") << text;
   robot.calibration_file = dir + "/calibrated.yaml";
   std::filesystem::create_directories(dir + "/second");
@@ -207,26 +197,97 @@ TEST(CellProcesses, TargetsBeyondTheRobotFilesJudgedRangesArePassedThrough) {
   const auto s = runCell(dir + "/second", second, "9");
   ASSERT_FALSE(s.is_discarded());
   const auto& r = s["robots"][0];
-  const std::string what = "joint " + std::to_string(joint) + " window [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                           "] deg judged " + std::to_string(checked) + " deg beyond";
   int beyond = 0;
   std::string last;
   for (const auto& [reason, v] : r["targets_refused_why"].items())
-    if (reason.find("the range its model extensions were fitted on") != std::string::npos) {
+    if (reason.find(" was fitted on") != std::string::npos || reason.find(" were fitted on") != std::string::npos) {
       beyond += v["count"].get<int>();
       last = v["last"].get<std::string>();
     }
-  std::printf("  %s: %d targets passed through beyond it, %d corrected, %d refused in all\n", what.c_str(), beyond,
+  std::printf("  %s: %d targets passed through beyond it, %d corrected, %d refused in all\n", w.what.c_str(), beyond,
               r["targets_applied"].get<int>(), r["targets_refused"].get<int>());
-  EXPECT_GT(beyond, 0) << what << "\n" << r.dump(1);
-  EXPECT_NE(last.find("joint " + std::to_string(joint) + " at "), std::string::npos) << last;
+  EXPECT_GT(beyond, 0) << w.what << "\n" << r.dump(1);
+  EXPECT_EQ(last.rfind(w.refused, 0), 0u) << last;
   EXPECT_GT(r["targets_applied"].get<int>(), 0) << r.dump(1);
   std::ifstream log(dir + "/second/run/compensation_publisher.log");
   const std::string said((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
-  char window[200];
-  std::snprintf(window, sizeof window, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
-                joint, lo, hi, checked);
-  EXPECT_NE(said.find(window), std::string::npos) << window << "\n" << said;
+  EXPECT_NE(said.find(w.said), std::string::npos) << w.said << "\n" << said;
+}
+
+// The number after `key` in `text` from `at` on (NaN where it is not before `end`).
+double numberAfter(const std::string& text, const std::string& key, size_t at, size_t end) {
+  const size_t k = text.find(key, at);
+  return k < end ? std::stod(text.substr(k + key.size())) : std::nan("");
+}
+
+// A joint's range (beyond_data) of joint_compliance of a joint drawn at random, the window a share of the file's
+// range judged a drawn distance beyond it.
+TEST(CellProcesses, TargetsBeyondTheRobotFilesJudgedRangesArePassedThrough) {
+  std::mt19937_64 draw(testSeed() + 1);
+  const int joint = std::uniform_int_distribution<int>(2, 3)(draw);
+  const std::string program = std::string(kShortProgram) + "  hidden_effect: { cause: joint_compliance, joint: " +
+                              std::to_string(joint) + ", size_deg: 0.04 }\n";
+  expectJudgedWindowGuarded("joint_compliance:" + std::to_string(joint), program, [&](std::string* text, std::mt19937_64& rng) {
+    JudgedWindow w;
+    const std::string key = "- { joint: " + std::to_string(joint) + ", lower_deg: ";
+    const size_t at = text->find(key);
+    if (at == std::string::npos) return w;
+    const size_t end = text->find('}', at);
+    const double lower = numberAfter(*text, "lower_deg: ", at, end), upper = numberAfter(*text, "upper_deg: ", at, end);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const double share = 0.2 + 0.3 * u(rng), centre = lower + (upper - lower) * (0.3 + 0.4 * u(rng));
+    const double lo = centre - share * (upper - lower) / 2, hi = centre + share * (upper - lower) / 2;
+    const double checked = 10 * u(rng);
+    char entry[300];
+    std::snprintf(entry, sizeof entry, "- { joint: %d, lower_deg: %.6f, upper_deg: %.6f, sigma_at_1_rad_deg: 0, growth: 0, checked_deg: %.6f }",
+                  joint, lo, hi, checked);
+    text->replace(at, end + 1 - at, entry);
+    char said[200];
+    std::snprintf(said, sizeof said, "extensions of joint %d were fitted on [%.1f, %.1f] deg and judged %.1f deg beyond it",
+                  joint, lo, hi, checked);
+    w.said = said;
+    w.refused = "joint " + std::to_string(joint) + " at ";
+    w.what = "joint " + std::to_string(joint) + " window [" + std::to_string(lo) + ", " + std::to_string(hi) +
+             "] deg judged " + std::to_string(checked) + " deg beyond";
+    return w;
+  });
+}
+
+// A driver's range (beyond_drivers) of link_deflection of link 2 (the TX60's upper arm; the simulated robot bends
+// nowhere: the fit finds what it finds), the window a share of the gravity across the link the file saw, each end
+// judged a drawn distance beyond it.
+TEST(CellProcesses, TargetsBeyondTheRobotFilesJudgedLoadArePassedThrough) {
+  expectJudgedWindowGuarded("link_deflection:2", kShortProgram, [&](std::string* text, std::mt19937_64& rng) {
+    JudgedWindow w;
+    const std::string key = "- { extension: link_deflection:2, ";
+    const size_t at = text->find(key);
+    if (at == std::string::npos) return w;
+    const size_t end = text->find('}', at);
+    const double lower = numberAfter(*text, "lower: ", at, end), upper = numberAfter(*text, "upper: ", at, end);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const double share = 0.2 + 0.3 * u(rng), centre = lower + (upper - lower) * (0.3 + 0.4 * u(rng));
+    DriverRange r;
+    r.extension = Extension{Cause::kLinkDeflection, 1};
+    r.label = "gravity across link 2 (g)";
+    r.lower = centre - share * (upper - lower) / 2;
+    r.upper = centre + share * (upper - lower) / 2;
+    r.checked_below = 0.05 * u(rng);
+    r.checked_above = 0.05 * u(rng);
+    char entry[400];
+    std::snprintf(entry, sizeof entry, "- { extension: link_deflection:2, driver: \"%s\", lower: %.6f, upper: %.6f, "
+                  "sigma_at_1_mm: 0, growth: 0, checked_below: %.6f, checked_above: %.6f }", r.label.c_str(), r.lower,
+                  r.upper, r.checked_below, r.checked_above);
+    text->replace(at, end + 1 - at, entry);
+    // What the file reads back as (the figures to the digits written).
+    r.lower = numberAfter(entry, "lower: ", 0, sizeof entry);
+    r.upper = numberAfter(entry, "upper: ", 0, sizeof entry);
+    r.checked_below = numberAfter(entry, "checked_below: ", 0, sizeof entry);
+    r.checked_above = numberAfter(entry, "checked_above: ", 0, sizeof entry);
+    w.said = "link_deflection link 2 was fitted on " + r.rangeText() + " and " + r.judgedText();
+    w.refused = "gravity across link 2 at ";
+    w.what = "link 2 window " + r.rangeText() + ", " + r.judgedText();
+    return w;
+  });
 }
 
 // `cellcal status` beside a running cell: once (JSON) it reports the robot's version, health, poses, verification

@@ -30,11 +30,16 @@ const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const E
   return nullptr;
 }
 
+std::string BeyondRange::rangeText() const {
+  char t[80];
+  std::snprintf(t, sizeof t, "[%.1f, %.1f] deg", lower_rad * 180 / kPi, upper_rad * 180 / kPi);
+  return t;
+}
+
 std::string unjudgedText(const BeyondRange& b, double q_rad) {
   char t[300];
-  std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg beyond [%.1f, %.1f] deg, the range its model extensions "
-                "were fitted on; ", b.joint + 1, q_rad * 180 / kPi, b.beyondRad(q_rad) * 180 / kPi,
-                b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi);
+  std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg beyond %s, the range its model extensions were fitted "
+                "on; ", b.joint + 1, q_rad * 180 / kPi, b.beyondRad(q_rad) * 180 / kPi, b.rangeText().c_str());
   char u[80];
   if (b.checked_rad > 0) std::snprintf(u, sizeof u, "they were judged up to %.1f deg beyond it", b.checked_rad * 180 / kPi);
   else std::snprintf(u, sizeof u, "they were not judged beyond it");

@@ -318,11 +318,11 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     const std::string name = "joint " + std::to_string(joint + 1);
     char judged[300], error[120];
     if (r.checked > 0)
-      std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond [%.1f, %.1f] deg, farther it is extrapolated",
-                    r.checked * 180 / kPi, r.lower * 180 / kPi, r.upper * 180 / kPi);
+      std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond %s, farther it is extrapolated",
+                    r.checked * 180 / kPi, jt.beyond.rangeText().c_str());
     else
-      std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond [%.1f, %.1f] deg it is extrapolated",
-                    r.skipped.c_str(), r.lower * 180 / kPi, r.upper * 180 / kPi);
+      std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond %s it is extrapolated", r.skipped.c_str(),
+                    jt.beyond.rangeText().c_str());
     std::snprintf(error, sizeof error, "joint error of %.3g deg%s", r.form.sigma * 180 / kPi, jt.beyond.growthText());
     if (r.stats.judged_rows == 0)
       say(name + ": not measured (" + r.skipped + ")");

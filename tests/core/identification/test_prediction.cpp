@@ -308,7 +308,11 @@ TEST(Prediction, ATrackerThatUnderstatesItsOrientationNoiseKeepsTheCarriedPredic
     const Carried c = carry(rng, dr, 0.1);
     const VarianceFactors apart =
         residualVarianceFactors(dr.model, c.carried, c.rows, c.drivers, static_cast<int>(c.frames.size()));
-    EXPECT_GT(apart.orientation, 20 * apart.position) << "draw " << d;
+    // Orientation rows 100x their stated variance, position rows about theirs plus what the carried kinematics miss on
+    // the new set-up; from a few dozen rows. Over 700 seeds x 16 draws: orientation 35-140, position up to 6.8, their
+    // ratio 6.6 or more (20x, asserted before 2026-12-04, failed 8 seeds of 300: position 3.5-6.5).
+    EXPECT_GT(apart.orientation, 3 * apart.position) << "draw " << d;
+    EXPECT_GT(apart.orientation, 20) << "draw " << d;
     const PredictionModel cpm = carriedPrediction(dr.model, c.carried, c.pm, c.rows, c.drivers, c.frames, apart);
     const PredictionModel one = carriedPrediction(dr.model, c.carried, c.pm, c.rows, c.drivers, c.frames,
                                                   VarianceFactors{c.frames_factor, c.frames_factor});

@@ -48,6 +48,7 @@ struct BeyondRange {
   double sigmaRad(double q_rad) const;
   bool judged(double q_rad) const;       // d <= checked_rad
   const char* growthText() const;        // "", " per rad beyond", " per rad^2 beyond": the unit sigma is read in
+  std::string rangeText() const;         // "[-20.0, 90.0] deg"
   bool IsValid(int num_joints, std::string* error) const;
 };
 // The first range whose joint at q_rad lies farther beyond it than it was judged; nullptr where all were judged.
