@@ -793,8 +793,9 @@ TEST(CliCalibrate, ALinkDeflectionsRangeOfLoadIsSavedAndCarried) {
       far += x[i] > r.upper + r.checked_above + 0.01;
       near += x[i] < r.upper + r.checked_above - 0.01;
     }
-    if (far > 0) EXPECT_GT(flagged, 0) << what;
-    if (near == 0) EXPECT_GT(flagged, 0) << what;
+    if (far > 0 || near == 0) {
+      EXPECT_GT(flagged, 0) << what;
+    }
     EXPECT_LT(flagged, static_cast<int>(beyond.rows.size())) << what;
     if (r.sigma_at_1_m > 0) {
       EXPECT_LT(ratio[1], ratio[0]) << what;

@@ -67,6 +67,13 @@ json identifiabilityJson(const RobotModel& robot, const IdentifiabilityReport& i
   return {{"noise_scale", ir.noise_scale}, {"not_identifiable", rank}, {"held_within_plausible", plausible}};
 }
 
+// What the region folds of one joint or driver found (FoldStats), under `key`: `value` (the joint, or the extension).
+json foldJson(const FoldStats& t, const char* key, const json& value) {
+  return {{key, value}, {"folds", t.folds}, {"judged_rows", t.judged_rows}, {"ratio_rms_without", t.ratio_rms_without},
+          {"ratio_rms_with", t.ratio_rms_with}, {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
+          {"width_power", t.width_power}};
+}
+
 json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
   json ranges = json::array();
   for (const auto& b : rep.beyond)
@@ -76,10 +83,7 @@ json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
   json folds = json::array();
   if (rep.transfer)
     for (const auto& t : rep.transfer->joints)
-      folds.push_back({{"joint", t.beyond.joint + 1}, {"folds", t.folds}, {"judged_rows", t.judged_rows},
-                       {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with},
-                       {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
-                       {"width_power", t.width_power}});
+      folds.push_back(foldJson(t, "joint", t.beyond.joint + 1));
   json driver_ranges = json::array();
   for (const auto& d : rep.beyond_drivers)
     driver_ranges.push_back({{"extension", extensionSpec(d.extension)}, {"driver", d.label}, {"lower", d.lower},
@@ -87,10 +91,7 @@ json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
                              {"checked_below", d.checked_below}, {"checked_above", d.checked_above}});
   if (rep.transfer)
     for (const auto& t : rep.transfer->drivers)
-      folds.push_back({{"extension", extensionSpec(t.range.extension)}, {"folds", t.folds}, {"judged_rows", t.judged_rows},
-                       {"ratio_rms_without", t.ratio_rms_without}, {"ratio_rms_with", t.ratio_rms_with},
-                       {"inner_folds", t.inner_folds}, {"inner_judged_rows", t.inner_rows},
-                       {"width_power", t.width_power}});
+      folds.push_back(foldJson(t, "extension", extensionSpec(t.range.extension)));
   return {{"ranges", ranges}, {"driver_ranges", driver_ranges}, {"carried", a.frames_only}, {"folds", folds},
           {"not_measured", rep.transfer ? rep.transfer->not_measured : std::vector<std::string>{}},
           {"text", rep.transfer ? rep.transfer->text : ""}};

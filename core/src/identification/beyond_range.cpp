@@ -11,15 +11,20 @@
 
 namespace cellcal {
 
-double BeyondRange::beyondRad(double q_rad) const {
-  return q_rad < lower_rad ? lower_rad - q_rad : q_rad > upper_rad ? q_rad - upper_rad : 0.0;
+double distanceBeyond(double x, double lower, double upper) {
+  return x < lower ? lower - x : x > upper ? x - upper : 0.0;
 }
 
+double sigmaBeyond(double sigma_at_1, int growth, double d, double checked) {
+  if (d <= 0 || sigma_at_1 <= 0) return 0.0;
+  if (checked > 0) d = std::min(d, checked);
+  return sigma_at_1 * std::pow(d, growth);
+}
+
+double BeyondRange::beyondRad(double q_rad) const { return distanceBeyond(q_rad, lower_rad, upper_rad); }
+
 double BeyondRange::sigmaRad(double q_rad) const {
-  double d = beyondRad(q_rad);
-  if (d <= 0 || sigma_at_1_rad <= 0) return 0.0;
-  if (checked_rad > 0) d = std::min(d, checked_rad);
-  return sigma_at_1_rad * std::pow(d, growth);
+  return sigmaBeyond(sigma_at_1_rad, growth, beyondRad(q_rad), checked_rad);
 }
 
 bool BeyondRange::judged(double q_rad) const { return beyondRad(q_rad) <= checked_rad; }
@@ -64,16 +69,11 @@ bool BeyondRange::IsValid(int num_joints, std::string* error) const {
   return true;
 }
 
-double DriverRange::beyond(double x) const { return x < lower ? lower - x : x > upper ? x - upper : 0.0; }
+double DriverRange::beyond(double x) const { return distanceBeyond(x, lower, upper); }
 
 double DriverRange::checked(double x) const { return x < lower ? checked_below : x > upper ? checked_above : 0.0; }
 
-double DriverRange::sigmaM(double x) const {
-  double d = beyond(x);
-  if (d <= 0 || sigma_at_1_m <= 0) return 0.0;
-  if (checked(x) > 0) d = std::min(d, checked(x));
-  return sigma_at_1_m * std::pow(d, growth);
-}
+double DriverRange::sigmaM(double x) const { return sigmaBeyond(sigma_at_1_m, growth, beyond(x), checked(x)); }
 
 bool DriverRange::judged(double x) const { return beyond(x) <= checked(x); }
 
@@ -114,16 +114,18 @@ const DriverRange* firstUnjudged(const RobotModel& model, const Eigen::VectorXd&
   return nullptr;
 }
 
-std::string DriverRange::quantity() const {
-  const size_t open = label.rfind(" (");
-  return open != std::string::npos && !label.empty() && label.back() == ')' ? label.substr(0, open) : label;
+namespace {
+// Where a label's " (unit)" at its end begins; npos without one.
+size_t unitStart(const std::string& label) {
+  return !label.empty() && label.back() == ')' ? label.rfind(" (") : std::string::npos;
 }
+}  // namespace
+
+std::string DriverRange::quantity() const { return label.substr(0, unitStart(label)); }
 
 std::string DriverRange::unit() const {
-  const size_t open = label.rfind(" (");
-  return open != std::string::npos && !label.empty() && label.back() == ')'
-             ? label.substr(open + 2, label.size() - open - 3)
-             : "";
+  const size_t open = unitStart(label);
+  return open == std::string::npos ? "" : label.substr(open + 2, label.size() - open - 3);
 }
 
 std::string DriverRange::growthText() const {

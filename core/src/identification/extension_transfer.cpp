@@ -117,7 +117,6 @@ double judgeFold(const RobotModel& model, const Eigen::VectorXd& start, const Ca
     lower = std::min(lower, x[static_cast<size_t>(r)]);
     upper = std::max(upper, x[static_cast<size_t>(r)]);
   }
-  auto beyondOf = [&](double v) { return v < lower ? lower - v : v > upper ? v - upper : 0.0; };
   // A joint: the fitted rows' range with a unit constant error beyond it, so that predictedPositionSigma over it alone
   // gives |dp/dq_joint| at a judged row (as the prediction will use it).
   PredictionModel unit;
@@ -149,7 +148,7 @@ double judgeFold(const RobotModel& model, const Eigen::VectorXd& start, const Ca
     j.actual2 = res[i].squaredNorm();
     j.predicted2 = std::pow(predictedPositionSigma(model, ff, pm, JO[i].q_rad, JD[i]), 2);
     j.noise2 = 3.0 * pm.variance_factor_position * JO[i].sigma_position_m * JO[i].sigma_position_m;
-    j.distance = beyondOf(x[static_cast<size_t>(judged_rows[i])]);
+    j.distance = distanceBeyond(x[static_cast<size_t>(judged_rows[i])], lower, upper);
     j.width_share = share;
     if (j.distance > 0)
       j.gain2 = joint >= 0 ? std::pow(predictedPositionSigma(model, ff, unit, JO[i].q_rad, JD[i]), 2) : 1.0;
@@ -164,10 +163,12 @@ double judgeFold(const RobotModel& model, const Eigen::VectorXd& start, const Ca
 // form of the further error fitted on the judged rows. joint >= 0: x is that joint's angle.
 struct RangeJudgement {
   FoldStats stats;
-  double lower = 0, upper = 0, checked = 0;
+  double lower = 0, upper = 0;
   double checked_above = 0, checked_below = 0;  // each end's own (0 where it was not judged)
   Form form;
   std::string skipped;
+  // One distance for both ends (a joint's BeyondRange): the smaller, 0 when an end was not judged.
+  double checked() const { return skipped.empty() ? std::min(checked_above, checked_below) : 0.0; }
 };
 RangeJudgement judgeRange(const RobotModel& model, const Eigen::VectorXd& start, const CalibratedModel& fit,
                           const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
@@ -183,9 +184,6 @@ RangeJudgement judgeRange(const RobotModel& model, const Eigen::VectorXd& start,
   const double width = out.upper - out.lower;
   std::vector<Judged> rows;          // each fold's judged rows
   std::vector<size_t> judged_folds;  // the folds judged (endFolds' order: the upper end, then the lower)
-  // The smaller of the two ends' farthest judged row; 0 when an end was not judged (`skipped` says why: one number
-  // stands for both ends).
-  double checked = std::numeric_limits<double>::infinity();
   const std::vector<internal::Fold> folds = internal::endFolds(x, options.region_joint_end);
   for (size_t k = 0; k < folds.size(); ++k) {
     std::string why;
@@ -195,13 +193,11 @@ RangeJudgement judgeRange(const RobotModel& model, const Eigen::VectorXd& start,
       out.skipped = why;
       continue;
     }
-    checked = std::min(checked, side_max);
     (k == 0 ? out.checked_above : out.checked_below) = side_max;
     ++st.folds;
     judged_folds.push_back(k);
   }
   st.judged_rows = static_cast<int>(rows.size());
-  out.checked = std::isfinite(checked) && out.skipped.empty() ? checked : 0.0;
   if (rows.empty()) return out;
   st.ratio_rms_without = st.ratio_rms_with = ratioRms(rows, {});
   if (st.ratio_rms_without > 1) {
@@ -314,12 +310,12 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     const RangeJudgement r = judgeRange(model, start, fit, obs, drivers, x, joint, options);
     JointTransfer jt;
     static_cast<FoldStats&>(jt) = r.stats;
-    jt.beyond = BeyondRange{joint, r.lower, r.upper, r.form.sigma, r.form.growth, r.checked};
+    jt.beyond = BeyondRange{joint, r.lower, r.upper, r.form.sigma, r.form.growth, r.checked()};
     const std::string name = "joint " + std::to_string(joint + 1);
     char judged[300], error[120];
-    if (r.checked > 0)
+    if (jt.beyond.checked_rad > 0)
       std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond %s, farther it is extrapolated",
-                    r.checked * 180 / kPi, jt.beyond.rangeText().c_str());
+                    jt.beyond.checked_rad * 180 / kPi, jt.beyond.rangeText().c_str());
     else
       std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond %s it is extrapolated", r.skipped.c_str(),
                     jt.beyond.rangeText().c_str());

@@ -584,7 +584,9 @@ TEST(ExtensionTransfer, APredictionBeyondALinksLoadCoversWhatItsDeflectionDoesTh
   EXPECT_LE(median(problem_with), 1.5);
   EXPECT_GE(median(true_change), 0.9);
   // A share of a few rows says little (one draw's rows within the judged distance can be a dozen): judged from 30.
-  if (bad >= 30) EXPECT_GE(bad_flagged, 0.85 * bad);
+  if (bad >= 30) {
+    EXPECT_GE(bad_flagged, 0.85 * bad);
+  }
 }
 
 // regionSplit against a plain computation: the covariance's major axis by power iteration, the median by a full sort.

@@ -38,6 +38,11 @@ namespace cellcal {
 // whole range, can be right at every fold and many times its predicted error there. judged() is false there; the
 // sigma is held at its value at checked_rad, and the caller says the configuration is extrapolated (the campaign's
 // prediction check counts it, compensation refuses to call its correction known).
+// How far x lies outside [lower, upper] (0 inside), and the further error sigma_at_1 * d^growth at that distance d,
+// held at its value at `checked` when that is > 0 (0 inside or without a sigma): BeyondRange's and DriverRange's.
+double distanceBeyond(double x, double lower, double upper);
+double sigmaBeyond(double sigma_at_1, int growth, double d, double checked);
+
 struct BeyondRange {
   int joint = 0;
   double lower_rad = 0, upper_rad = 0;
