@@ -98,9 +98,10 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
     if (!r.judged_ranges_said && (!r.applied_model->beyond_data.empty() || !r.applied_model->beyond_drivers.empty())) {
       std::vector<std::string> said;
       for (const BeyondRange& b : r.applied_model->beyond_data) {
-        char t[200];
-        std::snprintf(t, sizeof t, "extensions of joint %d were fitted on %s and judged %.1f deg beyond it", b.joint + 1,
-                      b.rangeText().c_str(), b.checked_rad * 180 / kPi);
+        char t[600];
+        std::snprintf(t, sizeof t, "extensions of joint %d were fitted on %s%s and judged %.1f deg beyond it%s", b.joint + 1,
+                      b.rangeText().c_str(), b.gapsText().c_str(), b.checked_rad * 180 / kPi,
+                      b.gaps_rad.empty() ? "" : " and into its gaps");
         said.push_back(t);
       }
       for (const DriverRange& d : r.applied_model->beyond_drivers) {

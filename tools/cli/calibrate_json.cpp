@@ -76,10 +76,13 @@ json foldJson(const FoldStats& t, const char* key, const json& value) {
 
 json beyondJson(const CalibrateArgs& a, const CampaignReport& rep) {
   json ranges = json::array();
-  for (const auto& b : rep.beyond)
+  for (const auto& b : rep.beyond) {
+    json gaps = json::array();
+    for (const auto& [lo, hi] : b.gaps_rad) gaps.push_back({lo * 180 / kPi, hi * 180 / kPi});
     ranges.push_back({{"joint", b.joint + 1}, {"lower_deg", b.lower_rad * 180 / kPi}, {"upper_deg", b.upper_rad * 180 / kPi},
                       {"sigma_at_1_rad_deg", b.sigma_at_1_rad * 180 / kPi}, {"growth", b.growth},
-                      {"checked_deg", b.checked_rad * 180 / kPi}});
+                      {"checked_deg", b.checked_rad * 180 / kPi}, {"gaps_deg", gaps}});
+  }
   json folds = json::array();
   if (rep.transfer)
     for (const auto& t : rep.transfer->joints)

@@ -155,10 +155,10 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
   }
   if (a.frames_only)
     for (const auto& b : rep.beyond)
-      std::printf("carried beyond the campaign's data: joint %d outside %s, a further joint error of %.3g deg%s, "
+      std::printf("carried beyond the campaign's data: joint %d outside %s%s%s, a further joint error of %.3g deg%s, "
                   "judged up to %.1f deg beyond (the robot file's beyond_data)\n",
-                  b.joint + 1, b.rangeText().c_str(), b.sigma_at_1_rad * 180 / kPi, b.growthText(),
-                  b.checked_rad * 180 / kPi);
+                  b.joint + 1, b.rangeText().c_str(), b.gaps_rad.empty() ? "" : " or in its gaps", b.gapsText().c_str(),
+                  b.sigma_at_1_rad * 180 / kPi, b.growthText(), b.checked_rad * 180 / kPi);
   if (a.frames_only)
     for (const auto& d : rep.beyond_drivers)
       std::printf("carried beyond the campaign's data: %s outside %s, a further position error of %.3g mm%s, %s "

@@ -120,7 +120,7 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
     for (size_t i = 0; i < bd.size(); ++i) {
       const std::string fi = f + ".beyond_data[" + std::to_string(i) + "]";
       r.requireMap(bd[i], fi);
-      r.checkKeys(bd[i], fi, {"joint", "lower_deg", "upper_deg", "sigma_at_1_rad_deg", "growth", "checked_deg"});
+      r.checkKeys(bd[i], fi, {"joint", "lower_deg", "upper_deg", "sigma_at_1_rad_deg", "growth", "checked_deg", "gaps_deg"});
       BeyondRange b;
       const double joint = r.number(r.required(bd[i], "joint", fi + ".joint"), fi + ".joint");
       const double growth = r.number(r.required(bd[i], "growth", fi + ".growth"), fi + ".growth");
@@ -132,6 +132,14 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
                                   fi + ".sigma_at_1_rad_deg") * kPi / 180;
       if (const YAML::Node ck = bd[i]["checked_deg"]; ck.IsDefined() && !ck.IsNull())
         b.checked_rad = r.number(ck, fi + ".checked_deg") * kPi / 180;
+      if (const YAML::Node gp = bd[i]["gaps_deg"]; gp.IsDefined() && !gp.IsNull()) {
+        if (!gp.IsSequence()) r.fail(gp, fi + ".gaps_deg", "expected a list of [lower, upper] pairs");
+        for (size_t k = 0; k < gp.size(); ++k) {
+          const std::string fg = fi + ".gaps_deg[" + std::to_string(k) + "]";
+          if (!gp[k].IsSequence() || gp[k].size() != 2) r.fail(gp[k], fg, "expected [lower, upper]");
+          b.gaps_rad.emplace_back(r.number(gp[k][0], fg + "[0]") * kPi / 180, r.number(gp[k][1], fg + "[1]") * kPi / 180);
+        }
+      }
       std::string why;
       if (joint != std::floor(joint) || growth != std::floor(growth) || !b.IsValid(m.numJoints(), &why))
         r.fail(bd[i], fi, why.empty() ? "joint and growth must be whole numbers" : why);
@@ -264,6 +272,15 @@ std::string num(double v) {
   char buf[64];
   const auto res = std::to_chars(buf, buf + sizeof buf, v);
   return std::string(buf, res.ptr);
+}
+
+// ", gaps_deg: [[a, b], ...]" of a BeyondRange with gaps, "" without.
+std::string gapsYaml(const BeyondRange& b) {
+  if (b.gaps_rad.empty()) return "";
+  std::string t = ", gaps_deg: [";
+  for (size_t k = 0; k < b.gaps_rad.size(); ++k)
+    t += (k ? ", [" : "[") + num(b.gaps_rad[k].first * 180 / kPi) + ", " + num(b.gaps_rad[k].second * 180 / kPi) + "]";
+  return t + "]";
 }
 
 std::string quoted(const std::string& s) {
@@ -454,12 +471,13 @@ std::string robotFileText(const RobotModel& m, const RobotCalibration* cal, cons
   if (!cal->beyond_data.empty()) {
     o << "  # beyond the joint ranges of the campaign's data, a further joint error of sigma x (rad beyond)^growth\n"
          "  # (calibrate's region folds; predictions carried to other rows include it), judged up to checked_deg\n"
-         "  # beyond the range: farther, the extensions' correction is an extrapolation (compensation passes it by)\n"
+         "  # beyond the range: farther, the extensions' correction is an extrapolation (compensation passes it by);\n"
+         "  # gaps_deg: stretches inside the range the data never reached, judged from their edges as beyond it\n"
          "  beyond_data:\n";
     for (const auto& b : cal->beyond_data)
       o << "    - { joint: " << b.joint + 1 << ", lower_deg: " << num(b.lower_rad * 180 / kPi) << ", upper_deg: "
         << num(b.upper_rad * 180 / kPi) << ", sigma_at_1_rad_deg: " << num(b.sigma_at_1_rad * 180 / kPi)
-        << ", growth: " << b.growth << ", checked_deg: " << num(b.checked_rad * 180 / kPi) << " }\n";
+        << ", growth: " << b.growth << ", checked_deg: " << num(b.checked_rad * 180 / kPi) << gapsYaml(b) << " }\n";
   }
   if (!cal->beyond_drivers.empty()) {
     o << "  # beyond the ranges of the drivers of extensions no joint bounds, a further position error of sigma x\n"

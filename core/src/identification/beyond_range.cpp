@@ -21,7 +21,37 @@ double sigmaBeyond(double sigma_at_1, int growth, double d, double checked) {
   return sigma_at_1 * std::pow(d, growth);
 }
 
-double BeyondRange::beyondRad(double q_rad) const { return distanceBeyond(q_rad, lower_rad, upper_rad); }
+double BeyondRange::beyondRad(double q_rad) const {
+  const double d = distanceBeyond(q_rad, lower_rad, upper_rad);
+  if (d > 0) return d;
+  for (const auto& [a, b] : gaps_rad)
+    if (q_rad > a && q_rad < b) return std::min(q_rad - a, b - q_rad);
+  return 0.0;
+}
+
+bool BeyondRange::inGap(double q_rad) const {
+  return std::any_of(gaps_rad.begin(), gaps_rad.end(), [&](const auto& g) { return q_rad > g.first && q_rad < g.second; });
+}
+
+std::vector<std::pair<double, double>> rangeGaps(std::vector<double> x, double min_width) {
+  std::sort(x.begin(), x.end());
+  std::vector<std::pair<double, double>> gaps;
+  for (size_t i = 1; i < x.size(); ++i)
+    if (x[i] - x[i - 1] > min_width) gaps.emplace_back(x[i - 1], x[i]);
+  return gaps;
+}
+
+std::string BeyondRange::gapsText() const {
+  if (gaps_rad.empty()) return "";
+  std::string t = " (no data in";
+  for (size_t k = 0; k < gaps_rad.size(); ++k) {
+    char g[64];
+    std::snprintf(g, sizeof g, "%s [%.1f, %.1f]", k == 0 ? "" : k + 1 == gaps_rad.size() ? " and" : ",",
+                  gaps_rad[k].first * 180 / kPi, gaps_rad[k].second * 180 / kPi);
+    t += g;
+  }
+  return t + " deg)";
+}
 
 double BeyondRange::sigmaRad(double q_rad) const {
   return sigmaBeyond(sigma_at_1_rad, growth, beyondRad(q_rad), checked_rad);
@@ -42,10 +72,19 @@ std::string BeyondRange::rangeText() const {
 }
 
 std::string unjudgedText(const BeyondRange& b, double q_rad) {
-  char t[300];
+  char t[400], u[80];
+  const auto gap = std::find_if(b.gaps_rad.begin(), b.gaps_rad.end(),
+                                [&](const auto& g) { return q_rad > g.first && q_rad < g.second; });
+  if (distanceBeyond(q_rad, b.lower_rad, b.upper_rad) == 0 && gap != b.gaps_rad.end()) {
+    std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg inside [%.1f, %.1f] deg, a stretch of %s, the range "
+                  "its model extensions were fitted on, that its data never reached; ", b.joint + 1, q_rad * 180 / kPi,
+                  b.beyondRad(q_rad) * 180 / kPi, gap->first * 180 / kPi, gap->second * 180 / kPi, b.rangeText().c_str());
+    if (b.checked_rad > 0) std::snprintf(u, sizeof u, "they were judged up to %.1f deg from their data", b.checked_rad * 180 / kPi);
+    else std::snprintf(u, sizeof u, "they were not judged beyond their data");
+    return std::string(t) + u;
+  }
   std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg beyond %s, the range its model extensions were fitted "
                 "on; ", b.joint + 1, q_rad * 180 / kPi, b.beyondRad(q_rad) * 180 / kPi, b.rangeText().c_str());
-  char u[80];
   if (b.checked_rad > 0) std::snprintf(u, sizeof u, "they were judged up to %.1f deg beyond it", b.checked_rad * 180 / kPi);
   else std::snprintf(u, sizeof u, "they were not judged beyond it");
   return std::string(t) + u;
@@ -66,6 +105,14 @@ bool BeyondRange::IsValid(int num_joints, std::string* error) const {
   if (!(sigma_at_1_rad >= 0) || !std::isfinite(sigma_at_1_rad)) return fail("sigma must be finite and >= 0");
   if (growth < 0 || growth > 2) return fail("growth must be 0, 1 or 2");
   if (!(checked_rad >= 0) || !std::isfinite(checked_rad)) return fail("checked must be finite and >= 0");
+  double after = lower_rad;
+  for (const auto& [a, b] : gaps_rad) {
+    if (!std::isfinite(a) || !std::isfinite(b) || !(a < b))
+      return fail("a gap must be finite with its lower end below its upper one");
+    if (a < after || b > upper_rad)
+      return fail("the gaps must lie within the range, in order and apart");
+    after = b;
+  }
   return true;
 }
 

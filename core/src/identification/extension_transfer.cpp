@@ -120,7 +120,7 @@ double judgeFold(const RobotModel& model, const Eigen::VectorXd& start, const Ca
   // A joint: the fitted rows' range with a unit constant error beyond it, so that predictedPositionSigma over it alone
   // gives |dp/dq_joint| at a judged row (as the prediction will use it).
   PredictionModel unit;
-  if (joint >= 0) unit.beyond = {BeyondRange{joint, lower, upper, 1.0}};
+  if (joint >= 0) unit.beyond = {BeyondRange{joint, lower, upper, 1.0, 0, 0, {}}};
   const std::vector<int> fit_rows = subset(fit_rows_all, internal::evenlyThinned(fit_rows_all.size(), options.region_fit_rows));
   const std::vector<Observation> FO = subset(obs, fit_rows), JO = subset(obs, judged_rows);
   const std::vector<Drivers> FD = subset(drivers, fit_rows), JD = subset(drivers, judged_rows);
@@ -310,15 +310,19 @@ ExtensionTransfer extensionTransfer(const RobotModel& model, const Eigen::Vector
     const RangeJudgement r = judgeRange(model, start, fit, obs, drivers, x, joint, options);
     JointTransfer jt;
     static_cast<FoldStats&>(jt) = r.stats;
-    jt.beyond = BeyondRange{joint, r.lower, r.upper, r.form.sigma, r.form.growth, r.checked()};
+    jt.beyond = BeyondRange{joint, r.lower, r.upper, r.form.sigma, r.form.growth, r.checked(), {}};
+    jt.beyond.gaps_rad = rangeGaps(x, kBeyondGapShare * (r.upper - r.lower));
     const std::string name = "joint " + std::to_string(joint + 1);
-    char judged[300], error[120];
+    const bool gaps = !jt.beyond.gaps_rad.empty();
+    char judged[600], error[120];
     if (jt.beyond.checked_rad > 0)
-      std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond %s, farther it is extrapolated",
-                    jt.beyond.checked_rad * 180 / kPi, jt.beyond.rangeText().c_str());
+      std::snprintf(judged, sizeof judged, "judged up to %.1f deg beyond %s%s%s, farther it is extrapolated",
+                    jt.beyond.checked_rad * 180 / kPi, jt.beyond.rangeText().c_str(), gaps ? " and into its gaps" : "",
+                    jt.beyond.gapsText().c_str());
     else
-      std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond %s it is extrapolated", r.skipped.c_str(),
-                    jt.beyond.rangeText().c_str());
+      std::snprintf(judged, sizeof judged, "an end was not judged (%s): beyond %s%s%s it is extrapolated",
+                    r.skipped.c_str(), jt.beyond.rangeText().c_str(), gaps ? " and in its gaps" : "",
+                    jt.beyond.gapsText().c_str());
     std::snprintf(error, sizeof error, "joint error of %.3g deg%s", r.form.sigma * 180 / kPi, jt.beyond.growthText());
     if (r.stats.judged_rows == 0)
       say(name + ": not measured (" + r.skipped + ")");

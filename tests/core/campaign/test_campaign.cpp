@@ -4,12 +4,17 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdlib>
+#include <filesystem>
 #include <cmath>
 #include <random>
 
 #include "cellcal/core/campaign/campaign.hpp"
+#include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "core/identification/hidden_effect.hpp"
+#include "core/identification/placements.hpp"
 #include "test_support.hpp"
 
 namespace cellcal {
@@ -237,6 +242,184 @@ TEST(Campaign, SetUpsShareTheKinematicsAndAModelCarriedKeepsIt) {
     for (int col : c.after.estimated) EXPECT_GE(col, f0) << "only frames estimated";
     expectSame(c.errors.verification_after, plainStats(h.model, c.after.params, q.setups[0].data.verification),
                "carried verification after");
+  }
+}
+
+// Issue #35's UR5 case, simulated: a model with three cyclic terms identified on a grid at one tool orientation and
+// carried (`calibrate --frames-only`) to 20 other poses, its frames registered again on 10 of them, predicts its error
+// on the other 10. On the real UR5 it predicted 1.40x too low, before a calibration saved what its extensions do
+// beyond their data. Drawn: the robot (TX60, UR10, the UR5 from its URDF where ../shared has it), placements, the
+// target (an SMR near the flange axis, or anywhere), points or 6D, the grid, three joints each with an error of 0.02-0.1
+// deg RMS over the joint's range that is either cyclic (the named cause, true) or quadratic in the angle from the
+// grid's middle (outside the library, which the cyclic term follows on the grid and only partly beyond), the other
+// poses random configurations of the same robot with the tracker moved. The verification rows' RMS of actual /
+// predicted (the
+// campaign's figure, computed again here) with the file's beyond_data and without it, the model carried as it is
+// (--keep-extensions) and as calibrate chooses (the extensions or the file's geometric calibration), and on the rows
+// not flagged as farther than the folds judged.
+TEST(Campaign, AModelWithThreeCyclicTermsCarriedToOtherPosesPredictsItsError) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0, 1);
+  const std::vector<RobotModel> robots = test::robotsWithUr5();
+  const int want = std::getenv("CELLCAL_DIAGNOSIS_DRAWS") ? std::atoi(std::getenv("CELLCAL_DIAGNOSIS_DRAWS")) : 6;
+  // [stripped + keep, full + keep, full as chosen]: sums of ratio^2 and rows; the same on rows not flagged.
+  double sq[3] = {0, 0, 0}, sq_kept[3] = {0, 0, 0};
+  int rows[3] = {0, 0, 0}, rows_kept[3] = {0, 0, 0};
+  std::vector<double> per_draw[3];
+  int draws = 0;
+  for (int trial = 0; trial < 10 * want && draws < want; ++trial) {
+    const RobotModel& file = robots[static_cast<size_t>(trial) % robots.size()];
+    SimulationConfig sc = test::randomPlacement(rng);
+    if (u(rng) < 0.5) test::nearAxisTarget(sc, rng);
+    const MeasurementKind kind = u(rng) < 0.5 ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+    const SimulatedCell cell(file, sc), moved(file, test::trackerMoved(sc, rng));
+    const std::vector<Eigen::VectorXd> grid = test::gridAtOneOrientation(cell, 7, rng);
+    if (grid.size() < 150) continue;  // a cube the robot does not reach from there: another draw
+    // Three joints and their errors.
+    std::vector<int> joints = {0, 1, 2, 3, 4, 5};
+    std::shuffle(joints.begin(), joints.end(), rng);
+    joints.resize(3);
+    std::sort(joints.begin(), joints.end());
+    struct JointError {
+      int j;
+      bool cyclic;
+      Eigen::Vector4d harmonics;
+      double centre, curvature;
+    };
+    std::vector<JointError> errors;
+    std::string what = file.name + (kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", grid " +
+                       std::to_string(grid.size()) + ":";
+    for (int j : joints) {
+      JointError e{j, u(rng) < 0.5, Eigen::Vector4d::Zero(), 0, 0};
+      const double size_rad = (0.02 + 0.08 * u(rng)) * kPi / 180;
+      std::vector<double> x;
+      for (const auto& q : grid) x.push_back(q[j]);
+      std::sort(x.begin(), x.end());
+      e.centre = x[x.size() / 2];
+      // The size is the RMS over the joint's whole range (a grid may move a joint by a degree: a size over the grid
+      // alone would make a quadratic of tens of degrees elsewhere).
+      double ms = 0;
+      for (int k = 0; k < 4; ++k) e.harmonics[k] = 2 * u(rng) - 1;
+      const JointLimits& lim = file.limits[static_cast<size_t>(j)];
+      for (int k = 0; k <= 200; ++k) {
+        const double v = lim.lower_rad + (lim.upper_rad - lim.lower_rad) * k / 200.0;
+        ms += e.cyclic ? std::pow(e.harmonics.dot(Eigen::Vector4d(std::sin(v), std::cos(v), std::sin(2 * v), std::cos(2 * v))), 2)
+                       : std::pow(v - e.centre, 4);
+      }
+      const double rms = std::sqrt(ms / 201.0);
+      if (e.cyclic) e.harmonics *= size_rad / rms;
+      e.curvature = (u(rng) < 0.5 ? 1 : -1) * size_rad / rms;
+      errors.push_back(e);
+      char t[120];
+      std::snprintf(t, sizeof t, " joint %d %s %.3f deg (over its range; grid %.0f-%.0f deg)", j + 1,
+                    e.cyclic ? "cyclic" : "quadratic",
+                    size_rad * 180 / kPi, x.front() * 180 / kPi, x.back() * 180 / kPi);
+      what += t;
+    }
+    auto measure = [&](const SimulatedCell& c, const Eigen::VectorXd& q) {
+      Eigen::VectorXd qt = q;
+      for (const JointError& e : errors) {
+        const double v = q[e.j];
+        qt[e.j] += e.cyclic ? e.harmonics.dot(Eigen::Vector4d(std::sin(v), std::cos(v), std::sin(2 * v), std::cos(2 * v)))
+                            : e.curvature * (v - e.centre) * (v - e.centre);
+      }
+      return test::measuredRow(q, c.measurePose(c.truePose(qt, 0.0), q, rng, kind));
+    };
+    MeasurementFile campaign_rows, other_rows;
+    for (const auto& q : grid) campaign_rows.rows.push_back(measure(cell, q));
+    for (const auto& q : moved.randomConfigurations(20, rng)) other_rows.rows.push_back(measure(moved, q));
+    RobotFile rf;
+    rf.model = file;
+    InputOptions io;
+    CampaignProblem p;
+    p.setups = {prepareCampaignInput("grid.csv", rf, campaign_rows, io)};
+    p.model = CampaignModel::kNamed;
+    for (int j : joints) p.extensions.push_back(Extension{Cause::kCyclicTransmission, j});
+    p.identifiability.prior_sigma = plausibleDeviation(file);
+    const CampaignReport r = calibrateCampaign(p);
+    if (r.exitCode() != 0) {
+      std::printf("  %s: the campaign is not deployed (exit %d): %s\n", what.c_str(), r.exitCode(), r.verdict.c_str());
+      continue;
+    }
+    ++draws;
+    RobotFile carried;
+    carried.model = file.withParams(r.saved_params);
+    carried.calibration = r.calibration;
+    RobotFile stripped = carried;
+    stripped.calibration->beyond_data.clear();
+    stripped.calibration->beyond_drivers.clear();
+    std::string line;
+    for (int w = 0; w < 3; ++w) {
+      CampaignProblem q;
+      q.frames_only = true;
+      q.keep_extensions = w < 2;
+      q.identifiability.prior_sigma = plausibleDeviation(file);
+      q.setups = {prepareCampaignInput("other.csv", w == 0 ? stripped : carried, other_rows, io)};
+      const CampaignReport c = calibrateCampaign(q);
+      ASSERT_TRUE(c.converged) << what;
+      const CampaignInput& in = q.setups.front();
+      const RobotModel& robot = in.robot;
+      const std::vector<Observation>& verify = in.data.verification;
+      // The campaign's figure again: actual over sqrt(predicted^2 + noise^2), RMS over the verification rows.
+      KinematicsData data(robot);
+      double draw_sq = 0;
+      int flagged = 0;
+      const std::vector<int>& gross = c.errors.verification_outliers.rows;  // judged without them, as the campaign
+      int judged = 0;
+      for (size_t i = 0; i < verify.size(); ++i) {
+        if (std::count(gross.begin(), gross.end(), static_cast<int>(i))) continue;
+        ++judged;
+        const Drivers& dr = in.data.verification_drivers[i];
+        const Eigen::VectorXd params =
+            extendedParams(robot, c.after.params, c.after.extensions, c.after.extension_params, verify[i].q_rad, dr);
+        const double actual = (forwardKinematics(robot, data, params, verify[i].q_rad).translation() -
+                               verify[i].measured_in_tracker.translation()).norm();
+        const double s = predictedPositionSigma(robot, c.after, c.prediction, verify[i].q_rad, dr);
+        const double noise2 = 3.0 * c.prediction.variance_factor_position * std::pow(verify[i].sigma_position_m, 2);
+        const double r2 = actual * actual / (s * s + noise2);
+        draw_sq += r2;
+        const bool far = firstUnjudged(c.prediction.beyond, verify[i].q_rad) != nullptr;
+        flagged += far;
+        if (!far) sq_kept[w] += r2, ++rows_kept[w];
+      }
+      const double ratio = std::sqrt(draw_sq / judged);
+      EXPECT_NEAR(ratio, c.check.ratio_rms, 1e-9 * std::max(1.0, ratio)) << what;
+      EXPECT_EQ(flagged, c.check.beyond_checked) << what;
+      if (w == 0) {
+        EXPECT_EQ(flagged, 0) << what;
+      }
+      sq[w] += draw_sq;
+      rows[w] += judged;
+      per_draw[w].push_back(ratio);
+      char t[160];
+      std::snprintf(t, sizeof t, " %s %.2f (%d of %d flagged%s)",
+                    w == 0 ? "without beyond_data" : w == 1 ? "; with it" : "; as chosen", ratio, flagged, judged,
+                    w == 2 ? (c.carried && !c.carried->extensions_transfer ? ", geometric" : ", extended") : "");
+      line += t;
+    }
+    std::printf("  %s\n    actual / predicted:%s\n", what.c_str(), line.c_str());
+  }
+  ASSERT_GE(draws, want / 2) << "the grids were not reached";
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0.0 : v[v.size() / 2];
+  };
+  std::printf("  summary: %d draws, RMS of actual / predicted on the other poses' verification rows: without "
+              "beyond_data %.2f (median of draws %.2f), with it %.2f (%.2f; %.2f on the %d of %d rows not flagged), as "
+              "calibrate chooses %.2f (%.2f; %.2f on %d of %d)\n",
+              draws, std::sqrt(sq[0] / rows[0]), median(per_draw[0]), std::sqrt(sq[1] / rows[1]), median(per_draw[1]),
+              rows_kept[1] ? std::sqrt(sq_kept[1] / rows_kept[1]) : 0.0, rows_kept[1], rows[1], std::sqrt(sq[2] / rows[2]),
+              median(per_draw[2]), rows_kept[2] ? std::sqrt(sq_kept[2] / rows_kept[2]) : 0.0, rows_kept[2], rows[2]);
+  // Where the folds judged the extensions, the carried prediction holds: over 30 seeds of 6 draws the RMS on the rows
+  // not flagged was 0.41-1.20 kept and 0.51-1.11 as chosen, where there were 10 or more of them (0.62-1.02 and
+  // 0.52-1.04 over 16 seeds of 12 draws); the rows farther (beyond the range or deep in its gaps) are said
+  // (beyond_checked), not covered. Before the ranges kept their gaps: 0.48-1.48 kept, one draw 2.09x too low with none
+  // of its rows flagged.
+  for (int w = 1; w < 3; ++w) {
+    if (rows_kept[w] < 10) continue;
+    const double kept = std::sqrt(sq_kept[w] / rows_kept[w]);
+    EXPECT_GT(kept, 0.25) << (w == 1 ? "kept" : "as chosen");
+    EXPECT_LT(kept, 1.8) << (w == 1 ? "kept" : "as chosen");
   }
 }
 

@@ -305,7 +305,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
   const CellConfig config = loadCellConfig(kCell);
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  int inside = 0, near = 0, beyond = 0, grown = 0;
+  int inside = 0, near = 0, beyond = 0, grown = 0, in_gap = 0, gap_refused = 0;
   for (int draw = 0; draw < 4; ++draw) {
     SimulationSettings ss = config.simulation;
     ss.seed = rng();
@@ -329,6 +329,8 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     b.growth = std::uniform_int_distribution<int>(0, 2)(rng);
     // 0.01-0.06 deg at the judged distance: a model's own sigma there is 0.05-0.15 mm.
     b.sigma_at_1_rad = (0.01 + 0.05 * u(rng)) * kPi / 180 / std::pow(b.checked_rad, b.growth);
+    // Every other draw, a stretch inside the range its data never reached (judged from its edges as beyond it).
+    if (draw % 2) b.gaps_rad = {{qj[static_cast<size_t>(10 + u(rng))], qj[static_cast<size_t>(17 + u(rng))]}};
     IdentifiedModel plain = model;
     model.beyond_data = {b};
     CompensationSettings off = config.compensation;
@@ -363,13 +365,18 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
         grown += expected > 1.1 * without.predicted_sigma_position_m;
         ++near;
       } else {
-        expectPassedThrough(m, model, plain, desired, q, off, with, "joint " + std::to_string(joint + 1) + " at", what);
+        expectPassedThrough(m, model, plain, desired, q, off, with,
+                            b.inGap(qj) ? "that its data never reached" : "joint " + std::to_string(joint + 1) + " at", what);
         ++beyond;
+        gap_refused += b.inGap(qj);
       }
+      in_gap += b.inGap(qj);
     }
   }
   std::printf("  %d targets inside the range, %d within the judged distance (%d of them with a sigma 10 %% larger), %d "
-              "beyond it\n", inside, near, grown, beyond);
+              "beyond it; %d targets in a gap of the data, %d of them farther from its edges than judged\n", inside, near,
+              grown, beyond, in_gap, gap_refused);
+  EXPECT_GE(in_gap, 3);
   EXPECT_GE(inside, 5);
   EXPECT_GE(near, 5);
   EXPECT_GE(grown, 3);

@@ -45,6 +45,12 @@ RobotCalibration randomCalibration(const RobotModel& m, std::mt19937_64& rng) {
       b.sigma_at_1_rad = 1e-3 * u(rng);
       b.growth = static_cast<int>(3 * u(rng)) % 3;
       b.checked_rad = 0.5 * u(rng);
+      // Stretches inside the range its data never reached (0-3 of them).
+      std::vector<double> ends;
+      for (int k = static_cast<int>(7 * u(rng)) % 7; k > 0; --k) ends.push_back(b.lower_rad + (b.upper_rad - b.lower_rad) * u(rng));
+      std::sort(ends.begin(), ends.end());
+      for (size_t k = 0; k + 1 < ends.size(); k += 2)
+        if (ends[k] < ends[k + 1]) b.gaps_rad.emplace_back(ends[k], ends[k + 1]);
       c.beyond_data.push_back(b);
     }
   for (const auto& e : c.extensions)  // and beyond the ranges of the drivers of the others
@@ -102,6 +108,11 @@ TEST(RobotFile, SavedAndLoadedPredictIdentically) {
       EXPECT_EQ(y.growth, x.growth);
       for (double q = -4; q < 4; q += 0.37) EXPECT_NEAR(y.sigmaRad(q), x.sigmaRad(q), 1e-12 * (1 + x.sigmaRad(q))) << q;
       EXPECT_NEAR(y.checked_rad, x.checked_rad, 1e-12);
+      ASSERT_EQ(y.gaps_rad.size(), x.gaps_rad.size());
+      for (size_t k = 0; k < x.gaps_rad.size(); ++k) {
+        EXPECT_NEAR(y.gaps_rad[k].first, x.gaps_rad[k].first, 1e-12);
+        EXPECT_NEAR(y.gaps_rad[k].second, x.gaps_rad[k].second, 1e-12);
+      }
     }
     ASSERT_EQ(c2.beyond_drivers.size(), cal.beyond_drivers.size());
     for (size_t i = 0; i < cal.beyond_drivers.size(); ++i) {
@@ -246,12 +257,19 @@ TEST(RobotFile, ADamagedCalibrationSectionIsNamed) {
   b.upper_rad = 0.5;
   b.sigma_at_1_rad = 1e-3;
   b.growth = 1;
+  b.gaps_rad = {{-0.75, -0.5}, {0, 0.25}};
   cal.beyond_data = {b};
   const std::string beyond = robotFileText(m, &cal, "");
+  ASSERT_NE(beyond.find("gaps_deg: [[-42.97183463481174, -28.64788975654116], [0, 14.32394487827058]]"), std::string::npos)
+      << beyond;
   EXPECT_NO_THROW(parseRobotFile(beyond, "<good>"));
+  // Gaps: each [lower, upper] with lower below upper, in order, apart, inside the range.
   for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
            {"{ joint: 2,", "{ joint: 9,"}, {"growth: 1,", "growth: 3,"}, {"growth: 1,", "growth: 1.5,"},
-           {"lower_deg: -57", "lower_deg: 57"}, {"sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -"}})
+           {"lower_deg: -57", "lower_deg: 57"}, {"sigma_at_1_rad_deg: ", "sigma_at_1_rad_deg: -"},
+           {"[[-42.97183463481174, -28.64788975654116]", "[[-28.64788975654116, -42.97183463481174]"},
+           {"[0, 14.32394487827058]", "[-30, 14.32394487827058]"}, {"[0, 14.32394487827058]", "[0, 40]"},
+           {"[0, 14.32394487827058]", "[0]"}, {"gaps_deg: [[", "gaps_deg: 3, x: [["}, {"[[-42.97183463481174", "[[-60"}})
     expectRefused(beyond, from, to, "calibration.beyond_data[0]");
   // And beyond an extension driver's range: one of the calibration's extensions that a driver bounds, a growth of 0-2,
   // a range, distances judged of 0 or more.

@@ -129,10 +129,7 @@ TEST(IdentificationSolvers, GaussNewtonAndLevenbergMarquardtAgree) {
 TEST(IdentificationPlausibleRanges, AGridAtOneToolOrientationConvergesOnWhatTheRowsPin) {
   std::mt19937_64 rng(test::testSeed());
   std::uniform_real_distribution<double> u(0, 1);
-  std::vector<RobotModel> robots = {test::robot("staubli_tx60"), test::robot("ur10")};
-  const std::filesystem::path ur5 =
-      std::filesystem::path(CELLCAL_CONFIG_DIR) / "../../shared/robots/ros-industrial/universal_robots/ur5.urdf";
-  if (std::filesystem::exists(ur5)) robots.push_back(loadRobotFile(ur5.string()).model);
+  const std::vector<RobotModel> robots = test::robotsWithUr5();
   int draws = 0, wandering = 0, compared = 0;
   double ratio_sum = 0;
   for (int trial = 0; trial < 40 && draws < 6; ++trial) {

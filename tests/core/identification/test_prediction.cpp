@@ -426,6 +426,62 @@ TEST(Prediction, ExcitationDeficitsAgreeWithAPlainReferenceAndAreHeld) {
 namespace cellcal {
 namespace {
 
+// A joint angle inside the range of the data but in a stretch no row reached (BeyondRange::gaps_rad, rangeGaps) against
+// a plain reference: the distance to the nearer of the data values on either side where they lie farther apart than
+// kBeyondGapShare of the range, 0 where they are nearer; beyond the range the distance to its end. Data drawn as 1-4
+// clusters of random place, spread and size (a grid at one tool orientation leaves a wrist joint's angles so).
+TEST(Prediction, AnAngleInAGapOfTheDataIsJudgedByItsDistanceFromTheData) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int in_gaps = 0, beyond = 0, flagged_in_gaps = 0;
+  for (int d = 0; d < 40; ++d) {
+    std::vector<double> x;
+    for (int c = 1 + static_cast<int>(4 * u(rng)) % 4; c > 0; --c) {
+      const double centre = -3 + 6 * u(rng), spread = 0.5 * u(rng);
+      for (int k = 2 + static_cast<int>(60 * u(rng)); k > 0; --k) x.push_back(centre + spread * (2 * u(rng) - 1));
+    }
+    const double lo = *std::min_element(x.begin(), x.end()), hi = *std::max_element(x.begin(), x.end());
+    const double min_width = kBeyondGapShare * (hi - lo);
+    BeyondRange b{1, lo, hi, 1e-3 * u(rng), static_cast<int>(3 * u(rng)) % 3, 0.5 * u(rng), rangeGaps(x, min_width)};
+    std::string why;
+    ASSERT_TRUE(b.IsValid(6, &why)) << why;
+    std::vector<double> sorted = x;
+    std::sort(sorted.begin(), sorted.end());
+    for (int k = 0; k < 200; ++k) {
+      const double q = -4 + 8 * u(rng);
+      double plain = 0;
+      if (q < lo) plain = lo - q;
+      else if (q > hi) plain = q - hi;
+      else
+        for (size_t i = 1; i < sorted.size(); ++i)
+          if (sorted[i - 1] <= q && q <= sorted[i] && sorted[i] - sorted[i - 1] > min_width)
+            plain = std::min(q - sorted[i - 1], sorted[i] - q);
+      EXPECT_NEAR(b.beyondRad(q), plain, 1e-15) << q;
+      EXPECT_EQ(b.judged(q), plain <= b.checked_rad) << q;
+      Eigen::VectorXd qv = Eigen::VectorXd::Zero(6);
+      qv[1] = q;
+      EXPECT_EQ(firstUnjudged({b}, qv) != nullptr, plain > b.checked_rad) << q;
+      const bool gap = q >= lo && q <= hi && plain > 0;
+      EXPECT_EQ(b.inGap(q), gap) << q;
+      in_gaps += gap;
+      beyond += !gap && plain > 0;
+      if (gap && plain > b.checked_rad) {
+        ++flagged_in_gaps;
+        EXPECT_NE(unjudgedText(b, q).find("that its data never reached"), std::string::npos) << unjudgedText(b, q);
+      }
+      // The sigma there is the range's law at that distance, held at the judged distance.
+      EXPECT_NEAR(b.sigmaRad(q), plain > 0 && b.sigma_at_1_rad > 0
+                                     ? b.sigma_at_1_rad * std::pow(b.checked_rad > 0 ? std::min(plain, b.checked_rad) : plain, b.growth)
+                                     : 0.0,
+                  1e-15);
+    }
+  }
+  std::printf("  %d angles in gaps of the data (%d farther than judged), %d beyond the range\n", in_gaps,
+              flagged_in_gaps, beyond);
+  EXPECT_GT(in_gaps, 100);
+  EXPECT_GT(flagged_in_gaps, 10);
+}
+
 // The error beyond a joint's range (BeyondRange) in predictedPositionSigma against a plain reference: that joint turned
 // by sigmaRad(q) in the forward kinematics moves the target by sigma |dp/dq| to first order (central differences);
 // inside the range it adds nothing, and beyond the checked distance it stays at its value there. Robots, ranges, sizes, growths and configurations drawn at random.

@@ -103,7 +103,9 @@ TEST(ResidualMap, LearnsASmoothEffectAndNeverExtrapolates) {
     EXPECT_LT(with, 0.25 * without);
     const Eigen::VectorXd& l = map.lengthScales_rad();
     for (int j = 0; j < 6; ++j)
-      if (j != a && j != b) EXPECT_GT(l[j], 2 * std::max(l[a], l[b])) << "joint " << j + 1;
+      if (j != a && j != b) {
+        EXPECT_GT(l[j], 2 * std::max(l[a], l[b])) << "joint " << j + 1;
+      }
     Eigen::VectorXd far = Eigen::VectorXd::Zero(6);
     far[a] = 1.0 + 3 * l[a];
     const ResidualMap::Prediction p = map.predict(far, true);

@@ -153,7 +153,9 @@ TEST_P(CauseSuite, ItsRegionIsAJointsRangeOrADriversRange) {
       EXPECT_GT(label.size(), open + 3) << label;
       EXPECT_EQ(label.back(), ')') << label;
     }
-    if (c.driver() == CauseModel::Driver::kThermal) EXPECT_EQ(x, thermalDriverValue(e, d)) << what;
+    if (c.driver() == CauseModel::Driver::kThermal) {
+      EXPECT_EQ(x, thermalDriverValue(e, d)) << what;
+    }
   }
 }
 

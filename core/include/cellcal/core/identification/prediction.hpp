@@ -16,6 +16,7 @@
 
 #include <Eigen/Core>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "cellcal/core/identification/diagnosis.hpp"
@@ -49,17 +50,31 @@ struct BeyondRange {
   double sigma_at_1_rad = 0;
   int growth = 0;  // 0: a constant error beyond the range, 1: growing linearly with d, 2: with d^2
   double checked_rad = 0;
-  double beyondRad(double q_rad) const;  // d
+  // Stretches inside [lower_rad, upper_rad] that no row of the data reached (rangeGaps: a grid at one tool
+  // orientation leaves a wrist joint's angles in clusters): sorted, disjoint, strictly inside the range. An angle in
+  // one lies as far from the data as from the gap's nearer edge, d, and is judged as beyond the range: the folds
+  // judged the extensions up to checked_rad from their data at the range's ends, not in between.
+  std::vector<std::pair<double, double>> gaps_rad;
+  double beyondRad(double q_rad) const;  // d: beyond [lower_rad, upper_rad], or into a gap
+  bool inGap(double q_rad) const;        // within the range, in one of gaps_rad
   double sigmaRad(double q_rad) const;
   bool judged(double q_rad) const;       // d <= checked_rad
   const char* growthText() const;        // "", " per rad beyond", " per rad^2 beyond": the unit sigma is read in
   std::string rangeText() const;         // "[-20.0, 90.0] deg"
+  std::string gapsText() const;          // "", " (no data in [10.0, 45.0] deg)", " (no data in [10.0, 45.0] and [60.0, 70.0] deg)"
   bool IsValid(int num_joints, std::string* error) const;
 };
+// The stretches wider than min_width between consecutive values of x (in any order): BeyondRange::gaps_rad.
+std::vector<std::pair<double, double>> rangeGaps(std::vector<double> x, double min_width);
+// The share of a joint's range over the data that a gap must exceed to be kept (extensionTransfer): narrower ones are
+// finer than the quarters of the range the region folds judge by.
+constexpr double kBeyondGapShare = 0.05;
 // The first range whose joint at q_rad lies farther beyond it than it was judged; nullptr where all were judged.
 const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad);
 // "joint 2 at 131.0 deg lies 41.0 deg beyond [-20.0, 90.0] deg, the range its model extensions were fitted on; they
-// were judged up to 12.0 deg beyond it": what firstUnjudged found, for a message.
+// were judged up to 12.0 deg beyond it" (in a gap: "joint 4 at -88.0 deg lies 31.0 deg inside [-209.0, -57.0] deg, a
+// stretch of [-267.0, 267.0] deg, the range its model extensions were fitted on, that its data never reached; they
+// were judged up to 25.8 deg from their data"): what firstUnjudged found, for a message.
 std::string unjudgedText(const BeyondRange& range, double q_rad);
 
 // The same for an extension that no joint's angle bounds (link deflection: the gravity across its link; thermal drift
