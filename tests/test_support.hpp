@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdlib>
 #include <filesystem>
@@ -47,6 +48,12 @@ inline std::vector<RobotModel> robotsWithUr5() {
       std::filesystem::path(CELLCAL_CONFIG_DIR) / "../../shared/robots/ros-industrial/universal_robots/ur5.urdf";
   if (std::filesystem::exists(ur5)) robots.push_back(loadRobotFile(ur5.string()).model);
   return robots;
+}
+
+// The median of v (the upper one of an even count), 0 when v is empty.
+inline double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
 // A fresh random seed per run (so no test is tuned to one seed), reproducible with CELLCAL_TEST_SEED=<n>.

@@ -586,9 +586,7 @@ TEST(CliCalibrate, FramesOnlyJudgesTheCarriedExtensionsAgainstTheGeometricCalibr
     const RandomDraw draw = randomDraw(rng);
     const RobotModel model = robot(draw.name);
     const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + draw.name + ".yaml";
-    SimulationConfig sc = draw.sc;
-    sc.warmup_K = 0;
-    sc.zero_drift_per_K_max_rad = sc.zero_wear_per_h_max_rad = 0;
+    SimulationConfig sc = draw.steadySc();
     const int j = 1 + static_cast<int>(u(rng) * 2);
     const double amplitude_rad = (0.1 + 0.2 * u(rng)) * kPi / 180;
     Eigen::Vector4d harmonics = Eigen::Vector4d::Zero();
@@ -711,9 +709,7 @@ TEST(CliCalibrate, ALinkDeflectionsRangeOfLoadIsSavedAndCarried) {
     const RandomDraw draw = randomDraw(rng);
     const RobotModel model = robot(draw.name);
     const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/" + draw.name + ".yaml";
-    SimulationConfig sc = draw.sc;
-    sc.warmup_K = 0;
-    sc.zero_drift_per_K_max_rad = sc.zero_wear_per_h_max_rad = 0;
+    SimulationConfig sc = draw.steadySc();
     const SimulatedCell campaign(model, sc), moved(model, placement(sc, 1, rng));
     const Eigen::VectorXd truth = campaign.trueParams(0);
     std::vector<int> beams;

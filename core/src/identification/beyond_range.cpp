@@ -21,17 +21,24 @@ double sigmaBeyond(double sigma_at_1, int growth, double d, double checked) {
   return sigma_at_1 * std::pow(d, growth);
 }
 
-double BeyondRange::beyondRad(double q_rad) const {
-  const double d = distanceBeyond(q_rad, lower_rad, upper_rad);
-  if (d > 0) return d;
-  for (const auto& [a, b] : gaps_rad)
-    if (q_rad > a && q_rad < b) return std::min(q_rad - a, b - q_rad);
-  return 0.0;
+namespace {
+
+// The gap of b that q lies in, within b's range; nullptr where none.
+const std::pair<double, double>* gapAt(const BeyondRange& b, double q_rad) {
+  if (distanceBeyond(q_rad, b.lower_rad, b.upper_rad) > 0) return nullptr;
+  for (const auto& g : b.gaps_rad)
+    if (q_rad > g.first && q_rad < g.second) return &g;
+  return nullptr;
 }
 
-bool BeyondRange::inGap(double q_rad) const {
-  return std::any_of(gaps_rad.begin(), gaps_rad.end(), [&](const auto& g) { return q_rad > g.first && q_rad < g.second; });
+}  // namespace
+
+double BeyondRange::beyondRad(double q_rad) const {
+  if (const auto* g = gapAt(*this, q_rad)) return std::min(q_rad - g->first, g->second - q_rad);
+  return distanceBeyond(q_rad, lower_rad, upper_rad);
 }
+
+bool BeyondRange::inGap(double q_rad) const { return gapAt(*this, q_rad) != nullptr; }
 
 std::vector<std::pair<double, double>> rangeGaps(std::vector<double> x, double min_width) {
   std::sort(x.begin(), x.end());
@@ -73,9 +80,7 @@ std::string BeyondRange::rangeText() const {
 
 std::string unjudgedText(const BeyondRange& b, double q_rad) {
   char t[400], u[80];
-  const auto gap = std::find_if(b.gaps_rad.begin(), b.gaps_rad.end(),
-                                [&](const auto& g) { return q_rad > g.first && q_rad < g.second; });
-  if (distanceBeyond(q_rad, b.lower_rad, b.upper_rad) == 0 && gap != b.gaps_rad.end()) {
+  if (const auto* gap = gapAt(b, q_rad)) {
     std::snprintf(t, sizeof t, "joint %d at %.1f deg lies %.1f deg inside [%.1f, %.1f] deg, a stretch of %s, the range "
                   "its model extensions were fitted on, that its data never reached; ", b.joint + 1, q_rad * 180 / kPi,
                   b.beyondRad(q_rad) * 180 / kPi, gap->first * 180 / kPi, gap->second * 180 / kPi, b.rangeText().c_str());

@@ -400,10 +400,7 @@ TEST(Campaign, AModelWithThreeCyclicTermsCarriedToOtherPosesPredictsItsError) {
     std::printf("  %s\n    actual / predicted:%s\n", what.c_str(), line.c_str());
   }
   ASSERT_GE(draws, want / 2) << "the grids were not reached";
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
-  };
+  using test::median;
   std::printf("  summary: %d draws, RMS of actual / predicted on the other poses' verification rows: without "
               "beyond_data %.2f (median of draws %.2f), with it %.2f (%.2f; %.2f on the %d of %d rows not flagged), as "
               "calibrate chooses %.2f (%.2f; %.2f on %d of %d)\n",

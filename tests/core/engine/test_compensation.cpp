@@ -555,10 +555,7 @@ TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {
   for (const auto& q : cell.randomConfigurations(20, rng)) run(q, outside);
   ASSERT_GE(inside.size(), 15u);
   ASSERT_GE(outside.size(), 15u);
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-    return v[v.size() / 2];
-  };
+  using test::median;
   const double med_in = median(inside), med_out = median(outside);
   std::printf("  predicted 1-sigma position error: median %.4f mm in the corner, %.4f mm elsewhere\n", med_in * 1e3,
               med_out * 1e3);

@@ -168,6 +168,14 @@ struct RandomDraw {
   std::string name;
   MeasurementKind kind = MeasurementKind::kPose6D;
   SimulationConfig sc;
+  // sc with a robot that neither warms up nor drifts: the effect a test draws is the only one beside the noise.
+  SimulationConfig steadySc() const {
+    SimulationConfig s = sc;
+    s.warmup_K = 0;
+    s.zero_drift_per_K_max_rad = 0;
+    s.zero_wear_per_h_max_rad = 0;
+    return s;
+  }
 };
 inline RandomDraw randomDraw(std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);

@@ -83,10 +83,7 @@ Campaign libraryCause(const test::HiddenEffectData& h, std::mt19937_64& rng) {
 // gear, a cable that snags: nothing in the library) in the middle of the 60 % of its range the campaign works on.
 Campaign bumpedJoint(const RobotModel& model, const test::RandomDraw& d, std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  SimulationConfig sc = d.sc;
-  sc.warmup_K = 0;
-  sc.zero_drift_per_K_max_rad = 0;
-  sc.zero_wear_per_h_max_rad = 0;
+  SimulationConfig sc = d.steadySc();
   const SimulatedCell cell(model, sc);
   const int j = 1 + static_cast<int>(u(rng) * 2);
   const double amplitude_rad = (0.06 + 0.24 * u(rng)) * kPi / 180;
@@ -259,10 +256,7 @@ Carried carriedBeyond(bool library, std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   const test::RandomDraw d = test::randomDraw(rng);
   const RobotModel model = test::robot(d.name);
-  SimulationConfig sc = d.sc;
-  sc.warmup_K = 0;
-  sc.zero_drift_per_K_max_rad = 0;
-  sc.zero_wear_per_h_max_rad = 0;
+  SimulationConfig sc = d.steadySc();
   const int j = 1 + static_cast<int>(u(rng) * 2);
   const Cause cause = u(rng) < 0.5 ? Cause::kCyclicTransmission : Cause::kJointScale;
   const double size_rad = (0.02 + 0.08 * u(rng)) * kPi / 180;
@@ -388,10 +382,7 @@ TEST(ExtensionTransfer, APredictionBeyondTheDataCoversWhatTheExtensionsDoThere) 
       EXPECT_LE(c->transfer.joints.front().ratio_rms_with, std::max(1.0, c->transfer.joints.front().ratio_rms_without) + 1e-9);
     }
   }
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
-  };
+  using test::median;
   std::printf("  summary: %zu of %d partial draws predicted more than 1.5x too low within the checked distance (median "
               "%.2fx, with the beyond term %.2fx); true causes: median change %.2f; of the partial draws' rows beyond "
               "the campaign predicted more than 3x too low with the beyond term, %d of %d lie beyond the judged "
@@ -442,10 +433,7 @@ CarriedDriver deflectionBeyond(bool library, std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   const test::RandomDraw d = test::randomDraw(rng);
   const RobotModel model = test::robot(d.name);
-  SimulationConfig sc = d.sc;
-  sc.warmup_K = 0;
-  sc.zero_drift_per_K_max_rad = 0;
-  sc.zero_wear_per_h_max_rad = 0;
+  SimulationConfig sc = d.steadySc();
   const SimulatedCell cell(model, sc);
   const Eigen::VectorXd truth = cell.trueParams(0);
   std::vector<int> beams;
@@ -566,10 +554,7 @@ TEST(ExtensionTransfer, APredictionBeyondALinksLoadCoversWhatItsDeflectionDoesTh
     beyond_rows += p.rows + t.rows;
     flagged_rows += p.far + t.far;
   }
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
-  };
+  using test::median;
   std::printf("  summary: %zu of %d non-linear draws predicted more than 1.5x too low within the judged distance "
               "(median %.2fx, with the driver term %.2fx); library deflections: median change %.2f; of the non-linear "
               "draws' rows beyond predicted more than 3x too low with the driver term, %d of %d flagged\n",
