@@ -173,7 +173,8 @@ void expectRefused(const std::string& good, const std::string& from, const std::
 }
 
 // calibratedModel(file): the file's kinematics and extensions, and the covariance of the columns the calibration
-// estimated (in any order in the file), checked entry by entry against a plain search of the file's columns by name.
+// estimated (in any order in the file) given the others, checked entry by entry against a plain search of the file's
+// columns by name and the plain reference of Gaussian conditioning: the inverse of the information matrix's block.
 TEST(RobotFile, ItsCalibratedModelIsTheEstimatedColumnsOfTheFile) {
   std::mt19937_64 rng(test::testSeed());
   for (int d = 0; d < 20; ++d) {
@@ -206,13 +207,21 @@ TEST(RobotFile, ItsCalibratedModelIsTheEstimatedColumnsOfTheFile) {
         if (cal.columnName(m, cal.columns[k]) == name) return static_cast<Eigen::Index>(k);
       return Eigen::Index(-1);
     };
+    std::vector<Eigen::Index> at;  // each of c's columns' place in the file
     for (int a = 0; a < c.numEstimated(); ++a) {
       const Eigen::Index fa = fileIndex(c.columnName(m, a));
       ASSERT_GE(fa, 0) << c.columnName(m, a);
       EXPECT_TRUE(cal.estimated[static_cast<size_t>(fa)]) << c.columnName(m, a);
-      for (int b = 0; b < c.numEstimated(); ++b)
-        EXPECT_EQ(c.covariance(a, b), cal.covariance(fa, fileIndex(c.columnName(m, b))));
+      at.push_back(fa);
     }
+    const Eigen::MatrixXd info = cal.covariance.inverse();
+    const Eigen::MatrixXd given = Eigen::MatrixXd(info(at, at)).inverse();
+    const double scale = given.cwiseAbs().maxCoeff();
+    for (int a = 0; a < c.numEstimated(); ++a)
+      for (int b = 0; b < c.numEstimated(); ++b)
+        EXPECT_NEAR(c.covariance(a, b), given(a, b), 1e-6 * scale) << c.columnName(m, a) << ", " << c.columnName(m, b);
+    // Given the others it is no wider than the file's marginal.
+    for (int a = 0; a < c.numEstimated(); ++a) EXPECT_LE(c.covariance(a, a), cal.covariance(at[static_cast<size_t>(a)], at[static_cast<size_t>(a)]) * (1 + 1e-9));
   }
   const CalibratedModel plain = calibratedModel(RobotFile{test::robot("ur10"), std::nullopt, {}});
   EXPECT_TRUE(plain.extensions.empty() && plain.estimated.empty() && !plain.hasCovariance());

@@ -69,8 +69,11 @@ struct RobotFile {
 RobotCalibration robotCalibration(const RobotModel& model, const CalibratedModel& fit, const PredictionModel& prediction);
 
 // The file's model as a calibrated model (calibrated_model.hpp): its kinematics and frames (model.nominal), the
-// extensions and their values, and the columns the calibration estimated with their covariance (columns kept at their
-// prior width left out). Without a calibration section: the geometric model of its values, nothing estimated.
+// extensions and their values, and the columns the calibration estimated with their covariance given the columns kept
+// at their prior width (conditionalGaussianCovariance: held at their values, as a fit holds them and as the engine
+// starts from the file; their marginal would carry the prior width they share with the estimated columns they are
+// confounded with, which cancels in every position). Without a calibration section: the geometric model of its values,
+// nothing estimated.
 CalibratedModel calibratedModel(const RobotFile& file);
 
 // Throws ConfigError "<file>:<line>:<column>: <field>: <message>" on bad input (as loadRobotModel).
