@@ -347,12 +347,12 @@ CalibratedModel calibratedModel(const RobotFile& file) {
   const int n = file.model.numParams();
   m.extensions = cal.extensions;
   m.extension_params = cal.extension_params;
-  std::vector<std::pair<int, Eigen::Index>> kin, ext;  // (column, its place in cal.covariance), estimated ones
+  std::vector<std::pair<int, int>> kin, ext;  // (column, its place in cal.covariance), estimated ones
   for (size_t k = 0; k < cal.columns.size(); ++k)
-    if (cal.estimated[k]) (cal.columns[k] < n ? kin : ext).emplace_back(cal.columns[k], static_cast<Eigen::Index>(k));
+    if (cal.estimated[k]) (cal.columns[k] < n ? kin : ext).emplace_back(cal.columns[k], static_cast<int>(k));
   std::sort(kin.begin(), kin.end());
   std::sort(ext.begin(), ext.end());
-  std::vector<Eigen::Index> at;
+  std::vector<int> at;
   for (const auto& [c, k] : kin) {
     m.estimated.push_back(c);
     at.push_back(k);
@@ -365,7 +365,7 @@ CalibratedModel calibratedModel(const RobotFile& file) {
   // prior uncertainty is shared with the estimated columns they are confounded with (a joint's zero with the base's
   // yaw) and cancels in every position; without it the position sigma from these columns alone was 6-7 mm where the
   // whole posterior predicts 0.01-0.1 mm.
-  if (!at.empty()) m.covariance = conditionalGaussianCovariance(cal.covariance, std::vector<int>(at.begin(), at.end()));
+  if (!at.empty()) m.covariance = conditionalGaussianCovariance(cal.covariance, at);
   return m;
 }
 

@@ -254,6 +254,9 @@ TEST(Campaign, SetUpsShareTheKinematicsAndAModelCarriedKeepsIt) {
 // (cyclic_transmission's form: true) or quadratic in the angle from the grid's middle (outside the library), the same
 // robot with the tracker moved beside it. problem(): the grid's rows calibrated with a cyclic_transmission of each
 // of the three joints.
+// sin q, cos q, sin 2q, cos 2q: a cyclic error's form (its harmonics' weights).
+Eigen::Vector4d harmonicBasis(double q) { return {std::sin(q), std::cos(q), std::sin(2 * q), std::cos(2 * q)}; }
+
 struct GridCase {
   struct JointError {
     int j;
@@ -277,8 +280,7 @@ struct GridCase {
     Eigen::VectorXd qt = q;
     for (const JointError& e : errors) {
       const double v = q[e.j];
-      qt[e.j] += e.cyclic ? e.harmonics.dot(Eigen::Vector4d(std::sin(v), std::cos(v), std::sin(2 * v), std::cos(2 * v)))
-                          : e.curvature * (v - e.centre) * (v - e.centre);
+      qt[e.j] += e.cyclic ? e.harmonics.dot(harmonicBasis(v)) : e.curvature * (v - e.centre) * (v - e.centre);
     }
     return qt;
   }
@@ -323,8 +325,8 @@ bool drawGridCase(const RobotModel& file, std::mt19937_64& rng, GridCase* g, boo
   std::shuffle(g->joints.begin(), g->joints.end(), rng);
   g->joints.resize(3);
   std::sort(g->joints.begin(), g->joints.end());
-  g->what = file.name + (g->kind == MeasurementKind::kPose6D ? " 6D" : " points") + ", grid " +
-            std::to_string(g->grid.size()) + ":";
+  g->what = file.name + (g->kind == MeasurementKind::kPose6D ? " 6D" : " points") +
+            (part_of_range ? ", campaign " : ", grid ") + std::to_string(g->grid.size()) + ":";
   for (int j : g->joints) {
     GridCase::JointError e{j, u(rng) < 0.5, Eigen::Vector4d::Zero(), 0, 0};
     const double size_rad = (0.02 + 0.08 * u(rng)) * kPi / 180;
@@ -339,16 +341,16 @@ bool drawGridCase(const RobotModel& file, std::mt19937_64& rng, GridCase* g, boo
     const JointLimits& lim = file.limits[static_cast<size_t>(j)];
     for (int k = 0; k <= 200; ++k) {
       const double v = lim.lower_rad + (lim.upper_rad - lim.lower_rad) * k / 200.0;
-      ms += e.cyclic ? std::pow(e.harmonics.dot(Eigen::Vector4d(std::sin(v), std::cos(v), std::sin(2 * v), std::cos(2 * v))), 2)
-                     : std::pow(v - e.centre, 4);
+      ms += e.cyclic ? std::pow(e.harmonics.dot(harmonicBasis(v)), 2) : std::pow(v - e.centre, 4);
     }
     const double rms = std::sqrt(ms / 201.0);
     if (e.cyclic) e.harmonics *= size_rad / rms;
     e.curvature = (u(rng) < 0.5 ? 1 : -1) * size_rad / rms;
     g->errors.push_back(e);
     char t[120];
-    std::snprintf(t, sizeof t, " joint %d %s %.3f deg (over its range; grid %.0f-%.0f deg)", j + 1,
-                  e.cyclic ? "cyclic" : "quadratic", size_rad * 180 / kPi, x.front() * 180 / kPi, x.back() * 180 / kPi);
+    std::snprintf(t, sizeof t, " joint %d %s %.3f deg (over its range; %s %.0f-%.0f deg)", j + 1,
+                  e.cyclic ? "cyclic" : "quadratic", size_rad * 180 / kPi, part_of_range ? "campaign" : "grid",
+                  x.front() * 180 / kPi, x.back() * 180 / kPi);
     g->what += t;
   }
   for (const auto& q : g->grid) g->campaign_rows.rows.push_back(g->measure(*g->cell, q, rng));
