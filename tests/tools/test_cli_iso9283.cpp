@@ -7,12 +7,16 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
 
 #include "cell/cell_test_support.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/identification/pose_plan.hpp"
+#include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 #include "core/identification/hidden_effect.hpp"
@@ -225,6 +229,87 @@ TEST(CliPlanPoses, ChosenConfigurationsTheTrackerSeesWithTheirIndices) {
   EXPECT_EQ(none.wait(60), 2) << none.log();
   EXPECT_NE(none.log().find("out of the tracker's range"), std::string::npos) << none.log();
   EXPECT_FALSE(fs::exists(dir + "/none.csv"));
+}
+
+}  // namespace
+}  // namespace cellcal
+
+namespace cellcal {
+namespace {
+
+// `cellcal plan cover`: a calibrated robot file whose extension of a joint was judged over a window of that joint's
+// angles (drawn at random from the program's, each end its own share of the way out), a program of random
+// configurations. The targets passed through as never judged are exactly those a plain check of the window finds,
+// each named with its joint; they, and only they, are written to measure (no registration: the tracker's place is not
+// known, nothing refused for sight); the others are corrected. A robot file without a calibration is refused.
+TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) {
+  const std::string dir = testDir();
+  std::mt19937_64 rng(testSeed());
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const std::string nominal = std::string(CELLCAL_CONFIG_DIR) + "/robots/ur10.yaml";
+  const RobotFile rf = loadRobotFile(nominal);
+  const RobotModel& m = rf.model;
+  const int joint = 1 + static_cast<int>(3 * u(rng)) % 3;  // joint 2, 3 or 4
+  // The program: random configurations within 90 % of the limits.
+  std::vector<Eigen::VectorXd> qs;
+  for (int k = 0; k < 30; ++k) {
+    Eigen::VectorXd q(m.numJoints());
+    for (int j = 0; j < q.size(); ++j) {
+      const double lo = std::max(m.limits[static_cast<size_t>(j)].lower_rad, -kPi),
+                   hi = std::min(m.limits[static_cast<size_t>(j)].upper_rad, kPi);
+      q[j] = 0.9 * (lo + (hi - lo) * u(rng)) + 0.05 * (lo + hi);
+    }
+    qs.push_back(q);
+  }
+  std::vector<double> angles;
+  for (const auto& q : qs) angles.push_back(q[joint]);
+  std::sort(angles.begin(), angles.end());
+  RobotCalibration cal;
+  cal.extensions = {Extension{Cause::kCyclicTransmission, joint}};
+  cal.extension_params = Eigen::VectorXd::Zero(numExtensionParams(m, cal.extensions));
+  BeyondRange b;
+  b.joint = joint;
+  b.lower_rad = angles[static_cast<size_t>(6 + 4 * u(rng))];
+  b.upper_rad = angles[static_cast<size_t>(19 + 4 * u(rng))];
+  b.checked_rad = (0.2 + 0.5 * u(rng)) * std::min(b.lower_rad - angles.front(), angles.back() - b.upper_rad);
+  cal.beyond_data = {b};
+  std::ofstream(dir + "/calibrated.yaml") << robotFileText(m, &cal, "plan cover test");
+  std::ostringstream csv;
+  csv.precision(17);
+  for (int j = 1; j <= m.numJoints(); ++j) csv << "q" << j << "_rad" << (j < m.numJoints() ? "," : "\n");
+  for (const auto& q : qs)
+    for (int j = 0; j < q.size(); ++j) csv << q[j] << (j + 1 < q.size() ? "," : "\n");
+  std::ofstream(dir + "/program.csv") << csv.str();
+  Process cover(dir, "plan_cover", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration", dir + "/calibrated.yaml",
+                                    "--program", dir + "/program.csv", "--out", dir + "/measure.csv"});
+  ASSERT_EQ(cover.wait(120), 0) << cover.log();
+  // Plain reference: the joint's angle farther beyond the window than judged.
+  std::vector<int> expected;
+  for (size_t i = 0; i < qs.size(); ++i)
+    if (qs[i][joint] < b.lower_rad - b.checked_rad || qs[i][joint] > b.upper_rad + b.checked_rad)
+      expected.push_back(static_cast<int>(i));
+  std::printf("  joint %d window [%.1f, %.1f] deg judged %.1f deg beyond: %zu of 30 targets beyond\n", joint + 1,
+              b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.checked_rad * 180 / kPi, expected.size());
+  EXPECT_NE(cover.log().find("passed through where the model's extensions were never judged: " + std::to_string(expected.size())),
+            std::string::npos) << cover.log();
+  EXPECT_NE(cover.log().find("corrected: " + std::to_string(30 - expected.size())), std::string::npos) << cover.log();
+  for (int i : expected)
+    EXPECT_NE(cover.log().find("row " + std::to_string(i + 1) + ": joint " + std::to_string(joint + 1) + " at "),
+              std::string::npos) << i << "\n" << cover.log();
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const MeasurementFile measure = readMeasurementCsv(dir + "/measure.csv", m, po);
+  ASSERT_EQ(measure.rows.size(), expected.size()) << cover.log();
+  for (size_t k = 0; k < expected.size(); ++k) {
+    EXPECT_TRUE(measure.rows[k].q_rad.isApprox(qs[static_cast<size_t>(expected[k])], 1e-15)) << k;
+    EXPECT_EQ(measure.rows[k].pose.value_or(""), "row " + std::to_string(expected[k] + 1));
+  }
+  // A robot file without a calibration section.
+  Process bare(dir, "plan_cover_bare", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration", nominal,
+                                        "--program", dir + "/program.csv", "--out", dir + "/bare.csv"});
+  EXPECT_EQ(bare.wait(60), 2) << bare.log();
+  EXPECT_NE(bare.log().find("not a calibrated robot file"), std::string::npos) << bare.log();
+  EXPECT_FALSE(fs::exists(dir + "/bare.csv"));
 }
 
 }  // namespace

@@ -144,7 +144,8 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   const DriverRange* unjudged_driver =
       model.extensions.empty() ? nullptr
                                : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
-  if ((unjudged || unjudged_driver) && s.max_predicted_sigma_m > 0) {
+  out.unjudged = unjudged || unjudged_driver;
+  if (out.unjudged && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kOutsideCalibration;
     out.reason = (unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x)) +
@@ -221,6 +222,20 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   out.reason = m.str() + ": clamped to the bound";
   out.corrected_in_tracker = clamped;
   out.q_rad = back.q_rad;
+  return out;
+}
+
+ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,
+                                      const std::vector<Eigen::VectorXd>& program, const CompensationSettings& settings) {
+  ProgramCompensation out;
+  KinematicsData data(nominal);
+  for (const Eigen::VectorXd& q : program) {
+    out.results.push_back(compensate(nominal, identified, forwardKinematics(nominal, data, nominal.nominal, q), q, settings));
+    const CompensationResult& r = out.results.back();
+    if (r.applied) ++out.applied;
+    else if (r.unjudged) ++out.unjudged;
+    else ++out.refused;
+  }
   return out;
 }
 

@@ -83,6 +83,9 @@ struct CompensationResult {
   // The residual map's correction at q_rad (in the tracker frame), where it applies.
   bool residual_map_applied = false;
   Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
+  // The target's joint solution lies where the model's extensions were never judged (beyond_data, beyond_drivers):
+  // passed through (outside_calibration), or with the guard off applied with an infinite predicted sigma.
+  bool unjudged = false;
 };
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
@@ -120,5 +123,19 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
 CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& identified_params,
                               const Pose& desired_in_tracker, const Eigen::VectorXd& q_seed_rad,
                               const CompensationSettings& settings);
+
+// What compensation does with a robot program: compensate() at each configuration q, the target the pose `nominal`
+// commands there (its forward kinematics at q, in the tracker frame of nominal's frames), seeded at q. Before
+// production: which of a program's targets the model corrects and which it passes through. A target passed through
+// because the extensions were never judged there (unjudged) lies where the calibration's data never were; measuring
+// the robot at that configuration brings it into the data of the next calibration (`cellcal plan cover`).
+struct ProgramCompensation {
+  std::vector<CompensationResult> results;  // one per configuration, in order
+  int applied = 0;   // applied or clamped
+  int unjudged = 0;  // passed through where the extensions were never judged
+  int refused = 0;   // every other outcome: a predicted error over the guard, unreachable, over the bound, ...
+};
+ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,
+                                      const std::vector<Eigen::VectorXd>& program, const CompensationSettings& settings);
 
 }  // namespace cellcal
