@@ -304,6 +304,14 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
     EXPECT_TRUE(measure.rows[k].q_rad.isApprox(qs[static_cast<size_t>(expected[k])], 1e-15)) << k;
     EXPECT_EQ(measure.rows[k].pose.value_or(""), "row " + std::to_string(expected[k] + 1));
   }
+  // The guard off: the same targets corrected with their error not known, said and written to measure all the same.
+  Process blind(dir, "plan_cover_blind", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration",
+                                          dir + "/calibrated.yaml", "--program", dir + "/program.csv",
+                                          "--max-predicted-sigma-mm", "0", "--out", dir + "/blind.csv"});
+  ASSERT_EQ(blind.wait(120), 0) << blind.log();
+  EXPECT_NE(blind.log().find("never judged (the guard off): " + std::to_string(expected.size())), std::string::npos)
+      << blind.log();
+  EXPECT_EQ(readMeasurementCsv(dir + "/blind.csv", m, po).rows.size(), expected.size()) << blind.log();
   // A robot file without a calibration section.
   Process bare(dir, "plan_cover_bare", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration", nominal,
                                         "--program", dir + "/program.csv", "--out", dir + "/bare.csv"});

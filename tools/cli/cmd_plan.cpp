@@ -2,26 +2,21 @@
 // test plane and its five poses, reached with one tool orientation, as joint configurations in the standard's cycle
 // order, for the robot program (or the simulated cell, simulation.program_csv) to run. `cellcal plan poses`: the K
 // configurations a calibration campaign should measure (core/identification/pose_plan.hpp), with their observability
-// indices beside K random ones. `cellcal plan cover`: which of a robot program's targets compensation with a
-// calibrated robot file corrects, and the ones it passes through because the model's extensions were never judged
-// there, as a program to measure (core/engine/compensation.hpp, compensateProgram).
-#include <algorithm>
+// indices beside K random ones. `cellcal plan cover` is cmd_plan_cover.cpp.
 #include <cmath>
 #include <cstdio>
-#include <optional>
 #include <fstream>
 #include <sstream>
 #include <nlohmann/json.hpp>
 
 #include "cellcal/core/accuracy/iso9283_plan.hpp"
-#include "cellcal/core/engine/compensation.hpp"
-#include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/identification/pose_plan.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
+#include "plan_common.hpp"
 
 namespace cellcal::cli {
 namespace {
@@ -36,30 +31,6 @@ struct PlanIsoArgs {
 Eigen::Vector3d parseXyzMm(const std::string& text, const std::string& option) {
   const std::vector<double> v = parseNumbers(text, 3, option, "X,Y,Z in mm");
   return Eigen::Vector3d(v[0], v[1], v[2]) * 1e-3;
-}
-
-// A robot program (CSV v1's joint columns in radians to the last digit, pose, and cycle when given), written whole.
-struct ProgramRow {
-  const Eigen::VectorXd* q;
-  std::string pose;
-  int cycle = 0;  // 0: no cycle column
-};
-void writeProgram(const std::string& path, const std::string& comment, int joints, const std::vector<ProgramRow>& rows) {
-  std::ostringstream csv;
-  std::istringstream lines(comment);
-  for (std::string line; std::getline(lines, line);) csv << "# " << line << "\n";
-  for (int j = 1; j <= joints; ++j) csv << "q" << j << "_rad,";
-  const bool cycles = !rows.empty() && rows.front().cycle > 0;
-  csv << (cycles ? "pose,cycle\n" : "pose\n");
-  csv.precision(17);
-  for (const auto& r : rows) {
-    for (int j = 0; j < joints; ++j) csv << (*r.q)[j] << ",";
-    csv << r.pose;
-    if (cycles) csv << "," << r.cycle;
-    csv << "\n";
-  }
-  std::ofstream out(path);
-  if (!out || !(out << csv.str()) || !out.flush()) throw std::runtime_error(path + ": cannot write");
 }
 
 void addIsoOptions(CLI::App& cmd, PlanIsoArgs& a) {
@@ -156,53 +127,6 @@ int runPlanIso(const PlanIsoArgs& a) {
     std::ofstream(a.json) << j.dump(2) << "\n";
   }
   return 0;
-}
-
-// Where the tracker stands and what it can see (--tracker-mm, --range-mm, --link-radius-mm, --acceptance-deg): the
-// tracker frame's origin of the model's registration unless --tracker-mm places it; none when neither is known.
-struct TrackerArgs {
-  std::string tracker_mm, range_mm;
-  double link_radius_mm = 60, acceptance_deg = 0;
-};
-void addTrackerOptions(CLI::App& cmd, TrackerArgs& a) {
-  cmd.add_option("--tracker-mm", a.tracker_mm,
-                 "the tracker's position X,Y,Z in the robot's base frame (default: the tracker frame's origin, when the "
-                 "robot file or cell has a registration)");
-  cmd.add_option("--range-mm", a.range_mm, "the tracker's range MIN,MAX (default: 0, unlimited)");
-  cmd.add_option("--link-radius-mm", a.link_radius_mm, "the beam keeps this far from every link but the last two")
-      ->check(nonNegative())
-      ->capture_default_str();
-  cmd.add_option("--acceptance-deg", a.acceptance_deg,
-                 "the target's z axis within this of the direction to the tracker (0: not checked)")
-      ->check(nonNegative())
-      ->capture_default_str();
-}
-std::optional<TrackerSetup> trackerSetup(const RobotModel& m, const TrackerArgs& a, std::string* from) {
-  const Eigen::Matrix<double, 6, 1> b = m.nominal.segment<6>(m.baseParam(FrameParam::kX));
-  if (a.tracker_mm.empty() && b.isZero(0.0)) {
-    if (!a.range_mm.empty() || a.acceptance_deg > 0)
-      throw ConfigError("--range-mm / --acceptance-deg: the tracker's place is not known: give --tracker-mm, or a robot "
-                        "file or cell with its registration");
-    return std::nullopt;
-  }
-  TrackerSetup t;
-  if (!a.tracker_mm.empty()) {
-    const auto v = parseNumbers(a.tracker_mm, 3, "--tracker-mm", "X,Y,Z in mm");
-    t.position_in_base_m = Eigen::Vector3d(v[0], v[1], v[2]) * 1e-3;
-    *from = "--tracker-mm";
-  } else {
-    t.position_in_base_m = poseFromXyzRpy(b[0], b[1], b[2], b[3], b[4], b[5]).inverse().translation();
-    *from = "the registration's tracker frame origin";
-  }
-  if (!a.range_mm.empty()) {
-    const auto r = parseNumbers(a.range_mm, 2, "--range-mm", "MIN,MAX in mm");
-    if (!(r[0] >= 0 && r[1] > r[0])) throw ConfigError("--range-mm " + a.range_mm + ": expected 0 <= MIN < MAX");
-    t.min_range_m = r[0] * 1e-3;
-    t.max_range_m = r[1] * 1e-3;
-  }
-  t.link_radius_m = a.link_radius_mm * 1e-3;
-  t.acceptance_rad = degToRad(a.acceptance_deg);
-  return t;
 }
 
 struct PlanPosesArgs {
@@ -306,112 +230,6 @@ int runPlanPoses(const PlanPosesArgs& a) {
 }
 
 
-struct PlanCoverArgs {
-  std::string robot, config, robot_id, calibration, program, out;
-  TrackerArgs tracker;
-  double max_predicted_sigma_mm = 1, max_correction_mm = 5;
-};
-
-void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
-  addRobotOrCellOptions(cmd, a.robot, a.config, a.robot_id,
-                        "the robot as its controller knows it (its nominal robot file or URDF): the program's targets "
-                        "are the poses it commands");
-  cmd.add_option("--calibration", a.calibration, "the calibrated robot file compensation applies (calibrate --save-robot)")
-      ->required()
-      ->check(CLI::ExistingFile);
-  cmd.add_option("--program", a.program, "the robot program: CSV v1's joint columns (q1_rad..), pose optional")
-      ->required()
-      ->check(CLI::ExistingFile);
-  cmd.add_option("--max-predicted-sigma-mm", a.max_predicted_sigma_mm,
-                 "compensation.max_predicted_sigma_mm: a target whose predicted error is above it is passed through "
-                 "(0: no guard; never-judged targets are then corrected with their error not known)")
-      ->check(nonNegative())
-      ->capture_default_str();
-  cmd.add_option("--max-correction-mm", a.max_correction_mm, "compensation.max_correction_mm")->check(positive())->capture_default_str();
-  addTrackerOptions(cmd, a.tracker);
-  cmd.add_option("--out", a.out, "the program's configurations passed through where the extensions were never judged "
-                 "and the tracker can measure: joint columns (CSV v1) plus pose")
-      ->required()
-      ->check(outputFile());
-}
-
-int runPlanCover(const PlanCoverArgs& a) {
-  std::string robot_label;
-  const RobotFile rf = robotOrCellRobot(a.robot, a.config, a.robot_id, &robot_label);
-  const RobotFile cal = loadRobotFile(a.calibration);
-  if (!cal.calibration)
-    throw ConfigError(a.calibration + ": not a calibrated robot file (no calibration section): calibrate --save-robot writes one");
-  if (cal.model.numJoints() != rf.model.numJoints() || cal.model.numParams() != rf.model.numParams())
-    throw ConfigError(a.calibration + ": another robot than " + robot_label + " (" + std::to_string(cal.model.numJoints()) +
-                      " joints, " + std::to_string(cal.model.numParams()) + " parameters against " +
-                      std::to_string(rf.model.numJoints()) + " and " + std::to_string(rf.model.numParams()) + ")");
-  // The controller: the nominal kinematics with the frames the calibration registered (the tracker frame its targets
-  // are in), as the compensation publisher sees a cell registered by that campaign.
-  RobotModel controller = rf.model;
-  const int f0 = controller.baseParam(FrameParam::kX);
-  controller.nominal.tail(controller.numParams() - f0) = cal.model.nominal.tail(controller.numParams() - f0);
-  IdentifiedModel model(calibratedModel(cal));
-  attachRobotFile(cal, model);
-  MeasurementCsvOptions po;
-  po.joints_only = true;
-  const MeasurementFile program = readMeasurementCsv(a.program, rf.model, po);
-  std::vector<Eigen::VectorXd> qs;
-  for (const auto& row : program.rows) qs.push_back(row.q_rad);
-  CompensationSettings settings;
-  settings.max_predicted_sigma_m = a.max_predicted_sigma_mm * 1e-3;
-  settings.max_correction_m = a.max_correction_mm * 1e-3;
-  const ProgramCompensation pc = compensateProgram(controller, model, qs, settings);
-  std::string tracker_from;
-  const std::optional<TrackerSetup> tracker = trackerSetup(cal.model, a.tracker, &tracker_from);
-  auto label = [&](size_t i) {
-    return program.rows[i].pose ? *program.rows[i].pose : "row " + std::to_string(i + 1);
-  };
-  std::printf("plan cover: %zu configurations of %s compensated with %s (as the compensation publisher would: predicted "
-              "error guard %.3g mm)\n", qs.size(), a.program.c_str(), a.calibration.c_str(), a.max_predicted_sigma_mm);
-  std::vector<double> sigma;
-  for (const auto& r : pc.results)
-    if (r.applied && std::isfinite(r.predicted_sigma_position_m)) sigma.push_back(r.predicted_sigma_position_m * 1e3);
-  std::sort(sigma.begin(), sigma.end());
-  std::printf("  corrected: %d", pc.applied);
-  if (!sigma.empty()) std::printf(" (predicted 1-sigma error %.3g-%.3g mm)", sigma.front(), sigma.back());
-  const int blind = static_cast<int>(std::count_if(pc.results.begin(), pc.results.end(),
-                                                   [](const CompensationResult& r) { return r.applied && r.unjudged; }));
-  if (blind > 0)
-    std::printf("; of them %d where the model's extensions were never judged, their error not known (the guard off)", blind);
-  std::printf("\n  passed through where the model's extensions were never judged: %d\n", pc.unjudged);
-  std::vector<size_t> to_measure;  // never judged (passed through, or corrected blind), the tracker can measure them
-  int occluded = 0;
-  for (size_t i = 0; i < qs.size(); ++i) {
-    const CompensationResult& r = pc.results[i];
-    if (!r.unjudged) continue;
-    const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
-    std::printf("    %s: %s%s\n", label(i).c_str(),
-                r.applied ? "corrected with its error not known: the extensions were never judged there" : r.reason.c_str(),
-                v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
-    if (v == Visibility::kVisible) to_measure.push_back(i);
-    else ++occluded;
-  }
-  std::printf("  passed through or refused otherwise: %d\n", pc.refused);
-  for (size_t i = 0; i < qs.size(); ++i)
-    if (!pc.results[i].applied && !pc.results[i].unjudged)
-      std::printf("    %s: %s: %s\n", label(i).c_str(), outcomeName(pc.results[i].outcome), pc.results[i].reason.c_str());
-  std::vector<std::string> names;
-  for (size_t i : to_measure) names.push_back(label(i));
-  std::vector<ProgramRow> measure;
-  for (size_t k = 0; k < to_measure.size(); ++k) measure.push_back({&qs[to_measure[k]], names[k], 0});
-  writeProgram(a.out,
-               std::to_string(measure.size()) + " configurations of " + a.program + " that compensation with " +
-                   a.calibration + " passes through where its extensions were never judged (cellcal plan cover): "
-                   "measure them and calibrate again with the campaign's rows",
-               rf.model.numJoints(), measure);
-  std::printf("  to measure: %zu of those %d (%s%s) -> %s: measured and calibrated again beside the campaign's rows, "
-              "they lie within the data\n",
-              measure.size(), pc.unjudged + blind, tracker ? "the tracker at " : "the tracker's place not known, not checked",
-              tracker ? (tracker_from + (occluded ? ", " + std::to_string(occluded) + " it cannot measure" : "")).c_str() : "",
-              a.out.c_str());
-  return 0;
-}
-
 }  // namespace
 
 Runner addPlanCommand(CLI::App& app) {
@@ -419,7 +237,7 @@ Runner addPlanCommand(CLI::App& app) {
   plan->require_subcommand(1);
   const Runner iso = addCommand(*plan, "iso9283", addIsoOptions, runPlanIso);
   const Runner poses = addCommand(*plan, "poses", addPosesOptions, runPlanPoses);
-  const Runner cover = addCommand(*plan, "cover", addCoverOptions, runPlanCover);
+  const Runner cover = addPlanCoverCommand(*plan);
   return [plan, iso, poses, cover]() -> int {
     if (plan->got_subcommand("iso9283")) return iso();
     if (plan->got_subcommand("poses")) return poses();
