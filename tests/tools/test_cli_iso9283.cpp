@@ -281,7 +281,8 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
     for (int j = 0; j < q.size(); ++j) csv << q[j] << (j + 1 < q.size() ? "," : "\n");
   std::ofstream(dir + "/program.csv") << csv.str();
   Process cover(dir, "plan_cover", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration", dir + "/calibrated.yaml",
-                                    "--program", dir + "/program.csv", "--out", dir + "/measure.csv"});
+                                    "--program", dir + "/program.csv", "--around", "2", "--around-deg", "3",
+                                    "--out", dir + "/measure.csv"});
   ASSERT_EQ(cover.wait(120), 0) << cover.log();
   // Plain reference: the joint's angle farther beyond the window than judged.
   std::vector<int> expected;
@@ -299,15 +300,25 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
   MeasurementCsvOptions po;
   po.joints_only = true;
   const MeasurementFile measure = readMeasurementCsv(dir + "/measure.csv", m, po);
-  ASSERT_EQ(measure.rows.size(), expected.size()) << cover.log();
+  // Each target, then 2 configurations around it: every joint within 3 deg of the target's, within the limits.
+  ASSERT_EQ(measure.rows.size(), 3 * expected.size()) << cover.log();
   for (size_t k = 0; k < expected.size(); ++k) {
-    EXPECT_TRUE(measure.rows[k].q_rad.isApprox(qs[static_cast<size_t>(expected[k])], 1e-15)) << k;
-    EXPECT_EQ(measure.rows[k].pose.value_or(""), "row " + std::to_string(expected[k] + 1));
+    const Eigen::VectorXd& target = qs[static_cast<size_t>(expected[k])];
+    const std::string name = "row " + std::to_string(expected[k] + 1);
+    EXPECT_TRUE(measure.rows[3 * k].q_rad.isApprox(target, 1e-15)) << k;
+    EXPECT_EQ(measure.rows[3 * k].pose.value_or(""), name);
+    for (size_t n = 1; n <= 2; ++n) {
+      const MeasurementRow& near = measure.rows[3 * k + n];
+      EXPECT_EQ(near.pose.value_or(""), name + " around " + std::to_string(n));
+      EXPECT_LE((near.q_rad - target).cwiseAbs().maxCoeff(), 3 * kPi / 180 + 1e-12) << name;
+      EXPECT_GT((near.q_rad - target).cwiseAbs().maxCoeff(), 0) << name;
+      EXPECT_TRUE(m.withinLimits(near.q_rad)) << name;
+    }
   }
   // The guard off: the same targets corrected with their error not known, said and written to measure all the same.
   Process blind(dir, "plan_cover_blind", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration",
                                           dir + "/calibrated.yaml", "--program", dir + "/program.csv",
-                                          "--max-predicted-sigma-mm", "0", "--out", dir + "/blind.csv"});
+                                          "--max-predicted-sigma-mm", "0", "--around", "0", "--out", dir + "/blind.csv"});
   ASSERT_EQ(blind.wait(120), 0) << blind.log();
   EXPECT_NE(blind.log().find("never judged (the guard off): " + std::to_string(expected.size())), std::string::npos)
       << blind.log();

@@ -4,10 +4,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <random>
 
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/identification/pose_plan.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "measurement_input.hpp"
 #include "plan_common.hpp"
@@ -18,7 +20,9 @@ namespace {
 struct PlanCoverArgs {
   std::string robot, config, robot_id, calibration, program, out;
   TrackerArgs tracker;
-  double max_predicted_sigma_mm = 1, max_correction_mm = 5;
+  double max_predicted_sigma_mm = 1, max_correction_mm = 5, around_deg = 5;
+  int around = 5;
+  std::uint64_t seed = 1;
 };
 
 void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
@@ -38,8 +42,15 @@ void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
       ->capture_default_str();
   cmd.add_option("--max-correction-mm", a.max_correction_mm, "compensation.max_correction_mm")->check(positive())->capture_default_str();
   addTrackerOptions(cmd, a.tracker);
+  cmd.add_option("--around", a.around, "configurations to measure around each target to measure (0: the target alone)")
+      ->check(CLI::Range(0, 100))
+      ->capture_default_str();
+  cmd.add_option("--around-deg", a.around_deg, "how far around: each joint within +- this of the target's")
+      ->check(positive())
+      ->capture_default_str();
+  cmd.add_option("--seed", a.seed, "seed of the configurations around")->capture_default_str();
   cmd.add_option("--out", a.out, "the program's configurations passed through where the extensions were never judged "
-                 "and the tracker can measure: joint columns (CSV v1) plus pose")
+                 "and the tracker can measure, each followed by those around it: joint columns (CSV v1) plus pose")
       ->required()
       ->check(outputFile());
 }
@@ -116,20 +127,37 @@ int runPlanCover(const PlanCoverArgs& a) {
   for (size_t i = 0; i < qs.size(); ++i)
     if (!pc.results[i].applied && !pc.results[i].unjudged)
       std::printf("    %s: %s: %s\n", label(i).c_str(), outcomeName(pc.results[i].outcome), pc.results[i].reason.c_str());
+  // Each target, then the configurations around it (a single row is too little for the fit to follow the error
+  // there: docs/planning.md).
+  std::mt19937_64 rng(a.seed);
+  std::vector<Eigen::VectorXd> qm;
   std::vector<std::string> names;
-  for (size_t i : to_measure) names.push_back(label(i));
+  int short_of = 0;
+  for (size_t i : to_measure) {
+    qm.push_back(qs[i]);
+    names.push_back(label(i));
+    const std::vector<Eigen::VectorXd> near =
+        configurationsAround(cal.model, cal.model.nominal, qs[i], a.around, degToRad(a.around_deg), tracker, rng);
+    short_of += a.around - static_cast<int>(near.size());
+    for (size_t k = 0; k < near.size(); ++k) {
+      qm.push_back(near[k]);
+      names.push_back(label(i) + " around " + std::to_string(k + 1));
+    }
+  }
   std::vector<ProgramRow> measure;
-  for (size_t k = 0; k < to_measure.size(); ++k) measure.push_back({&qs[to_measure[k]], names[k], 0});
+  for (size_t k = 0; k < qm.size(); ++k) measure.push_back({&qm[k], names[k], 0});
   writeProgram(a.out,
-               std::to_string(measure.size()) + " configurations of " + a.program + " that compensation with " +
-                   a.calibration + " passes through where its extensions were never judged (cellcal plan cover): "
-                   "measure them and calibrate again with the campaign's rows",
+               std::to_string(to_measure.size()) + " configurations of " + a.program + " that compensation with " +
+                   a.calibration + " passes through where its extensions were never judged, each followed by " +
+                   std::to_string(a.around) + " around it (cellcal plan cover): measure them and calibrate again with "
+                   "the campaign's rows",
                rf.model.numJoints(), measure);
-  std::printf("  to measure: %zu of those %d (%s%s) -> %s: measured and calibrated again beside the campaign's rows, "
-              "they lie within the data\n",
-              measure.size(), pc.unjudged + blind, tracker ? "the tracker at " : "the tracker's place not known, not checked",
+  std::printf("  to measure: %zu of those %d (%s%s), each with %d configurations within %.3g deg of its joints "
+              "(%d fewer near a limit or out of sight): %zu rows -> %s: measured and calibrated again beside the "
+              "campaign's rows, they lie within the data\n",
+              to_measure.size(), pc.unjudged + blind, tracker ? "the tracker at " : "the tracker's place not known, not checked",
               tracker ? (tracker_from + (occluded ? ", " + std::to_string(occluded) + " it cannot measure" : "")).c_str() : "",
-              a.out.c_str());
+              a.around, a.around_deg, short_of, measure.size(), a.out.c_str());
   return 0;
 }
 

@@ -316,4 +316,19 @@ PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const
   return plan;
 }
 
+std::vector<Eigen::VectorXd> configurationsAround(const RobotModel& model, const Eigen::VectorXd& params,
+                                                  const Eigen::VectorXd& q_rad, int count, double spread_rad,
+                                                  const std::optional<TrackerSetup>& tracker, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Eigen::VectorXd> out;
+  for (int draw = 0; draw < 50 * count && static_cast<int>(out.size()) < count; ++draw) {
+    Eigen::VectorXd q = q_rad;
+    for (int j = 0; j < q.size(); ++j) q[j] += spread_rad * u(rng);
+    if (!model.withinLimits(q)) continue;
+    if (tracker && visibility(model, params, q, *tracker) != Visibility::kVisible) continue;
+    out.push_back(q);
+  }
+  return out;
+}
+
 }  // namespace cellcal

@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -98,6 +99,13 @@ struct CandidateSet {
 };
 CandidateSet measurableCandidates(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& options);
 
+// `count` configurations around q, for measuring near a configuration rather than at one row (`cellcal plan cover`):
+// each joint moved by a uniform draw within +-spread_rad, kept where within the limits and, with a tracker, where it
+// can measure the target; up to 50 draws per configuration kept, so fewer than `count` may come back near a limit or
+// an occlusion.
+std::vector<Eigen::VectorXd> configurationsAround(const RobotModel& model, const Eigen::VectorXd& params,
+                                                  const Eigen::VectorXd& q_rad, int count, double spread_rad,
+                                                  const std::optional<TrackerSetup>& tracker, std::mt19937_64& rng);
 // Throws std::invalid_argument when fewer feasible candidates than `count` were found (the message says why they
 // were refused: range, line of sight, acceptance angle).
 PosePlan planPoses(const RobotModel& model, const Eigen::VectorXd& params, const PosePlanOptions& options);
