@@ -229,7 +229,6 @@ int runPlanPoses(const PlanPosesArgs& a) {
   return 0;
 }
 
-
 }  // namespace
 
 Runner addPlanCommand(CLI::App& app) {

@@ -10,7 +10,6 @@
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/identification/pose_plan.hpp"
-#include "cellcal/core/identification/prediction.hpp"
 #include "measurement_input.hpp"
 #include "plan_common.hpp"
 
@@ -99,12 +98,8 @@ int runPlanCover(const PlanCoverArgs& a) {
   // said, and the ones the tracker can measure kept to measure.
   std::vector<size_t> to_measure;
   int occluded = 0;
-  auto where = [&](const Eigen::VectorXd& q) -> std::string {
-    if (const BeyondRange* b = firstUnjudged(model.beyond_data, q)) return unjudgedText(*b, q[b->joint]);
-    return "beyond the range of an extension's driver its folds judged";
-  };
   const int blind = static_cast<int>(std::count_if(pc.results.begin(), pc.results.end(),
-                                                   [](const CompensationResult& r) { return r.applied && r.unjudged; }));
+                                                   [](const CompensationResult& r) { return r.applied && !r.unjudged.empty(); }));
   for (const bool applied : {true, false}) {
     const int n = applied ? blind : pc.unjudged;
     if (applied && n == 0) continue;
@@ -113,10 +108,10 @@ int runPlanCover(const PlanCoverArgs& a) {
                         : "  passed through where the model's extensions were never judged: %d\n", n);
     for (size_t i = 0; i < qs.size(); ++i) {
       const CompensationResult& r = pc.results[i];
-      if (!r.unjudged || r.applied != applied) continue;
+      if (r.unjudged.empty() || r.applied != applied) continue;
       const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
       std::printf("    %s: %s%s\n", label(i).c_str(),
-                  applied ? ("corrected with its error not known: " + where(r.q_rad)).c_str() : r.reason.c_str(),
+                  applied ? ("corrected with its error not known: " + r.unjudged).c_str() : r.reason.c_str(),
                   v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
       if (v == Visibility::kVisible) to_measure.push_back(i);
       else ++occluded;
@@ -125,7 +120,7 @@ int runPlanCover(const PlanCoverArgs& a) {
   std::sort(to_measure.begin(), to_measure.end());  // in the program's order
   std::printf("  passed through or refused otherwise: %d\n", pc.refused);
   for (size_t i = 0; i < qs.size(); ++i)
-    if (!pc.results[i].applied && !pc.results[i].unjudged)
+    if (!pc.results[i].applied && pc.results[i].unjudged.empty())
       std::printf("    %s: %s: %s\n", label(i).c_str(), outcomeName(pc.results[i].outcome), pc.results[i].reason.c_str());
   // Each target, then the configurations around it (a single row is too little for the fit to follow the error
   // there: docs/planning.md).

@@ -144,12 +144,12 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   const DriverRange* unjudged_driver =
       model.extensions.empty() ? nullptr
                                : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
-  out.unjudged = unjudged || unjudged_driver;
-  if (out.unjudged && s.max_predicted_sigma_m > 0) {
+  if (unjudged || unjudged_driver)
+    out.unjudged = unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x);
+  if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kOutsideCalibration;
-    out.reason = (unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x)) +
-                 ": the extensions' correction there was never tested, passed through uncorrected";
+    out.reason = out.unjudged + ": the extensions' correction there was never tested, passed through uncorrected";
     return out;
   }
   if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
@@ -182,7 +182,7 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       return out;
     }
   }
-  if (unjudged || unjudged_driver)  // guard off: said, applied
+  if (!out.unjudged.empty())  // guard off: said, applied
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
   const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
   const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
@@ -233,7 +233,7 @@ ProgramCompensation compensateProgram(const RobotModel& nominal, const Identifie
     out.results.push_back(compensate(nominal, identified, forwardKinematics(nominal, data, nominal.nominal, q), q, settings));
     const CompensationResult& r = out.results.back();
     if (r.applied) ++out.applied;
-    else if (r.unjudged) ++out.unjudged;
+    else if (!r.unjudged.empty()) ++out.unjudged;
     else ++out.refused;
   }
   return out;

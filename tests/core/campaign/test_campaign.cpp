@@ -629,7 +629,7 @@ TEST(Campaign, MeasuringWhereCompensationPassedThroughBringsThoseTargetsIn) {
     if (!deploy(g.campaign_rows, &controller0, &pc0)) continue;
     std::vector<int> unjudged;
     for (size_t i = 0; i < program.size(); ++i)
-      if (pc0.results[i].unjudged) unjudged.push_back(static_cast<int>(i));
+      if (!pc0.results[i].unjudged.empty()) unjudged.push_back(static_cast<int>(i));
     if (unjudged.empty()) continue;  // a draw counts where there is something to measure
     MeasurementFile rows[2] = {g.campaign_rows, g.campaign_rows};
     for (int i : unjudged) {
@@ -658,7 +658,7 @@ TEST(Campaign, MeasuringWhereCompensationPassedThroughBringsThoseTargetsIn) {
       for (int i : unjudged) {
         const Eigen::VectorXd& q = program[static_cast<size_t>(i)];
         const CompensationResult& c = pc[w].results[static_cast<size_t>(i)];
-        if (c.unjudged) {
+        if (!c.unjudged.empty()) {
           ++still_unjudged[w];
           continue;
         }

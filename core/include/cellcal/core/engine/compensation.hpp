@@ -83,9 +83,10 @@ struct CompensationResult {
   // The residual map's correction at q_rad (in the tracker frame), where it applies.
   bool residual_map_applied = false;
   Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
-  // The target's joint solution lies where the model's extensions were never judged (beyond_data, beyond_drivers):
-  // passed through (outside_calibration), or with the guard off applied with an infinite predicted sigma.
-  bool unjudged = false;
+  // Where the target's joint solution lies beyond what the model's extensions were judged on (beyond_data,
+  // beyond_drivers), unjudgedText's sentence ("joint 2 at 131.0 deg lies 41.0 deg beyond ..."): passed through
+  // (outside_calibration), or with the guard off applied with an infinite predicted sigma. Empty where judged.
+  std::string unjudged;
 };
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
