@@ -145,11 +145,12 @@ int runPlanCover(const PlanCoverArgs& a) {
                std::to_string(to_measure.size()) + " configurations of " + a.program + " that compensation with " +
                    a.calibration + " passes through where its extensions were never judged, each followed by " +
                    std::to_string(a.around) + " around it (cellcal plan cover): measure them and calibrate again with "
-                   "the campaign's rows",
+                   "the campaign's rows and --residual-map",
                rf.model.numJoints(), measure);
   std::printf("  to measure: %zu of those %d (%s%s), each with %d configurations within %.3g deg of its joints "
               "(%d fewer near a limit or out of sight): %zu rows -> %s: measured and calibrated again beside the "
-              "campaign's rows, they lie within the data\n",
+              "campaign's rows with --residual-map, they lie within the data and the map carries what the model "
+              "leaves there\n",
               to_measure.size(), pc.unjudged + blind, tracker ? "the tracker at " : "the tracker's place not known, not checked",
               tracker ? (tracker_from + (occluded ? ", " + std::to_string(occluded) + " it cannot measure" : "")).c_str() : "",
               a.around, a.around_deg, short_of, measure.size(), a.out.c_str());
