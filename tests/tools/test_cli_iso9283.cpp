@@ -269,8 +269,10 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
   cal.extension_params = Eigen::VectorXd::Zero(numExtensionParams(m, cal.extensions));
   BeyondRange b;
   b.joint = joint;
-  b.lower_rad = angles[static_cast<size_t>(6 + 4 * u(rng))];
-  b.upper_rad = angles[static_cast<size_t>(19 + 4 * u(rng))];
+  // The window's ends halfway between the program's angles (the robot file keeps them to its own precision).
+  const auto lo = static_cast<size_t>(6 + 4 * u(rng)), hi = static_cast<size_t>(19 + 4 * u(rng));
+  b.lower_rad = 0.5 * (angles[lo] + angles[lo + 1]);
+  b.upper_rad = 0.5 * (angles[hi] + angles[hi + 1]);
   b.checked_rad = (0.2 + 0.5 * u(rng)) * std::min(b.lower_rad - angles.front(), angles.back() - b.upper_rad);
   cal.beyond_data = {b};
   std::ofstream(dir + "/calibrated.yaml") << robotFileText(m, &cal, "plan cover test");
@@ -289,7 +291,7 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
   for (size_t i = 0; i < qs.size(); ++i)
     if (qs[i][joint] < b.lower_rad - b.checked_rad || qs[i][joint] > b.upper_rad + b.checked_rad)
       expected.push_back(static_cast<int>(i));
-  std::printf("  joint %d window [%.1f, %.1f] deg judged %.1f deg beyond: %zu of 30 targets beyond\n", joint + 1,
+  std::printf("  joint %d window [%.1f, %.1f] deg judged %.1f deg beyond: %zu of 30 targets farther\n", joint + 1,
               b.lower_rad * 180 / kPi, b.upper_rad * 180 / kPi, b.checked_rad * 180 / kPi, expected.size());
   EXPECT_NE(cover.log().find("passed through where the model's extensions were never judged: " + std::to_string(expected.size())),
             std::string::npos) << cover.log();
@@ -323,6 +325,28 @@ TEST(CliPlanCover, TargetsWhereTheExtensionsWereNeverJudgedAreTheOnesToMeasure) 
   EXPECT_NE(blind.log().find("never judged (the guard off): " + std::to_string(expected.size())), std::string::npos)
       << blind.log();
   EXPECT_EQ(readMeasurementCsv(dir + "/blind.csv", m, po).rows.size(), expected.size()) << blind.log();
+  // Corrected beyond the window within the judged distance: said in the run above; with --beyond-data written to
+  // measure too, after the never-judged ones' in the program's order.
+  std::vector<int> beyond, both;
+  for (size_t i = 0; i < qs.size(); ++i) {
+    const double q = qs[i][joint];
+    const bool near = (q < b.lower_rad && q >= b.lower_rad - b.checked_rad) || (q > b.upper_rad && q <= b.upper_rad + b.checked_rad);
+    if (near) beyond.push_back(static_cast<int>(i));
+    if (near || std::count(expected.begin(), expected.end(), static_cast<int>(i))) both.push_back(static_cast<int>(i));
+  }
+  EXPECT_NE(cover.log().find("(within the distance they were judged): " + std::to_string(beyond.size())), std::string::npos)
+      << cover.log();
+  for (int i : beyond)
+    EXPECT_NE(cover.log().find("row " + std::to_string(i + 1) + ": joint " + std::to_string(joint + 1) + " at "),
+              std::string::npos) << i << "\n" << cover.log();
+  Process wide(dir, "plan_cover_beyond", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration",
+                                          dir + "/calibrated.yaml", "--program", dir + "/program.csv", "--beyond-data",
+                                          "--around", "0", "--out", dir + "/beyond.csv"});
+  ASSERT_EQ(wide.wait(120), 0) << wide.log();
+  const MeasurementFile beyond_rows = readMeasurementCsv(dir + "/beyond.csv", m, po);
+  ASSERT_EQ(beyond_rows.rows.size(), both.size()) << wide.log();
+  for (size_t k = 0; k < both.size(); ++k)
+    EXPECT_EQ(beyond_rows.rows[k].pose.value_or(""), "row " + std::to_string(both[k] + 1)) << wide.log();
   // A robot file without a calibration section.
   Process bare(dir, "plan_cover_bare", {"cellcal", "plan", "cover", "--robot", nominal, "--calibration", nominal,
                                         "--program", dir + "/program.csv", "--out", dir + "/bare.csv"});

@@ -22,6 +22,7 @@ struct PlanCoverArgs {
   double max_predicted_sigma_mm = 1, max_correction_mm = 5, around_deg = 5;
   int around = 5;
   std::uint64_t seed = 1;
+  bool beyond_data = false;
 };
 
 void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
@@ -48,8 +49,12 @@ void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
       ->check(positive())
       ->capture_default_str();
   cmd.add_option("--seed", a.seed, "seed of the configurations around")->capture_default_str();
+  cmd.add_flag("--beyond-data", a.beyond_data,
+               "also measure the targets corrected beyond the data the extensions were fitted on, within the distance "
+               "they were judged (their predicted error leans on what the region folds measured there)");
   cmd.add_option("--out", a.out, "the program's configurations passed through where the extensions were never judged "
-                 "and the tracker can measure, each followed by those around it: joint columns (CSV v1) plus pose")
+                 "(with --beyond-data also those corrected beyond their data) and the tracker can measure, each followed by "
+                 "those around it: joint columns (CSV v1) plus pose")
       ->required()
       ->check(outputFile());
 }
@@ -117,6 +122,22 @@ int runPlanCover(const PlanCoverArgs& a) {
       else ++occluded;
     }
   }
+  // Corrected beyond the extensions' data, within the judged distance: said, and measured with --beyond-data.
+  std::printf("  of the corrected, beyond the data the model's extensions were fitted on (within the distance they "
+              "were judged): %d%s\n", pc.beyond_data, pc.beyond_data && !a.beyond_data ? " (--beyond-data: measure them too)" : "");
+  for (size_t i = 0; i < qs.size(); ++i) {
+    const CompensationResult& r = pc.results[i];
+    if (!r.applied || r.beyond_data.empty()) continue;
+    const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
+    char sigma_text[48] = "";
+    if (std::isfinite(r.predicted_sigma_position_m))
+      std::snprintf(sigma_text, sizeof sigma_text, " (predicted %.3g mm)", r.predicted_sigma_position_m * 1e3);
+    std::printf("    %s: %s%s%s\n", label(i).c_str(), r.beyond_data.c_str(), sigma_text,
+                v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
+    if (!a.beyond_data) continue;
+    if (v == Visibility::kVisible) to_measure.push_back(i);
+    else ++occluded;
+  }
   std::sort(to_measure.begin(), to_measure.end());  // in the program's order
   std::printf("  passed through or refused otherwise: %d\n", pc.refused);
   for (size_t i = 0; i < qs.size(); ++i)
@@ -143,7 +164,10 @@ int runPlanCover(const PlanCoverArgs& a) {
   for (size_t k = 0; k < qm.size(); ++k) measure.push_back({&qm[k], names[k], 0});
   writeProgram(a.out,
                std::to_string(to_measure.size()) + " configurations of " + a.program + " that compensation with " +
-                   a.calibration + " passes through where its extensions were never judged, each followed by " +
+                   a.calibration + (a.beyond_data ? " passes through where its extensions were never judged or corrects "
+                                                      "beyond their data"
+                                                    : " passes through where its extensions were never judged") +
+                   ", each followed by " +
                    std::to_string(a.around) + " around it (cellcal plan cover): measure them and calibrate again with "
                    "the campaign's rows and --residual-map",
                rf.model.numJoints(), measure);
@@ -151,7 +175,7 @@ int runPlanCover(const PlanCoverArgs& a) {
               "(%d fewer near a limit or out of sight): %zu rows -> %s: measured and calibrated again beside the "
               "campaign's rows with --residual-map, they lie within the data and the map carries what the model "
               "leaves there\n",
-              to_measure.size(), pc.unjudged + blind, tracker ? "the tracker at " : "the tracker's place not known, not checked",
+              to_measure.size(), pc.unjudged + blind + (a.beyond_data ? pc.beyond_data : 0), tracker ? "the tracker at " : "the tracker's place not known, not checked",
               tracker ? (tracker_from + (occluded ? ", " + std::to_string(occluded) + " it cannot measure" : "")).c_str() : "",
               a.around, a.around_deg, short_of, measure.size(), a.out.c_str());
   return 0;

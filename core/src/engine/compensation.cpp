@@ -144,8 +144,14 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   const DriverRange* unjudged_driver =
       model.extensions.empty() ? nullptr
                                : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
-  if (unjudged || unjudged_driver)
+  if (unjudged || unjudged_driver) {
     out.unjudged = unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x);
+  } else if (!model.extensions.empty()) {  // judged: within the data, or beyond it within the judged distance
+    if (const BeyondRange* b = firstBeyond(model.beyond_data, ik.q_rad))
+      out.beyond_data = unjudgedText(*b, ik.q_rad[b->joint]);
+    else if (const DriverRange* d = firstBeyond(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x))
+      out.beyond_data = unjudgedText(*d, driver_x);
+  }
   if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kOutsideCalibration;
@@ -232,7 +238,7 @@ ProgramCompensation compensateProgram(const RobotModel& nominal, const Identifie
   for (const Eigen::VectorXd& q : program) {
     out.results.push_back(compensate(nominal, identified, forwardKinematics(nominal, data, nominal.nominal, q), q, settings));
     const CompensationResult& r = out.results.back();
-    if (r.applied) ++out.applied;
+    if (r.applied) ++out.applied, out.beyond_data += !r.beyond_data.empty();
     else if (!r.unjudged.empty()) ++out.unjudged;
     else ++out.refused;
   }

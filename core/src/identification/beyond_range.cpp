@@ -72,6 +72,12 @@ const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const E
   return nullptr;
 }
 
+const BeyondRange* firstBeyond(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad) {
+  for (const BeyondRange& b : ranges)
+    if (b.joint >= 0 && b.joint < q_rad.size() && b.beyondRad(q_rad[b.joint]) > 0) return &b;
+  return nullptr;
+}
+
 std::string BeyondRange::rangeText() const {
   char t[80];
   std::snprintf(t, sizeof t, "[%.1f, %.1f] deg", lower_rad * 180 / kPi, upper_rad * 180 / kPi);
@@ -159,6 +165,19 @@ const DriverRange* firstUnjudged(const RobotModel& model, const Eigen::VectorXd&
   for (const DriverRange& r : ranges) {
     const double v = r.value(model, params, q_rad, drivers);
     if (std::isfinite(v) && !r.judged(v)) {
+      if (x) *x = v;
+      return &r;
+    }
+  }
+  return nullptr;
+}
+
+const DriverRange* firstBeyond(const RobotModel& model, const Eigen::VectorXd& params,
+                               const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad,
+                               const Drivers& drivers, double* x) {
+  for (const DriverRange& r : ranges) {
+    const double v = r.value(model, params, q_rad, drivers);
+    if (std::isfinite(v) && r.beyond(v) > 0) {
       if (x) *x = v;
       return &r;
     }

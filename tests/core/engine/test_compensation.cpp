@@ -349,8 +349,11 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
       const double qj = with.q_rad[joint], dist = b.beyondRad(qj);
       if (dist == 0) {
         EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
+        EXPECT_TRUE(with.beyond_data.empty()) << with.beyond_data;
         ++inside;
       } else if (dist <= b.checked_rad) {
+        EXPECT_EQ(with.beyond_data.rfind("joint " + std::to_string(joint + 1) + " at", 0), 0u) << with.beyond_data;
+        EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
         // Plain reference: dp/dq_joint by a central difference at the identified kinematics.
         const double h = 1e-6;
         Eigen::VectorXd qp = with.q_rad, qm = with.q_rad;
@@ -449,11 +452,16 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
       const double judged = v < r.lower ? r.checked_below : r.checked_above;
       if (dist == 0) {
         EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
+        EXPECT_TRUE(with.beyond_data.empty()) << with.beyond_data;
         ++inside;
       } else if (dist <= judged) {
         const double s = r.sigma_at_1_m * std::pow(dist, r.growth);
         const double expected = std::hypot(without.predicted_sigma_position_m, s);
         EXPECT_NEAR(with.predicted_sigma_position_m, expected, 1e-9 * expected) << what;
+        // Corrected beyond the data, within the judged distance: said (plan cover --beyond-data measures there).
+        EXPECT_EQ(with.beyond_data.rfind("gravity across link " + std::to_string(link + 1) + " at", 0), 0u)
+            << with.beyond_data;
+        EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
         ++near;
       } else {
         expectPassedThrough(m, model, plain, desired, q, off, with, "gravity across link " + std::to_string(link + 1) + " at",

@@ -87,6 +87,10 @@ struct CompensationResult {
   // beyond_drivers), unjudgedText's sentence ("joint 2 at 131.0 deg lies 41.0 deg beyond ..."): passed through
   // (outside_calibration), or with the guard off applied with an infinite predicted sigma. Empty where judged.
   std::string unjudged;
+  // Where it lies beyond the data the extensions were fitted on but within the distance they were judged there: the
+  // same sentence. The predicted sigma carries the error the region folds measured there; a periodic term standing
+  // for an error that grows can still err more (docs/planning.md). Empty within the data, and where unjudged.
+  std::string beyond_data;
 };
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
@@ -135,6 +139,7 @@ struct ProgramCompensation {
   int applied = 0;   // applied or clamped
   int unjudged = 0;  // passed through where the extensions were never judged
   int refused = 0;   // every other outcome: a predicted error over the guard, unreachable, over the bound, ...
+  int beyond_data = 0;  // of the applied ones, those beyond the extensions' data (CompensationResult::beyond_data)
 };
 ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,
                                       const std::vector<Eigen::VectorXd>& program, const CompensationSettings& settings);

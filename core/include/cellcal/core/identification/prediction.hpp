@@ -71,6 +71,9 @@ std::vector<std::pair<double, double>> rangeGaps(std::vector<double> x, double m
 constexpr double kBeyondGapShare = 0.05;
 // The first range whose joint at q_rad lies farther beyond it than it was judged; nullptr where all were judged.
 const BeyondRange* firstUnjudged(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad);
+// The first range whose joint at q lies beyond its data (past its ends or in one of its gaps), judged there or not;
+// nullptr where every joint lies within its range's data.
+const BeyondRange* firstBeyond(const std::vector<BeyondRange>& ranges, const Eigen::VectorXd& q_rad);
 // "joint 2 at 131.0 deg lies 41.0 deg beyond [-20.0, 90.0] deg, the range its model extensions were fitted on; they
 // were judged up to 12.0 deg beyond it" (in a gap: "joint 4 at -88.0 deg lies 31.0 deg inside [-209.0, -57.0] deg, a
 // stretch of [-267.0, 267.0] deg, the range its model extensions were fitted on, that its data never reached; they
@@ -112,6 +115,10 @@ struct DriverRange {
 const DriverRange* firstUnjudged(const RobotModel& model, const Eigen::VectorXd& params,
                                  const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad,
                                  const Drivers& drivers, double* x);
+// The first driver range whose driver at q lies beyond it, judged there or not, with that driver's value in *x.
+const DriverRange* firstBeyond(const RobotModel& model, const Eigen::VectorXd& params,
+                               const std::vector<DriverRange>& ranges, const Eigen::VectorXd& q_rad,
+                               const Drivers& drivers, double* x);
 // "gravity across link 2 at 0.95 g lies 0.2 g beyond [0.3, 0.75] g, the range link_deflection link 2 was fitted on;
 // it was judged up to 0.1 g beyond it".
 std::string unjudgedText(const DriverRange& range, double x);
