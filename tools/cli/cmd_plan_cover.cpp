@@ -127,12 +127,12 @@ int runPlanCover(const PlanCoverArgs& a) {
               "were judged): %d%s\n", pc.beyond_data, pc.beyond_data && !a.beyond_data ? " (--beyond-data: measure them too)" : "");
   for (size_t i = 0; i < qs.size(); ++i) {
     const CompensationResult& r = pc.results[i];
-    if (!r.applied || r.beyond_data.empty()) continue;
+    if (pc.beyond_data_text[i].empty()) continue;
     const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
     char sigma_text[48] = "";
     if (std::isfinite(r.predicted_sigma_position_m))
       std::snprintf(sigma_text, sizeof sigma_text, " (predicted %.3g mm)", r.predicted_sigma_position_m * 1e3);
-    std::printf("    %s: %s%s%s\n", label(i).c_str(), r.beyond_data.c_str(), sigma_text,
+    std::printf("    %s: %s%s%s\n", label(i).c_str(), pc.beyond_data_text[i].c_str(), sigma_text,
                 v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
     if (!a.beyond_data) continue;
     if (v == Visibility::kVisible) to_measure.push_back(i);

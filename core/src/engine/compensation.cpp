@@ -26,6 +26,23 @@ const char* outcomeName(CompensationOutcome o) {
 }
 
 namespace {
+// The first range q lies beyond the data of (a joint's, else a driver's, with the driver's value in *x): what
+// CompensationResult::beyond_data flags and ProgramCompensation::beyond_data_text says.
+struct BeyondAt {
+  const BeyondRange* joint = nullptr;
+  const DriverRange* driver = nullptr;
+  double x = 0;
+  explicit operator bool() const { return joint || driver; }
+};
+BeyondAt firstBeyondData(const RobotModel& nominal, const IdentifiedModel& model, const Eigen::VectorXd& q,
+                         const Drivers& drivers) {
+  BeyondAt at;
+  if (model.extensions.empty()) return at;
+  at.joint = firstBeyond(model.beyond_data, q);
+  if (!at.joint) at.driver = firstBeyond(nominal, model.params, model.beyond_drivers, q, drivers, &at.x);
+  return at;
+}
+
 // Drivers of the solution: the visited path (oldest first), then a straight move to q; the last row of that sequence.
 Drivers moveDrivers(const std::vector<Eigen::VectorXd>& path, const Eigen::VectorXd& q) {
   std::vector<Eigen::VectorXd> seq;
@@ -144,14 +161,10 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   const DriverRange* unjudged_driver =
       model.extensions.empty() ? nullptr
                                : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
-  if (unjudged || unjudged_driver) {
+  if (unjudged || unjudged_driver)
     out.unjudged = unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x);
-  } else if (!model.extensions.empty()) {  // judged: within the data, or beyond it within the judged distance
-    if (const BeyondRange* b = firstBeyond(model.beyond_data, ik.q_rad))
-      out.beyond_data = unjudgedText(*b, ik.q_rad[b->joint]);
-    else if (const DriverRange* d = firstBeyond(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x))
-      out.beyond_data = unjudgedText(*d, driver_x);
-  }
+  else  // judged: within the data, or beyond it within the judged distance
+    out.beyond_data = static_cast<bool>(firstBeyondData(nominal, model, ik.q_rad, at));
   if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kOutsideCalibration;
@@ -238,7 +251,16 @@ ProgramCompensation compensateProgram(const RobotModel& nominal, const Identifie
   for (const Eigen::VectorXd& q : program) {
     out.results.push_back(compensate(nominal, identified, forwardKinematics(nominal, data, nominal.nominal, q), q, settings));
     const CompensationResult& r = out.results.back();
-    if (r.applied) ++out.applied, out.beyond_data += !r.beyond_data.empty();
+    std::string text;
+    if (r.applied && r.beyond_data) {
+      // The drivers as compensate took them: seeded at q (within the limits: a program's configuration), no path.
+      const BeyondAt at = firstBeyondData(nominal, identified, r.q_rad,
+                                          identified.beyond_drivers.empty() ? Drivers{} : moveDrivers({q}, r.q_rad));
+      text = at.joint ? unjudgedText(*at.joint, r.q_rad[at.joint->joint]) : unjudgedText(*at.driver, at.x);
+      ++out.beyond_data;
+    }
+    out.beyond_data_text.push_back(std::move(text));
+    if (r.applied) ++out.applied;
     else if (!r.unjudged.empty()) ++out.unjudged;
     else ++out.refused;
   }

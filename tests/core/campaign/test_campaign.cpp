@@ -670,7 +670,7 @@ TEST(Campaign, MeasuringWhereCompensationPassedThroughBringsThoseTargetsIn) {
     MeasurementFile beyond_rows = map_rows;
     std::vector<int> beyond;
     for (size_t i = 0; i < program.size(); ++i) {
-      if (!pc0.results[i].applied || pc0.results[i].beyond_data.empty()) continue;
+      if (!pc0.results[i].applied || !pc0.results[i].beyond_data) continue;
       beyond.push_back(static_cast<int>(i));
       beyond_rows.rows.push_back(g.measure(*g.cell, program[i], rng));
       for (const auto& near : configurationsAround(g.file, g.file.nominal, program[i], kAround, around_rad, std::nullopt, rng))

@@ -339,7 +339,11 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     off.max_correction_rad = 1;
     KinematicsData d(m);
     const std::string what = "joint " + std::to_string(joint + 1) + ", seed " + std::to_string(seed);
-    for (const auto& q : targets) {
+    // The same targets as a program: where they lie beyond the data, its sentence.
+    const ProgramCompensation program = compensateProgram(m, model, targets, off);
+    for (size_t k = 0; k < targets.size(); ++k) {
+      const Eigen::VectorXd& q = targets[k];
+      const std::string& said = program.beyond_data_text[k];
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
@@ -349,10 +353,12 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
       const double qj = with.q_rad[joint], dist = b.beyondRad(qj);
       if (dist == 0) {
         EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
-        EXPECT_TRUE(with.beyond_data.empty()) << with.beyond_data;
+        EXPECT_FALSE(with.beyond_data) << said;
+        EXPECT_TRUE(said.empty()) << said;
         ++inside;
       } else if (dist <= b.checked_rad) {
-        EXPECT_EQ(with.beyond_data.rfind("joint " + std::to_string(joint + 1) + " at", 0), 0u) << with.beyond_data;
+        EXPECT_TRUE(with.beyond_data) << what;
+        EXPECT_EQ(said.rfind("joint " + std::to_string(joint + 1) + " at", 0), 0u) << said;
         EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
         // Plain reference: dp/dq_joint by a central difference at the identified kinematics.
         const double h = 1e-6;
@@ -439,7 +445,11 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
     off.max_correction_rad = 1;
     KinematicsData d(m);
     const std::string what = "link " + std::to_string(link + 1) + ", seed " + std::to_string(seed);
-    for (const auto& q : targets) {
+    // The same targets as a program: where they lie beyond the data, its sentence.
+    const ProgramCompensation program = compensateProgram(m, model, targets, off);
+    for (size_t k = 0; k < targets.size(); ++k) {
+      const Eigen::VectorXd& q = targets[k];
+      const std::string& said = program.beyond_data_text[k];
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
@@ -452,15 +462,16 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
       const double judged = v < r.lower ? r.checked_below : r.checked_above;
       if (dist == 0) {
         EXPECT_EQ(with.predicted_sigma_position_m, without.predicted_sigma_position_m) << what;
-        EXPECT_TRUE(with.beyond_data.empty()) << with.beyond_data;
+        EXPECT_FALSE(with.beyond_data) << said;
+        EXPECT_TRUE(said.empty()) << said;
         ++inside;
       } else if (dist <= judged) {
         const double s = r.sigma_at_1_m * std::pow(dist, r.growth);
         const double expected = std::hypot(without.predicted_sigma_position_m, s);
         EXPECT_NEAR(with.predicted_sigma_position_m, expected, 1e-9 * expected) << what;
         // Corrected beyond the data, within the judged distance: said (plan cover --beyond-data measures there).
-        EXPECT_EQ(with.beyond_data.rfind("gravity across link " + std::to_string(link + 1) + " at", 0), 0u)
-            << with.beyond_data;
+        EXPECT_TRUE(with.beyond_data) << what;
+        EXPECT_EQ(said.rfind("gravity across link " + std::to_string(link + 1) + " at", 0), 0u) << said;
         EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
         ++near;
       } else {

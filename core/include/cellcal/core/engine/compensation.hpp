@@ -87,10 +87,11 @@ struct CompensationResult {
   // beyond_drivers), unjudgedText's sentence ("joint 2 at 131.0 deg lies 41.0 deg beyond ..."): passed through
   // (outside_calibration), or with the guard off applied with an infinite predicted sigma. Empty where judged.
   std::string unjudged;
-  // Where it lies beyond the data the extensions were fitted on but within the distance they were judged there: the
-  // same sentence. The predicted sigma carries the error the region folds measured there; a periodic term standing
-  // for an error that grows can still err more (docs/planning.md). Empty within the data, and where unjudged.
-  std::string beyond_data;
+  // It lies beyond the data the extensions were fitted on (a joint's range or a gap in it, a driver's range) but within
+  // the distance they were judged there. The predicted sigma carries the error the region folds measured there; a
+  // periodic term standing for an error that grows can still err more (docs/planning.md). False where unjudged. A flag,
+  // not a sentence: compensate runs on the servo path, and only a program's review reads where (compensateProgram).
+  bool beyond_data = false;
 };
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
@@ -140,6 +141,9 @@ struct ProgramCompensation {
   int unjudged = 0;  // passed through where the extensions were never judged
   int refused = 0;   // every other outcome: a predicted error over the guard, unreachable, over the bound, ...
   int beyond_data = 0;  // of the applied ones, those beyond the extensions' data (CompensationResult::beyond_data)
+  // Per configuration, for those: unjudgedText's sentence of the first range it lies beyond ("joint 2 at 40.0 deg lies
+  // 12.0 deg beyond ..."); empty for the others.
+  std::vector<std::string> beyond_data_text;
 };
 ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,
                                       const std::vector<Eigen::VectorXd>& program, const CompensationSettings& settings);
