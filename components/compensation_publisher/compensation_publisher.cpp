@@ -347,6 +347,7 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   servo_writer_.write(out);
   ++servo_answered_;
   if (a.applied) ++servo_applied_;
+  if (a.applied && a.beyond_data) ++servo_beyond_data_;
   servo_cpu_.add(threadCpuUs() - cpu0_us);
 }
 
@@ -391,7 +392,12 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     if (c.applied && c.residual_map_applied) ++residual_map_applied_;
     out.applied(c.applied);
     out.clamped(c.clamped);
-    out.reason(withNote(c.reason, r.note, 255));
+    if (c.applied && c.beyond_data) {
+      ++beyond_data_applied_;
+      out.reason(withNote(c.reason.empty() ? kBeyondDataNote : std::string(kBeyondDataNote) + "; " + c.reason, r.note, 255));
+    } else {
+      out.reason(withNote(c.reason, r.note, 255));
+    }
     out.correction_position_m(c.correction_position_m);
     out.correction_orientation_rad(c.correction_orientation_rad);
     if (c.applied) {
@@ -442,14 +448,17 @@ int CompensationPublisher::run() {
   stats::writeProcessStats(options_.process.stats_json, "compensation_publisher", node_.stats(),
                            {{"applied", applied_}, {"refused", refused_}, {"clamped", clamped_},
                             {"residual_map_applied", residual_map_applied_},
+                            {"beyond_data_applied", beyond_data_applied_},
                             {"bad_calibration_states", bad_states_}, {"pass_through", options_.pass_through}, {"calibration_versions", versions},
                             {"descriptions", descriptions}, {stats::kOutcomes, outcomes},
                             {stats::kTargetCpuUs, target_cpu_.json()},
                             {stats::kServo, {{"answered", servo_answered_}, {"applied", servo_applied_},
-                                             {"out_of_order", servo_out_of_order_}, {"cpu_us", servo_cpu_.json()}}}});
+                                             {"out_of_order", servo_out_of_order_},
+                                             {"beyond_data_applied", servo_beyond_data_}, {"cpu_us", servo_cpu_.json()}}}});
   std::cerr << "compensation_publisher: stopped (" << (stopRequested() ? "SIGINT/SIGTERM" : "--duration-s reached")
-            << "): " << applied_ << " targets corrected, " << refused_ << " passed through uncorrected (" << clamped_
-            << " clamped)\n";
+            << "): " << applied_ << " targets corrected (" << beyond_data_applied_
+            << " beyond the extensions' data, within the distance they were judged), " << refused_
+            << " passed through uncorrected (" << clamped_ << " clamped)\n";
   return 0;
 }
 

@@ -7,7 +7,9 @@
 // (no CalibrationState writer left: killed, or its host down), while it applies the last ok calibration. Refuses (applied = false,
 // with the reason) when it never had an ok calibration, the identified model cannot reach the target, or the
 // correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
-// A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp).
+// A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp); a
+// target corrected beyond the extensions' data, within the distance they were judged there (a calibrated robot file's
+// beyond_data), says so first in its reason (kBeyondDataNote), and --stats-json counts them (beyond_data_applied).
 // With --ros-pose-topic it also publishes every applied correction as a ROS 2 geometry_msgs/PoseStamped (directly
 // over DDS, docs/ros2.md): the corrected pose in the targets' frame (header.frame_id from --ros-frame-id), stamped
 // with the target's stamp. Targets passed through uncorrected are not published there (an uncorrected pose on a
@@ -114,6 +116,8 @@ class CompensationPublisher {
   std::map<std::string, Robot> robots_;
   std::uint64_t applied_ = 0, refused_ = 0, clamped_ = 0, bad_states_ = 0;
   std::uint64_t residual_map_applied_ = 0;  // targets applied with the start file's residual map near measured poses
+  // Targets and setpoints applied beyond the extensions' data, within the distance they were judged (kBeyondDataNote).
+  std::uint64_t beyond_data_applied_ = 0, servo_beyond_data_ = 0;
   std::array<std::uint64_t, kNumCompensationOutcomes> outcomes_{};  // targets the compensation answered, per outcome
   // The CPU time of a callback (take to write) per sample: a histogram of 1 us bins to 10 ms.
   struct CpuHistogram {

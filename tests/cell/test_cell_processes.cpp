@@ -204,8 +204,17 @@ void expectJudgedWindowGuarded(const std::string& extension, const std::string& 
       beyond += v["count"].get<int>();
       last = v["last"].get<std::string>();
     }
-  std::printf("  %s: %d targets passed through beyond it, %d corrected, %d refused in all\n", w.what.c_str(), beyond,
-              r["targets_applied"].get<int>(), r["targets_refused"].get<int>());
+  // Targets corrected beyond the data within the judged distance: the publisher's count, and the answers the cell's
+  // judge received saying so (the answers it did not receive before the end may hold some).
+  const long flagged_sent = s["compensation"].value("beyond_data_applied", -1L);
+  const long flagged_seen = r["targets_applied_beyond_data"].get<long>();
+  const long unseen = s["compensation"]["applied"].get<long>() - r["targets_applied"].get<long>();
+  std::printf("  %s: %d targets passed through beyond it, %d corrected (%ld of them beyond the data within the judged "
+              "distance, %ld said so), %d refused in all\n", w.what.c_str(), beyond, r["targets_applied"].get<int>(),
+              flagged_sent, flagged_seen, r["targets_refused"].get<int>());
+  EXPECT_GE(flagged_seen, 0);
+  EXPECT_LE(flagged_seen, flagged_sent);
+  EXPECT_LE(flagged_sent - flagged_seen, std::max(0L, unseen));
   EXPECT_GT(beyond, 0) << w.what << "\n" << r.dump(1);
   EXPECT_EQ(last.rfind(w.refused, 0), 0u) << last;
   EXPECT_GT(r["targets_applied"].get<int>(), 0) << r.dump(1);

@@ -109,6 +109,7 @@ class CellJudge::Impl {
                         // [version, poses used, cell time h, hold-out error mm] of each calibration received
                         {"holdout_by_version", j.history},
                         {"targets_applied", j.applied},
+                        {"targets_applied_beyond_data", j.applied_beyond_data},
                         {"targets_refused", j.refused},
                         {"targets_refused_why", refusedWhyJson(j)},
                         {"correction_mean_mm", mean(j.correction_mm)},
@@ -142,8 +143,13 @@ class CellJudge::Impl {
       for (const auto& r : robots)
         std::printf("cell: %s: %llu poses of the program taken from the engine's proposals (cellcal/pose_request)\n",
                     r["robot_id"].get<std::string>().c_str(), r["poses_followed"].get<unsigned long long>());
-    // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it.
+    // Targets passed through uncorrected, and why: per reason, how many and the last answer that gave it; and those
+    // corrected beyond the extensions' data (a periodic term standing for a growing error can err more there).
     for (const auto& j : judges_) {
+      if (j.applied_beyond_data)
+        std::printf("cell: %s: %llu of %llu targets %s (cellcal plan cover --beyond-data lists a program's to measure)\n",
+                    j.robot->robot_id.c_str(), static_cast<unsigned long long>(j.applied_beyond_data),
+                    static_cast<unsigned long long>(j.refused + j.applied), kBeyondDataNote);
       if (!j.refused) continue;
       std::printf("cell: %s: %llu of %llu targets passed through uncorrected:\n", j.robot->robot_id.c_str(),
                   static_cast<unsigned long long>(j.refused), static_cast<unsigned long long>(j.refused + j.applied));
@@ -240,6 +246,7 @@ class CellJudge::Impl {
       return;
     }
     ++j->applied;
+    if (m.reason().to_string().rfind(kBeyondDataNote, 0) == 0) ++j->applied_beyond_data;
     j->applied_version = m.calibration_version();
     j->correction_mm.push_back(m.correction_position_m() * 1e3);
     j->correction_deg.push_back(m.correction_orientation_rad() * 180 / kPi);

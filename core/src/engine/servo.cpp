@@ -103,6 +103,7 @@ ServoAnswer ServoCompensator::answer(std::int64_t t_ns, const Pose& desired, con
   }
   out.applied = true;
   out.outcome = now.outcome;
+  out.beyond_data = now.beyond_data || (before && before->beyond_data);
   out.q_rad = before ? Eigen::VectorXd(before->q_rad + out.weight * (now.q_rad - before->q_rad)) : now.q_rad;
   out.commanded = before ? forwardKinematics(*nominal_, data_, nominal_->nominal, out.q_rad) : now.corrected_in_tracker;
   if (now.clamped || (before && before->clamped)) out.reason = now.clamped ? now.reason : before->reason;

@@ -8,6 +8,7 @@
 
 #include "cellcal/core/engine/calibration_engine.hpp"
 #include "cellcal/core/engine/compensation.hpp"
+#include "cellcal/core/engine/servo.hpp"
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/identification/residual_map.hpp"
@@ -305,7 +306,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
   const CellConfig config = loadCellConfig(kCell);
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  int inside = 0, near = 0, beyond = 0, grown = 0, in_gap = 0, gap_refused = 0;
+  int inside = 0, near = 0, beyond = 0, grown = 0, in_gap = 0, gap_refused = 0, servo_beyond = 0;
   for (int draw = 0; draw < 4; ++draw) {
     SimulationSettings ss = config.simulation;
     ss.seed = rng();
@@ -339,14 +340,22 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     off.max_correction_rad = 1;
     KinematicsData d(m);
     const std::string what = "joint " + std::to_string(joint + 1) + ", seed " + std::to_string(seed);
-    // The same targets as a program: where they lie beyond the data, its sentence.
+    // The same targets as a program: where they lie beyond the data, its sentence; and as a servo loop's joint
+    // setpoints: its flag.
     const ProgramCompensation program = compensateProgram(m, model, targets, off);
+    ServoCompensator servo(m, off, 0.0);
+    servo.setCalibration(1, model);
     for (size_t k = 0; k < targets.size(); ++k) {
       const Eigen::VectorXd& q = targets[k];
       const std::string& said = program.beyond_data_text[k];
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
+      const ServoAnswer setpoint = servo.answerJoints(static_cast<std::int64_t>(k + 1) * 2000000, q);
+      if (setpoint.applied && with.applied) {
+        EXPECT_EQ(setpoint.beyond_data, with.beyond_data) << what;
+        servo_beyond += setpoint.beyond_data;
+      }
       if (!without.applied) continue;
       ASSERT_TRUE(with.applied) << with.reason;
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
@@ -383,8 +392,9 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     }
   }
   std::printf("  %d targets inside the range, %d within the judged distance (%d of them with a sigma 10 %% larger), %d "
-              "beyond it; %d targets in a gap of the data, %d of them farther from its edges than judged\n", inside, near,
-              grown, beyond, in_gap, gap_refused);
+              "beyond it; %d targets in a gap of the data, %d of them farther from its edges than judged; %d servo "
+              "setpoints flagged beyond the data\n", inside, near, grown, beyond, in_gap, gap_refused, servo_beyond);
+  EXPECT_GE(servo_beyond, 3);
   EXPECT_GE(in_gap, 3);
   EXPECT_GE(inside, 5);
   EXPECT_GE(near, 5);
@@ -402,7 +412,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
   const CellConfig config = loadCellConfig(kCell);
   std::mt19937_64 rng(seed + 1);
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  int inside = 0, near = 0, beyond = 0;
+  int inside = 0, near = 0, beyond = 0, servo_beyond = 0;
   for (int draw = 0; draw < 4; ++draw) {
     SimulationSettings ss = config.simulation;
     ss.seed = rng();
@@ -445,14 +455,22 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
     off.max_correction_rad = 1;
     KinematicsData d(m);
     const std::string what = "link " + std::to_string(link + 1) + ", seed " + std::to_string(seed);
-    // The same targets as a program: where they lie beyond the data, its sentence.
+    // The same targets as a program: where they lie beyond the data, its sentence; and as a servo loop's joint
+    // setpoints: its flag.
     const ProgramCompensation program = compensateProgram(m, model, targets, off);
+    ServoCompensator servo(m, off, 0.0);
+    servo.setCalibration(1, model);
     for (size_t k = 0; k < targets.size(); ++k) {
       const Eigen::VectorXd& q = targets[k];
       const std::string& said = program.beyond_data_text[k];
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
+      const ServoAnswer setpoint = servo.answerJoints(static_cast<std::int64_t>(k + 1) * 2000000, q);
+      if (setpoint.applied && with.applied) {
+        EXPECT_EQ(setpoint.beyond_data, with.beyond_data) << what;
+        servo_beyond += setpoint.beyond_data;
+      }
       if (!without.applied) continue;
       ASSERT_TRUE(with.applied) << with.reason;
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
@@ -481,7 +499,9 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
       }
     }
   }
-  std::printf("  %d targets inside the range, %d within the judged distance, %d beyond it\n", inside, near, beyond);
+  std::printf("  %d targets inside the range, %d within the judged distance, %d beyond it; %d servo setpoints flagged "
+              "beyond the data\n", inside, near, beyond, servo_beyond);
+  EXPECT_GE(servo_beyond, 3);
   EXPECT_GE(inside, 5);
   EXPECT_GE(near, 3);
   EXPECT_GE(beyond, 5);

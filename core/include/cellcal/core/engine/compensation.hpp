@@ -93,6 +93,9 @@ struct CompensationResult {
   // not a sentence: compensate runs on the servo path, and only a program's review reads where (compensateProgram).
   bool beyond_data = false;
 };
+// What the compensation publisher says with a target applied where beyond_data is set (its CompensatedTarget's reason
+// starts with it; the publisher's stats count them as beyond_data_applied).
+inline constexpr const char* kBeyondDataNote = "corrected beyond the extensions' data, within the distance they were judged";
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
 // covariance, a target where the model's predicted position error (of the estimated kinematic parameters) exceeds

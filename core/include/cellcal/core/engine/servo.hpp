@@ -37,6 +37,9 @@ struct ServoAnswer {
   std::uint64_t version = 0;                  // blended to (0: no calibration yet)
   std::uint64_t from_version = 0;             // blended from (= version when not blending)
   double weight = 1.0;                        // of `version`
+  // Applied where a version blended lies beyond its extensions' data, within the distance they were judged there
+  // (CompensationResult::beyond_data of either).
+  bool beyond_data = false;
 };
 
 class ServoCompensator {
