@@ -325,6 +325,8 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   EXPECT_GT(r["verification_mean_position_mm"].get<double>(), 0.0);
   EXPECT_LT(r["predicted_sigma_position_mm"].get<double>(), 1.0);
   EXPECT_GT(r["compensated_targets"].get<int>(), 0);
+  // No robot file's extensions here: no target is corrected beyond their data (the judged-window tests count those).
+  EXPECT_EQ(r["applied_beyond_data"].get<int>(), 0) << j.dump(1);
   EXPECT_GT(r["max_correction_mm"].get<double>(), 0.1);  // the simulated robot's errors are ~1 mm
   const std::string printed = status.log();
   EXPECT_NE(printed.find("tx60"), std::string::npos) << printed;

@@ -246,7 +246,7 @@ class CellJudge::Impl {
       return;
     }
     ++j->applied;
-    if (m.reason().to_string().rfind(kBeyondDataNote, 0) == 0) ++j->applied_beyond_data;
+    if (saysBeyondData(m.reason().to_string())) ++j->applied_beyond_data;
     j->applied_version = m.calibration_version();
     j->correction_mm.push_back(m.correction_position_m() * 1e3);
     j->correction_deg.push_back(m.correction_orientation_rad() * 180 / kPi);

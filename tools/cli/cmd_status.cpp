@@ -12,6 +12,7 @@
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
 #include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/components/profile_probe.hpp"
 #include "commands.hpp"
@@ -49,6 +50,7 @@ struct RobotView {
   bool drift_alarm = false;
   std::string health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
   std::uint64_t answers = 0, applied = 0;
+  std::uint64_t applied_beyond_data = 0;  // applied, the reason saying so (saysBeyondData)
   double last_correction_mm = std::nan(""), last_correction_deg = std::nan(""), max_correction_mm = 0;
   std::string last_reason;
 };
@@ -79,6 +81,7 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
              {"persist_error", r.persist_error},
              {"compensated_targets", r.answers},
              {"applied", r.applied},
+             {"applied_beyond_data", r.applied_beyond_data},
              {"last_correction_mm", num(r.last_correction_mm)},
              {"last_correction_deg", num(r.last_correction_deg)},
              {"max_correction_mm", r.max_correction_mm},
@@ -138,7 +141,9 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
     }
     if (r.answers > 0)
       notes.push_back("compensation: " + std::to_string(r.applied) + " of " + std::to_string(r.answers) +
-                      " targets corrected" + (r.last_reason.empty() ? "" : "; last: " + r.last_reason));
+                      " targets corrected" +
+                      (r.applied_beyond_data ? " (" + std::to_string(r.applied_beyond_data) + " beyond the extensions' data)" : "") +
+                      (r.last_reason.empty() ? "" : "; last: " + r.last_reason));
     if (!r.extensions.empty()) notes.push_back("model: " + r.extensions);
     for (const auto& n : notes) out << "  " << id << ": " << n << "\n";
   }
@@ -193,6 +198,7 @@ int runStatus(const StatusArgs& a) {
     r.last_reason = c.reason().to_string();
     if (c.applied()) {
       ++r.applied;
+      if (saysBeyondData(r.last_reason)) ++r.applied_beyond_data;
       r.last_correction_mm = c.correction_position_m() * 1e3;
       r.last_correction_deg = c.correction_orientation_rad() * 180 / kPi;
       r.max_correction_mm = std::max(r.max_correction_mm, r.last_correction_mm);

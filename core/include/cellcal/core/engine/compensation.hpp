@@ -96,6 +96,8 @@ struct CompensationResult {
 // What the compensation publisher says with a target applied where beyond_data is set (its CompensatedTarget's reason
 // starts with it; the publisher's stats count them as beyond_data_applied).
 inline constexpr const char* kBeyondDataNote = "corrected beyond the extensions' data, within the distance they were judged";
+// Whether a CompensatedTarget's reason says so (what `cellcal cell` and `cellcal status` count).
+inline bool saysBeyondData(const std::string& reason) { return reason.rfind(kBeyondDataNote, 0) == 0; }
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
 // covariance, a target where the model's predicted position error (of the estimated kinematic parameters) exceeds
