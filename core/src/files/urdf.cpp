@@ -111,7 +111,51 @@ void checkTree(const Parsed& p, const std::string& source) {
   }
 }
 
+// Where `text` stops being UTF-8 text: the offset of the first NUL byte or the first byte that does not begin a
+// well-formed UTF-8 sequence within the text (a stray continuation byte, an overlong form, a surrogate, a sequence cut
+// short by the end or by another byte), with why in *what; npos where all of it is.
+size_t firstNonText(const std::string& text, std::string* what) {
+  const auto* b = reinterpret_cast<const unsigned char*>(text.data());
+  const size_t n = text.size();
+  for (size_t i = 0; i < n;) {
+    const unsigned char c = b[i];
+    if (c == 0) {
+      *what = "a NUL byte (not a text file)";
+      return i;
+    }
+    if (c < 0x80) {
+      ++i;
+      continue;
+    }
+    const int len = c >= 0xC2 && c <= 0xDF ? 2 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xF0 && c <= 0xF4 ? 4 : 0;
+    // The second byte's range: narrower after E0 (overlong), ED (surrogates), F0 (overlong) and F4 (above U+10FFFF).
+    const unsigned char lo = c == 0xE0 ? 0xA0 : c == 0xF0 ? 0x90 : 0x80;
+    const unsigned char hi = c == 0xED ? 0x9F : c == 0xF4 ? 0x8F : 0xBF;
+    bool ok = len > 0 && i + static_cast<size_t>(len) <= n && b[i + 1] >= lo && b[i + 1] <= hi;
+    for (int k = 2; ok && k < len; ++k) ok = b[i + static_cast<size_t>(k)] >= 0x80 && b[i + static_cast<size_t>(k)] <= 0xBF;
+    if (!ok) {
+      char t[96];
+      std::snprintf(t, sizeof t, "byte 0x%02X is not UTF-8%s", c,
+                    len > 0 && i + static_cast<size_t>(len) > n ? " (a character cut short by the end of the file)" : "");
+      *what = t;
+      return i;
+    }
+    i += static_cast<size_t>(len);
+  }
+  return std::string::npos;
+}
+
 void parse(const std::string& xml, const std::string& source, Parsed& p) {
+  // TinyXML and liburdfdom read a multi-byte character whole from its first byte: one cut short at the end of the text
+  // reads past it. Only UTF-8 text is handed to them, named where it is not.
+  std::string what;
+  if (const size_t bad = firstNonText(xml, &what); bad != std::string::npos) {
+    size_t line = 1, line_start = 0;  // the column counts bytes from the line's start
+    for (size_t k = 0; k < bad; ++k)
+      if (xml[k] == '\n') ++line, line_start = k + 1;
+    throw ConfigError(source + ":" + std::to_string(line) + ":" + std::to_string(bad - line_start + 1) + ": " + what +
+                      ": a URDF is UTF-8 text (save it as UTF-8)");
+  }
   p.doc.Parse(xml.c_str(), nullptr, TIXML_ENCODING_UTF8);
   if (p.doc.Error())
     throw ConfigError(source + ":" + std::to_string(p.doc.ErrorRow()) + ":" + std::to_string(p.doc.ErrorCol()) +

@@ -610,6 +610,22 @@ TEST(Urdf, BadInputIsRefusedNamingTheFileAndTheElement) {
   std::string loop = arm(6);
   loop.replace(loop.find("<parent link=\"base_link\""), 24, "<parent link=\"l6\"");
   EXPECT_NE(errorOf(loop).find("loop"), std::string::npos) << errorOf(loop);
+  // Not UTF-8 text, named by line and column before any XML parser reads it: a character cut short by the end (the
+  // XML parser read past the text's end on such a file, found by Fuzz.Parsers), a stray byte, a NUL; UTF-8 passes.
+  const std::string whole = arm(6);
+  const size_t line3 = whole.find('\n', whole.find('\n') + 1) + 1;
+  const std::string cut = errorOf(whole.substr(0, 300) + "\xD4");
+  EXPECT_NE(cut.find("cut short by the end of the file"), std::string::npos) << cut;
+  EXPECT_EQ(cut.rfind("arm.urdf:", 0), 0u) << cut;
+  std::string latin1 = whole;
+  latin1.insert(line3 + 4, "\xE9");  // a Latin-1 e-acute, 5th byte of line 3
+  EXPECT_NE(errorOf(latin1).find("arm.urdf:3:5: byte 0xE9 is not UTF-8"), std::string::npos) << errorOf(latin1);
+  std::string nul = whole;
+  nul.insert(line3 + 1, std::string(1, '\0'));
+  EXPECT_NE(errorOf(nul).find("arm.urdf:3:2: a NUL byte"), std::string::npos) << errorOf(nul);
+  std::string accented = whole;  // UTF-8 in a comment: read as before
+  accented.insert(line3, "<!-- \xC3\xA9paule \xE2\x80\x94 \xF0\x9F\xA4\x96 -->\n");
+  EXPECT_EQ(errorOf(accented), "");
   // An export against another robot's URDF.
   const UrdfImport six = importUrdf(arm(6), "arm.urdf");
   std::string other = arm(6);
