@@ -392,12 +392,9 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     if (c.applied && c.residual_map_applied) ++residual_map_applied_;
     out.applied(c.applied);
     out.clamped(c.clamped);
-    if (c.applied && c.beyond_data) {
-      ++beyond_data_applied_;
-      out.reason(withNote(c.reason.empty() ? kBeyondDataNote : std::string(kBeyondDataNote) + "; " + c.reason, r.note, 255));
-    } else {
-      out.reason(withNote(c.reason, r.note, 255));
-    }
+    const bool beyond_data = c.applied && c.beyond_data;  // said first, before why it was clamped
+    if (beyond_data) ++beyond_data_applied_;
+    out.reason(withNote(beyond_data ? withNote(kBeyondDataNote, c.reason, 255) : c.reason, r.note, 255));
     out.correction_position_m(c.correction_position_m);
     out.correction_orientation_rad(c.correction_orientation_rad);
     if (c.applied) {

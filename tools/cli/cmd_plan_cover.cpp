@@ -103,6 +103,16 @@ int runPlanCover(const PlanCoverArgs& a) {
   // said, and the ones the tracker can measure kept to measure.
   std::vector<size_t> to_measure;
   int occluded = 0;
+  // Target i said (its label, `what`, and why the tracker cannot measure it), and with `measure` kept to measure where
+  // the tracker can.
+  auto say = [&](size_t i, const std::string& what, bool measure) {
+    const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
+    std::printf("    %s: %s%s\n", label(i).c_str(), what.c_str(),
+                v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
+    if (!measure) return;
+    if (v == Visibility::kVisible) to_measure.push_back(i);
+    else ++occluded;
+  };
   const int blind = static_cast<int>(std::count_if(pc.results.begin(), pc.results.end(),
                                                    [](const CompensationResult& r) { return r.applied && !r.unjudged.empty(); }));
   for (const bool applied : {true, false}) {
@@ -114,12 +124,7 @@ int runPlanCover(const PlanCoverArgs& a) {
     for (size_t i = 0; i < qs.size(); ++i) {
       const CompensationResult& r = pc.results[i];
       if (r.unjudged.empty() || r.applied != applied) continue;
-      const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
-      std::printf("    %s: %s%s\n", label(i).c_str(),
-                  applied ? ("corrected with its error not known: " + r.unjudged).c_str() : r.reason.c_str(),
-                  v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
-      if (v == Visibility::kVisible) to_measure.push_back(i);
-      else ++occluded;
+      say(i, applied ? "corrected with its error not known: " + r.unjudged : r.reason, true);
     }
   }
   // Corrected beyond the extensions' data, within the judged distance: said, and measured with --beyond-data.
@@ -128,15 +133,10 @@ int runPlanCover(const PlanCoverArgs& a) {
   for (size_t i = 0; i < qs.size(); ++i) {
     const CompensationResult& r = pc.results[i];
     if (pc.beyond_data_text[i].empty()) continue;
-    const Visibility v = tracker ? visibility(cal.model, cal.model.nominal, qs[i], *tracker) : Visibility::kVisible;
     char sigma_text[48] = "";
     if (std::isfinite(r.predicted_sigma_position_m))
       std::snprintf(sigma_text, sizeof sigma_text, " (predicted %.3g mm)", r.predicted_sigma_position_m * 1e3);
-    std::printf("    %s: %s%s%s\n", label(i).c_str(), pc.beyond_data_text[i].c_str(), sigma_text,
-                v == Visibility::kVisible ? "" : (std::string("; the tracker cannot measure it: ") + visibilityName(v)).c_str());
-    if (!a.beyond_data) continue;
-    if (v == Visibility::kVisible) to_measure.push_back(i);
-    else ++occluded;
+    say(i, pc.beyond_data_text[i] + sigma_text, a.beyond_data);
   }
   std::sort(to_measure.begin(), to_measure.end());  // in the program's order
   std::printf("  passed through or refused otherwise: %d\n", pc.refused);

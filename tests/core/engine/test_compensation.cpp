@@ -296,6 +296,16 @@ void expectPassedThrough(const RobotModel& m, const IdentifiedModel& model, cons
   EXPECT_TRUE(compensate(m, plain, desired, q, guarded).applied) << what;
 }
 
+// Program target k as a servo loop's joint setpoint (one per 2 ms): where both apply it, the setpoint's beyond_data flag
+// is compensate's (`with`, the same target). 1 where it is set.
+int servoBeyondData(ServoCompensator& servo, size_t k, const Eigen::VectorXd& q, const CompensationResult& with,
+                    const std::string& what) {
+  const ServoAnswer setpoint = servo.answerJoints(static_cast<std::int64_t>(k + 1) * 2000000, q);
+  if (!setpoint.applied || !with.applied) return 0;
+  EXPECT_EQ(setpoint.beyond_data, with.beyond_data) << what;
+  return setpoint.beyond_data ? 1 : 0;
+}
+
 // An extended model with the ranges its extensions were judged over (a robot file's beyond_data, drawn at random:
 // joint, range, judged distance, sigma, growth). Inside the range the predicted sigma is the model's own; between the
 // range and the judged distance it adds sigmaRad(q*)^2 |dp/dq_joint|^2, checked against a central difference of the
@@ -351,11 +361,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
-      const ServoAnswer setpoint = servo.answerJoints(static_cast<std::int64_t>(k + 1) * 2000000, q);
-      if (setpoint.applied && with.applied) {
-        EXPECT_EQ(setpoint.beyond_data, with.beyond_data) << what;
-        servo_beyond += setpoint.beyond_data;
-      }
+      servo_beyond += servoBeyondData(servo, k, q, with, what);
       if (!without.applied) continue;
       ASSERT_TRUE(with.applied) << with.reason;
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
@@ -466,11 +472,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
-      const ServoAnswer setpoint = servo.answerJoints(static_cast<std::int64_t>(k + 1) * 2000000, q);
-      if (setpoint.applied && with.applied) {
-        EXPECT_EQ(setpoint.beyond_data, with.beyond_data) << what;
-        servo_beyond += setpoint.beyond_data;
-      }
+      servo_beyond += servoBeyondData(servo, k, q, with, what);
       if (!without.applied) continue;
       ASSERT_TRUE(with.applied) << with.reason;
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
