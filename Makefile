@@ -1,11 +1,12 @@
 # cellcal: the two commands a user needs.
 #   make demo   installs what is missing (apt), builds, runs the demo
-#   make test   installs what is missing (apt), builds, runs every test
+#   make test   installs what is missing (apt), builds, runs every test (each with a fixed seed: it repeats)
+# For developers: make quick (the quick label, a few minutes), make sweep (the seeded tests over fresh seeds).
 BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 
-.PHONY: all deps configure build demo test bench install clean fuzz
+.PHONY: all deps configure build demo test quick sweep bench install clean fuzz
 
 all: build
 
@@ -30,8 +31,21 @@ demo: build
 	  --figures $(BUILD_DIR)/demo/figures
 	@echo "demo: figures in $(BUILD_DIR)/demo/figures: $$(ls $(BUILD_DIR)/demo/figures/*.png | tr '\n' ' ')"
 
+# The libFuzzer targets are built first (clang, tools/fuzz.sh), so that the fuzz smoke's time in ctest is its own.
 test: build
+	bash tools/fuzz.sh --build-only $(BUILD_DIR)/fuzz
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE bench
+
+# The tests labelled quick: a developer's loop of a few minutes (docs/testing.md).
+quick: build
+	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -L quick
+
+# The seeded tests RUNS times, each run with fresh seeds: each test's failure rate and its failing seeds
+# (docs/testing.md). FILTER is a ctest regex: make sweep RUNS=100 FILTER='^Campaign\.'
+RUNS ?= 100
+FILTER ?= .
+sweep: build
+	bash tools/sweep.sh -n $(RUNS) -R '$(FILTER)' $(BUILD_DIR)
 
 # libFuzzer on every file parser, 300 s each (make test runs a 5 s smoke of the same).
 fuzz: build

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -56,17 +57,44 @@ inline double median(std::vector<double> v) {
   return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
-// A fresh random seed per run (so no test is tuned to one seed), reproducible with CELLCAL_TEST_SEED=<n>.
-// The seed is printed and recorded in the test's XML properties.
+// The running test's full name ("Suite.Name", "Prefix/Suite.Name/3" for a parameterized one; "" outside a test).
+inline std::string currentTestName() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  return info ? std::string(info->test_suite_name()) + "." + info->name() : std::string();
+}
+
+// The seed of the running test's random draws. Contract:
+//  - unset CELLCAL_TEST_SEED: a fixed seed of the test's own (FNV-1a of its full name), so `make test` repeats run for
+//    run and no two tests share one;
+//  - CELLCAL_TEST_SEED=<n>: n, for every test (repeats a failure, or a sweep's draw);
+//  - CELLCAL_TEST_SEED=random: a fresh seed (tools/sweep.sh passes numbers instead, so each failure it counts has
+//    a seed to repeat).
+// Every call within one test returns the same seed, except with `random`. It is printed with the command that
+// repeats the test (ctest shows it for a failing test) and recorded in the test's XML properties.
 inline std::uint64_t testSeed() {
-  std::uint64_t seed;
-  if (const char* env = std::getenv("CELLCAL_TEST_SEED")) {
-    seed = std::strtoull(env, nullptr, 10);
-  } else {
+  const std::string name = currentTestName();
+  std::uint64_t seed = 14695981039346656037ull;
+  for (char c : name) seed = (seed ^ static_cast<unsigned char>(c)) * 1099511628211ull;
+  const char* env = std::getenv("CELLCAL_TEST_SEED");
+  if (env != nullptr && std::string(env) == "random") {
     seed = (static_cast<std::uint64_t>(std::random_device{}()) << 32) ^ std::random_device{}();
+  } else if (env != nullptr && *env != '\0') {
+    char* end = nullptr;
+    seed = std::strtoull(env, &end, 10);
+    if (end == env || *end != '\0') {
+      ADD_FAILURE() << "CELLCAL_TEST_SEED='" << env << "' is neither a number nor 'random'";
+    }
   }
   ::testing::Test::RecordProperty("seed", std::to_string(seed));
-  std::printf("[   SEED   ] CELLCAL_TEST_SEED=%llu\n", static_cast<unsigned long long>(seed));
+  std::string self = "<test binary>";
+  if (std::FILE* f = std::fopen("/proc/self/cmdline", "rb")) {
+    char buf[512] = {0};
+    if (std::fgets(buf, sizeof buf, f) != nullptr) self = buf;  // argv[0] ends at its NUL
+    std::fclose(f);
+  }
+  std::printf("[   SEED   ] CELLCAL_TEST_SEED=%llu %s --gtest_filter='%s'\n", static_cast<unsigned long long>(seed),
+              self.c_str(), name.c_str());
+  std::fflush(stdout);
   return seed;
 }
 

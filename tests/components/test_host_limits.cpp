@@ -6,13 +6,14 @@
 #include <fstream>
 #include <random>
 
+#include "test_support.hpp"
 #include "cellcal/components/host_limits.hpp"
 
 namespace cellcal::components {
 namespace {
 
 TEST(HostLimits, ACappedReceiveOrSendBufferIsNamedWithItsSysctlAndTheFix) {
-  std::mt19937_64 rng(std::random_device{}());
+  std::mt19937_64 rng(test::testSeed());
   const std::uint32_t asked = 65536u + static_cast<std::uint32_t>(rng() % 8000000u);
   const std::int64_t below = static_cast<std::int64_t>(asked) - 1 - static_cast<std::int64_t>(rng() % 60000u);
   const std::string r = socketBufferWarning("participant profile 'p'", asked, 0, below, std::nullopt);
@@ -31,7 +32,7 @@ TEST(HostLimits, ACappedReceiveOrSendBufferIsNamedWithItsSysctlAndTheFix) {
 }
 
 TEST(HostLimits, KernelDropsAreReadFromTheUdpLinesOfSnmp) {
-  std::mt19937_64 rng(std::random_device{}());
+  std::mt19937_64 rng(test::testSeed());
   const std::uint64_t drops = rng() % 1000000000ULL;
   const std::string path = ::testing::TempDir() + "/snmp_" + std::to_string(rng());
   {

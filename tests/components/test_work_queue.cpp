@@ -7,6 +7,7 @@
 #include <random>
 #include <thread>
 
+#include "test_support.hpp"
 #include "cellcal/components/work_queue.hpp"
 
 namespace cellcal::components {
@@ -15,7 +16,7 @@ namespace {
 using namespace std::chrono_literals;
 
 TEST(WorkQueue, ItemsAreHandledInPushOrderAndStopDrainsThem) {
-  std::mt19937_64 rng(std::random_device{}());
+  std::mt19937_64 rng(test::testSeed());
   const int n = 1000 + static_cast<int>(rng() % 20000);
   std::vector<int> seen;
   {
@@ -31,7 +32,7 @@ TEST(WorkQueue, ItemsAreHandledInPushOrderAndStopDrainsThem) {
 }
 
 TEST(WorkQueue, AStalledWorkerNeitherBlocksPushNorLosesAnythingUnderTheBound) {
-  std::mt19937_64 rng(std::random_device{}());
+  std::mt19937_64 rng(test::testSeed());
   const size_t bound = 100 + rng() % 900;
   std::atomic<bool> release{false};
   std::atomic<size_t> handled{0};

@@ -15,8 +15,12 @@ if [ ! -d "$work/node_modules/@foxglove/omgidl-serialization" ]; then
   fi
 fi
 cp "$script_dir/mcap_independent_reader.mjs" "$script_dir/recording_cdr_reader.mjs" "$work/"
-seed=${CELLCAL_TEST_SEED:-$(od -An -N4 -tu4 /dev/urandom | tr -d ' ')}
-echo "[ SEED ] CELLCAL_TEST_SEED=$seed"
+# The seed as tests/test_support.hpp's testSeed(): fixed unless CELLCAL_TEST_SEED gives one (or `random`).
+seed=${CELLCAL_TEST_SEED:-1}
+[ "$seed" = random ] && seed=$(od -An -N4 -tu4 /dev/urandom | tr -d ' ')
+[[ "$seed" =~ ^[0-9]+$ ]] || { echo "CELLCAL_TEST_SEED='$seed' is neither a number nor 'random'" >&2; exit 2; }
+seed=$((seed % 4294967296))
+echo "[   SEED   ] CELLCAL_TEST_SEED=$seed bash $0 $*"
 for k in 0 1 2; do
   "$bin_dir/mcap_sample_writer" "$work/sample_$k.mcap" "$work/sample_$k.json" $((seed + k))
   (cd "$work" && node mcap_independent_reader.mjs "sample_$k.mcap" "sample_$k.json")

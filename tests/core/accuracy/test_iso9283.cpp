@@ -305,7 +305,9 @@ TEST(Iso9283, ASimulatedTestGivesTheAccuracyItsTruthSays) {
     const RobotModel& m = cell.model();
     IsoPlanOptions o;
     o.seed = rng();
-    o.candidates = 10;
+    // Fewer random configurations than the planner's 200, for time; 10 was too few: at seed 6041561711101938314 none
+    // of a UR10's 10 held a cube above its floor (found by a sweep, docs/testing.md).
+    o.candidates = 40;
     const IsoPlan plan = planIso9283(m, m.nominal, o);
     MeasurementFile f;
     f.source = "simulated.csv";
