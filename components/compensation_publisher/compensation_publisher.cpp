@@ -113,7 +113,7 @@ void CompensationPublisher::onCalibrationState(const msg::CalibrationState& m) {
       for (const std::string& t : said)
         std::cerr << "compensation_publisher: " << it->first << ": the robot file's " << t << ": targets farther are "
                   << (cell_.compensation.max_predicted_sigma_m > 0
-                          ? "passed through uncorrected (outside_calibration)\n"
+                          ? "passed through uncorrected (never_judged)\n"
                           : "corrected with their predicted error not known (compensation.max_predicted_sigma_mm 0)\n");
       r.judged_ranges_said = true;
     }
@@ -259,7 +259,17 @@ bool usablePose(const std::array<double, 3>& p, const std::array<double, 4>& q) 
   return finite && std::abs(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) <= 1e-6;
 }
 
-// An answer's reason: what the compensation said, then the operator's note, cut to the wire's bound.
+// Core's outcome on the wire: the IDL's enum holds core's in its order (compensation.hpp), checked here once.
+msg::CompensationOutcome toWire(CompensationOutcome o) {
+  static_assert(static_cast<int>(CompensationOutcome::kNeverJudged) == msg::OUTCOME_NEVER_JUDGED &&
+                    static_cast<int>(CompensationOutcome::kApplied) == msg::OUTCOME_APPLIED &&
+                    kNumCompensationOutcomes == msg::OUTCOME_BAD_INPUT,
+                "idl/cellcal_msgs.idl's CompensationOutcome must start with core's CompensationOutcome, in its order");
+  return static_cast<msg::CompensationOutcome>(static_cast<int>(o));
+}
+
+// An answer's reason: what the compensation said, then the operator's note, cut to the wire's bound (the decision
+// travels in the typed fields; the words may be cut).
 std::string withNote(const std::string& reason, const std::string& note, size_t max_chars) {
   return (reason.empty() ? note : note.empty() ? reason : reason + "; " + note).substr(0, max_chars);
 }
@@ -318,13 +328,18 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
                                                               static_cast<Eigen::Index>(sp.joint_position_rad().size()));
   const auto stamp = static_cast<std::int64_t>(sp.cycle_stamp_ns());
   ServoAnswer a;
+  msg::CompensationOutcome outcome;
   if (sp.cartesian() && !usablePose(sp.position_m(), sp.orientation_xyzw())) {
     a.q_rad = q;
     a.reason = "setpoint rejected: non-finite position or non-unit quaternion";
+    outcome = msg::OUTCOME_BAD_INPUT;
   } else {
     a = sp.cartesian() ? r.servo->answerPose(stamp, toPose(sp.position_m(), sp.orientation_xyzw()), q)
                        : r.servo->answerJoints(stamp, q);
     if (options_.pass_through) a.reason = kPassThroughReason;  // (no version is ever installed: a is the setpoint)
+    outcome = options_.pass_through ? msg::OUTCOME_PASS_THROUGH
+              : a.version == 0      ? msg::OUTCOME_NO_CALIBRATION
+                                    : toWire(a.outcome);
   }
   msg::ServoCorrection& out = servo_out_;
   out.robot_id(sp.robot_id());
@@ -343,6 +358,8 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   out.blend_from_version(a.from_version);
   out.blend_weight(a.weight);
   out.reason(withNote(a.reason, r.note, 127));
+  out.outcome(a.applied ? toWire(a.outcome) : outcome);
+  out.beyond_data(a.applied && a.beyond_data);
   out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
   servo_writer_.write(out);
   ++servo_answered_;
@@ -369,17 +386,23 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
   out.applied(false);
   out.clamped(false);
   out.reason("");
+  out.beyond_data(false);
+  out.older_calibration(false);
   noticeEngine(r);
   if (!usablePose(t.position_m(), t.orientation_xyzw())) {
     out.reason("target rejected: non-finite position or non-unit quaternion");
+    out.outcome(msg::OUTCOME_BAD_INPUT);
   } else if (options_.pass_through) {
     out.reason(kPassThroughReason);
+    out.outcome(msg::OUTCOME_PASS_THROUGH);
   } else if (!r.calibration) {
     out.reason("no calibration received yet");
+    out.outcome(msg::OUTCOME_NO_CALIBRATION);
   } else if (!r.last_ok) {
     out.calibration_version(r.calibration->version);
     out.reason("calibration v" + std::to_string(r.calibration->version) + " is " + healthText(r.calibration->health) +
                " and no earlier one was ok");
+    out.outcome(msg::OUTCOME_NO_GOOD_CALIBRATION);
   } else {
     out.calibration_version(r.last_ok->version);
     Eigen::VectorXd seed = Eigen::Map<const Eigen::VectorXd>(t.seed_position_rad().data(),
@@ -392,7 +415,10 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     if (c.applied && c.residual_map_applied) ++residual_map_applied_;
     out.applied(c.applied);
     out.clamped(c.clamped);
+    out.outcome(toWire(c.outcome));
     const bool beyond_data = c.applied && c.beyond_data;  // said first, before why it was clamped
+    out.beyond_data(beyond_data);
+    out.older_calibration(c.applied && r.calibration->version != r.last_ok->version);
     if (beyond_data) ++beyond_data_applied_;
     out.reason(withNote(beyond_data ? withNote(kBeyondDataNote, c.reason, 255) : c.reason, r.note, 255));
     out.correction_position_m(c.correction_position_m);

@@ -9,7 +9,8 @@
 // correction exceeds compensation.max_correction_mm / _deg (or clamps, if so set) -- whatever it received.
 // A calibration with model extensions (CalibrationState::model_extensions) is solved with them (compensation.hpp); a
 // target corrected beyond the extensions' data, within the distance they were judged there (a calibrated robot file's
-// beyond_data), says so first in its reason (kBeyondDataNote), and --stats-json counts them (beyond_data_applied).
+// beyond_data), is flagged (CompensatedTarget::beyond_data) and said first in its reason (kBeyondDataNote), and
+// --stats-json counts them (beyond_data_applied). Every answer carries its outcome as a code.
 // With --ros-pose-topic it also publishes every applied correction as a ROS 2 geometry_msgs/PoseStamped (directly
 // over DDS, docs/ros2.md): the corrected pose in the targets' frame (header.frame_id from --ros-frame-id), stamped
 // with the target's stamp. Targets passed through uncorrected are not published there (an uncorrected pose on a

@@ -166,7 +166,7 @@ TEST(CellProcesses, AModelExtensionTravelsFromTheEngineToCompensation) {
 // exported and calibrated with `extension` (`cellcal calibrate --save-robot`); `window` then rewrites the file's
 // judged range of it (beyond_data or beyond_drivers) to one drawn at random and says what the publisher must print
 // once when it applies the file's model and what a target beyond it is refused for; a second run starts its engine
-// from that file. The publisher must say the window once, pass through as outside_calibration the targets past it,
+// from that file. The publisher must say the window once, pass through as never_judged the targets past it,
 // with the reason naming the joint or driver, and correct others.
 struct JudgedWindow {
   std::string said, refused, what;  // the publisher's line; the reason's start for a target past it; for messages
@@ -197,13 +197,13 @@ void expectJudgedWindowGuarded(const std::string& extension, const std::string& 
   const auto s = runCell(dir + "/second", second, "9");
   ASSERT_FALSE(s.is_discarded());
   const auto& r = s["robots"][0];
+  // Passed through beyond the judged range: the outcome never_judged, its reason naming the joint or link.
   int beyond = 0;
   std::string last;
-  for (const auto& [reason, v] : r["targets_refused_why"].items())
-    if (reason.find(" was fitted on") != std::string::npos || reason.find(" were fitted on") != std::string::npos) {
-      beyond += v["count"].get<int>();
-      last = v["last"].get<std::string>();
-    }
+  if (r["targets_refused_why"].contains("never_judged")) {
+    beyond = r["targets_refused_why"]["never_judged"]["count"].get<int>();
+    last = r["targets_refused_why"]["never_judged"]["last"].get<std::string>();
+  }
   // Targets corrected beyond the data within the judged distance: the publisher's count, and the answers the cell's
   // judge received saying so (the answers it did not receive before the end may hold some).
   const long flagged_sent = s["compensation"].value("beyond_data_applied", -1L);
@@ -336,6 +336,10 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   size_t frames = 0;
   for (size_t at = live.find("cellcal status"); at != std::string::npos; at = live.find("cellcal status", at + 1)) ++frames;
   EXPECT_GE(frames, 3u) << live;
+  // Its first frame already shows the engine's calibration (not an empty row while discovery is under way).
+  const size_t first_row = live.find("\ntx60 ");
+  ASSERT_NE(first_row, std::string::npos) << live;
+  EXPECT_EQ(live.compare(first_row + 13, 1, "v"), 0) << live.substr(first_row, 80);
   std::printf("%s", printed.c_str());
 }
 
@@ -370,7 +374,7 @@ TEST(CellProcesses, ToolsOnAnotherProfileNameTheProfileTheCellIsOn) {
                                  "--json", dir + "/status.json"});
   Process record(dir, "record", {"cellcal", "record", "--config", cfg, "--dds-profile", "test_elsewhere",
                                  "--duration-s", "2", "--out", dir + "/nothing.mcap"});
-  ASSERT_EQ(status.wait(40), 0) << status.log();
+  ASSERT_EQ(status.wait(40), 3) << status.log();  // no engine seen on its profile
   EXPECT_EQ(record.wait(40), 3) << record.log();  // nothing recorded
   ASSERT_EQ(cell.wait(60), 0) << cell.log();
   const auto j = readJson(dir + "/status.json");

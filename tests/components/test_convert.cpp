@@ -4,9 +4,12 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <string>
+#include <vector>
 
 #include "cdr_round_trip.hpp"
 #include "cellcal/components/convert.hpp"
+#include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal_msgsPubSubTypes.h"
 
@@ -164,6 +167,32 @@ TEST_F(Convert, PoseRequestCarriesTheConfigurationsInOrder) {
   // More than the IDL's 1024 values: the most informative kept, whole configurations only.
   p.q_rad.assign(200, Eigen::VectorXd::Zero(m.numJoints()));
   EXPECT_EQ(cellcal::components::toPoseRequest("tx60", p, 1, 1, 1).configurations_rad().size(), 1020u);
+}
+
+// The wire's compensation outcome starts with core's, in its order, each with core's name; the publisher's own follow,
+// and every code has a name of its own. A CompensatedTarget carries it through CDR.
+TEST(CompensationOutcome, TheWiresCodesAreCoresThenThePublishersEachNamed) {
+  std::vector<std::string> names;
+  for (int k = 0; k <= static_cast<int>(cellcal::msg::OUTCOME_NO_GOOD_CALIBRATION); ++k) {
+    const auto o = static_cast<cellcal::msg::CompensationOutcome>(k);
+    const std::string name = cellcal::components::outcomeText(o);
+    if (k < cellcal::kNumCompensationOutcomes) {
+      EXPECT_EQ(name, cellcal::outcomeName(static_cast<cellcal::CompensationOutcome>(k)));
+    }
+    EXPECT_NE(name, "?") << k;
+    EXPECT_EQ(std::count(names.begin(), names.end(), name), 0) << name;
+    names.push_back(name);
+  }
+  EXPECT_EQ(names[cellcal::msg::OUTCOME_NEVER_JUDGED], "never_judged");
+  EXPECT_EQ(names[cellcal::msg::OUTCOME_NO_GOOD_CALIBRATION], "no_good_calibration");
+  cellcal::msg::CompensatedTarget t;
+  t.outcome(cellcal::msg::OUTCOME_NEVER_JUDGED);
+  t.beyond_data(true);
+  t.older_calibration(true);
+  const cellcal::msg::CompensatedTarget back = roundTrip<cellcal::msg::CompensatedTargetPubSubType>(t);
+  EXPECT_EQ(back.outcome(), cellcal::msg::OUTCOME_NEVER_JUDGED);
+  EXPECT_TRUE(back.beyond_data());
+  EXPECT_TRUE(back.older_calibration());
 }
 
 }  // namespace

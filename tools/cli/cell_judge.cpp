@@ -112,6 +112,8 @@ class CellJudge::Impl {
                         {"targets_applied_beyond_data", j.applied_beyond_data},
                         {"targets_refused", j.refused},
                         {"targets_refused_why", refusedWhyJson(j)},
+                        // sent by the application, no answer received before the end (lost, or the cell stopped)
+                        {"targets_unanswered", sent_[j.robot->robot_id].size()},
                         {"correction_mean_mm", mean(j.correction_mm)},
                         {"correction_mean_deg", mean(j.correction_deg)},
                         {"landed_error_compensated_mean_mm", mean(j.compensated_error_mm)},
@@ -150,12 +152,17 @@ class CellJudge::Impl {
         std::printf("cell: %s: %llu of %llu targets %s (cellcal plan cover --beyond-data lists a program's to measure)\n",
                     j.robot->robot_id.c_str(), static_cast<unsigned long long>(j.applied_beyond_data),
                     static_cast<unsigned long long>(j.refused + j.applied), kBeyondDataNote);
+      // What was sent and never answered is said too: a count of answers alone would hide it.
+      if (const size_t unanswered = sent_[j.robot->robot_id].size())
+        std::printf("cell: %s: %zu of %llu targets sent were never answered (lost, or the cell stopped first)\n",
+                    j.robot->robot_id.c_str(), unanswered,
+                    static_cast<unsigned long long>(unanswered + j.refused + j.applied));
       if (!j.refused) continue;
-      std::printf("cell: %s: %llu of %llu targets passed through uncorrected:\n", j.robot->robot_id.c_str(),
+      std::printf("cell: %s: %llu of the %llu answered targets passed through uncorrected:\n", j.robot->robot_id.c_str(),
                   static_cast<unsigned long long>(j.refused), static_cast<unsigned long long>(j.refused + j.applied));
       for (const auto& [key, why] : j.refused_why)
-        std::printf("cell:   %llu x %s%s\n", static_cast<unsigned long long>(why.first), why.second.c_str(),
-                    why.first > 1 ? " (the last of them)" : "");
+        std::printf("cell:   %llu x %s: %s%s\n", static_cast<unsigned long long>(why.first), key.c_str(),
+                    why.second.c_str(), why.first > 1 ? " (the last of them)" : "");
     }
   }
 
@@ -237,16 +244,13 @@ class CellJudge::Impl {
     sent.erase(it);
     if (!m.applied()) {
       ++j->refused;
-      // "calibration v3 is not healthy (health 0) and none was before" and "... v4 ..." are one reason.
-      const std::string reason = m.reason().to_string();
-      const std::string first = reason.substr(0, reason.find(';'));
-      auto& why = j->refused_why[maskFigures(first)];
+      auto& why = j->refused_why[outcomeText(m.outcome())];
       ++why.first;
-      why.second = first;
+      why.second = m.reason().to_string();
       return;
     }
     ++j->applied;
-    if (saysBeyondData(m.reason().to_string())) ++j->applied_beyond_data;
+    if (m.beyond_data()) ++j->applied_beyond_data;
     j->applied_version = m.calibration_version();
     j->correction_mm.push_back(m.correction_position_m() * 1e3);
     j->correction_deg.push_back(m.correction_orientation_rad() * 180 / kPi);

@@ -76,8 +76,8 @@ struct Judge {
   double verify_mm = std::nan(""), nominal_mm = std::nan("");
   std::vector<double> correction_mm, correction_deg, compensated_error_mm, uncompensated_error_mm;
   std::uint64_t applied = 0, refused = 0;
-  std::uint64_t applied_beyond_data = 0;  // applied, the reason starting with kBeyondDataNote
-  // The compensation publisher's reasons, grouped without their figures: how many, and the last one as it was said.
+  std::uint64_t applied_beyond_data = 0;  // applied, flagged beyond_data
+  // The targets passed through, per outcome (outcomeText): how many, and the last one's reason as it was said.
   std::map<std::string, std::pair<std::uint64_t, std::string>> refused_why;
   std::string health = "uncalibrated";  // of the latest CalibrationState
   std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last

@@ -221,7 +221,11 @@ int runDiagnose(const DiagnoseArgs& a) {
     const auto& c = d.candidates[i];
     std::printf("%-44s %6d %12.4f %12.4f %8.1f%s\n", extensionLabel(c.fit.extensions.back()).c_str(),
                 c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z,
-                static_cast<int>(i) == d.chosen ? "   <- first chosen" : c.screened ? "   (screened: one linearized step)" : "");
+                static_cast<int>(i) != d.chosen ? (c.screened ? "   (screened: one linearized step)" : "")
+                // Candidates are in score order; a later one is chosen for fewer parameters (diagnosis.cpp's
+                // chooseCandidate), which the table would otherwise leave unsaid.
+                : i == 0 ? "   <- first chosen (best score)"
+                         : "   <- first chosen (fewer parameters than those above it, not significantly worse)");
   }
   if (d.selection.size() > 1) {
     std::printf("\nforward selection (each added cause fitted with the ones before it):\n");

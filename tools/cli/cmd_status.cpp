@@ -50,7 +50,7 @@ struct RobotView {
   bool drift_alarm = false;
   std::string health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
   std::uint64_t answers = 0, applied = 0;
-  std::uint64_t applied_beyond_data = 0;  // applied, the reason saying so (saysBeyondData)
+  std::uint64_t applied_beyond_data = 0;  // applied, flagged beyond_data
   double last_correction_mm = std::nan(""), last_correction_deg = std::nan(""), max_correction_mm = 0;
   std::string last_reason;
 };
@@ -114,12 +114,15 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
     for (const auto& [reason, n] : r.rejections) rejected += n;
     // What the engine said last, while it is seen; once it is gone, that it was so (no longer known).
     const std::string health = engine_writers > 0 || !r.has_state ? r.health : "? (was " + r.health + ")";
-    out << std::left << std::setw(12) << id << std::setw(8) << ("v" + std::to_string(r.version)) << std::setw(15)
+    out << std::left << std::setw(12) << id << std::setw(8) << (r.has_state ? "v" + std::to_string(r.version) : "-")
+        << std::setw(15)
         << health << std::setw(7) << r.poses_used << std::setw(12) << fmt(r.verification_mm, 4, " mm")
         << std::setw(12) << fmt(r.predicted_mm, 4, " mm") << std::setw(12) << fmt(r.residual_mm, 4, " mm")
         << std::setw(34)
-        << (fmt(r.last_correction_mm, 3, " mm") + " " + fmt(r.last_correction_deg, 3, " deg") + " (" +
-            fmt(r.max_correction_mm, 2, " mm)"))
+        // Corrections are not kept on the wire (CompensatedTarget is volatile): what this view saw since it started.
+        << (r.applied == 0 ? std::string("none seen yet")
+                           : fmt(r.last_correction_mm, 3, " mm") + " " + fmt(r.last_correction_deg, 3, " deg") + " (" +
+                                 fmt(r.max_correction_mm, 2, " mm)"))
         << std::setw(10) << rejected << "\n";
   }
   out << "\n";
@@ -156,8 +159,7 @@ int runStatus(const StatusArgs& a) {
   const CellConfig cell = loadCell(a.common);
   DdsNode node(cell, "cellcal_status", identity::kObserver);
   std::mutex mutex;
-  std::map<std::string, RobotView> robots;
-  for (const auto& r : cell.robots) robots[r.robot_id];
+  std::map<std::string, RobotView> robots;  // a row per robot something was received of (the cell file's others: a note)
   node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> l(mutex);
     RobotView& r = robots[m.robot_id().to_string()];
@@ -198,19 +200,32 @@ int runStatus(const StatusArgs& a) {
     r.last_reason = c.reason().to_string();
     if (c.applied()) {
       ++r.applied;
-      if (saysBeyondData(r.last_reason)) ++r.applied_beyond_data;
+      if (c.beyond_data()) ++r.applied_beyond_data;
       r.last_correction_mm = c.correction_position_m() * 1e3;
       r.last_correction_deg = c.correction_orientation_rad() * 180 / kPi;
       r.max_correction_mm = std::max(r.max_correction_mm, r.last_correction_mm);
     }
   });
   const auto start = std::chrono::steady_clock::now();
-  const RunLimit limit(a.duration_s);
   if (!a.watch) {
     sleepUntil(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(a.wait_s)));
   } else {
+    // The first frame once the engine's state of every robot of the cell file came (transient local: at discovery),
+    // or after --wait-s: not a frame of empty rows while discovery is under way.
+    const auto first = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                   std::chrono::duration<double>(a.wait_s));
+    auto allStated = [&] {
+      std::lock_guard<std::mutex> l(mutex);
+      for (const auto& rb : cell.robots)
+        if (!robots.count(rb.robot_id) || !robots.at(rb.robot_id).has_state) return false;
+      return true;
+    };
+    while (!allStated() && std::chrono::steady_clock::now() < first && !stopRequested())
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const auto frames_start = std::chrono::steady_clock::now();
+    const RunLimit limit(a.duration_s);  // --duration-s of frames
     for (int frame = 0;; ++frame) {
-      const auto next = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      const auto next = frames_start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                                     std::chrono::duration<double>(a.period_s * (frame + 1)));
       {
         std::lock_guard<std::mutex> l(mutex);
@@ -248,7 +263,8 @@ int runStatus(const StatusArgs& a) {
                            {"compensation_seen", compensation_writers > 0},
                            {"other_profiles", elsewhere},
                            {"robots", toJson(robots)}});
-  return 0;
+  // Exit 3, as `record` and `foxglove` when nothing comes: a script asking whether the cell runs gets "no".
+  return engine_writers > 0 ? 0 : 3;
 }
 
 }  // namespace

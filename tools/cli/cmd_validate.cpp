@@ -109,12 +109,17 @@ int runValidate(const ValidateArgs& a) {
   };
   std::map<std::string, Run> runs;
   for (const auto& r : cell.robots) runs[r.robot_id];
-  EngineHost host(cell, {/*persist=*/false, nullptr}, [&](EngineHost::Robot& r) {
+  auto reproduce = [&](EngineHost::Robot& r) {
     std::string error;
     auto c = fromCalibrationState(r.robot->model, toCalibrationState(*r.robot, r.engine->snapshot(), 0, 0), &error);
     if (!c) throw std::logic_error("validate: a calibration does not survive its own conversion: " + error);
     runs[r.robot->robot_id].reproduced.push_back(std::move(*c));
-  });
+  };
+  EngineHost host(cell, {/*persist=*/false, nullptr}, reproduce);
+  // Where each engine stands at its start, as the engine process publishes it before any reading: a calibration
+  // file's model is a version of its own (v1), which the recording holds and must be reproduced too.
+  for (auto& [id, r] : host.robots())
+    if (r.engine->snapshot().version > 0) reproduce(r);
   std::uint64_t unknown_keys = 0, undecodable = 0, state_errors = 0;
   std::string first_error;
   auto note = [&](std::uint64_t& counter, const std::string& what) {

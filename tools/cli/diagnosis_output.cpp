@@ -12,10 +12,16 @@ std::string regionCheckText(const DiagnosisResult& d) {
       "uncertainty explains there, its sigma in parentheses):\n";
   for (size_t i = 0; i < d.region_checks.size(); ++i) {
     const RegionCheck& c = d.region_checks[i];
+    // A gain below -100 % reads as the factor it is: "-91378.8 %" is 915x the mean squared error without the cause.
+    char gain[64];
+    if (c.gain_pct >= -100)
+      std::snprintf(gain, sizeof gain, "gain %+.1f %%", c.gain_pct);
+    else
+      std::snprintf(gain, sizeof gain, "worse: %.0fx the mean squared error", 1 - c.gain_pct / 100);
     char b[400];
-    std::snprintf(b, sizeof b, "  %-36s by %-9s mean %.4f -> %.4f mm (sigma %.4f -> %.4f), gain %+.1f %%, z %.1f: %s",
+    std::snprintf(b, sizeof b, "  %-36s by %-9s mean %.4f -> %.4f mm (sigma %.4f -> %.4f), %s, z %.1f: %s",
                   extensionLabel(c.cause).c_str(), c.split.c_str(), c.mean_without_mm, c.mean_with_mm,
-                  c.sigma_without_mm, c.sigma_with_mm, c.gain_pct, c.z,
+                  c.sigma_without_mm, c.sigma_with_mm, gain, c.z,
                   c.transfers ? "transfers" : "does not transfer, left out");
     out += b;
     if (!c.transfers && d.not_transferred.size() > 1) {

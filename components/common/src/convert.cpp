@@ -1,5 +1,7 @@
 #include "cellcal/components/convert.hpp"
 
+#include "cellcal/core/engine/compensation.hpp"
+
 #include <Eigen/Geometry>
 
 namespace cellcal::components {
@@ -183,6 +185,17 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
 }
 
 const char* healthText(msg::CalibrationHealth h) { return healthName(static_cast<Health>(static_cast<int>(h))); }
+
+const char* outcomeText(msg::CompensationOutcome o) {
+  if (static_cast<int>(o) < kNumCompensationOutcomes) return outcomeName(static_cast<CompensationOutcome>(static_cast<int>(o)));
+  switch (o) {
+    case msg::OUTCOME_BAD_INPUT: return "bad_input";
+    case msg::OUTCOME_PASS_THROUGH: return "pass_through";
+    case msg::OUTCOME_NO_CALIBRATION: return "no_calibration";
+    case msg::OUTCOME_NO_GOOD_CALIBRATION: return "no_good_calibration";
+    default: return "?";
+  }
+}
 
 Pose toPose(const std::array<double, 3>& p, const std::array<double, 4>& q) {
   Pose T = Pose::Identity();

@@ -21,6 +21,7 @@ const char* outcomeName(CompensationOutcome o) {
     case CompensationOutcome::kOverBound: return "over_bound";
     case CompensationOutcome::kClampUnreachable: return "clamp_unreachable";
     case CompensationOutcome::kJointJump: return "joint_jump";
+    case CompensationOutcome::kNeverJudged: return "never_judged";
   }
   return "?";
 }
@@ -167,7 +168,7 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     out.beyond_data = static_cast<bool>(firstBeyondData(nominal, model, ik.q_rad, at));
   if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
-    out.outcome = CompensationOutcome::kOutsideCalibration;
+    out.outcome = CompensationOutcome::kNeverJudged;
     out.reason = out.unjudged + ": the extensions' correction there was never tested, passed through uncorrected";
     return out;
   }

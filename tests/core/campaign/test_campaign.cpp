@@ -482,7 +482,10 @@ TEST(Campaign, AModelWithThreeCyclicTermsCarriedToOtherPosesPredictsItsError) {
 TEST(Campaign, ACalibratedRobotFileCompensatesWithinItsPredictedError) {
   std::mt19937_64 rng(test::testSeed());
   const std::vector<RobotModel> robots = test::robotsWithUr5();
-  const int want = std::getenv("CELLCAL_DIAGNOSIS_DRAWS") ? std::atoi(std::getenv("CELLCAL_DIAGNOSIS_DRAWS")) : 4;
+  // 12 draws: a draw's actual / predicted runs from 0.1 to 3.1 (560 draws over seeds 101-107), and the RMS of 4
+  // draws left [0.5, 2] in 2 of 60 random seeds (8438422067435700231: 0.47; 2032469186469443774: 2.38); of 12, in
+  // none of 200,000 resamples of those draws.
+  const int want = std::getenv("CELLCAL_DIAGNOSIS_DRAWS") ? std::atoi(std::getenv("CELLCAL_DIAGNOSIS_DRAWS")) : 12;
   double sq_applied = 0, sq_ratio = 0, sq_before = 0, sq_ext = 0, sq_pass = 0;
   int applied = 0, unjudged = 0, other = 0, draws = 0;
   double sq_library = 0;  // actual^2 / predicted^2 where every error is cyclic (the library's form)
@@ -541,8 +544,7 @@ TEST(Campaign, ACalibratedRobotFileCompensatesWithinItsPredictedError) {
         sigma_applied.push_back(c.predicted_sigma_position_m);
         ++applied;
         ++draw_n;
-      } else if (c.outcome == CompensationOutcome::kOutsideCalibration &&
-                 c.reason.find("never tested, passed through uncorrected") != std::string::npos) {
+      } else if (c.outcome == CompensationOutcome::kNeverJudged) {
         const CompensationResult e = compensate(controller, model, desired, q0, off);
         ASSERT_TRUE(e.applied) << e.reason;
         EXPECT_TRUE(c.corrected_in_tracker.isApprox(desired, 0)) << "passed through";

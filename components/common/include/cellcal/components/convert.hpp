@@ -70,6 +70,10 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
 // core's Health).
 const char* healthText(msg::CalibrationHealth h);
 
+// A compensation outcome's name: core's (outcomeName: "applied", "unreachable", "never_judged", ...), then the
+// publisher's own ("bad_input", "pass_through", "no_calibration", "no_good_calibration").
+const char* outcomeText(msg::CompensationOutcome o);
+
 Pose toPose(const std::array<double, 3>& p_m, const std::array<double, 4>& q_xyzw);
 void fromPose(const Pose& T, std::array<double, 3>& p_m, std::array<double, 4>& q_xyzw);
 

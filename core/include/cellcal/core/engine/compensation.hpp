@@ -25,7 +25,7 @@
 // prediction.hpp's BeyondRange), the predicted sigma adds what the extensions may do beyond their data's joint ranges;
 // a target whose joints lie farther beyond a range than the extensions were judged is one where their correction was
 // never tested: its predicted sigma is infinite and, with max_predicted_sigma_m set, it is passed through uncorrected
-// (outside_calibration) with the joint named. The same over the drivers of extensions no joint bounds
+// (never_judged) with the joint named. The same over the drivers of extensions no joint bounds
 // (IdentifiedModel::beyond_drivers, prediction.hpp's DriverRange: a link's gravity across it, evaluated at q*; a
 // thermal driver, which the publisher does not know at a target, is taken at 0, its campaign's reference).
 //
@@ -59,14 +59,16 @@ enum class CompensationOutcome {
   kUnusableModel,        // the identified parameters are the wrong size or not finite
   kUnreachable,          // the identified model's joints for the target were not found from the seed
   kNotSettled,           // with model extensions: the fixed point q = IK(params(q)) did not settle
-  kOutsideCalibration,   // predicted 1-sigma error above max_predicted_sigma_m (or not known: beyond_data)
+  kOutsideCalibration,   // predicted 1-sigma error above max_predicted_sigma_m
   kOverBound,            // correction above the bound, refused
   kClampUnreachable,     // correction above the bound, and the clamped pose unreachable
   kJointJump,            // a servo setpoint's joints corrected by more than max_joint_correction_rad (servo.hpp)
+  kNeverJudged,          // beyond what the extensions were judged on (CompensationResult::unjudged), passed through
 };
-constexpr int kNumCompensationOutcomes = 9;
+constexpr int kNumCompensationOutcomes = 10;
 // "applied", "clamped", "unusable_model", "unreachable", "not_settled", "outside_calibration", "over_bound",
-// "clamp_unreachable", "joint_jump".
+// "clamp_unreachable", "joint_jump", "never_judged". The wire's CompensationOutcome (idl/cellcal_msgs.idl) has these
+// in this order, then the compensation publisher's own.
 const char* outcomeName(CompensationOutcome o);
 
 struct CompensationResult {
@@ -85,7 +87,7 @@ struct CompensationResult {
   Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
   // Where the target's joint solution lies beyond what the model's extensions were judged on (beyond_data,
   // beyond_drivers), unjudgedText's sentence ("joint 2 at 131.0 deg lies 41.0 deg beyond ..."): passed through
-  // (outside_calibration), or with the guard off applied with an infinite predicted sigma. Empty where judged.
+  // (never_judged), or with the guard off applied with an infinite predicted sigma. Empty where judged.
   std::string unjudged;
   // It lies beyond the data the extensions were fitted on (a joint's range or a gap in it, a driver's range) but within
   // the distance they were judged there. The predicted sigma carries the error the region folds measured there; a
@@ -94,10 +96,9 @@ struct CompensationResult {
   bool beyond_data = false;
 };
 // What the compensation publisher says with a target applied where beyond_data is set (its CompensatedTarget's reason
-// starts with it; the publisher's stats count them as beyond_data_applied).
+// starts with it; the decision travels as CompensatedTarget::beyond_data, which the publisher's stats, `cellcal cell`
+// and `cellcal status` count).
 inline constexpr const char* kBeyondDataNote = "corrected beyond the extensions' data, within the distance they were judged";
-// Whether a CompensatedTarget's reason says so (what `cellcal cell` and `cellcal status` count).
-inline bool saysBeyondData(const std::string& reason) { return reason.rfind(kBeyondDataNote, 0) == 0; }
 
 // The model compensation applies: a calibrated model (calibrated_model.hpp) and, optionally, a residual map. With a
 // covariance, a target where the model's predicted position error (of the estimated kinematic parameters) exceeds
