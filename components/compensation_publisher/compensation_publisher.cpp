@@ -263,15 +263,10 @@ bool usablePose(const std::array<double, 3>& p, const std::array<double, 4>& q) 
 msg::CompensationOutcome toWire(CompensationOutcome o) {
   static_assert(static_cast<int>(CompensationOutcome::kNeverJudged) == msg::OUTCOME_NEVER_JUDGED &&
                     static_cast<int>(CompensationOutcome::kApplied) == msg::OUTCOME_APPLIED &&
-                    kNumCompensationOutcomes == msg::OUTCOME_BAD_INPUT,
+                    static_cast<int>(CompensationOutcome::kBadInput) == msg::OUTCOME_BAD_INPUT &&
+                    kNumCompensationOutcomes == msg::OUTCOME_PASS_THROUGH,
                 "idl/cellcal_msgs.idl's CompensationOutcome must start with core's CompensationOutcome, in its order");
   return static_cast<msg::CompensationOutcome>(static_cast<int>(o));
-}
-
-// An answer's reason: what the compensation said, then the operator's note, cut to the wire's bound (the decision
-// travels in the typed fields; the words may be cut).
-std::string withNote(const std::string& reason, const std::string& note, size_t max_chars) {
-  return (reason.empty() ? note : note.empty() ? reason : reason + "; " + note).substr(0, max_chars);
 }
 
 double threadCpuUs() {
@@ -329,17 +324,20 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   const auto stamp = static_cast<std::int64_t>(sp.cycle_stamp_ns());
   ServoAnswer a;
   msg::CompensationOutcome outcome;
+  std::string reason;
   if (sp.cartesian() && !usablePose(sp.position_m(), sp.orientation_xyzw())) {
     a.q_rad = q;
-    a.reason = "setpoint rejected: non-finite position or non-unit quaternion";
+    reason = "setpoint rejected: non-finite position or non-unit quaternion";
     outcome = msg::OUTCOME_BAD_INPUT;
   } else {
     a = sp.cartesian() ? r.servo->answerPose(stamp, toPose(sp.position_m(), sp.orientation_xyzw()), q)
                        : r.servo->answerJoints(stamp, q);
-    if (options_.pass_through) a.reason = kPassThroughReason;  // (no version is ever installed: a is the setpoint)
-    outcome = options_.pass_through ? msg::OUTCOME_PASS_THROUGH
-              : a.version == 0      ? msg::OUTCOME_NO_CALIBRATION
-                                    : toWire(a.outcome);
+    // (With --pass-through no version is ever installed: a is the setpoint.)
+    reason = options_.pass_through ? std::string(kPassThroughReason) : describe(a);
+    outcome = options_.pass_through                            ? msg::OUTCOME_PASS_THROUGH
+              : a.outcome == CompensationOutcome::kBadInput ? toWire(a.outcome)
+              : a.version == 0                              ? msg::OUTCOME_NO_CALIBRATION
+                                                            : toWire(a.outcome);
   }
   msg::ServoCorrection& out = servo_out_;
   out.robot_id(sp.robot_id());
@@ -357,7 +355,8 @@ void CompensationPublisher::onServoSetpoint(const msg::ServoSetpoint& sp) {
   out.calibration_version(a.version);
   out.blend_from_version(a.from_version);
   out.blend_weight(a.weight);
-  out.reason(withNote(a.reason, r.note, 127));
+  out.reason(std::move(reason));
+  out.note(r.note);
   out.outcome(a.applied ? toWire(a.outcome) : outcome);
   out.beyond_data(a.applied && a.beyond_data);
   out.source_stamp_ns(static_cast<std::uint64_t>(wallNs()));
@@ -386,6 +385,7 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
   out.applied(false);
   out.clamped(false);
   out.reason("");
+  out.note(r.note);
   out.beyond_data(false);
   out.older_calibration(false);
   noticeEngine(r);
@@ -420,7 +420,8 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
     out.beyond_data(beyond_data);
     out.older_calibration(c.applied && r.calibration->version != r.last_ok->version);
     if (beyond_data) ++beyond_data_applied_;
-    out.reason(withNote(beyond_data ? withNote(kBeyondDataNote, c.reason, 255) : c.reason, r.note, 255));
+    const std::string why = describe(c);
+    out.reason(beyond_data ? std::string(kBeyondDataNote) + (why.empty() ? "" : "; " + why) : why);
     out.correction_position_m(c.correction_position_m);
     out.correction_orientation_rad(c.correction_orientation_rad);
     if (c.applied) {

@@ -539,12 +539,12 @@ TEST(CellProcesses, APassThroughPublisherAnswersUnchangedBesideOneThatCorrects) 
   KinematicsData d(m);
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 0.6);
-  auto passed = [](const auto& reason) { return reason.to_string().find("pass-through") != std::string::npos; };
+  auto passed = [](const auto& outcome) { return outcome == msg::OUTCOME_PASS_THROUGH; };
   auto counts = [&] {
     std::lock_guard<std::mutex> l(probe.mutex), l2(mutex);
     int p = 0, c = 0, sp = 0;
-    for (const auto& t : probe.compensated) (passed(t.reason()) ? p : c) += 1;
-    for (const auto& a : servo) sp += passed(a.reason());
+    for (const auto& t : probe.compensated) (passed(t.outcome()) ? p : c) += 1;
+    for (const auto& a : servo) sp += passed(a.outcome());
     return std::array<int, 3>{p, c, sp};
   };
   std::map<std::uint64_t, Eigen::VectorXd> sent_q;
@@ -572,7 +572,7 @@ TEST(CellProcesses, APassThroughPublisherAnswersUnchangedBesideOneThatCorrects) 
   std::lock_guard<std::mutex> l(probe.mutex), l2(mutex);
   int corrected = 0;
   for (const auto& t : probe.compensated) {
-    if (!passed(t.reason())) {
+    if (!passed(t.outcome())) {
       corrected += t.applied() && t.correction_position_m() > 1e-5;
       continue;
     }
@@ -584,7 +584,7 @@ TEST(CellProcesses, APassThroughPublisherAnswersUnchangedBesideOneThatCorrects) 
   }
   int servo_applied = 0;
   for (const auto& a : servo) {
-    if (!passed(a.reason())) {
+    if (!passed(a.outcome())) {
       servo_applied += a.applied();
       continue;
     }
@@ -744,15 +744,15 @@ TEST(CellProcesses, ADeadTrackerAdapterIsReportedAndCompensationKeepsTheLastGood
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
     std::lock_guard<std::mutex> l(probe.mutex);
     for (const auto& c : probe.compensated)
-      if (c.target_sequence() > 1000 && c.reason().to_string().find("engine input stale") != std::string::npos) return true;
+      if (c.target_sequence() > 1000 && c.note().find("engine input stale") != std::string::npos) return true;
     return false;
   }, 10)) << comp.log();
   std::lock_guard<std::mutex> l(probe.mutex);
   for (const auto& c : probe.compensated) {
-    if (c.target_sequence() <= 1000 || c.reason().to_string().find("engine input stale") == std::string::npos) continue;
+    if (c.target_sequence() <= 1000 || c.note().find("engine input stale") == std::string::npos) continue;
     EXPECT_TRUE(c.applied()) << c.reason();
     EXPECT_EQ(c.calibration_version(), last);
-    EXPECT_NE(c.reason().to_string().find("tracker_pose"), std::string::npos) << c.reason();
+    EXPECT_NE(c.note().find("tracker_pose"), std::string::npos) << c.note();
   }
 }
 

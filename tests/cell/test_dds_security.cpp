@@ -48,7 +48,7 @@ struct SecureCommandPath {
     targets = std::make_unique<Writer<msg::TargetPose>>(app.writer<msg::TargetPose>());
     observer.reader<msg::CompensatedTarget>([this](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
       std::lock_guard<std::mutex> l(mutex);
-      ++answers[m.reason().to_string()];
+      ++answers[m.reason()];
     });
   }
   void askOnce() {
@@ -70,7 +70,7 @@ struct SecureCommandPath {
     const Recording r = readRecording(dir + "/commands.mcap");
     for (const auto& m : r.in_log_order) {
       msg::CompensatedTarget s;
-      if (decodeCdr(m.message->data, &s, nullptr)) ++out[s.reason().to_string()];
+      if (decodeCdr(m.message->data, &s, nullptr)) ++out[s.reason()];
     }
     return out;
   }
@@ -159,11 +159,11 @@ TEST(DdsSecurity, AParticipantWithoutAValidCertificateCannotJoin) {
   auto plain_writer = plain.writer<msg::CompensatedTarget>();
   plain.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> l(heard_mutex);
-    ++plain_heard[m.reason().to_string()];
+    ++plain_heard[m.reason()];
   });
   rogue_listener.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
     std::lock_guard<std::mutex> l(heard_mutex);
-    ++rogue_heard[m.reason().to_string()];
+    ++rogue_heard[m.reason()];
   });
   msg::CompensatedTarget from_rogue = forged(path.cell, "rogue_ca"), from_plain = forged(path.cell, "plain");
   const int before = path.count(kLegit);

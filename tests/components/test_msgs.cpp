@@ -83,6 +83,12 @@ TEST(Msgs, TargetCompensationAndDiagnosticsRoundTrip) {
   c.applied(false);
   c.reason("no calibration loaded");
   EXPECT_EQ(c, (roundTrip<cellcal::msg::CompensatedTargetPubSubType>(c)));
+  // The words travel whole, however long (a reason naming an unjudged range runs past 256 characters), the operator's
+  // note in its own field.
+  c.reason(std::string(1000, 'r'));
+  c.note(std::string(600, 'n'));
+  c.outcome(cellcal::msg::OUTCOME_NEVER_JUDGED);
+  EXPECT_EQ(c, (roundTrip<cellcal::msg::CompensatedTargetPubSubType>(c)));
   cellcal::msg::CalibrationDiagnostics d;
   d.robot_id("r");
   d.rejection_reasons().push_back("robot_moving");

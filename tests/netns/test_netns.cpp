@@ -243,10 +243,10 @@ TEST_F(NetnsCell, TheCellServersEngineRestartsFromItsState) {
     std::lock_guard<std::mutex> l(probe.mutex);
     for (size_t k = before; k < probe.compensated.size(); ++k) {
       const auto& c = probe.compensated[k];
-      EXPECT_TRUE(c.applied()) << c.reason().to_string();
+      EXPECT_TRUE(c.applied()) << c.reason();
       EXPECT_GE(c.calibration_version(), 1u);
-      EXPECT_NE(c.reason().to_string().find("engine not seen (no CalibrationState writer): applying v"), std::string::npos)
-          << c.reason().to_string();
+      EXPECT_NE(c.note().find("engine not seen (no CalibrationState writer): applying v"), std::string::npos)
+          << c.note();
     }
   }
   engine = std::make_unique<ChildProcess>(ipCommand(), on("cell-server", {"cellcal_calibration_engine", "--quiet"}),

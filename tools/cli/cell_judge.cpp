@@ -246,7 +246,7 @@ class CellJudge::Impl {
       ++j->refused;
       auto& why = j->refused_why[outcomeText(m.outcome())];
       ++why.first;
-      why.second = m.reason().to_string();
+      why.second = m.reason();
       return;
     }
     ++j->applied;

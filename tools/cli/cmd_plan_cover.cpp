@@ -124,7 +124,7 @@ int runPlanCover(const PlanCoverArgs& a) {
     for (size_t i = 0; i < qs.size(); ++i) {
       const CompensationResult& r = pc.results[i];
       if (r.unjudged.empty() || r.applied != applied) continue;
-      say(i, applied ? "corrected with its error not known: " + r.unjudged : r.reason, true);
+      say(i, applied ? "corrected with its error not known: " + describe(r.unjudged) : describe(r), true);
     }
   }
   // Corrected beyond the extensions' data, within the judged distance: said, and measured with --beyond-data.
@@ -132,17 +132,17 @@ int runPlanCover(const PlanCoverArgs& a) {
               "were judged): %d%s\n", pc.beyond_data, pc.beyond_data && !a.beyond_data ? " (--beyond-data: measure them too)" : "");
   for (size_t i = 0; i < qs.size(); ++i) {
     const CompensationResult& r = pc.results[i];
-    if (pc.beyond_data_text[i].empty()) continue;
+    if (pc.beyond_data_at[i].empty()) continue;
     char sigma_text[48] = "";
     if (std::isfinite(r.predicted_sigma_position_m))
       std::snprintf(sigma_text, sizeof sigma_text, " (predicted %.3g mm)", r.predicted_sigma_position_m * 1e3);
-    say(i, pc.beyond_data_text[i] + sigma_text, a.beyond_data);
+    say(i, describe(pc.beyond_data_at[i]) + sigma_text, a.beyond_data);
   }
   std::sort(to_measure.begin(), to_measure.end());  // in the program's order
   std::printf("  passed through or refused otherwise: %d\n", pc.refused);
   for (size_t i = 0; i < qs.size(); ++i)
     if (!pc.results[i].applied && pc.results[i].unjudged.empty())
-      std::printf("    %s: %s: %s\n", label(i).c_str(), outcomeName(pc.results[i].outcome), pc.results[i].reason.c_str());
+      std::printf("    %s: %s: %s\n", label(i).c_str(), outcomeName(pc.results[i].outcome), describe(pc.results[i]).c_str());
   // Each target, then the configurations around it (a single row is too little for the fit to follow the error
   // there: docs/planning.md).
   std::mt19937_64 rng(a.seed);

@@ -197,7 +197,8 @@ int runStatus(const StatusArgs& a) {
     std::lock_guard<std::mutex> l(mutex);
     RobotView& r = robots[c.robot_id().to_string()];
     ++r.answers;
-    r.last_reason = c.reason().to_string();
+    r.last_reason = c.reason();
+    if (!c.note().empty()) r.last_reason += (r.last_reason.empty() ? "" : "; ") + c.note();
     if (c.applied()) {
       ++r.applied;
       if (c.beyond_data()) ++r.applied_beyond_data;

@@ -22,19 +22,31 @@ const char* outcomeName(CompensationOutcome o) {
     case CompensationOutcome::kClampUnreachable: return "clamp_unreachable";
     case CompensationOutcome::kJointJump: return "joint_jump";
     case CompensationOutcome::kNeverJudged: return "never_judged";
+    case CompensationOutcome::kBadInput: return "bad_input";
   }
   return "?";
 }
 
 namespace {
 // The first range q lies beyond the data of (a joint's, else a driver's, with the driver's value in *x): what
-// CompensationResult::beyond_data flags and ProgramCompensation::beyond_data_text says.
+// CompensationResult::beyond_data flags and ProgramCompensation::beyond_data_at holds.
 struct BeyondAt {
   const BeyondRange* joint = nullptr;
   const DriverRange* driver = nullptr;
   double x = 0;
   explicit operator bool() const { return joint || driver; }
 };
+RangeAt rangeAt(const BeyondRange* joint, const DriverRange* driver, const Eigen::VectorXd& q, double x) {
+  RangeAt r;
+  if (joint) {
+    r.joint = *joint;
+    r.at = q[joint->joint];
+  } else if (driver) {
+    r.driver = *driver;
+    r.at = x;
+  }
+  return r;
+}
 BeyondAt firstBeyondData(const RobotModel& nominal, const IdentifiedModel& model, const Eigen::VectorXd& q,
                          const Drivers& drivers) {
   BeyondAt at;
@@ -95,7 +107,6 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       model.extension_params.size() != numExtensionParams(nominal, model.extensions) ||
       !model.extension_params.allFinite()) {
     out.outcome = CompensationOutcome::kUnusableModel;
-    out.reason = "identified parameters unusable (size or NaN)";
     return out;
   }
   Eigen::VectorXd seed = q_seed;
@@ -143,15 +154,16 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     }
     if (ik.ok() && moved > 1e-8) {
       out.outcome = CompensationOutcome::kNotSettled;
-      out.reason = model.extensions.empty() ? "the joint solution with the residual map did not settle"
-                                            : "the extended model's joint solution did not settle";
+      out.settle_move_rad = moved;
+      out.settled_extensions = !model.extensions.empty();
       return out;
     }
     if (mapped && ik.ok()) out.residual_map_correction_m = mapCorrection(ik.q_rad, &out.residual_map_applied);
   }
   if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
     out.outcome = CompensationOutcome::kUnreachable;
-    out.reason = "the identified model cannot reach the target: " + ik.message;
+    out.ik_position_error_m = ik.position_error_m;
+    out.ik_orientation_error_rad = ik.orientation_error_rad;
     return out;
   }
   KinematicsData data(nominal);
@@ -163,13 +175,12 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       model.extensions.empty() ? nullptr
                                : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
   if (unjudged || unjudged_driver)
-    out.unjudged = unjudged ? unjudgedText(*unjudged, ik.q_rad[unjudged->joint]) : unjudgedText(*unjudged_driver, driver_x);
+    out.unjudged = rangeAt(unjudged, unjudged_driver, ik.q_rad, driver_x);
   else  // judged: within the data, or beyond it within the judged distance
     out.beyond_data = static_cast<bool>(firstBeyondData(nominal, model, ik.q_rad, at));
   if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
     out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
     out.outcome = CompensationOutcome::kNeverJudged;
-    out.reason = out.unjudged + ": the extensions' correction there was never tested, passed through uncorrected";
     return out;
   }
   if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
@@ -193,12 +204,8 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
       out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);
     }
     if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
-      std::ostringstream m;
-      m << "predicted error " << out.predicted_sigma_position_m * 1e3 << " mm (1 sigma) at this target above "
-        << "compensation.max_predicted_sigma_mm " << s.max_predicted_sigma_m * 1e3
-        << ": outside the region the model was calibrated in, passed through uncorrected";
       out.outcome = CompensationOutcome::kOutsideCalibration;
-      out.reason = m.str();
+      out.bound_sigma_m = s.max_predicted_sigma_m;
       return out;
     }
   }
@@ -217,12 +224,10 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
     out.q_rad = ik.q_rad;
     return out;
   }
-  std::ostringstream m;
-  m << "correction " << out.correction_position_m * 1e3 << " mm / " << out.correction_orientation_rad * 180 / kPi
-    << " deg exceeds the bound " << s.max_correction_m * 1e3 << " mm / " << s.max_correction_rad * 180 / kPi << " deg";
+  out.bound_correction_m = s.max_correction_m;
+  out.bound_correction_rad = s.max_correction_rad;
   if (s.on_exceed == ExceedAction::kRefuse) {
     out.outcome = CompensationOutcome::kOverBound;
-    out.reason = m.str() + ": refused";
     return out;
   }
   // Clamp: the same correction direction, scaled to the bound.
@@ -233,13 +238,13 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   const IkResult back = solveInverseKinematics(nominal, nominal.nominal, clamped, ik.q_rad, ik_options);
   if (!back.ok()) {
     out.outcome = CompensationOutcome::kClampUnreachable;
-    out.reason = m.str() + "; clamped pose unreachable: " + back.message;
+    out.ik_position_error_m = back.position_error_m;
+    out.ik_orientation_error_rad = back.orientation_error_rad;
     return out;
   }
   out.applied = true;
   out.clamped = true;
   out.outcome = CompensationOutcome::kClamped;
-  out.reason = m.str() + ": clamped to the bound";
   out.corrected_in_tracker = clamped;
   out.q_rad = back.q_rad;
   return out;
@@ -252,20 +257,59 @@ ProgramCompensation compensateProgram(const RobotModel& nominal, const Identifie
   for (const Eigen::VectorXd& q : program) {
     out.results.push_back(compensate(nominal, identified, forwardKinematics(nominal, data, nominal.nominal, q), q, settings));
     const CompensationResult& r = out.results.back();
-    std::string text;
+    RangeAt where;
     if (r.applied && r.beyond_data) {
       // The drivers as compensate took them: seeded at q (within the limits: a program's configuration), no path.
       const BeyondAt at = firstBeyondData(nominal, identified, r.q_rad,
                                           identified.beyond_drivers.empty() ? Drivers{} : moveDrivers({q}, r.q_rad));
-      text = at.joint ? unjudgedText(*at.joint, r.q_rad[at.joint->joint]) : unjudgedText(*at.driver, at.x);
+      where = rangeAt(at.joint, at.driver, r.q_rad, at.x);
       ++out.beyond_data;
     }
-    out.beyond_data_text.push_back(std::move(text));
+    out.beyond_data_at.push_back(std::move(where));
     if (r.applied) ++out.applied;
     else if (!r.unjudged.empty()) ++out.unjudged;
     else ++out.refused;
   }
   return out;
+}
+
+std::string describe(const RangeAt& r) {
+  return r.joint ? unjudgedText(*r.joint, r.at) : r.driver ? unjudgedText(*r.driver, r.at) : std::string();
+}
+
+std::string describe(const CompensationResult& r) {
+  std::ostringstream m;
+  auto ik = [&] {
+    m << "target out of reach within the joint limits: closest pose found is " << r.ik_position_error_m * 1e3
+      << " mm and " << r.ik_orientation_error_rad * 180 / kPi << " deg away";
+  };
+  auto over = [&] {
+    m << "correction " << r.correction_position_m * 1e3 << " mm / " << r.correction_orientation_rad * 180 / kPi
+      << " deg exceeds the bound " << r.bound_correction_m * 1e3 << " mm / " << r.bound_correction_rad * 180 / kPi << " deg";
+  };
+  switch (r.outcome) {
+    case CompensationOutcome::kApplied: break;
+    case CompensationOutcome::kClamped: over(); m << ": clamped to the bound"; break;
+    case CompensationOutcome::kUnusableModel: m << "identified parameters unusable (size or NaN)"; break;
+    case CompensationOutcome::kUnreachable: m << "the identified model cannot reach the target: "; ik(); break;
+    case CompensationOutcome::kNotSettled:
+      m << (r.settled_extensions ? "the extended model's joint solution did not settle"
+                                 : "the joint solution with the residual map did not settle");
+      break;
+    case CompensationOutcome::kOutsideCalibration:
+      m << "predicted error " << r.predicted_sigma_position_m * 1e3 << " mm (1 sigma) at this target above "
+        << "compensation.max_predicted_sigma_mm " << r.bound_sigma_m * 1e3
+        << ": outside the region the model was calibrated in, passed through uncorrected";
+      break;
+    case CompensationOutcome::kOverBound: over(); m << ": refused"; break;
+    case CompensationOutcome::kClampUnreachable: over(); m << "; clamped pose unreachable: "; ik(); break;
+    case CompensationOutcome::kJointJump: m << "the joint solution moves a joint beyond the bound"; break;
+    case CompensationOutcome::kNeverJudged:
+      m << describe(r.unjudged) << ": the extensions' correction there was never tested, passed through uncorrected";
+      break;
+    case CompensationOutcome::kBadInput: m << "not finite, or the wrong number of joints"; break;
+  }
+  return m.str();
 }
 
 }  // namespace cellcal

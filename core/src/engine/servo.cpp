@@ -35,8 +35,9 @@ ServoAnswer ServoCompensator::answerJoints(std::int64_t cycle_stamp_ns, const Ei
   if (q_setpoint_rad.size() != nominal_->numJoints() || !q_setpoint_rad.allFinite()) {
     ServoAnswer a;
     a.q_rad = q_setpoint_rad;
-    a.reason = "setpoint rejected: " + std::to_string(q_setpoint_rad.size()) + " joint values (the robot has " +
-               std::to_string(nominal_->numJoints()) + ") or not finite";
+    a.outcome = CompensationOutcome::kBadInput;
+    a.setpoint_joints = static_cast<long>(q_setpoint_rad.size());
+    a.robot_joints = nominal_->numJoints();
     return a;
   }
   return answer(cycle_stamp_ns, forwardKinematics(*nominal_, data_, nominal_->nominal, q_setpoint_rad), q_setpoint_rad,
@@ -53,10 +54,7 @@ ServoAnswer ServoCompensator::answer(std::int64_t t_ns, const Pose& desired, con
   ServoAnswer out;
   out.q_rad = pass_q;
   out.commanded = desired;
-  if (!current_) {
-    out.reason = "no calibration received yet";
-    return out;
-  }
+  if (!current_) return out;  // version 0: no calibration yet
   double w = 1.0;
   if (previous_) {
     if (!blend_start_ns_) blend_start_ns_ = t_ns;
@@ -83,8 +81,8 @@ ServoAnswer ServoCompensator::answer(std::int64_t t_ns, const Pose& desired, con
   for (const CompensationResult* r : results) {
     if (!r || r->applied) continue;
     out.outcome = r->outcome;
-    out.reason = "v" + std::to_string(r == &now ? out.version : out.from_version) + ": " + r->reason +
-                 ": setpoint passed through";
+    out.decided_by = r == &now ? out.version : out.from_version;
+    out.result = *r;
     return out;
   }
   // The same branch as the setpoint: a correction of joints, not a turn of the wrist in a singularity's null space.
@@ -94,10 +92,9 @@ ServoAnswer ServoCompensator::answer(std::int64_t t_ns, const Pose& desired, con
       const double moved = (r->q_rad - seed).cwiseAbs().maxCoeff();
       if (moved <= settings_.max_joint_correction_rad) continue;
       out.outcome = CompensationOutcome::kJointJump;
-      out.reason = "v" + std::to_string(r == &now ? out.version : out.from_version) + " moves a joint by " +
-                   std::to_string(moved * 180 / kPi) + " deg (compensation.max_joint_correction_deg " +
-                   std::to_string(settings_.max_joint_correction_rad * 180 / kPi) +
-                   "): another branch near a singularity: setpoint passed through";
+      out.decided_by = r == &now ? out.version : out.from_version;
+      out.joint_move_rad = moved;
+      out.joint_move_bound_rad = settings_.max_joint_correction_rad;
       return out;
     }
   }
@@ -106,9 +103,25 @@ ServoAnswer ServoCompensator::answer(std::int64_t t_ns, const Pose& desired, con
   out.beyond_data = now.beyond_data || (before && before->beyond_data);
   out.q_rad = before ? Eigen::VectorXd(before->q_rad + out.weight * (now.q_rad - before->q_rad)) : now.q_rad;
   out.commanded = before ? forwardKinematics(*nominal_, data_, nominal_->nominal, out.q_rad) : now.corrected_in_tracker;
-  if (now.clamped || (before && before->clamped)) out.reason = now.clamped ? now.reason : before->reason;
+  if (now.clamped || (before && before->clamped)) {
+    out.decided_by = now.clamped ? out.version : out.from_version;
+    out.result = now.clamped ? now : *before;
+  }
   last_q_ = out.q_rad;
   return out;
+}
+
+std::string describe(const ServoAnswer& a) {
+  if (a.outcome == CompensationOutcome::kBadInput)
+    return "setpoint rejected: " + std::to_string(a.setpoint_joints) + " joint values (the robot has " +
+           std::to_string(a.robot_joints) + ") or not finite";
+  if (a.version == 0) return "no calibration received yet";
+  if (a.outcome == CompensationOutcome::kJointJump)
+    return "v" + std::to_string(a.decided_by) + " moves a joint by " + std::to_string(a.joint_move_rad * 180 / kPi) +
+           " deg (compensation.max_joint_correction_deg " + std::to_string(a.joint_move_bound_rad * 180 / kPi) +
+           "): another branch near a singularity: setpoint passed through";
+  if (!a.applied) return "v" + std::to_string(a.decided_by) + ": " + describe(a.result) + ": setpoint passed through";
+  return a.result.clamped ? describe(a.result) : std::string();
 }
 
 }  // namespace cellcal

@@ -546,7 +546,7 @@ TEST(Campaign, ACalibratedRobotFileCompensatesWithinItsPredictedError) {
         ++draw_n;
       } else if (c.outcome == CompensationOutcome::kNeverJudged) {
         const CompensationResult e = compensate(controller, model, desired, q0, off);
-        ASSERT_TRUE(e.applied) << e.reason;
+        ASSERT_TRUE(e.applied) << describe(e);
         EXPECT_TRUE(c.corrected_in_tracker.isApprox(desired, 0)) << "passed through";
         sq_ext += (landing(e.q_rad) - desired.translation()).squaredNorm();
         sq_pass += uncorrected2;
@@ -554,7 +554,7 @@ TEST(Campaign, ACalibratedRobotFileCompensatesWithinItsPredictedError) {
         ++draw_unjudged;
       } else {
         ++other;
-        std::printf("    %s: %s\n", outcomeName(c.outcome), c.reason.c_str());
+        std::printf("    %s: %s\n", outcomeName(c.outcome), describe(c).c_str());
       }
     }
     if (draw_n) draw_ratio.push_back(std::sqrt(draw_sq / draw_n));
@@ -704,7 +704,7 @@ TEST(Campaign, MeasuringWhereCompensationPassedThroughBringsThoseTargetsIn) {
         }
         if (!c.applied) {
           ++now_refused[w];
-          std::printf("    %s: %s\n", outcomeName(c.outcome), c.reason.c_str());
+          std::printf("    %s: %s\n", outcomeName(c.outcome), describe(c).c_str());
           continue;
         }
         // The target as the controller commands it (the new campaign's frames), where the true robot lands.

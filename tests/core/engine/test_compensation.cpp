@@ -44,7 +44,9 @@ TEST(Compensation, TheTrueRobotLandsOnTheTargetWithTheCorrectedCommand) {
     if (!c.applied) {
       // Near the stretched elbow the true arm can be shorter than the nominal: such targets are out of its reach,
       // and compensation must say so rather than command something else.
-      EXPECT_NE(c.reason.find("cannot reach the target"), std::string::npos) << c.reason;
+      EXPECT_EQ(c.outcome, CompensationOutcome::kUnreachable) << describe(c);
+      EXPECT_GT(c.ik_position_error_m + c.ik_orientation_error_rad, 0.0) << describe(c);
+      EXPECT_NE(describe(c).find("cannot reach the target"), std::string::npos) << describe(c);
       ++refused;
       continue;
     }
@@ -252,11 +254,13 @@ TEST(Compensation, CorrectionsBeyondTheBoundAreRefusedOrClamped) {
   CompensationSettings s = config.compensation;
   const CompensationResult refused = compensate(m, wrong, desired, q, s);
   EXPECT_FALSE(refused.applied);
-  EXPECT_NE(refused.reason.find("exceeds the bound 5 mm"), std::string::npos) << refused.reason;
+  EXPECT_EQ(refused.outcome, CompensationOutcome::kOverBound);
+  EXPECT_EQ(refused.bound_correction_m, s.max_correction_m);
+  EXPECT_NE(describe(refused).find("exceeds the bound 5 mm"), std::string::npos) << describe(refused);
   EXPECT_TRUE(refused.corrected_in_tracker.isApprox(desired));
   s.on_exceed = ExceedAction::kClamp;
   const CompensationResult clamped = compensate(m, wrong, desired, q, s);
-  ASSERT_TRUE(clamped.applied) << clamped.reason;
+  ASSERT_TRUE(clamped.applied) << describe(clamped);
   EXPECT_TRUE(clamped.clamped);
   const Eigen::Matrix<double, 6, 1> c = poseError(clamped.corrected_in_tracker, desired);
   EXPECT_LE(c.head<3>().norm(), s.max_correction_m * (1 + 1e-9));
@@ -291,7 +295,8 @@ void expectPassedThrough(const RobotModel& m, const IdentifiedModel& model, cons
   const CompensationResult g = compensate(m, model, desired, q, guarded);
   EXPECT_FALSE(g.applied) << what;
   EXPECT_EQ(g.outcome, CompensationOutcome::kNeverJudged) << what;
-  EXPECT_NE(g.reason.find(named), std::string::npos) << g.reason;
+  EXPECT_FALSE(g.unjudged.empty()) << what;
+  EXPECT_NE(describe(g).find(named), std::string::npos) << describe(g);
   EXPECT_TRUE(g.corrected_in_tracker.isApprox(desired, 0)) << what;
   EXPECT_TRUE(compensate(m, plain, desired, q, guarded).applied) << what;
 }
@@ -357,13 +362,13 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
     servo.setCalibration(1, model);
     for (size_t k = 0; k < targets.size(); ++k) {
       const Eigen::VectorXd& q = targets[k];
-      const std::string& said = program.beyond_data_text[k];
+      const std::string said = describe(program.beyond_data_at[k]);
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
       servo_beyond += servoBeyondData(servo, k, q, with, what);
       if (!without.applied) continue;
-      ASSERT_TRUE(with.applied) << with.reason;
+      ASSERT_TRUE(with.applied) << describe(with);
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
       const double qj = with.q_rad[joint], dist = b.beyondRad(qj);
       if (dist == 0) {
@@ -374,7 +379,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownWhereItsExtensionsWereNev
       } else if (dist <= b.checked_rad) {
         EXPECT_TRUE(with.beyond_data) << what;
         EXPECT_EQ(said.rfind("joint " + std::to_string(joint + 1) + " at", 0), 0u) << said;
-        EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
+        EXPECT_TRUE(with.unjudged.empty()) << describe(with.unjudged);
         // Plain reference: dp/dq_joint by a central difference at the identified kinematics.
         const double h = 1e-6;
         Eigen::VectorXd qp = with.q_rad, qm = with.q_rad;
@@ -468,13 +473,13 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
     servo.setCalibration(1, model);
     for (size_t k = 0; k < targets.size(); ++k) {
       const Eigen::VectorXd& q = targets[k];
-      const std::string& said = program.beyond_data_text[k];
+      const std::string said = describe(program.beyond_data_at[k]);
       const Pose desired = forwardKinematics(m, d, m.nominal, q);
       const CompensationResult without = compensate(m, plain, desired, q, off);
       const CompensationResult with = compensate(m, model, desired, q, off);
       servo_beyond += servoBeyondData(servo, k, q, with, what);
       if (!without.applied) continue;
-      ASSERT_TRUE(with.applied) << with.reason;
+      ASSERT_TRUE(with.applied) << describe(with);
       ASSERT_TRUE((with.q_rad - without.q_rad).isZero(0)) << what;  // the same solution: only its sigma differs
       const double v = across(with.q_rad);
       EXPECT_NEAR(r.value(m, truth, with.q_rad, Drivers{}), v, 1e-12) << what;
@@ -492,7 +497,7 @@ TEST(Compensation, AnExtendedModelsCorrectionIsNotKnownBeyondTheLoadItsDeflectio
         // Corrected beyond the data, within the judged distance: said (plan cover --beyond-data measures there).
         EXPECT_TRUE(with.beyond_data) << what;
         EXPECT_EQ(said.rfind("gravity across link " + std::to_string(link + 1) + " at", 0), 0u) << said;
-        EXPECT_TRUE(with.unjudged.empty()) << with.unjudged;
+        EXPECT_TRUE(with.unjudged.empty()) << describe(with.unjudged);
         ++near;
       } else {
         expectPassedThrough(m, model, plain, desired, q, off, with, "gravity across link " + std::to_string(link + 1) + " at",
@@ -625,10 +630,12 @@ TEST(Compensation, TargetsOutsideTheCalibratedRegionPassThroughUncorrected) {
   int refused = 0;
   for (const auto& [q, predicted] : solved) {
     const CompensationResult c = compensate(m, model, forwardKinematics(m, d, snap.params, q), q, on);
-    EXPECT_EQ(c.applied, predicted <= on.max_predicted_sigma_m) << predicted << " " << c.reason;
+    EXPECT_EQ(c.applied, predicted <= on.max_predicted_sigma_m) << predicted << " " << describe(c);
     if (!c.applied) {
       ++refused;
-      EXPECT_NE(c.reason.find("outside the region the model was calibrated in"), std::string::npos) << c.reason;
+      EXPECT_EQ(c.outcome, CompensationOutcome::kOutsideCalibration) << describe(c);
+      EXPECT_EQ(c.bound_sigma_m, on.max_predicted_sigma_m);
+      EXPECT_NE(describe(c).find("outside the region the model was calibrated in"), std::string::npos) << describe(c);
       EXPECT_EQ(c.corrected_in_tracker.matrix(), forwardKinematics(m, d, snap.params, q).matrix());
     }
   }

@@ -122,7 +122,7 @@ TEST_F(ServoFixture, ANewVersionIsBlendedInWithoutAStep) {
                    (r.q_rad - qs[k]).cwiseAbs().maxCoeff() <= config.compensation.max_joint_correction_rad;
     if (!a.applied || !answerable) {
       if (!a.applied) {
-        EXPECT_EQ(a.q_rad, qs[k]) << a.reason;
+        EXPECT_EQ(a.q_rad, qs[k]) << describe(a);
       }
       last_blended.resize(0);
       continue;
@@ -181,7 +181,8 @@ TEST_F(ServoFixture, CartesianSetpointsAndTheirRefusals) {
   const Pose target = forwardKinematics(m, m.nominal, qs[0]);
   const ServoAnswer none = servo.answerPose(1, target, qs[0]);
   EXPECT_FALSE(none.applied);
-  EXPECT_EQ(none.reason, "no calibration received yet");
+  EXPECT_EQ(none.version, 0u);
+  EXPECT_EQ(describe(none), "no calibration received yet");
   EXPECT_EQ(none.q_rad, qs[0]);
   EXPECT_TRUE(none.commanded.isApprox(target));
   servo.setCalibration(7, IdentifiedModel(CalibratedModel::geometric(truth)));
@@ -191,9 +192,10 @@ TEST_F(ServoFixture, CartesianSetpointsAndTheirRefusals) {
     const ServoAnswer a = servo.answerPose(2, desired, q);
     const CompensationResult c = compensate(m, truth, desired, q, config.compensation);
     const bool same_branch = c.applied && (c.q_rad - q).cwiseAbs().maxCoeff() <= config.compensation.max_joint_correction_rad;
-    ASSERT_EQ(a.applied, same_branch) << a.reason;
+    ASSERT_EQ(a.applied, same_branch) << describe(a);
     if (!same_branch) {
-      EXPECT_NE(a.reason.find("setpoint passed through"), std::string::npos) << a.reason;
+      EXPECT_EQ(a.decided_by, 7u);
+      EXPECT_NE(describe(a).find("setpoint passed through"), std::string::npos) << describe(a);
       continue;
     }
     EXPECT_EQ(a.q_rad, c.q_rad);
@@ -204,7 +206,8 @@ TEST_F(ServoFixture, CartesianSetpointsAndTheirRefusals) {
   EXPECT_GE(matched, 10);
   const ServoAnswer bad = servo.answerJoints(3, Eigen::VectorXd::Zero(m.numJoints() + 1));
   EXPECT_FALSE(bad.applied);
-  EXPECT_NE(bad.reason.find("7 joint values (the robot has 6)"), std::string::npos) << bad.reason;
+  EXPECT_EQ(bad.outcome, CompensationOutcome::kBadInput);
+  EXPECT_NE(describe(bad).find("7 joint values (the robot has 6)"), std::string::npos) << describe(bad);
   EXPECT_THROW(ServoCompensator(m, config.compensation, -1.0), std::invalid_argument);
 }
 

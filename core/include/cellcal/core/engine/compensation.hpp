@@ -38,6 +38,7 @@
 
 #include <Eigen/Core>
 #include <limits>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -51,8 +52,8 @@
 
 namespace cellcal {
 
-// What became of a target, as a code (counted per code by the compensation publisher; the text is in `reason`,
-// built only when the target is not applied in full).
+// What became of a target, as a code (counted per code by the compensation publisher); the values behind it are
+// CompensationResult's fields, put in words only by describe().
 enum class CompensationOutcome {
   kApplied,
   kClamped,              // applied, scaled down to the bound
@@ -64,18 +65,30 @@ enum class CompensationOutcome {
   kClampUnreachable,     // correction above the bound, and the clamped pose unreachable
   kJointJump,            // a servo setpoint's joints corrected by more than max_joint_correction_rad (servo.hpp)
   kNeverJudged,          // beyond what the extensions were judged on (CompensationResult::unjudged), passed through
+  kBadInput,             // a servo setpoint of the wrong size or not finite (servo.hpp)
 };
-constexpr int kNumCompensationOutcomes = 10;
+constexpr int kNumCompensationOutcomes = 11;
 // "applied", "clamped", "unusable_model", "unreachable", "not_settled", "outside_calibration", "over_bound",
-// "clamp_unreachable", "joint_jump", "never_judged". The wire's CompensationOutcome (idl/cellcal_msgs.idl) has these
+// "clamp_unreachable", "joint_jump", "never_judged", "bad_input". The wire's CompensationOutcome (idl/cellcal_msgs.idl) has these
 // in this order, then the compensation publisher's own.
 const char* outcomeName(CompensationOutcome o);
+
+// A range of the data the model's extensions were fitted on, a joint's (BeyondRange) or a driver's (DriverRange), and
+// where a joint solution lies against it: the joint's angle (rad) or the driver's value, in its unit.
+struct RangeAt {
+  std::optional<BeyondRange> joint;
+  std::optional<DriverRange> driver;
+  double at = 0;
+  bool empty() const { return !joint && !driver; }
+};
+// "joint 2 at 131.0 deg lies 41.0 deg beyond [-90.0, 90.0] deg, the range its model extensions were fitted on; they
+// were judged up to 10.0 deg beyond it" (prediction.hpp's unjudgedText); "" when empty.
+std::string describe(const RangeAt& range);
 
 struct CompensationResult {
   bool applied = false;
   bool clamped = false;
   CompensationOutcome outcome = CompensationOutcome::kUnusableModel;
-  std::string reason;                      // why not applied / clamped; empty when applied in full
   Pose corrected_in_tracker = Pose::Identity();
   Eigen::VectorXd q_rad;                   // joint solution the robot will move to (empty when refused)
   double correction_position_m = 0;        // of the correction as computed (before any clamping)
@@ -86,15 +99,28 @@ struct CompensationResult {
   bool residual_map_applied = false;
   Eigen::Vector3d residual_map_correction_m = Eigen::Vector3d::Zero();
   // Where the target's joint solution lies beyond what the model's extensions were judged on (beyond_data,
-  // beyond_drivers), unjudgedText's sentence ("joint 2 at 131.0 deg lies 41.0 deg beyond ..."): passed through
-  // (never_judged), or with the guard off applied with an infinite predicted sigma. Empty where judged.
-  std::string unjudged;
+  // beyond_drivers), the range and where: passed through (never_judged), or with the guard off applied with an
+  // infinite predicted sigma. Empty where judged.
+  RangeAt unjudged;
   // It lies beyond the data the extensions were fitted on (a joint's range or a gap in it, a driver's range) but within
   // the distance they were judged there. The predicted sigma carries the error the region folds measured there; a
   // periodic term standing for an error that grows can still err more (docs/planning.md). False where unjudged. A flag,
   // not a sentence: compensate runs on the servo path, and only a program's review reads where (compensateProgram).
   bool beyond_data = false;
+  // What the outcome was decided on, as values: the inverse kinematics' residual (unreachable, clamp_unreachable), the
+  // joints' last move of the extended model's fixed point (not_settled; `settled_extensions`: false when only a
+  // residual map was iterated), and the bounds taken from the settings (outside_calibration, over_bound, clamped).
+  double ik_position_error_m = 0;
+  double ik_orientation_error_rad = 0;
+  double settle_move_rad = 0;
+  bool settled_extensions = true;
+  double bound_sigma_m = 0;
+  double bound_correction_m = 0;
+  double bound_correction_rad = 0;
 };
+// The words for a result: why it was refused or clamped; "" when applied in full (said or not beyond the data: the
+// flag is the caller's to word, as kBeyondDataNote). The edge's only translation of the values above.
+std::string describe(const CompensationResult& result);
 // What the compensation publisher says with a target applied where beyond_data is set (its CompensatedTarget's reason
 // starts with it; the decision travels as CompensatedTarget::beyond_data, which the publisher's stats, `cellcal cell`
 // and `cellcal status` count).
@@ -147,9 +173,9 @@ struct ProgramCompensation {
   int unjudged = 0;  // passed through where the extensions were never judged
   int refused = 0;   // every other outcome: a predicted error over the guard, unreachable, over the bound, ...
   int beyond_data = 0;  // of the applied ones, those beyond the extensions' data (CompensationResult::beyond_data)
-  // Per configuration, for those: unjudgedText's sentence of the first range it lies beyond ("joint 2 at 40.0 deg lies
-  // 12.0 deg beyond ..."); empty for the others.
-  std::vector<std::string> beyond_data_text;
+  // Per configuration, for those: the first range it lies beyond (describe(): "joint 2 at 40.0 deg lies 12.0 deg
+  // beyond ..."); empty for the others.
+  std::vector<RangeAt> beyond_data_at;
 };
 ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,
                                       const std::vector<Eigen::VectorXd>& program, const CompensationSettings& settings);

@@ -31,7 +31,6 @@ namespace cellcal {
 struct ServoAnswer {
   bool applied = false;
   CompensationOutcome outcome = CompensationOutcome::kUnusableModel;  // the failing version's when not applied
-  std::string reason;                         // empty when applied without a note
   Eigen::VectorXd q_rad;                      // joints to command (the setpoint's own when not applied)
   Pose commanded = Pose::Identity();          // the nominal model's pose of q_rad (what the controller believes)
   std::uint64_t version = 0;                  // blended to (0: no calibration yet)
@@ -40,7 +39,16 @@ struct ServoAnswer {
   // Applied where a version blended lies beyond its extensions' data, within the distance they were judged there
   // (CompensationResult::beyond_data of either).
   bool beyond_data = false;
+  // What decided it, as values (describe() words them): the version whose answer refused or clamped the setpoint and
+  // that answer; for a joint jump the largest joint move and the bound; for a bad setpoint its size and the robot's.
+  std::uint64_t decided_by = 0;
+  CompensationResult result;
+  double joint_move_rad = 0, joint_move_bound_rad = 0;
+  long setpoint_joints = 0, robot_joints = 0;
 };
+// Why a setpoint was passed through or clamped ("v3: predicted error ... : setpoint passed through"); "" when applied
+// in full.
+std::string describe(const ServoAnswer& answer);
 
 class ServoCompensator {
  public:
