@@ -385,10 +385,10 @@ void CompensationPublisher::answer(const msg::TargetPose& t, Robot& r) {
   out.applied(false);
   out.clamped(false);
   out.reason("");
-  out.note(r.note);
   out.beyond_data(false);
   out.older_calibration(false);
-  noticeEngine(r);
+  noticeEngine(r);  // before the note is copied: the first target after the engine left already says so
+  out.note(r.note);
   if (!usablePose(t.position_m(), t.orientation_xyzw())) {
     out.reason("target rejected: non-finite position or non-unit quaternion");
     out.outcome(msg::OUTCOME_BAD_INPUT);
