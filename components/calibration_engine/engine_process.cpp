@@ -115,8 +115,8 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
   const auto& snap = r.engine->snapshot();
   // Without its figures ("nothing for 4.1 s" grows every period): a line when what is stale changes, not each second.
   const std::string clock = d.clock_warning().to_string();
-  const std::string line = maskFigures(stale) + "|" + r.persist_error + "|" + snap.health_reason + "|" +
-                           (clock.empty() ? "" : "clock");
+  const std::string line = maskFigures(stale) + "|" + r.persist_error + "|" + healthName(snap.health) + "/" +
+                           healthCauseName(snap.health_verdict.cause) + "|" + (clock.empty() ? "" : "clock");
   if (p.reported == line) return;
   p.reported = line;
   const std::string& id = r.robot->robot_id;
@@ -124,7 +124,8 @@ void EngineProcess::publishDiagnostics(EngineHost::Robot& r, std::int64_t now) {
   if (!r.persist_error.empty()) std::cerr << "calibration_engine: " << id << ": " << r.persist_error << "\n";
   if (!clock.empty()) std::cerr << "calibration_engine: " << id << ": clock: " << clock << "\n";
   if (snap.health != Health::kOk && snap.health != Health::kUncalibrated)
-    std::cerr << "calibration_engine: " << id << ": health " << healthName(snap.health) << ": " << snap.health_reason << "\n";
+    std::cerr << "calibration_engine: " << id << ": health " << healthName(snap.health) << ": "
+              << describe(snap.health_verdict) << "\n";
 }
 
 // A new version: published at once (the latency path; the state file was replaced before).
@@ -241,7 +242,8 @@ void EngineProcess::stopAndReport() {
                   {"recent_nis_per_row", snap.recent_nis_per_row},
                   {"drift_alarm", snap.drift_alarm},
                   {"condition_number", r.engine->conditionNumber()},
-                  {"health_reason", snap.health_reason},
+                  {"health_cause", healthCauseName(snap.health_verdict.cause)},
+                  {"health_reason", describe(snap.health_verdict)},
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},

@@ -322,6 +322,8 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   EXPECT_LE(r["version"].get<std::uint64_t>(), seen_by_probe);
   EXPECT_EQ(r["poses_used"].get<std::uint64_t>(), r["version"].get<std::uint64_t>());
   EXPECT_EQ(r["health"], "ok") << j.dump(1);
+  EXPECT_EQ(r["health_cause"], "none") << j.dump(1);
+  EXPECT_EQ(r["health_reason"], "") << j.dump(1);
   EXPECT_GT(r["verification_mean_position_mm"].get<double>(), 0.0);
   EXPECT_LT(r["predicted_sigma_position_mm"].get<double>(), 1.0);
   EXPECT_GT(r["compensated_targets"].get<int>(), 0);

@@ -123,7 +123,7 @@ int runCalibrate(const CalibrateArgs& a) {
   bar.reset();
   printCampaignReport(a, p, r);
   if (!a.json.empty()) std::ofstream(a.json) << campaignJson(a, p, r).dump(2) << "\n";
-  if (!several) std::printf("%s\n", r.verdict.c_str());
+  if (!several) std::printf("%s\n", recommendationText(r).c_str());
   if (const int code = failedExit(r, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     const CampaignInput& in = several ? p.setups.back() : p.setups.front();

@@ -86,126 +86,9 @@ std::string structureLine(const std::vector<DriverStructure>& s, size_t n) {
   return o.empty() ? "none beyond noise" : o;
 }
 
-void writeReport(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisResult& d) {
-  namespace fs = std::filesystem;
-  fs::create_directories(a.report);
-  std::ofstream md(a.report + "/report.md");
-  if (!md) throw std::runtime_error(a.report + "/report.md: cannot write");
+// The gross errors and the table of single causes, with the forward selection when it took more than one.
+void printCandidates(const LoadedInput& in, const DiagnosisResult& d, const DiagnosisOptions& options) {
   const CandidateResult& g = d.geometric;
-  const CandidateResult& b = d.best();
-  char buf[512];
-  md << "# cellcal diagnose: " << in.robot.name << "\n\n";
-  md << "Data: `" << a.input.data << "`, " << in.file.rows.size() << " rows (" << a.input.split << " split: "
-     << in.data.identification.size() << " identify, " << in.data.verification.size() << " verify), "
-     << in.measurementText() << ". Thermal driver: "
-     << (in.data.has_thermal ? in.data.thermal_source : std::string("none")) << ".\n\n";
-  md << "## Finding\n\n**" << d.verdict_text << "**\n\n";
-  if (d.selection.empty()) {
-    md << "No cause in the library explains the verification residual better than the geometric model.\n\n";
-  } else {
-    std::snprintf(buf, sizeof buf,
-                  "**%s**: verification mean position error %.4f -> %.4f mm (gain %.1f %%), RMS %.4f -> %.4f mm; "
-                  "%.1f standard errors better than the geometric model on the verification rows.\n\n",
-                  modelLabel(b.fit.extensions).c_str(), g.verification.mean_mm, b.verification.mean_mm, d.gain_pct,
-                  g.verification.rms_mm, b.verification.rms_mm, d.selection.front().z);
-    md << buf;
-    if (d.selection.size() > 1) {
-      md << "Causes in the order forward selection added them:\n\n";
-      for (const auto& st : d.selection) {
-        std::snprintf(buf, sizeof buf, "- %s: verification mean %.4f mm (gain %.1f %%, z %.1f)\n",
-                      extensionLabel(st.added).c_str(), st.result.verification.mean_mm, st.gain_pct, st.z);
-        md << buf;
-      }
-      md << "\n";
-    }
-  }
-  if (const std::string r = regionCheckText(d); !r.empty())
-    md << "Beyond the rows fitted (docs/diagnosis.md, \"Regions the fit never saw\"):\n\n```\n" << r << "```\n\n";
-  if (const std::string r = driftCheckText(d); !r.empty())
-    md << "A drift or the frame (docs/diagnosis.md, \"A drift or the frame\"):\n\n```\n" << r << "```\n\n";
-  std::snprintf(buf, sizeof buf,
-                "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
-                d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());
-  md << buf;
-  if (!d.identification_outliers.rows.empty() || !d.verification_outliers.rows.empty())
-    md << "Gross errors left out: identification " << d.identification_outliers.rows.size() << " rows, verification "
-       << d.verification_outliers.rows.size() << " rows (more than " << OutlierOptions{}.threshold
-       << " robust sigmas; listed by `cellcal diagnose`).\n\n";
-  md << "## Residual structure (verification rows)\n\nShare of the position residual's variance each driver explains "
-        "beyond what the model's own parameters could (partial R^2; * = beyond noise, F-test, family-wise 0.1 %).\n\n"
-        "| driver | geometric | "
-     << (d.selection.empty() ? "-" : "final") << " |\n|---|---|---|\n";
-  for (const auto& s : d.structure_before) {
-    const DriverStructure* after = nullptr;
-    for (const auto& t : d.structure_after)
-      if (t.driver == s.driver) after = &t;
-    std::snprintf(buf, sizeof buf, "| %s | %.1f %%%s | %.1f %%%s |\n", s.driver.c_str(), 100 * s.share,
-                  s.significant ? " *" : "", after ? 100 * after->share : 0.0, after && after->significant ? " *" : "");
-    md << buf;
-  }
-  md << "\n## Candidates (best score first)\n\n| cause | parameters | verify mean mm | verify RMS mm | z |\n"
-        "|---|---|---|---|---|\n";
-  std::snprintf(buf, sizeof buf, "| geometric | 0 | %.4f | %.4f | |\n", g.verification.mean_mm, g.verification.rms_mm);
-  md << buf;
-  for (const auto& c : d.candidates) {
-    std::snprintf(buf, sizeof buf, "| %s | %d | %.4f | %.4f | %.1f |\n", extensionLabel(c.fit.extensions.back()).c_str(),
-                  c.fit.numEstimatedExtension(), c.verification.mean_mm, c.verification.rms_mm, c.z);
-    md << buf;
-  }
-  if (!d.selection.empty()) {
-    const CauseSignature sig = causeSignature(in.robot, g.fit, b.fit, in.data.verification,
-                                              in.data.verification_drivers, in.data.thermal_source);
-    // Rendered by gnuplot (SVG): two panels sharing the axes, the residual before and after the extension.
-    std::ostringstream data, gp;
-    data << "x before after\n";
-    double lo = INFINITY, hi = -INFINITY;
-    for (size_t i = 0; i < sig.x.size(); ++i) {
-      data << std::setprecision(10) << sig.x[i] << ' ' << sig.y_before[i] << ' ' << sig.y_after[i] << '\n';
-      lo = std::min({lo, sig.y_before[i], sig.y_after[i]});
-      hi = std::max({hi, sig.y_before[i], sig.y_after[i]});
-    }
-    const double pad = 0.05 * std::max(hi - lo, 1e-12);
-    // The extended model's name (up to three causes) spans the figure above both panels: a panel's half width cut it.
-    gp << "set multiplot layout 1,2 title 'verification rows: geometric model (left), with " << modelLabel(b.fit.extensions)
-       << " (right)' font ',11'\nset grid\nset key off\nset xlabel '" << sig.x_label << "'\nset ylabel '"
-       << sig.y_label << "'\nset yrange [" << lo - pad << ":" << hi + pad << "]\n"
-       << "set title 'geometric model'\nplot datafile using 1:2 skip 1 with points pt 7 ps 0.4 lc rgb '#1f77b4'\n"
-       << "set title 'extended model'\nplot datafile using 1:3 skip 1 with points pt 7 ps 0.4 lc rgb '#d62728'\n"
-          "unset multiplot\n";
-    std::string plot_error;
-    for (const char* format : {"svg", "png"})  // SVG for the report, PNG for pages that take images only
-      if (!renderGnuplot(a.report, "signature", data.str(), gp.str(), &plot_error, format))
-        std::cerr << "warning: " << plot_error << "\n";
-    md << "\n## The cause in the data\n\nVerification rows: the residual as the cause's own quantity against its "
-          "driver, before and after the extension.\n\n![signature](signature.svg)\n\nExtension parameters:\n\n";
-    for (int k : b.fit.estimated_extension) {
-      std::snprintf(buf, sizeof buf, "- `%s` = %.6g (1σ %.2g, from the reading sigmas)\n", b.fit.extension_names[k].c_str(),
-                    b.fit.extension_params[k], b.fit.extensionStddev(k));
-      md << buf;
-    }
-  }
-}
-
-int runDiagnose(const DiagnoseArgs& a) {
-  const LoadedInput in = loadInput(a.input);
-  DiagnosisOptions options;
-  options.outliers = outlierOptions(a.input);
-  options.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
-  options.region_check = !a.no_region_check;
-  ProgressBar bar("diagnose", !a.no_progress);
-  options.progress = [&bar](int done, int total) {
-    bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
-  };
-  if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
-  if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
-  const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
-  bar.done();
-  const CandidateResult& g = d.geometric;
-  const CandidateResult& b = d.best();
-  std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s, thermal driver: %s\n",
-              a.input.data.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
-              in.data.verification.size(), in.measurementText().c_str(),
-              in.robot.name.c_str(), in.data.has_thermal ? in.data.thermal_source.c_str() : "none");
   const auto& io = d.identification_outliers;
   const auto& vo = d.verification_outliers;
   if (!io.rows.empty() || !vo.rows.empty()) {
@@ -233,11 +116,18 @@ int runDiagnose(const DiagnoseArgs& a) {
       std::printf("  + %-40s verification mean %.4f mm, gain %.1f %%, z %.1f\n", extensionLabel(st.added).c_str(),
                   st.result.verification.mean_mm, st.gain_pct, st.z);
   }
+}
+
+// The cause named (or not), what it gains, the noise and what is left unexplained.
+void printCause(const LoadedInput& in, const DiagnosisResult& d) {
+  const CandidateResult& g = d.geometric;
+  const CandidateResult& b = d.best();
+  const auto& vo = d.verification_outliers;
   if (const std::string r = regionCheckText(d); !r.empty()) std::printf("\n%s", r.c_str());
   if (const std::string r = driftCheckText(d); !r.empty()) std::printf("\n%s", r.c_str());
   std::printf("\nresidual structure, geometric model: %s\n", structureLine(d.structure_before, 4).c_str());
   if (!d.selection.empty()) std::printf("residual structure, final model:     %s\n", structureLine(d.structure_after, 4).c_str());
-  std::printf("\ncause: %s\n", d.verdict_text.c_str());
+  std::printf("\ncause: %s\n", describeVerdict(d).c_str());
   for (const auto& st : d.selection)
     if (!st.alike.empty()) {
       std::string alike;
@@ -265,8 +155,11 @@ int runDiagnose(const DiagnoseArgs& a) {
                   d.identifiability_noise_scale, held.c_str());
   }
   for (const auto& h : b.held) std::printf("held: %s\n", deficitText(h).c_str());
-  // What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model).
-  // Nothing when the model is not usable.
+}
+
+// What the calibration engine takes (its topics carry no temperature: thermal drift stays with its drift model);
+// nothing when the model is not usable. Returns the extensions for the cell file.
+std::vector<std::string> printEngineAdvice(const DiagnosisResult& d) {
   std::vector<std::string> cell_extensions;
   bool thermal = false;
   for (const auto& e : d.unusable.empty() ? d.causes() : std::vector<Extension>{}) {
@@ -286,64 +179,72 @@ int runDiagnose(const DiagnoseArgs& a) {
   if (thermal)
     std::printf("calibration engine: thermal_drift is left to the engine's drift model (the cell's topics carry no "
                 "temperature)\n");
-  if (!a.json.empty()) {
-    nlohmann::json cands = nlohmann::json::array();
-    for (const auto& c : d.candidates)
-      cands.push_back({{"cause", causeName(c.fit.extension().cause)}, {"joints", jointsJson(c.fit.extension())},
-                       {"label", extensionLabel(c.fit.extensions.back())},
-                       {"verify_mean_mm", c.verification.mean_mm}, {"verify_rms_mm", c.verification.rms_mm},
-                       {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
-                       {"score_m2", c.score}, {"screened", c.screened}});
-    nlohmann::json causes = nlohmann::json::array();
-    for (const auto& st : d.selection)
-      causes.push_back({{"cause", causeName(st.added.cause)}, {"joints", jointsJson(st.added)},
-                        {"label", extensionLabel(st.added)}, {"verify_mean_mm", st.result.verification.mean_mm},
-                        {"alike", [&] {
-                           nlohmann::json a = nlohmann::json::array();
-                           for (const auto& e : st.alike) a.push_back(extensionLabel(e));
-                           return a;
-                         }()},
-                        {"gain_pct", st.gain_pct}, {"z", st.z},
-                        {"time_constant_h", followsThermalDriver(st.added.cause) && st.added.time_constant_h > 0 &&
-                                                    std::isfinite(st.added.time_constant_h)
-                                                ? nlohmann::json(st.added.time_constant_h)
-                                                : nlohmann::json(nullptr)}});
-    const DriverStructure* left = d.structureLeft();
-    nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
-                        {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},
-                        {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
-                        {"verdict", verdictName(d.verdict)}, {"verdict_text", d.verdict_text},
-                        {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},
-                                                                  {"p_value", left->p_value}})
-                                                : nlohmann::json(nullptr)},
-                        {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(d.selection.front().added) : nlohmann::json::array()},
-                        {"causes", causes}, {"region_check", regionCheckJson(d)}, {"drift_check", driftCheckJson(d)},
-                        {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
-                        {"verification_all_rows", {{"geometric", errorStatsJson(d.geometric_verification_all_rows)},
-                                                   {"extended", errorStatsJson(d.verification_all_rows)}}},
-                        {"outliers", {{"identification", outliersJson(io, in.identification_lines)},
-                                      {"verification", outliersJson(vo, in.verification_lines)},
-                                      {"threshold_robust_sigmas", options.outliers.threshold}}},
-                        {"extension_params", !d.selection.empty() ? paramsJson(b.fit) : nlohmann::json::object()},
-                        {"extension_stddev", !d.selection.empty() ? paramsJson(b.fit, true) : nlohmann::json::object()},
-                        {"cell_extensions", cell_extensions}, {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
-                        {"structure_after", structureJson(d.structure_after)},
-                        {"noise", {{"sigma_position_mm", d.noise.sigma_position_mm}, {"dof", d.noise.dof},
-                                   {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
-                        {"noise_rms_mm", d.noise_rms_mm},
-                        {"identifiability_noise_scale", d.identifiability_noise_scale},
-                        {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s},
-                        {"held", heldJson(b.held)},
-                        {"unusable", d.unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.unusable)}};
-    std::ofstream o(a.json);
-    if (!o) throw std::runtime_error(a.json + ": cannot write");
-    o << j.dump(2) << "\n";
-  }
-  if (!a.report.empty()) {
-    writeReport(a, in, d);
-    std::printf("report: %s/report.md\n", a.report.c_str());
-  }
-  // The plain answer: which model to deploy, and why.
+  return cell_extensions;
+}
+
+void writeDiagnoseJson(const DiagnoseArgs& a, const LoadedInput& in, const DiagnosisResult& d,
+                       const DiagnosisOptions& options, const std::vector<std::string>& cell_extensions) {
+  const CandidateResult& g = d.geometric;
+  const CandidateResult& b = d.best();
+  const auto& io = d.identification_outliers;
+  const auto& vo = d.verification_outliers;
+  nlohmann::json cands = nlohmann::json::array();
+  for (const auto& c : d.candidates)
+    cands.push_back({{"cause", causeName(c.fit.extension().cause)}, {"joints", jointsJson(c.fit.extension())},
+                     {"label", extensionLabel(c.fit.extensions.back())},
+                     {"verify_mean_mm", c.verification.mean_mm}, {"verify_rms_mm", c.verification.rms_mm},
+                     {"num_params", c.fit.numEstimatedExtension()}, {"params", paramsJson(c.fit)}, {"z", c.z},
+                     {"score_m2", c.score}, {"screened", c.screened}});
+  nlohmann::json causes = nlohmann::json::array();
+  for (const auto& st : d.selection)
+    causes.push_back({{"cause", causeName(st.added.cause)}, {"joints", jointsJson(st.added)},
+                      {"label", extensionLabel(st.added)}, {"verify_mean_mm", st.result.verification.mean_mm},
+                      {"alike", [&] {
+                         nlohmann::json a = nlohmann::json::array();
+                         for (const auto& e : st.alike) a.push_back(extensionLabel(e));
+                         return a;
+                       }()},
+                      {"gain_pct", st.gain_pct}, {"z", st.z},
+                      {"time_constant_h", followsThermalDriver(st.added.cause) && st.added.time_constant_h > 0 &&
+                                                  std::isfinite(st.added.time_constant_h)
+                                              ? nlohmann::json(st.added.time_constant_h)
+                                              : nlohmann::json(nullptr)}});
+  const DriverStructure* left = d.structureLeft();
+  nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
+                      {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},
+                      {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
+                      {"verdict", verdictName(d.verdict)}, {"verdict_text", describeVerdict(d)},
+                      {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},
+                                                                {"p_value", left->p_value}})
+                                              : nlohmann::json(nullptr)},
+                      {"cause", causeName(d.cause)}, {"joints", d.chosen >= 0 ? jointsJson(d.selection.front().added) : nlohmann::json::array()},
+                      {"causes", causes}, {"region_check", regionCheckJson(d)}, {"drift_check", driftCheckJson(d)},
+                      {"geometric", fitJson(g)}, {"extended", fitJson(b)}, {"gain_pct", d.gain_pct},
+                      {"verification_all_rows", {{"geometric", errorStatsJson(d.geometric_verification_all_rows)},
+                                                 {"extended", errorStatsJson(d.verification_all_rows)}}},
+                      {"outliers", {{"identification", outliersJson(io, in.identification_lines)},
+                                    {"verification", outliersJson(vo, in.verification_lines)},
+                                    {"threshold_robust_sigmas", options.outliers.threshold}}},
+                      {"extension_params", !d.selection.empty() ? paramsJson(b.fit) : nlohmann::json::object()},
+                      {"extension_stddev", !d.selection.empty() ? paramsJson(b.fit, true) : nlohmann::json::object()},
+                      {"cell_extensions", cell_extensions}, {"candidates", cands}, {"structure_before", structureJson(d.structure_before)},
+                      {"structure_after", structureJson(d.structure_after)},
+                      {"noise", {{"sigma_position_mm", d.noise.sigma_position_mm}, {"dof", d.noise.dof},
+                                 {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
+                      {"noise_rms_mm", d.noise_rms_mm},
+                      {"identifiability_noise_scale", d.identifiability_noise_scale},
+                      {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s},
+                      {"held", heldJson(b.held)},
+                      {"unusable", d.unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.unusable)}};
+  std::ofstream o(a.json);
+  if (!o) throw std::runtime_error(a.json + ": cannot write");
+  o << j.dump(2) << "\n";
+}
+
+// The plain answer: which model to deploy, and why; the exit code.
+int recommend(const DiagnosisResult& d) {
+  const CandidateResult& g = d.geometric;
+  const CandidateResult& b = d.best();
   const bool converged = g.fit.converged && b.fit.converged;
   if (!converged) {
     std::printf("recommendation: deploy neither: the %s fit did not converge (%s; exit 3)\n",
@@ -368,6 +269,35 @@ int runDiagnose(const DiagnoseArgs& a) {
                 d.structureLeft() ? "; it explains only part of what the geometric model leaves" : "");
   }
   return 0;
+}
+
+int runDiagnose(const DiagnoseArgs& a) {
+  const LoadedInput in = loadInput(a.input);
+  DiagnosisOptions options;
+  options.outliers = outlierOptions(a.input);
+  options.identifiability.prior_sigma = plausibleRanges(a.input, in.robot);
+  options.region_check = !a.no_region_check;
+  ProgressBar bar("diagnose", !a.no_progress);
+  options.progress = [&bar](int done, int total) {
+    bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
+  };
+  if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
+  const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
+  bar.done();
+  std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s, thermal driver: %s\n",
+              a.input.data.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
+              in.data.verification.size(), in.measurementText().c_str(),
+              in.robot.name.c_str(), in.data.has_thermal ? in.data.thermal_source.c_str() : "none");
+  printCandidates(in, d, options);
+  printCause(in, d);
+  const std::vector<std::string> cell_extensions = printEngineAdvice(d);
+  if (!a.json.empty()) writeDiagnoseJson(a, in, d, options, cell_extensions);
+  if (!a.report.empty()) {
+    writeDiagnosisReport(a.report, a.input, in, d);
+    std::printf("report: %s/report.md\n", a.report.c_str());
+  }
+  return recommend(d);
 }
 
 }  // namespace

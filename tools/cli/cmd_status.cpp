@@ -48,7 +48,7 @@ struct RobotView {
   double verification_mm = std::nan(""), residual_mm = std::nan(""), predicted_mm = std::nan("");
   std::map<std::string, std::uint64_t> rejections;
   bool drift_alarm = false;
-  std::string health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
+  std::string health_cause = "-", health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
   std::uint64_t answers = 0, applied = 0;
   std::uint64_t applied_beyond_data = 0;  // applied, flagged beyond_data
   double last_correction_mm = std::nan(""), last_correction_deg = std::nan(""), max_correction_mm = 0;
@@ -68,6 +68,7 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
   for (const auto& [id, r] : robots)
     j[id] = {{"version", r.version},
              {"health", r.health},
+             {"health_cause", r.health_cause},
              {"health_reason", r.health_reason},
              {"poses_used", r.poses_used},
              {"verification_mean_position_mm", num(r.verification_mm)},
@@ -186,7 +187,8 @@ int runStatus(const StatusArgs& a) {
     // The diagnostics come every republish period and whenever the health changes: the health they carry is the
     // engine's latest, newer than a CalibrationState's when no version was made since.
     if (!r.has_state || d.source_stamp_ns() >= r.state_stamp_ns) r.health = healthText(d.health());
-    r.health_reason = d.health_reason().to_string();
+    r.health_cause = healthCauseText(d.health_cause());
+    r.health_reason = d.health_reason();
     r.stale_inputs = d.stale_inputs().to_string();
     r.clock_warning = d.clock_warning().to_string();
     r.persist_error = d.persist_error().to_string();

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "cellcal/core/identification/diagnosis.hpp"
+#include "measurement_input.hpp"
 
 namespace cellcal::cli {
 
@@ -19,5 +20,9 @@ std::string driftCheckText(const DiagnosisResult& d);
 // {"ran", "outcome", "text", "chosen", "alternative", "both" (labels), "mean_chosen_mm", "mean_alternative_mm",
 //  "mean_both_mm", "z_drift", "z_frame"}; absent figures null.
 nlohmann::json driftCheckJson(const DiagnosisResult& d);
+
+// diagnose --report: dir/report.md (the finding, the table of causes, the checks) and, when a cause was chosen, its
+// signature (dir/signature.svg and .png, by gnuplot; a warning on stderr where gnuplot cannot draw).
+void writeDiagnosisReport(const std::string& dir, const InputArgs& input, const LoadedInput& in, const DiagnosisResult& d);
 
 }  // namespace cellcal::cli

@@ -132,7 +132,11 @@ msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r,
   d.stale_input(!stale_inputs.empty());
   d.stale_inputs(stale_inputs.substr(0, 255));
   d.health(static_cast<msg::CalibrationHealth>(static_cast<int>(snap.health)));
-  d.health_reason(snap.health_reason.substr(0, 255));
+  static_assert(static_cast<int>(HealthCause::kDriftAlarm) == msg::HEALTH_CAUSE_DRIFT_ALARM &&
+                    static_cast<int>(HealthCause::kNone) == msg::HEALTH_CAUSE_NONE,
+                "idl/cellcal_msgs.idl's HealthCause must be core's, in its order");
+  d.health_cause(static_cast<msg::HealthCause>(static_cast<int>(snap.health_verdict.cause)));
+  d.health_reason(describe(snap.health_verdict));
   d.prediction_sigma_position_m(snap.prediction_sigma_position_m);
   d.persist_failures(r.persist_failures);
   d.persist_error(r.persist_error.substr(0, 255));
@@ -185,6 +189,10 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
 }
 
 const char* healthText(msg::CalibrationHealth h) { return healthName(static_cast<Health>(static_cast<int>(h))); }
+
+const char* healthCauseText(msg::HealthCause c) {
+  return healthCauseName(static_cast<HealthCause>(static_cast<int>(c)));
+}
 
 const char* outcomeText(msg::CompensationOutcome o) {
   if (static_cast<int>(o) < kNumCompensationOutcomes) return outcomeName(static_cast<CompensationOutcome>(static_cast<int>(o)));

@@ -131,28 +131,6 @@ std::vector<std::string> implausibleParameters(const RobotModel& robot, const Ei
   return out;
 }
 
-// The last line of a calibration: deploy this model or not, and why (before/after: the held-out rows without their
-// gross errors).
-std::string verdictOf(bool converged, const std::string& unusable, const ErrorStats& before, const ErrorStats& after,
-                      const std::string& model, bool frames_only, double variance_factor, int extrapolated) {
-  char buf[640];
-  if (!converged) return "recommendation: do not deploy: the solver did not converge (exit 3)";
-  if (!unusable.empty()) return "recommendation: do not deploy: " + unusable + " (exit 4)";
-  const double gain = before.mean_mm > 0 ? 100.0 * (1.0 - after.mean_mm / before.mean_mm) : 0.0;
-  if (frames_only)
-    std::snprintf(buf, sizeof buf, "recommendation: deploy the robot file's model with these frames: held-out mean "
-                  "%.4f mm", after.mean_mm);
-  else
-    std::snprintf(buf, sizeof buf, "recommendation: deploy the %s model: held-out mean %.4f mm against %.4f mm before "
-                  "(%.0f %% better)", model.c_str(), after.mean_mm, before.mean_mm, gain);
-  std::string out = buf;
-  if (extrapolated > 0) out += "; outside the calibrated region (" + std::to_string(extrapolated) + " verification rows) "
-                               "it extrapolates: measure poses there";
-  if (variance_factor > 4 && model.rfind("geometric", 0) == 0 && !frames_only)
-    out += "; it leaves more than noise: `cellcal diagnose` names the cause and the extended model to deploy instead";
-  return out;
-}
-
 // What the model leaves at the identification rows, learnt as a residual map and judged on the verification rows.
 void judgeResidualMap(const RobotModel& robot, const ExtendedFit& fit, const std::vector<Observation>& ident,
                       const std::vector<Drivers>& idr, const std::vector<Observation>& verify,
@@ -193,172 +171,143 @@ std::string fixed(double v, int digits) {
   return b;
 }
 
-CampaignReport calibrateOne(const CampaignProblem& problem) {
-  CampaignReport rep;
-  const CampaignInput& in = problem.setups.front();
+// With frames only: the robot file's kinematics and extensions carried to these rows, its frames registered on them.
+void registerFrames(const CampaignProblem& problem, const CampaignInput& in, CampaignReport& rep,
+                    OutlierScreen* ident_outliers) {
+  const RobotModel& robot = in.robot;
+  const Eigen::VectorXd& start = in.start;
+  const auto& ident = in.data.identification;
+  const auto& verify = in.data.verification;
+  const auto& idr = in.data.identification_drivers;
+  const auto& vdr = in.data.verification_drivers;
+  ExtendedFit& after = rep.after;
+  // The robot file's kinematics and model extensions as they are; only where the robot stands in the tracker
+  // frame and where the target sits on the flange are registered on these rows.
+  after.extensions = in.calibration ? in.calibration->extensions : std::vector<Extension>{};
+  after.extension_params = in.calibration ? in.calibration->extension_params : Eigen::VectorXd();
+  after.extension_names = extensionParamNames(robot, after.extensions);
+  const RegistrationResult rr = refineFrames(robot, start, after.extensions, after.extension_params, ident, idr);
+  after.params = rr.params;
+  for (int k = 0; k < 6; ++k) {
+    after.estimated.push_back(robot.baseParam(static_cast<FrameParam>(k)));
+    after.estimated.push_back(robot.toolParam(static_cast<FrameParam>(k)));
+  }
+  std::sort(after.estimated.begin(), after.estimated.end());
+  after.converged = rep.converged = true;
+  rep.iterations = rr.iterations;
+  rep.estimated = 12;
+  rep.model_label = "the robot file's (" + modelLabel(after.extensions) + "), frames only";
+  // Its extensions against the same campaign's geometric calibration, both carried to these rows: the better one.
+  if (in.calibration && in.calibration->geometric_params.size() == robot.numParams() && !after.extensions.empty()) {
+    rep.carried = compareCarried(robot, after, in.calibration->geometric_params, ident, idr, verify, vdr);
+    if (!rep.carried->extensions_transfer && !problem.keep_extensions) {
+      after = rep.carried->geometric;
+      rep.model_label =
+          "the campaign's geometric calibration (the robot file's extensions do not transfer), frames only";
+    }
+  }
+  *ident_outliers = screenRows(robot, after, ident, idr, problem.outliers);
+}
+
+// The geometric calibration (rep.geometric), then the model asked for on top of it (rep.after).
+void fitModel(const CampaignProblem& problem, const CampaignInput& in, CalibrationProblem& p, CampaignReport& rep,
+              OutlierScreen* ident_outliers) {
+  const RobotModel& robot = in.robot;
+  const Eigen::VectorXd& start = in.start;
+  const auto& ident = in.data.identification;
+  const auto& verify = in.data.verification;
+  const auto& idr = in.data.identification_drivers;
+  const auto& vdr = in.data.verification_drivers;
+  CalibrationResult& r = rep.geometric;
+  ExtendedFit& after = rep.after;
+  const std::vector<Extension> named =
+      problem.model == CampaignModel::kNamed ? problem.extensions : std::vector<Extension>{};
+  // Parameters the identification rows leave unexcited where a verification row excites them: held, and said.
+  const std::vector<ExcitationDeficit> held =
+      problem.excitation_ratio > 0
+          ? excitationDeficits(robot, start, named, ident, idr, verify, vdr, problem.excitation_ratio)
+          : std::vector<ExcitationDeficit>{};
+  p.identifiability.rank_tolerance = problem.identifiability.rank_tolerance;
+  p.identifiability.prior_sigma = problem.identifiability.prior_sigma;
+  for (const auto& h : held)
+    if (h.column < robot.numParams()) p.identifiability.held.push_back(h.column);
+  std::string why;
+  if (!p.IsValid(&why)) throw std::runtime_error(why);
+  r = problem.solver == CampaignSolver::kLevenbergMarquardt ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
+  after = geometricFit(r);
+  rep.held = held;
+  *ident_outliers = r.outliers;
+  rep.model_label = "geometric";
+  rep.converged = r.converged;
+  rep.iterations = r.iterations;
+  rep.estimated = r.estimated.size();
+  rep.message = r.message;
+  if (problem.model != CampaignModel::kGeometric) {
+    if (problem.model == CampaignModel::kAuto) {
+      const DiagnosisResult& d = rep.diagnosis.emplace(internal::diagnoseForAuto(problem, in, ""));
+      after = d.best().fit;
+      rep.held = d.best().held;
+      *ident_outliers = d.identification_outliers;
+    } else {
+      IdentifiabilityOptions io = p.identifiability;
+      io.noise_scale = r.identifiability.noise_scale;  // the geometric fit's: what the model leaves counts as noise
+      io.held = heldColumns(held);
+      after = fitExtendedRobust(robot, start, ident, idr, named, {}, io, &r.params, p.outliers, ident_outliers);
+    }
+    rep.model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
+    // The extended model stands on the geometric fit (its start, its rows' screen): both must have converged.
+    if (!r.converged) rep.message = "the geometric fit beneath did not converge: " + r.message;
+    rep.converged = r.converged && after.converged;
+    rep.iterations = after.iterations;
+    rep.estimated = after.estimated.size() + after.estimated_extension.size();
+    if (r.converged) rep.message = after.message;
+  }
+}
+
+// How far the model can be trusted: its predicted position error on every kept row, against the actual one. With
+// frames only, the robot file's covariance carried to these rows less what the new frames take up of it
+// (carriedPrediction); a robot file without a calibration section carries the priors of a model no one calibrated.
+PredictionModel campaignPrediction(const CampaignProblem& problem, const CampaignInput& in, const CampaignReport& rep,
+                                   const std::vector<Observation>& ident_kept, const std::vector<Drivers>& idr_kept) {
+  const RobotModel& robot = in.robot;
+  const ExtendedFit& after = rep.after;
+  if (!problem.frames_only) {
+    PredictionModel own = predictionModel(robot, after, ident_kept, idr_kept);
+    own.beyond = rep.beyond;
+    own.beyond_drivers = rep.beyond_drivers;
+    return own;
+  }
+  PredictionModel carried;
+  if (in.calibration) {
+    // Over the kinematic parameters alone where the extensions were left for the geometric calibration (its own
+    // covariance is not in the file: the extended fit's, marginal, stands for it).
+    const auto& kc = in.calibration->columns;
+    std::vector<Eigen::Index> keep;
+    for (size_t k = 0; k < kc.size(); ++k)
+      if (!after.extensions.empty() || kc[k] < robot.numParams()) keep.push_back(static_cast<Eigen::Index>(k));
+    for (Eigen::Index k : keep) carried.columns.push_back(kc[static_cast<size_t>(k)]);
+    carried.covariance = in.calibration->covariance(keep, keep);
+  } else {
+    carried = predictionModel(robot, after, {}, {});
+  }
+  // The readings' noise on these rows as the frames leave it, position and orientation rows apart (their sigmas may
+  // not be the campaign's, and a tracker may understate one kind).
+  carried.beyond = rep.beyond;  // what the extensions may do beyond the campaign's joint ranges (its region folds)
+  carried.beyond_drivers = rep.beyond_drivers;  // and its drivers' ranges
+  return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated,
+                           residualVarianceFactors(robot, after, ident_kept, idr_kept,
+                                                   static_cast<int>(after.estimated.size())));
+}
+
+// What a robot file saves (rep.calibration), once the calibration is usable.
+void saveCalibration(const CampaignProblem& problem, const CampaignInput& in, CampaignReport& rep) {
   const RobotModel& robot = in.robot;
   const auto& ident = in.data.identification;
   const auto& verify = in.data.verification;
-  const Eigen::VectorXd& start = in.start;
-  using Clock = std::chrono::steady_clock;
-  const auto t1 = Clock::now();
-  const auto& idr = in.data.identification_drivers;
-  const auto& vdr = in.data.verification_drivers;
-  CalibrationProblem p{&robot, start, ident, std::nullopt, {}, {}};
-  p.outliers = problem.outliers;
-  CalibrationResult& r = rep.geometric;
-  ExtendedFit& after = rep.after;
-  OutlierScreen ident_outliers;
-  if (problem.frames_only) {
-    // The robot file's kinematics and model extensions as they are; only where the robot stands in the tracker
-    // frame and where the target sits on the flange are registered on these rows.
-    after.extensions = in.calibration ? in.calibration->extensions : std::vector<Extension>{};
-    after.extension_params = in.calibration ? in.calibration->extension_params : Eigen::VectorXd();
-    after.extension_names = extensionParamNames(robot, after.extensions);
-    const RegistrationResult rr = refineFrames(robot, start, after.extensions, after.extension_params, ident, idr);
-    after.params = rr.params;
-    for (int k = 0; k < 6; ++k) {
-      after.estimated.push_back(robot.baseParam(static_cast<FrameParam>(k)));
-      after.estimated.push_back(robot.toolParam(static_cast<FrameParam>(k)));
-    }
-    std::sort(after.estimated.begin(), after.estimated.end());
-    after.converged = rep.converged = true;
-    rep.iterations = rr.iterations;
-    rep.estimated = 12;
-    rep.model_label = "the robot file's (" + modelLabel(after.extensions) + "), frames only";
-    // Its extensions against the same campaign's geometric calibration, both carried to these rows: the better one.
-    if (in.calibration && in.calibration->geometric_params.size() == robot.numParams() && !after.extensions.empty()) {
-      rep.carried = compareCarried(robot, after, in.calibration->geometric_params, ident, idr, verify, vdr);
-      if (!rep.carried->extensions_transfer && !problem.keep_extensions) {
-        after = rep.carried->geometric;
-        rep.model_label =
-            "the campaign's geometric calibration (the robot file's extensions do not transfer), frames only";
-      }
-    }
-    ident_outliers = screenRows(robot, after, ident, idr, p.outliers);
-  } else {
-    const std::vector<Extension> named =
-        problem.model == CampaignModel::kNamed ? problem.extensions : std::vector<Extension>{};
-    // Parameters the identification rows leave unexcited where a verification row excites them: held, and said.
-    const std::vector<ExcitationDeficit> held =
-        problem.excitation_ratio > 0
-            ? excitationDeficits(robot, start, named, ident, idr, verify, vdr, problem.excitation_ratio)
-            : std::vector<ExcitationDeficit>{};
-    p.identifiability.rank_tolerance = problem.identifiability.rank_tolerance;
-    p.identifiability.prior_sigma = problem.identifiability.prior_sigma;
-    for (const auto& h : held)
-      if (h.column < robot.numParams()) p.identifiability.held.push_back(h.column);
-    std::string why;
-    if (!p.IsValid(&why)) throw std::runtime_error(why);
-    r = problem.solver == CampaignSolver::kLevenbergMarquardt ? solveLevenbergMarquardt(p) : solveGaussNewton(p);
-    after = geometricFit(r);
-    rep.held = held;
-    ident_outliers = r.outliers;
-    rep.model_label = "geometric";
-    rep.converged = r.converged;
-    rep.iterations = r.iterations;
-    rep.estimated = r.estimated.size();
-    rep.message = r.message;
-    if (problem.model != CampaignModel::kGeometric) {
-      if (problem.model == CampaignModel::kAuto) {
-        const DiagnosisResult& d = rep.diagnosis.emplace(internal::diagnoseForAuto(problem, in, ""));
-        after = d.best().fit;
-        rep.held = d.best().held;
-        ident_outliers = d.identification_outliers;
-      } else {
-        IdentifiabilityOptions io = p.identifiability;
-        io.noise_scale = r.identifiability.noise_scale;  // the geometric fit's: what the model leaves counts as noise
-        io.held = heldColumns(held);
-        after = fitExtendedRobust(robot, start, ident, idr, named, {}, io, &r.params, p.outliers, &ident_outliers);
-      }
-      rep.model_label = after.extensions.empty() ? "geometric (auto: no cause found)" : modelLabel(after.extensions);
-      // The extended model stands on the geometric fit (its start, its rows' screen): both must have converged.
-      if (!r.converged) rep.message = "the geometric fit beneath did not converge: " + r.message;
-      rep.converged = r.converged && after.converged;
-      rep.iterations = after.iterations;
-      rep.estimated = after.estimated.size() + after.estimated_extension.size();
-      if (r.converged) rep.message = after.message;
-    }
-  }
-  rep.solve_s = std::chrono::duration<double>(Clock::now() - t1).count();
-  rep.before = geometricFit(start);
-  rep.errors = internal::campaignErrors(robot, rep.before, after, in.data, ident_outliers, p.outliers);
+  const ExtendedFit& after = rep.after;
+  const CalibrationResult& r = rep.geometric;
   const CampaignErrors& e = rep.errors;
-  const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), e.verification_outliers.rows);
-  const std::vector<Observation> verify_kept = subset(verify, vk);
-  const std::vector<Drivers> vdr_kept = subset(vdr, vk);
-  const std::vector<int> ik = keptRows(static_cast<int>(ident.size()), ident_outliers.rows);
-  const std::vector<Observation> ident_kept = subset(ident, ik);
-  const std::vector<Drivers> idr_kept = subset(idr, ik);
-  // The frames' own uncertainty with frames only: their covariance on these rows, the kinematics as the file has
-  // them, scaled by what the frames leave (the kinematics' error on this set-up is in that residual).
-  if (problem.frames_only) {  // a frame parameter these rows do not determine (a tool rotation from points) is not estimated
-    after.estimated = conditionalCovariance(robot, after, ident_kept, idr_kept, after.estimated, &after.covariance,
-                                            &rep.frames_variance_factor);
-    rep.estimated = after.estimated.size();
-  }
-  // What the extensions are worth beyond their data (prediction.hpp): measured on region folds of the identification
-  // rows, saved in the robot file, carried by frames only.
-  if (!problem.frames_only && !after.extensions.empty() && after.converged) {
-    DiagnosisOptions o;
-    o.identifiability = p.identifiability;
-    o.identifiability.noise_scale = r.identifiability.noise_scale;
-    o.excitation_ratio = problem.excitation_ratio;
-    rep.transfer = extensionTransfer(robot, start, after, ident_kept, idr_kept, o);
-  }
-  // Carried with frames only where the robot file's extensions are kept.
-  rep.beyond = rep.transfer ? rep.transfer->beyond()
-               : problem.frames_only && in.calibration && !after.extensions.empty() ? in.calibration->beyond_data
-                                                                                  : std::vector<BeyondRange>{};
-  rep.beyond_drivers = rep.transfer ? rep.transfer->beyondDrivers()
-                       : problem.frames_only && in.calibration && !after.extensions.empty()
-                           ? in.calibration->beyond_drivers
-                           : std::vector<DriverRange>{};
-  // How far the model can be trusted: its predicted position error on every kept row, against the actual one. With
-  // frames only, the robot file's covariance carried to these rows less what the new frames take up of it
-  // (carriedPrediction); a robot file without a calibration section carries the priors of a model no one calibrated.
-  rep.prediction = [&] {
-    if (!problem.frames_only) {
-      PredictionModel own = predictionModel(robot, after, ident_kept, idr_kept);
-      own.beyond = rep.beyond;
-      own.beyond_drivers = rep.beyond_drivers;
-      return own;
-    }
-    PredictionModel carried;
-    if (in.calibration) {
-      // Over the kinematic parameters alone where the extensions were left for the geometric calibration (its own
-      // covariance is not in the file: the extended fit's, marginal, stands for it).
-      const auto& kc = in.calibration->columns;
-      std::vector<Eigen::Index> keep;
-      for (size_t k = 0; k < kc.size(); ++k)
-        if (!after.extensions.empty() || kc[k] < robot.numParams()) keep.push_back(static_cast<Eigen::Index>(k));
-      for (Eigen::Index k : keep) carried.columns.push_back(kc[static_cast<size_t>(k)]);
-      carried.covariance = in.calibration->covariance(keep, keep);
-    } else {
-      carried = predictionModel(robot, after, {}, {});
-    }
-    // The readings' noise on these rows as the frames leave it, position and orientation rows apart (their sigmas may
-    // not be the campaign's, and a tracker may understate one kind).
-    carried.beyond = rep.beyond;  // what the extensions may do beyond the campaign's joint ranges (its region folds)
-    carried.beyond_drivers = rep.beyond_drivers;  // and its drivers' ranges
-    return carriedPrediction(robot, after, carried, ident_kept, idr_kept, after.estimated,
-                             residualVarianceFactors(robot, after, ident_kept, idr_kept,
-                                                     static_cast<int>(after.estimated.size())));
-  }();
   const PredictionModel& pm = rep.prediction;
-  rep.check = checkPrediction(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
-  // With frames only the start is the same model with its frames registered in closed form: no baseline to beat,
-  // only the extrapolation rule applies.
-  rep.unusable = unusableFit(problem.frames_only ? e.verification_kept_after : e.verification_kept_before,
-                             e.verification_kept_after, e.identification_kept_after);
-  rep.implausible = implausibleParameters(robot, start, after);
-  if (problem.residual_map)
-    judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, problem.residual_map_options, &rep);
-  rep.verdict = verdictOf(rep.converged, rep.unusable, e.verification_kept_before, e.verification_kept_after,
-                          rep.model_label, problem.frames_only, pm.variance_factor_position, rep.check.extrapolated);
-  if (rep.exitCode() != 0) return rep;
-
-  // What a robot file saves.
   RobotCalibration& cal = rep.calibration;
   cal = robotCalibration(robot, after, pm);
   cal.residual_map = rep.residual_map;
@@ -396,11 +345,106 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
     pv.push_back(kv);
   for (auto& kv : cal.provenance) pv.push_back(kv);
   cal.provenance = pv;
+}
+
+CampaignReport calibrateOne(const CampaignProblem& problem) {
+  CampaignReport rep;
+  rep.frames_only = problem.frames_only;
+  const CampaignInput& in = problem.setups.front();
+  const RobotModel& robot = in.robot;
+  const auto& ident = in.data.identification;
+  const auto& verify = in.data.verification;
+  const Eigen::VectorXd& start = in.start;
+  using Clock = std::chrono::steady_clock;
+  const auto t1 = Clock::now();
+  const auto& idr = in.data.identification_drivers;
+  const auto& vdr = in.data.verification_drivers;
+  CalibrationProblem p{&robot, start, ident, std::nullopt, {}, {}};
+  p.outliers = problem.outliers;
+  CalibrationResult& r = rep.geometric;
+  ExtendedFit& after = rep.after;
+  OutlierScreen ident_outliers;
+  if (problem.frames_only) registerFrames(problem, in, rep, &ident_outliers);
+  else fitModel(problem, in, p, rep, &ident_outliers);
+  rep.solve_s = std::chrono::duration<double>(Clock::now() - t1).count();
+  rep.before = geometricFit(start);
+  rep.errors = internal::campaignErrors(robot, rep.before, after, in.data, ident_outliers, p.outliers);
+  const CampaignErrors& e = rep.errors;
+  const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), e.verification_outliers.rows);
+  const std::vector<Observation> verify_kept = subset(verify, vk);
+  const std::vector<Drivers> vdr_kept = subset(vdr, vk);
+  const std::vector<int> ik = keptRows(static_cast<int>(ident.size()), ident_outliers.rows);
+  const std::vector<Observation> ident_kept = subset(ident, ik);
+  const std::vector<Drivers> idr_kept = subset(idr, ik);
+  // The frames' own uncertainty with frames only: their covariance on these rows, the kinematics as the file has
+  // them, scaled by what the frames leave (the kinematics' error on this set-up is in that residual).
+  if (problem.frames_only) {  // a frame parameter these rows do not determine (a tool rotation from points) is not estimated
+    after.estimated = conditionalCovariance(robot, after, ident_kept, idr_kept, after.estimated, &after.covariance,
+                                            &rep.frames_variance_factor);
+    rep.estimated = after.estimated.size();
+  }
+  // What the extensions are worth beyond their data (prediction.hpp): measured on region folds of the identification
+  // rows, saved in the robot file, carried by frames only.
+  if (!problem.frames_only && !after.extensions.empty() && after.converged) {
+    DiagnosisOptions o;
+    o.identifiability = p.identifiability;
+    o.identifiability.noise_scale = r.identifiability.noise_scale;
+    o.excitation_ratio = problem.excitation_ratio;
+    rep.transfer = extensionTransfer(robot, start, after, ident_kept, idr_kept, o);
+  }
+  // Carried with frames only where the robot file's extensions are kept.
+  rep.beyond = rep.transfer ? rep.transfer->beyond()
+               : problem.frames_only && in.calibration && !after.extensions.empty() ? in.calibration->beyond_data
+                                                                                  : std::vector<BeyondRange>{};
+  rep.beyond_drivers = rep.transfer ? rep.transfer->beyondDrivers()
+                       : problem.frames_only && in.calibration && !after.extensions.empty()
+                           ? in.calibration->beyond_drivers
+                           : std::vector<DriverRange>{};
+  rep.prediction = campaignPrediction(problem, in, rep, ident_kept, idr_kept);
+  const PredictionModel& pm = rep.prediction;
+  rep.check = checkPrediction(robot, after, pm, ident_kept, idr_kept, verify_kept, vdr_kept);
+  // With frames only the start is the same model with its frames registered in closed form: no baseline to beat,
+  // only the extrapolation rule applies.
+  rep.unusable = unusableFit(problem.frames_only ? e.verification_kept_after : e.verification_kept_before,
+                             e.verification_kept_after, e.identification_kept_after);
+  rep.implausible = implausibleParameters(robot, start, after);
+  if (problem.residual_map)
+    judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, problem.residual_map_options, &rep);
+  if (rep.exitCode() != 0) return rep;
+
+  saveCalibration(problem, in, rep);
   rep.saved_params = after.params;
   return rep;
 }
 
 }  // namespace
+
+// The last line of a calibration (campaign.hpp).
+std::string recommendationText(const CampaignReport& rep) {
+  if (rep.several_setups) return "";
+  const ErrorStats& before = rep.errors.verification_kept_before;
+  const ErrorStats& after = rep.errors.verification_kept_after;
+  const std::string& model = rep.model_label;
+  const bool frames_only = rep.frames_only;
+  const double variance_factor = rep.prediction.variance_factor_position;
+  const int extrapolated = rep.check.extrapolated;
+  char buf[640];
+  if (!rep.converged) return "recommendation: do not deploy: the solver did not converge (exit 3)";
+  if (!rep.unusable.empty()) return "recommendation: do not deploy: " + rep.unusable + " (exit 4)";
+  const double gain = before.mean_mm > 0 ? 100.0 * (1.0 - after.mean_mm / before.mean_mm) : 0.0;
+  if (frames_only)
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the robot file's model with these frames: held-out mean "
+                  "%.4f mm", after.mean_mm);
+  else
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the %s model: held-out mean %.4f mm against %.4f mm before "
+                  "(%.0f %% better)", model.c_str(), after.mean_mm, before.mean_mm, gain);
+  std::string out = buf;
+  if (extrapolated > 0) out += "; outside the calibrated region (" + std::to_string(extrapolated) + " verification rows) "
+                               "it extrapolates: measure poses there";
+  if (variance_factor > 4 && model.rfind("geometric", 0) == 0 && !frames_only)
+    out += "; it leaves more than noise: `cellcal diagnose` names the cause and the extended model to deploy instead";
+  return out;
+}
 
 CampaignReport calibrateCampaign(const CampaignProblem& problem) {
   std::string why;

@@ -457,7 +457,7 @@ void CalibrationEngine::decideHealth() {
   const HealthVerdict v = judgeHealth(f, *settings_);
   snap_.drift_alarm = v.drift_alarm;
   snap_.health = v.health;
-  snap_.health_reason = v.reason;
+  snap_.health_verdict = v;
   snap_.held_version = v.hold ? last_good_->version : 0;
   if (v.hold) static_cast<CalibratedModel&>(snap_) = *last_good_;
   else publishEstimate();

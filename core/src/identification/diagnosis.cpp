@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <optional>
@@ -93,46 +94,22 @@ bool DiagnosisOptions::IsValid(std::string* error) const {
   return true;
 }
 
-std::vector<DriverStructure> residualStructure(const RobotModel& model, const CalibratedModel& fit,
+namespace {
+
+// A driver the residual may follow, and its regressors (n x p, one row per observation).
+struct DriverRegressors {
+  std::string name;
+  Eigen::MatrixXd X;
+};
+
+// The drivers residualStructure tests: each joint's angle (first and second harmonics), the gravity torque of each
+// joint compliance applies to, the thermal driver and time, each joint's direction of motion, and the position in the
+// workspace (to second order).
+std::vector<DriverRegressors> structureDrivers(const RobotModel& model, const CalibratedModel& fit,
                                                const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
-                                               bool has_thermal, double alpha) {
+                                               bool has_thermal) {
   const auto n = static_cast<Eigen::Index>(obs.size());
-  std::vector<DriverStructure> out;
-  if (n < 10) return out;
-  const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, obs, drivers);
-  const Eigen::Index m = 3 * n;
-  Eigen::VectorXd Y(m);
-  for (Eigen::Index i = 0; i < n; ++i) Y.segment<3>(3 * i) = res[static_cast<size_t>(i)];
-  // What the fit's own parameters could absorb: their (unwhitened) position Jacobian columns on these rows, and a
-  // constant per axis.
-  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
-  Eigen::VectorXd r;
-  Eigen::MatrixXd J;
-  stackExtended(model, fit.params, fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(), obs, B, r, &J);
-  const int np = model.numParams();
-  std::vector<int> cols = fit.estimated;
-  for (int k : fit.estimated_extension) cols.push_back(np + k);
-  Eigen::MatrixXd X0 = Eigen::MatrixXd::Zero(m, static_cast<Eigen::Index>(cols.size()) + 3);
-  for (Eigen::Index i = 0, row = 0; i < n; ++i) {
-    const Observation& o = obs[static_cast<size_t>(i)];
-    for (size_t c = 0; c < cols.size(); ++c)
-      X0.block(3 * i, static_cast<Eigen::Index>(c), 3, 1) = J.block(row, cols[c], 3, 1) * o.sigma_position_m;
-    X0.block<3, 3>(3 * i, static_cast<Eigen::Index>(cols.size())).setIdentity();
-    row += o.rows();
-  }
-  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr0(X0);
-  qr0.setThreshold(1e-10);
-  const Eigen::Index r0 = qr0.rank();
-  const Eigen::MatrixXd Q0 = (qr0.householderQ() * Eigen::MatrixXd::Identity(m, r0));
-  auto project_out = [&](const Eigen::MatrixXd& X) -> Eigen::MatrixXd { return X - Q0 * (Q0.transpose() * X); };
-  const Eigen::VectorXd R0 = project_out(Y);
-  const double sse0 = R0.squaredNorm();
-  if (!(sse0 > 0)) return out;
-  struct Candidate {
-    std::string name;
-    Eigen::MatrixXd X;  // n x p regressors
-  };
-  std::vector<Candidate> drivers_x;
+  std::vector<DriverRegressors> drivers_x;
   const int nj = model.numJoints();
   for (int j = 0; j < nj; ++j) {
     Eigen::MatrixXd X(n, 4);
@@ -187,8 +164,49 @@ std::vector<DriverStructure> residualStructure(const RobotModel& model, const Ca
     }
     drivers_x.push_back({"workspace", X});
   }
+  return drivers_x;
+}
+
+}  // namespace
+
+std::vector<DriverStructure> residualStructure(const RobotModel& model, const CalibratedModel& fit,
+                                               const std::vector<Observation>& obs, const std::vector<Drivers>& drivers,
+                                               bool has_thermal, double alpha) {
+  const auto n = static_cast<Eigen::Index>(obs.size());
+  std::vector<DriverStructure> out;
+  if (n < 10) return out;
+  const std::vector<Eigen::Vector3d> res = positionResiduals(model, fit, obs, drivers);
+  const Eigen::Index m = 3 * n;
+  Eigen::VectorXd Y(m);
+  for (Eigen::Index i = 0; i < n; ++i) Y.segment<3>(3 * i) = res[static_cast<size_t>(i)];
+  // What the fit's own parameters could absorb: their (unwhitened) position Jacobian columns on these rows, and a
+  // constant per axis.
+  const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackExtended(model, fit.params, fit.extension_params.size() ? fit.extension_params : Eigen::VectorXd(), obs, B, r, &J);
+  const int np = model.numParams();
+  std::vector<int> cols = fit.estimated;
+  for (int k : fit.estimated_extension) cols.push_back(np + k);
+  Eigen::MatrixXd X0 = Eigen::MatrixXd::Zero(m, static_cast<Eigen::Index>(cols.size()) + 3);
+  for (Eigen::Index i = 0, row = 0; i < n; ++i) {
+    const Observation& o = obs[static_cast<size_t>(i)];
+    for (size_t c = 0; c < cols.size(); ++c)
+      X0.block(3 * i, static_cast<Eigen::Index>(c), 3, 1) = J.block(row, cols[c], 3, 1) * o.sigma_position_m;
+    X0.block<3, 3>(3 * i, static_cast<Eigen::Index>(cols.size())).setIdentity();
+    row += o.rows();
+  }
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr0(X0);
+  qr0.setThreshold(1e-10);
+  const Eigen::Index r0 = qr0.rank();
+  const Eigen::MatrixXd Q0 = (qr0.householderQ() * Eigen::MatrixXd::Identity(m, r0));
+  auto project_out = [&](const Eigen::MatrixXd& X) -> Eigen::MatrixXd { return X - Q0 * (Q0.transpose() * X); };
+  const Eigen::VectorXd R0 = project_out(Y);
+  const double sse0 = R0.squaredNorm();
+  if (!(sse0 > 0)) return out;
+  const std::vector<DriverRegressors> drivers_x = structureDrivers(model, fit, obs, drivers, has_thermal);
   const double tests = static_cast<double>(drivers_x.size());
-  for (const Candidate& c : drivers_x) {
+  for (const DriverRegressors& c : drivers_x) {
     // Each regressor acts on each axis separately.
     const Eigen::Index pd = c.X.cols();
     Eigen::MatrixXd X1 = Eigen::MatrixXd::Zero(m, 3 * pd);
@@ -543,6 +561,214 @@ DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, 
 }
 
 namespace {
+
+// The rows a selection is judged on: identification (I, ID) and verification (V, VD), gross errors left out.
+struct SelectionRows {
+  std::vector<Observation> I;
+  std::vector<Drivers> ID;
+  std::vector<Observation> V;
+  std::vector<Drivers> VD;
+};
+
+// One round's candidates, fitted in full and sorted by score (with their verification residuals and the extension
+// each added), and those the screen judged but did not fit.
+struct Round {
+  std::vector<CandidateResult> sorted;
+  std::vector<std::vector<Eigen::Vector3d>> residuals;
+  std::vector<Extension> added;
+  std::vector<CandidateResult> only_screened;
+};
+
+// The forward selection: the geometric model, then round by round the cause that lowers the held-out error most and
+// significantly (chooseCandidate), up to max_causes.
+class ForwardSelection {
+ public:
+  ForwardSelection(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisOptions& options,
+                   std::vector<Extension> to_try, std::function<void()> progress)
+      : model_(model), start_(start), options_(options), to_try_(std::move(to_try)), progress_(std::move(progress)) {}
+
+  Selection run(std::vector<Observation> I, std::vector<Drivers> ID, std::vector<Observation> V,
+                std::vector<Drivers> VD) const {
+    const SelectionRows rows{std::move(I), std::move(ID), std::move(V), std::move(VD)};
+    Selection sel;
+    std::vector<ExcitationDeficit> geometric_held;
+    const IdentifiabilityOptions geometric_io = heldFor(rows, {}, &geometric_held);
+    sel.geometric = evaluate(rows, fitExtended(model_, start_, rows.I, rows.ID, Extension{}, options_.solver, geometric_io));
+    sel.geometric.held = geometric_held;
+    progress_();
+    CandidateResult base = sel.geometric;
+    std::vector<Eigen::Vector3d> base_res = positionResiduals(model_, base.fit, rows.V, rows.VD);
+    // The screen's rows: every one up to screen_rows, else every k-th (evenly through the file) of each set.
+    const std::vector<int> si = internal::evenlyThinned(rows.I.size(), options_.screen_rows),
+                           sv = internal::evenlyThinned(rows.V.size(), options_.screen_rows);
+    const SelectionRows screen_rows{subset(rows.I, si), subset(rows.ID, si), subset(rows.V, sv), subset(rows.VD, sv)};
+    for (int round = 0; round < options_.max_causes; ++round) {
+      Round r = fitRound(rows, screen_rows, sv, base, base_res);
+      const int pick = chooseCandidate(base, r.sorted, r.residuals, options_);
+      if (round == 0) {
+        sel.candidates = r.sorted;
+        sel.chosen = pick;
+        for (auto& c : r.only_screened) sel.candidates.push_back(std::move(c));
+      }
+      if (pick < 0) break;
+      sel.steps.push_back(stepOf(r, pick, base));
+      base = sel.steps.back().result;
+      base_res = r.residuals[static_cast<size_t>(pick)];
+    }
+    return sel;
+  }
+
+ private:
+  CandidateResult evaluate(const SelectionRows& rows, ExtendedFit fit) const {
+    CandidateResult c;
+    c.identification = errorStats(model_, fit, rows.I, rows.ID);
+    c.verification = errorStats(model_, fit, rows.V, rows.VD);
+    c.verify_mse_m2 = std::pow(c.verification.rms_mm * 1e-3, 2);
+    c.score = c.verify_mse_m2 * (1.0 + options_.penalty_per_param * fit.numEstimatedExtension() /
+                                           static_cast<double>(totalRows(rows.I)));
+    c.fit = std::move(fit);
+    return c;
+  }
+
+  // Parameters the identification rows leave unexcited (where the verification rows excite them) are held.
+  IdentifiabilityOptions heldFor(const SelectionRows& rows, const std::vector<Extension>& exts,
+                                 std::vector<ExcitationDeficit>* deficits) const {
+    IdentifiabilityOptions io = options_.identifiability;
+    if (options_.excitation_ratio > 0) {
+      *deficits = excitationDeficits(model_, start_, exts, rows.I, rows.ID, rows.V, rows.VD, options_.excitation_ratio);
+      for (const auto& d : *deficits) io.held.push_back(d.column);
+    }
+    return io;
+  }
+
+  // Which candidates a round fits in full. The linearized screen (RoundScreen) judges every candidate by one step; the
+  // screen_keep best, and those it cannot judge (a warm-up whose time constant is searched in the fit), are fitted in
+  // full; screen_keep 0: every candidate. `screened` ends with those judged but not fitted.
+  struct Plan {
+    std::vector<Extension> to_fit;
+    std::map<size_t, size_t> warm;  // to_fit index -> screened index: the screen's step starts the fit
+    size_t fitted_screened = 0;
+    std::vector<std::pair<Extension, RoundScreen::Screened>> screened;
+  };
+  Plan planRound(const SelectionRows& rows, const SelectionRows& screen_rows, const CandidateResult& base) const {
+    Plan plan;
+    const std::vector<Extension>& chosen = base.fit.extensions;
+    std::optional<RoundScreen> screen;
+    if (options_.screen_keep > 0)
+      screen.emplace(model_, start_, base.fit, screen_rows.I, screen_rows.ID, screen_rows.V, screen_rows.VD,
+                     options_.identifiability.rank_tolerance);
+    for (const Extension& ext : to_try_) {
+      if (conflicts(ext, chosen)) continue;
+      if (!screen || needsTimeConstant(ext, rows.ID)) {
+        plan.to_fit.push_back(ext);
+        continue;
+      }
+      auto sc = screen->screen(ext, options_.penalty_per_param);
+      if (sc) plan.screened.emplace_back(ext, std::move(*sc));
+    }
+    auto& screened = plan.screened;
+    std::sort(screened.begin(), screened.end(), [](const auto& a, const auto& b) { return a.second.score < b.second.score; });
+    // The best, and those whose screened score lies within screen_margin of it (at most screen_keep); then, within
+    // the margin, each candidate with fewer parameters than every one taken so far (parsimony may prefer it:
+    // chooseCandidate takes a simpler significant candidate unless a larger one beats it clearly).
+    std::vector<bool> take(screened.size(), false);
+    int fewest = std::numeric_limits<int>::max();
+    for (size_t i = 0; i < screened.size(); ++i) {
+      if (i > 0 && screened[i].second.score > (1.0 + options_.screen_margin) * screened[0].second.score) break;
+      const int k = screened[i].second.result.fit.numEstimatedExtension();
+      if (static_cast<int>(i) < options_.screen_keep || k < fewest) {
+        take[i] = true;
+        fewest = std::min(fewest, k);
+      }
+    }
+    // Taken first in the order of the screen; the others follow (only_screened).
+    std::vector<std::pair<Extension, RoundScreen::Screened>> ordered;
+    for (int pass = 0; pass < 2; ++pass)
+      for (size_t i = 0; i < screened.size(); ++i)
+        if (take[i] == (pass == 0)) ordered.push_back(std::move(screened[i]));
+    screened = std::move(ordered);
+    plan.fitted_screened = static_cast<size_t>(std::count(take.begin(), take.end(), true));
+    for (size_t i = 0; i < plan.fitted_screened; ++i) {
+      plan.to_fit.push_back(screened[i].first);
+      plan.warm[plan.to_fit.size() - 1] = i;
+    }
+    return plan;
+  }
+
+  // A round: the planned candidates fitted in full on the rows, each with base's extensions, and sorted by score.
+  Round fitRound(const SelectionRows& rows, const SelectionRows& screen_rows, const std::vector<int>& sv,
+                 const CandidateResult& base, const std::vector<Eigen::Vector3d>& base_res) const {
+    Plan plan = planRound(rows, screen_rows, base);
+    std::vector<CandidateResult> cands;
+    std::vector<std::vector<Eigen::Vector3d>> residuals;
+    std::vector<Extension> added;
+    for (size_t f = 0; f < plan.to_fit.size(); ++f) {
+      const Extension& ext = plan.to_fit[f];
+      std::vector<Extension> exts = base.fit.extensions;
+      exts.push_back(ext);
+      std::vector<ExcitationDeficit> held;
+      const IdentifiabilityOptions io = heldFor(rows, exts, &held);
+      // From the screen's step where there is one (a few Gauss-Newton iterations fewer), else from the base.
+      const auto w = plan.warm.find(f);
+      const ExtendedFit* step = w != plan.warm.end() ? &plan.screened[w->second].second.result.fit : nullptr;
+      CandidateResult c = step ? evaluate(rows, fitExtended(model_, start_, rows.I, rows.ID, exts, options_.solver, io,
+                                                            &step->params, &step->extension_params))
+                               : evaluate(rows, fitExtended(model_, start_, rows.I, rows.ID, exts, options_.solver, io,
+                                                            &base.fit.params));
+      c.held = std::move(held);
+      progress_();
+      // Nothing the model so far could not already do.
+      if (c.fit.numEstimatedExtension() <= base.fit.numEstimatedExtension()) continue;
+      residuals.push_back(positionResiduals(model_, c.fit, rows.V, rows.VD));
+      c.z = pairedZ(base_res, residuals.back());
+      cands.push_back(std::move(c));
+      added.push_back(ext);
+    }
+    Round r;
+    // The screened ones not fitted: in the first round's table with their step's figures, never chosen.
+    for (size_t i = plan.fitted_screened; i < plan.screened.size(); ++i) {
+      CandidateResult c = std::move(plan.screened[i].second.result);
+      c.z = pairedZ(subset(base_res, sv), plan.screened[i].second.residuals);
+      c.screened = true;
+      r.only_screened.push_back(std::move(c));
+      progress_();
+    }
+    std::vector<size_t> order(cands.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return cands[a].score < cands[b].score; });
+    for (size_t i : order) {
+      r.sorted.push_back(std::move(cands[i]));
+      r.residuals.push_back(std::move(residuals[i]));
+      r.added.push_back(added[i]);
+    }
+    return r;
+  }
+
+  // The step a round's pick makes, with the (at most three) others that did about as well.
+  SelectionStep stepOf(const Round& r, int pick, const CandidateResult& base) const {
+    SelectionStep step;
+    for (size_t i = 0; i < r.sorted.size() && step.alike.size() < 3; ++i) {
+      const CandidateResult& c = r.sorted[i];
+      if (static_cast<int>(i) == pick || !(c.score < base.score) || c.z <= options_.min_z ||
+          1.0 - c.verify_mse_m2 / base.verify_mse_m2 <= options_.min_gain)
+        continue;
+      if (pairedZ(r.residuals[i], r.residuals[static_cast<size_t>(pick)]) <= options_.parsimony_z)
+        step.alike.push_back(r.added[i]);
+    }
+    step.result = r.sorted[static_cast<size_t>(pick)];
+    step.added = step.result.fit.extensions.back();  // with its fitted time constant
+    step.z = step.result.z;
+    step.gain_pct = 100.0 * (1.0 - step.result.verification.mean_mm / base.verification.mean_mm);
+    return step;
+  }
+
+  const RobotModel& model_;
+  const Eigen::VectorXd& start_;
+  const DiagnosisOptions& options_;
+  const std::vector<Extension> to_try_;
+  const std::function<void()> progress_;
+};
+
 DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
                                 const DiagnosisOptions& options, std::chrono::steady_clock::time_point t0) {
   std::vector<Extension> to_try;
@@ -551,165 +777,9 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
       if (applicable(model, Extension{cause, j}, data.has_thermal)) to_try.push_back(Extension{cause, j});
   int fits_done = 0;
   const int fits_total = 2 + static_cast<int>(to_try.size()) * options.max_causes;
-  auto progress = [&] {
+  const ForwardSelection selection(model, start, options, std::move(to_try), [&] {
     if (options.progress) options.progress(std::min(++fits_done, fits_total - 1), fits_total);
-  };
-
-  // The forward selection on the rows kept (I, V: identification and verification rows without gross errors).
-  auto select = [&](const std::vector<Observation>& I, const std::vector<Drivers>& ID, const std::vector<Observation>& V,
-                    const std::vector<Drivers>& VD) {
-    auto evaluate = [&](ExtendedFit fit) {
-      CandidateResult c;
-      c.identification = errorStats(model, fit, I, ID);
-      c.verification = errorStats(model, fit, V, VD);
-      c.verify_mse_m2 = std::pow(c.verification.rms_mm * 1e-3, 2);
-      c.score = c.verify_mse_m2 * (1.0 + options.penalty_per_param * fit.numEstimatedExtension() /
-                                             static_cast<double>(totalRows(I)));
-      c.fit = std::move(fit);
-      return c;
-    };
-    // Parameters the identification rows leave unexcited (where the verification rows excite them) are held.
-    auto heldFor = [&](const std::vector<Extension>& exts, std::vector<ExcitationDeficit>* deficits) {
-      IdentifiabilityOptions io = options.identifiability;
-      if (options.excitation_ratio > 0) {
-        *deficits = excitationDeficits(model, start, exts, I, ID, V, VD, options.excitation_ratio);
-        for (const auto& d : *deficits) io.held.push_back(d.column);
-      }
-      return io;
-    };
-    Selection sel;
-    std::vector<ExcitationDeficit> geometric_held;
-    const IdentifiabilityOptions geometric_io = heldFor({}, &geometric_held);
-    sel.geometric = evaluate(fitExtended(model, start, I, ID, Extension{}, options.solver, geometric_io));
-    sel.geometric.held = geometric_held;
-    progress();
-    CandidateResult base = sel.geometric;
-    std::vector<Eigen::Vector3d> base_res = positionResiduals(model, base.fit, V, VD);
-    // The screen's rows: every one up to screen_rows, else every k-th (evenly through the file) of each set.
-    const std::vector<int> si = internal::evenlyThinned(I.size(), options.screen_rows),
-                           sv = internal::evenlyThinned(V.size(), options.screen_rows);
-    const std::vector<Observation> SI = subset(I, si), SV = subset(V, sv);
-    const std::vector<Drivers> SID = subset(ID, si), SVD = subset(VD, sv);
-    for (int round = 0; round < options.max_causes; ++round) {
-      const std::vector<Extension> chosen = base.fit.extensions;
-      std::vector<CandidateResult> cands;
-      std::vector<std::vector<Eigen::Vector3d>> residuals;
-      std::vector<Extension> added;
-      // The linearized screen (RoundScreen): every candidate judged by one step; the screen_keep best, and those it
-      // cannot judge (a warm-up whose time constant is searched in the fit), fitted in full. screen_keep 0: every
-      // candidate fitted in full.
-      std::vector<Extension> to_fit;
-      std::map<size_t, const ExtendedFit*> warm;  // to_fit index -> the screen's step
-      size_t fitted_screened = 0;
-      std::vector<std::pair<Extension, RoundScreen::Screened>> screened;
-      {
-        std::optional<RoundScreen> screen;
-        if (options.screen_keep > 0)
-          screen.emplace(model, start, base.fit, SI, SID, SV, SVD, options.identifiability.rank_tolerance);
-        for (const Extension& ext : to_try) {
-          if (conflicts(ext, chosen)) continue;
-          if (!screen || needsTimeConstant(ext, ID)) {
-            to_fit.push_back(ext);
-            continue;
-          }
-          auto sc = screen->screen(ext, options.penalty_per_param);
-          if (sc) screened.emplace_back(ext, std::move(*sc));
-        }
-        std::sort(screened.begin(), screened.end(),
-                  [](const auto& a, const auto& b) { return a.second.score < b.second.score; });
-        // The best, and those whose screened score lies within screen_margin of it (at most screen_keep); then, within
-        // the margin, each candidate with fewer parameters than every one taken so far (parsimony may prefer it:
-        // chooseCandidate takes a simpler significant candidate unless a larger one beats it clearly).
-        std::vector<bool> take(screened.size(), false);
-        int fewest = std::numeric_limits<int>::max();
-        for (size_t i = 0; i < screened.size(); ++i) {
-          if (i > 0 && screened[i].second.score > (1.0 + options.screen_margin) * screened[0].second.score) break;
-          const int k = screened[i].second.result.fit.numEstimatedExtension();
-          if (static_cast<int>(i) < options.screen_keep || k < fewest) {
-            take[i] = true;
-            fewest = std::min(fewest, k);
-          }
-        }
-        // Taken first in the order of the screen; the others follow (only_screened below).
-        std::vector<std::pair<Extension, RoundScreen::Screened>> ordered;
-        for (int pass = 0; pass < 2; ++pass)
-          for (size_t i = 0; i < screened.size(); ++i)
-            if (take[i] == (pass == 0)) ordered.push_back(std::move(screened[i]));
-        screened = std::move(ordered);
-        fitted_screened = static_cast<size_t>(std::count(take.begin(), take.end(), true));
-        for (size_t i = 0; i < fitted_screened; ++i) {
-          to_fit.push_back(screened[i].first);
-          warm[to_fit.size() - 1] = &screened[i].second.result.fit;
-        }
-      }
-      for (size_t f = 0; f < to_fit.size(); ++f) {
-        const Extension& ext = to_fit[f];
-        std::vector<Extension> exts = chosen;
-        exts.push_back(ext);
-        std::vector<ExcitationDeficit> held;
-        const IdentifiabilityOptions io = heldFor(exts, &held);
-        // From the screen's step where there is one (a few Gauss-Newton iterations fewer), else from the base.
-        const auto w = warm.find(f);
-        CandidateResult c =
-            w != warm.end()
-                ? evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &w->second->params,
-                                       &w->second->extension_params))
-                : evaluate(fitExtended(model, start, I, ID, exts, options.solver, io, &base.fit.params));
-        c.held = std::move(held);
-        progress();
-        // Nothing the model so far could not already do.
-        if (c.fit.numEstimatedExtension() <= base.fit.numEstimatedExtension()) continue;
-        residuals.push_back(positionResiduals(model, c.fit, V, VD));
-        c.z = pairedZ(base_res, residuals.back());
-        cands.push_back(std::move(c));
-        added.push_back(ext);
-      }
-      // The screened ones not fitted: in the first round's table with their step's figures, never chosen.
-      std::vector<CandidateResult> only_screened;
-      for (size_t i = fitted_screened; i < screened.size(); ++i) {
-        CandidateResult c = std::move(screened[i].second.result);
-        c.z = pairedZ(subset(base_res, sv), screened[i].second.residuals);
-        c.screened = true;
-        only_screened.push_back(std::move(c));
-        progress();
-      }
-      std::vector<size_t> order(cands.size());
-      for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-      std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return cands[a].score < cands[b].score; });
-      std::vector<CandidateResult> sorted;
-      std::vector<std::vector<Eigen::Vector3d>> sorted_res;
-      std::vector<Extension> sorted_added;
-      for (size_t i : order) {
-        sorted.push_back(std::move(cands[i]));
-        sorted_res.push_back(std::move(residuals[i]));
-        sorted_added.push_back(added[i]);
-      }
-      const int pick = chooseCandidate(base, sorted, sorted_res, options);
-      if (round == 0) {
-        sel.candidates = sorted;
-        sel.chosen = pick;
-        for (auto& c : only_screened) sel.candidates.push_back(std::move(c));
-      }
-      if (pick < 0) break;
-      SelectionStep step;
-      for (size_t i = 0; i < sorted.size() && step.alike.size() < 3; ++i) {
-        const CandidateResult& c = sorted[i];
-        if (static_cast<int>(i) == pick || !(c.score < base.score) || c.z <= options.min_z ||
-            1.0 - c.verify_mse_m2 / base.verify_mse_m2 <= options.min_gain)
-          continue;
-        if (pairedZ(sorted_res[i], sorted_res[static_cast<size_t>(pick)]) <= options.parsimony_z)
-          step.alike.push_back(sorted_added[i]);
-      }
-      step.result = sorted[static_cast<size_t>(pick)];
-      step.added = step.result.fit.extensions.back();  // with its fitted time constant
-      step.z = step.result.z;
-      step.gain_pct = 100.0 * (1.0 - step.result.verification.mean_mm / base.verification.mean_mm);
-      sel.steps.push_back(step);
-      base = step.result;
-      base_res = sorted_res[static_cast<size_t>(pick)];
-    }
-    return sel;
-  };
+  });
 
   const auto& I = data.identification;
   const auto& V = data.verification;
@@ -725,7 +795,7 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
   for (int pass = 0; pass < 3; ++pass) {
     const std::vector<int> ik = keptRows(static_cast<int>(I.size()), id_screen.rows);
     const std::vector<int> vk = keptRows(static_cast<int>(V.size()), ver_screen.rows);
-    sel = select(subset(I, ik), subset(ID, ik), subset(V, vk), subset(VD, vk));
+    sel = selection.run(subset(I, ik), subset(ID, ik), subset(V, vk), subset(VD, vk));
     const CandidateResult& best = sel.steps.empty() ? sel.geometric : sel.steps.back().result;
     OutlierScreen id2;
     IdentifiabilityOptions io = options.identifiability;
@@ -777,38 +847,15 @@ DiagnosisResult diagnoseAtNoise(const RobotModel& model, const Eigen::VectorXd& 
                             ? out.structure_before
                             : residualStructure(model, best.fit, Vk, VDk, data.has_thermal, options.structure_alpha);
   const DriverStructure* left = out.structureLeft();
-  char share[160] = "";
-  if (left) std::snprintf(share, sizeof share, "structure left against %s (%.0f %%)", left->driver.c_str(), 100 * left->share);
-  if (out.selection.empty()) {
-    out.verdict = left ? Verdict::kUnexplained : Verdict::kNoise;
-    out.verdict_text = left ? std::string("none of the library's causes; ") + share
-                            : "none: the geometric model leaves no structure against any driver";
-  } else {
-    out.verdict = left ? Verdict::kPartlyExplained : Verdict::kNamed;
-    out.verdict_text = left ? "partly explained by " + modelLabel(out.causes()) + "; " + share : modelLabel(out.causes());
-  }
-  if (!out.not_transferred.empty()) {
-    const RegionCheck& c = out.region_checks.back();
-    char b[300];
-    std::snprintf(b, sizeof b,
-                  "; left out: %s (fitted on part of the rows, it made the error beyond them, by %s, worse: "
-                  "mean %.4f mm with it against %.4f mm without)",
-                  modelLabel(out.not_transferred).c_str(), c.split.c_str(), c.mean_with_mm, c.mean_without_mm);
-    out.verdict_text += b;
-  }
+  if (out.selection.empty()) out.verdict = left ? Verdict::kUnexplained : Verdict::kNoise;
+  else out.verdict = left ? Verdict::kPartlyExplained : Verdict::kNamed;
   // A drift (or structure against the thermal driver) against the base frame drifting with the same driver.
   out.drift_check = checkDrift(model, start, subset(I, ik), subset(ID, ik), Vk, VDk, data.has_thermal, best, left, options);
-  using DO = DriftCheck::Outcome;
-  if (const DO o = out.drift_check.outcome; o != DO::kNotRun && o != DO::kToldApart && o != DO::kNotAFrameDrift)
-    out.verdict_text += "; " + out.drift_check.text;
   ExtendedFit start_fit;
   start_fit.params = start;
   out.start_verification = errorStats(model, start_fit, Vk, VDk);
   out.unusable = unusableFit(out.start_verification, best.verification, best.identification, options.max_extrapolation_ratio);
-  if (!out.unusable.empty()) {
-    out.verdict = Verdict::kUnusable;
-    out.verdict_text = "no recommendation: " + out.unusable;
-  }
+  if (!out.unusable.empty()) out.verdict = Verdict::kUnusable;
   out.noise = estimateNoise(model, best.fit, subset(I, ik), subset(ID, ik), Vk, VDk);
   out.noise_rms_mm = std::sqrt(3.0) * out.noise.sigma_position_mm;
   out.unexplained_rms_mm =
@@ -872,6 +919,34 @@ CauseSignature causeSignature(const RobotModel& model, const ExtendedFit& geomet
     sig.x.push_back(cause.signatureX(row));
   }
   return sig;
+}
+
+std::string describeVerdict(const DiagnosisResult& d) {
+  if (d.verdict == Verdict::kUnusable) return "no recommendation: " + d.unusable;
+  const DriverStructure* left = d.structureLeft();
+  char share[160] = "";
+  if (left) std::snprintf(share, sizeof share, "structure left against %s (%.0f %%)", left->driver.c_str(), 100 * left->share);
+  std::string out;
+  switch (d.verdict) {
+    case Verdict::kNoise: out = "none: the geometric model leaves no structure against any driver"; break;
+    case Verdict::kUnexplained: out = std::string("none of the library's causes; ") + share; break;
+    case Verdict::kPartlyExplained: out = "partly explained by " + modelLabel(d.causes()) + "; " + share; break;
+    case Verdict::kNamed: out = modelLabel(d.causes()); break;
+    case Verdict::kUnusable: break;
+  }
+  if (!d.not_transferred.empty() && !d.region_checks.empty()) {
+    const RegionCheck& c = d.region_checks.back();
+    char b[300];
+    std::snprintf(b, sizeof b,
+                  "; left out: %s (fitted on part of the rows, it made the error beyond them, by %s, worse: "
+                  "mean %.4f mm with it against %.4f mm without)",
+                  modelLabel(d.not_transferred).c_str(), c.split.c_str(), c.mean_with_mm, c.mean_without_mm);
+    out += b;
+  }
+  using DO = DriftCheck::Outcome;
+  if (const DO o = d.drift_check.outcome; o != DO::kNotRun && o != DO::kToldApart && o != DO::kNotAFrameDrift)
+    out += "; " + d.drift_check.text;
+  return out;
 }
 
 }  // namespace cellcal

@@ -175,13 +175,13 @@ TEST(Campaign, ItsFiguresAndVerdictAreThoseOfAPlainReference) {
     EXPECT_EQ(r.unusable.empty(), !worse && !extrapolates) << r.unusable;
     EXPECT_EQ(r.exitCode(), r.unusable.empty() ? 0 : 4);
     if (r.exitCode() != 0) {
-      EXPECT_NE(r.verdict.find("do not deploy"), std::string::npos) << r.verdict;
+      EXPECT_NE(recommendationText(r).find("do not deploy"), std::string::npos) << recommendationText(r);
       continue;
     }
     char mean[32];
     std::snprintf(mean, sizeof mean, "%.4f mm", e.verification_kept_after.mean_mm);
-    EXPECT_NE(r.verdict.find("deploy the geometric model: held-out mean " + std::string(mean)), std::string::npos)
-        << r.verdict;
+    EXPECT_NE(recommendationText(r).find("deploy the geometric model: held-out mean " + std::string(mean)), std::string::npos)
+        << recommendationText(r);
     // The calibration a robot file saves: the fitted kinematics, the caller's provenance first, then the figures.
     EXPECT_TRUE(r.saved_params.isApprox(r.after.params, 0));
     ASSERT_GE(r.calibration.provenance.size(), 3u);
@@ -390,7 +390,7 @@ TEST(Campaign, AModelWithThreeCyclicTermsCarriedToOtherPosesPredictsItsError) {
     InputOptions io;
     const CampaignReport r = calibrateCampaign(g.problem());
     if (r.exitCode() != 0) {
-      std::printf("  %s: the campaign is not deployed (exit %d): %s\n", what.c_str(), r.exitCode(), r.verdict.c_str());
+      std::printf("  %s: the campaign is not deployed (exit %d): %s\n", what.c_str(), r.exitCode(), recommendationText(r).c_str());
       continue;
     }
     ++draws;

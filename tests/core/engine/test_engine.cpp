@@ -240,7 +240,7 @@ TEST_F(EngineFixture, ANamedExtensionIsEstimatedInTheRlsStateAndReachesTheFloor)
       // A geometric engine on a robot with the effect may be right to raise the drift alarm (degraded).
       const Health h = engine.snapshot().health;
       EXPECT_TRUE(h == Health::kOk || (h == Health::kDegraded && &cell == &hidden && robot.extensions.empty()))
-          << what << ": " << healthName(h) << " " << engine.snapshot().health_reason;
+          << what << ": " << healthName(h) << " " << describe(engine.snapshot().health_verdict);
       return engine.snapshot();
     };
     const double t_h = program.campaignEnd_s(2) / 3600;
@@ -314,7 +314,7 @@ TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFi
   CalibrationEngine fresh(config.robots[0], config.engine, 1.0);
   const CalibrationSnapshot s0 = started.snapshot();
   EXPECT_EQ(s0.version, 1u);
-  EXPECT_EQ(s0.health, Health::kOk) << s0.health_reason << "\n" << started.startNote();
+  EXPECT_EQ(s0.health, Health::kOk) << describe(s0.health_verdict) << "\n" << started.startNote();
   EXPECT_EQ(fresh.snapshot().health, Health::kUncalibrated);
   EXPECT_LT((s0.params - fit.params).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_NE(started.startNote().find("the first reading widens its covariance"), std::string::npos) << started.startNote();
@@ -346,7 +346,7 @@ TEST_F(EngineFixture, AnEngineStartedFromACalibratedRobotFileIsCalibratedAtItsFi
     }
   }
   EXPECT_EQ(started.snapshot().version, 13u) << started.counters().last_rejection;
-  EXPECT_EQ(started.snapshot().health, Health::kOk) << started.snapshot().health_reason;
+  EXPECT_EQ(started.snapshot().health, Health::kOk) << describe(started.snapshot().health_verdict);
   const double a = started.snapshot().verification_mean_position_m, b = fresh.snapshot().verification_mean_position_m;
   std::printf("  a-priori mean over the first 12 poses: from the file %.4f mm, from nominal %.4f mm (nominal model "
               "%.4f, file at start %.4f mm)\n", a * 1e3, b * 1e3, nominal * 1e3, at_start * 1e3);
@@ -394,7 +394,7 @@ TEST_F(EngineFixture, ACalibrationFileOfAnotherSetUpIsRefusedAtTheFirstPoses) {
       EXPECT_NE(r.start_warning.find("does not fit this cell"), std::string::npos) << r.start_warning;
       EXPECT_EQ(r.version, 2u + CalibrationEngine::kProbationPoses) << "withdrawn, then the held readings applied";
       EXPECT_EQ(r.health, Health::kUncalibrated);
-      EXPECT_NE(r.health_reason.find("started from nominal"), std::string::npos) << r.health_reason;
+      EXPECT_NE(describe(r.health_verdict).find("started from nominal"), std::string::npos) << describe(r.health_verdict);
       bool said = false;
       for (const auto& n : refusing.takeNotes()) said = said || n.find("WARNING: calibration_file") == 0;
       EXPECT_TRUE(said);
@@ -413,7 +413,7 @@ TEST_F(EngineFixture, ACalibrationFileOfAnotherSetUpIsRefusedAtTheFirstPoses) {
   EXPECT_EQ(resumed.snapshot().start_warning, refusing.snapshot().start_warning);
   // The file of this cell: kept, calibrated throughout, its bumped first reading one outlier.
   EXPECT_TRUE(keeping.snapshot().start_warning.empty()) << keeping.snapshot().start_warning;
-  EXPECT_EQ(keeping.snapshot().health, Health::kOk) << keeping.snapshot().health_reason;
+  EXPECT_EQ(keeping.snapshot().health, Health::kOk) << describe(keeping.snapshot().health_verdict);
   EXPECT_EQ(keeping.counters().rejected[static_cast<size_t>(Rejection::kOutlier)], 1u) << keeping.counters().last_rejection;
   EXPECT_EQ(keeping.snapshot().poses_used, qs.size() - 1);
   const double nominal = verifyError(cell, cell.nominalParams(), 0.0, seed + 5);
@@ -456,7 +456,7 @@ TEST_F(EngineFixture, ACellSimulatesTheTrueRobotItIsGivenAndTheEngineKeepsItsFil
                 snap.verification_mean_position_m * 1e3, snap.start_warning.empty() ? "kept" : "refused");
     if (k == 0) {
       EXPECT_TRUE(snap.start_warning.empty()) << snap.start_warning;
-      EXPECT_EQ(snap.health, Health::kOk) << snap.health_reason;
+      EXPECT_EQ(snap.health, Health::kOk) << describe(snap.health_verdict);
       EXPECT_LT(snap.verification_mean_position_m, 0.1e-3);
     } else {
       EXPECT_NE(snap.start_warning.find("does not fit this cell"), std::string::npos);

@@ -127,7 +127,7 @@ TEST_F(SafetyFixture, AGrossOutlierIsGatedAndTheEstimateIsAsIfItNeverCame) {
   EXPECT_EQ(dirty->snapshot().version, clean->snapshot().version);
   ASSERT_TRUE(dirty->snapshot().params.allFinite());
   EXPECT_LT(maxAbsDiff(dirty->snapshot().params, clean->snapshot().params), 1e-12);
-  EXPECT_EQ(dirty->snapshot().health, Health::kOk) << dirty->snapshot().health_reason;
+  EXPECT_EQ(dirty->snapshot().health, Health::kOk) << describe(dirty->snapshot().health_verdict);
 
   EngineSettings open = config.engine;
   open.outlier_gate_nis_per_row = 0;
@@ -195,7 +195,7 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
     const auto& snap = engine.snapshot();
     ASSERT_TRUE(snap.params.allFinite());
     if (k == bump_at - 1) {
-      ASSERT_EQ(snap.health, Health::kOk) << snap.health_reason;
+      ASSERT_EQ(snap.health, Health::kOk) << describe(snap.health_verdict);
       good_version = snap.version;
       good_model = snap;
     }
@@ -214,7 +214,7 @@ TEST_F(SafetyFixture, ABumpedStationHoldsTheLastGoodCalibrationAndRaisesTheAlarm
       std::string why;
       EXPECT_TRUE(snap.IsValid(robot.model, &why)) << why;
       EXPECT_TRUE(snap.drift_alarm);
-      EXPECT_NE(snap.health_reason.find("in a row beyond the outlier gate"), std::string::npos) << snap.health_reason;
+      EXPECT_EQ(snap.health_verdict.cause, HealthCause::kOutliersInARow) << describe(snap.health_verdict);
     }
     if (k >= bump_at + 20 && snap.drift_alarm) alarm = true;
   }
@@ -232,7 +232,7 @@ TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration)
     st.advance(30);
     st.feed(engine, q, st.reading(q));
   }
-  ASSERT_EQ(engine.snapshot().health, Health::kOk) << engine.snapshot().health_reason;
+  ASSERT_EQ(engine.snapshot().health, Health::kOk) << describe(engine.snapshot().health_verdict);
   const std::uint64_t calibrated_version = engine.snapshot().version;
   std::uint64_t good_version = 0;  // the last version published ok before the hold
   Eigen::VectorXd good_params;
@@ -256,7 +256,8 @@ TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration)
   EXPECT_EQ(held.held_version, good_version);
   EXPECT_EQ(held.version, good_version + 1);
   EXPECT_EQ(maxAbsDiff(held.params, good_params), 0.0);
-  EXPECT_NE(held.health_reason.find("predicted position error"), std::string::npos) << held.health_reason;
+  EXPECT_EQ(held.health_verdict.cause, HealthCause::kPredictionAboveBound) << describe(held.health_verdict);
+  EXPECT_NE(describe(held.health_verdict).find("predicted position error"), std::string::npos) << describe(held.health_verdict);
   EXPECT_GT(held.prediction_sigma_position_m, config.engine.hold_prediction_sigma_m);
   std::printf("  one pose every %.2f h: hold after %d h (predicted error %.3f mm)\n", period_h, hours_to_hold,
               held.prediction_sigma_position_m * 1e3);
@@ -264,7 +265,7 @@ TEST_F(SafetyFixture, PosesThatNoLongerExciteTheModelHoldTheLastGoodCalibration)
     st.advance(30);
     st.feed(engine, q, st.reading(q));
   }
-  EXPECT_EQ(engine.snapshot().health, Health::kOk) << engine.snapshot().health_reason;
+  EXPECT_EQ(engine.snapshot().health, Health::kOk) << describe(engine.snapshot().health_verdict);
   EXPECT_GT(maxAbsDiff(engine.snapshot().params, good_params), 0.0);
 }
 
@@ -293,7 +294,7 @@ TEST_F(SafetyFixture, ASlowlyBiasedTrackerDegradesHealth) {
     if (k >= 80) {
       largest_nis = std::max(largest_nis, snap.recent_nis_per_row);
       if (snap.drift_alarm && first_alarm < 0) first_alarm = static_cast<int>(k) - 80;
-      if (snap.health != Health::kOk && !snap.health_reason.empty() && first_degraded < 0)
+      if (snap.health != Health::kOk && !describe(snap.health_verdict).empty() && first_degraded < 0)
         first_degraded = static_cast<int>(k) - 80;
     }
   }

@@ -1,5 +1,5 @@
 // The engine's health rule (core/engine/health.hpp) as its header states it, on facts drawn at random around each
-// threshold: which health, whether the last good version is held, the reason's opening words, the drift alarm.
+// threshold: which health and cause, whether the last good version is held, the words' opening, the drift alarm.
 #include <gtest/gtest.h>
 
 #include <random>
@@ -31,6 +31,7 @@ TEST(Health, TheRuleIsWhatItsHeaderStates) {
     if (u(rng) < 0.6) f.good_version = 1 + static_cast<std::uint64_t>(100 * u(rng));
     f.refused_file = u(rng) < 0.3;
     const HealthVerdict v = judgeHealth(f, s);
+    const std::string reason = describe(v);
     const bool outliers = f.consecutive_outliers >= s.outlier_hold_after;
     const bool wide = f.prediction_sigma_m > s.hold_prediction_sigma_m;
     EXPECT_EQ(v.drift_alarm, f.drift_alarm || outliers);
@@ -38,25 +39,29 @@ TEST(Health, TheRuleIsWhatItsHeaderStates) {
     ++seen[static_cast<int>(v.health)];
     if (f.poses_used < f.poses_needed) {
       EXPECT_EQ(v.health, Health::kUncalibrated);
-      EXPECT_TRUE(startsWith(v.reason, std::to_string(f.poses_used) + " of the " + std::to_string(f.poses_needed)))
-          << v.reason;
-      EXPECT_EQ(v.reason.find("calibration file does not fit") != std::string::npos, f.refused_file) << v.reason;
+      EXPECT_EQ(v.cause, HealthCause::kTooFewPoses);
+      EXPECT_TRUE(startsWith(reason, std::to_string(f.poses_used) + " of the " + std::to_string(f.poses_needed)))
+          << reason;
+      EXPECT_EQ(reason.find("calibration file does not fit") != std::string::npos, f.refused_file) << reason;
     } else if (outliers || wide) {
       const std::string cause = outliers ? std::to_string(f.consecutive_outliers) + " poses in a row beyond the outlier gate"
                                          : "predicted position error";
+      EXPECT_EQ(v.cause, outliers ? HealthCause::kOutliersInARow : HealthCause::kPredictionAboveBound);
       if (f.good_version) {
         EXPECT_EQ(v.health, Health::kHoldLastGood);
-        EXPECT_TRUE(startsWith(v.reason, "holding v" + std::to_string(*f.good_version) + ": " + cause)) << v.reason;
+        EXPECT_TRUE(startsWith(reason, "holding v" + std::to_string(*f.good_version) + ": " + cause)) << reason;
       } else {
         EXPECT_EQ(v.health, Health::kUncalibrated);
-        EXPECT_TRUE(startsWith(v.reason, "nothing good to hold yet: " + cause)) << v.reason;
+        EXPECT_TRUE(startsWith(reason, "nothing good to hold yet: " + cause)) << reason;
       }
     } else if (f.drift_alarm) {
       EXPECT_EQ(v.health, Health::kDegraded);
-      EXPECT_TRUE(startsWith(v.reason, "drift alarm: recent normalized innovation")) << v.reason;
+      EXPECT_EQ(v.cause, HealthCause::kDriftAlarm);
+      EXPECT_TRUE(startsWith(reason, "drift alarm: recent normalized innovation")) << reason;
     } else {
       EXPECT_EQ(v.health, Health::kOk);
-      EXPECT_TRUE(v.reason.empty()) << v.reason;
+      EXPECT_EQ(v.cause, HealthCause::kNone);
+      EXPECT_TRUE(reason.empty()) << reason;
     }
   }
   for (int h = 0; h < 4; ++h) EXPECT_GT(seen[h], 50) << healthName(static_cast<Health>(h));

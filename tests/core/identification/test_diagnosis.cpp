@@ -407,7 +407,7 @@ bool named(const DiagnosisResult& d, const test::TrueEffect& t) {
   return false;
 }
 
-std::string namedText(const DiagnosisResult& d) { return d.verdict_text; }
+std::string namedText(const DiagnosisResult& d) { return describeVerdict(d); }
 
 // A thermal drift whose joint-zero part is itself below the noise may be named with no joint (lengths only).
 bool rightJoint(const Extension& e, const test::TrueEffect& t, double noise_rms_mm) {

@@ -105,17 +105,17 @@ TEST(DriftCheck, ABaseThatDriftsIsNeverPassedOffAsTheRobotsDrift) {
                      c.outcome == DriftCheck::Outcome::kFrameDriftExplains || c.outcome == DriftCheck::Outcome::kBoth;
     }
     std::printf("  %s -> %s | check: %s (%.4f / %.4f / %.4f mm, z %.1f %.1f)\n", h.draw.describe().c_str(),
-                d.verdict_text.c_str(), driftOutcomeName(c.outcome), c.mean_chosen_mm, c.mean_alternative_mm,
+                describeVerdict(d).c_str(), driftOutcomeName(c.outcome), c.mean_chosen_mm, c.mean_alternative_mm,
                 c.mean_both_mm, c.z_drift, c.z_frame);
     // Whatever the check found of the frame, the verdict says so.
     if (frame) {
-      EXPECT_NE(d.verdict_text.find("base frame"), std::string::npos) << d.verdict_text;
+      EXPECT_NE(describeVerdict(d).find("base frame"), std::string::npos) << describeVerdict(d);
     }
     if (!namesADrift(d)) continue;
     ++drift_named;
-    const bool in_verdict = d.verdict_text.find("base frame") != std::string::npos;
+    const bool in_verdict = describeVerdict(d).find("base frame") != std::string::npos;
     said += frame && in_verdict;
-    EXPECT_TRUE(frame && in_verdict) << "a drift named without the frame: " << d.verdict_text << " | "
+    EXPECT_TRUE(frame && in_verdict) << "a drift named without the frame: " << describeVerdict(d) << " | "
                                      << h.draw.describe();
   }
   std::printf("  summary: %d files, %d with the drift above twice the noise: a thermal drift named in %d (the frame "
@@ -145,7 +145,7 @@ TEST(DriftCheck, AJointZeroThatDriftsIsToldFromTheBase) {
     ++graded;
     const bool ok = d.drift_check.outcome == DriftCheck::Outcome::kToldApart;
     told += ok;
-    std::printf("  %s -> %s | check: %s (z %.1f %.1f)\n", h.draw.describe().c_str(), d.verdict_text.c_str(),
+    std::printf("  %s -> %s | check: %s (z %.1f %.1f)\n", h.draw.describe().c_str(), describeVerdict(d).c_str(),
                 driftOutcomeName(d.drift_check.outcome), d.drift_check.z_drift, d.drift_check.z_frame);
   }
   std::printf("  summary: %d files, %d with joint 2-6's zero drift named: told from the base in %d\n", drawn, graded, told);

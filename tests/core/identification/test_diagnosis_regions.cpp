@@ -205,8 +205,8 @@ TEST(RegionCheck, ACyclicTermFittedOnPartOfAJointsRangeIsLeftOut) {
     worse_on += !g.on.selection.empty() && g.on_mm > g.geometric_mm;
     left_out += !g.on.not_transferred.empty();
     if (!g.on.not_transferred.empty()) {
-      EXPECT_NE(g.on.verdict_text.find("left out: " + modelLabel(g.on.not_transferred)), std::string::npos)
-          << g.on.verdict_text;
+      EXPECT_NE(describeVerdict(g.on).find("left out: " + modelLabel(g.on.not_transferred)), std::string::npos)
+          << describeVerdict(g.on);
     }
   }
   std::printf("  summary: %d draws; worse than geometric beyond the campaign: %d without the check, %d with it (%d "

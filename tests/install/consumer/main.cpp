@@ -65,6 +65,6 @@ int main() {
   const auto& e = report.errors;
   std::printf("consumer: campaign of %zu rows: held-out mean %.4f mm before -> %.4f mm after, exit code %d\n%s\n",
               campaign.setups[0].file.rows.size(), e.verification_kept_before.mean_mm, e.verification_kept_after.mean_mm,
-              report.exitCode(), report.verdict.c_str());
+              report.exitCode(), cellcal::recommendationText(report).c_str());
   return report.exitCode() == 0 && e.verification_kept_after.mean_mm < e.verification_kept_before.mean_mm / 5 ? 0 : 1;
 }

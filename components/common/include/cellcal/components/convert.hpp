@@ -69,6 +69,8 @@ std::optional<ReceivedCalibration> fromCalibrationState(const RobotModel& model,
 // The wire's health as the engine names it ("uncalibrated", "ok", "degraded", "hold_last_good"; the IDL enum follows
 // core's Health).
 const char* healthText(msg::CalibrationHealth h);
+// Why the health is not ok, as core names it ("none", "too_few_poses", ...; the IDL enum follows core's HealthCause).
+const char* healthCauseText(msg::HealthCause c);
 
 // A compensation outcome's name: core's (outcomeName: "applied", "unreachable", "never_judged", ...), then the
 // publisher's own ("bad_input", "pass_through", "no_calibration", "no_good_calibration").

@@ -102,7 +102,7 @@ struct CampaignReport {
   std::string message;      // the solver's, when it did not converge
   double solve_s = 0;
   std::string unusable;     // why the result cannot be used; empty: it can
-  std::string verdict;      // the last line: deploy this model or not, and why
+  bool frames_only = false; // the problem's: the robot file's model with new frames (no baseline to beat)
   // The calibration --save-robot writes (robot file kinematics `saved_params`), complete only when exitCode() is 0.
   RobotCalibration calibration;
   Eigen::VectorXd saved_params;
@@ -135,6 +135,11 @@ struct CampaignReport {
 
 // Throws ConfigError when !problem.IsValid, or (kAuto, several set-ups) the set-ups name different models.
 CampaignReport calibrateCampaign(const CampaignProblem& problem);
+
+// The last line of a one-set-up calibration, in words: deploy this model or not (exitCode()), and why, from the report's
+// figures (before/after: the held-out rows without their gross errors): "recommendation: deploy the geometric model:
+// held-out mean 0.0412 mm against 0.2671 mm before (85 % better)"; "" for several set-ups.
+std::string recommendationText(const CampaignReport& report);
 
 // A column's 1 sigma in a prediction's covariance (what a robot file saves and predictions use; SI), NaN when the
 // prediction does not cover it.

@@ -69,8 +69,9 @@ struct CalibrationSnapshot : CalibratedModel {
   bool drift_alarm = false;
   // Predicted 1-sigma position error of the estimate (worst of the reference configurations), m.
   double prediction_sigma_position_m = 0;
-  // Why health is not ok (empty when it is), e.g. "holding v52: 5 poses in a row beyond the outlier gate".
-  std::string health_reason;
+  // The health rule's verdict on this version: its cause and what it was decided on (health.hpp; describe() words it,
+  // e.g. "holding v52: 5 poses in a row beyond the outlier gate").
+  HealthVerdict health_verdict;
   // When health is hold_last_good: the version whose parameters are published (params, covariance, ... are its).
   std::uint64_t held_version = 0;
   // Set when the engine refused its calibration file (its first poses contradicted it) and started from nominal.

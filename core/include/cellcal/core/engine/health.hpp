@@ -1,12 +1,13 @@
 // The engine's health: what it says of the calibration it publishes, decided after each update (and at a start) from
 // the facts of the estimate, by this rule, in this order:
 //  1. fewer poses than needed (every estimated parameter twice over at 6 or 3 rows a pose; none when the engine
-//     started from a calibrated robot file): uncalibrated, "<n> of the <needed> poses needed";
+//     started from a calibrated robot file): uncalibrated (too_few_poses);
 //  2. EngineSettings::outlier_hold_after poses in a row beyond the outlier gate (which also raises the drift alarm),
-//     or the predicted position error above hold_prediction_sigma_m: the last version published ok is held
-//     (hold_last_good: its model is published), or without one uncalibrated, "nothing good to hold yet: ...";
-//  3. the drift alarm (the recent normalized innovation above drift_alarm_nis_per_row): degraded;
+//     (outliers_in_a_row) or the predicted position error above hold_prediction_sigma_m (prediction_above_bound): the
+//     last version published ok is held (hold_last_good: its model is published), or without one uncalibrated;
+//  3. the drift alarm (the recent normalized innovation above drift_alarm_nis_per_row): degraded (drift_alarm);
 //  4. else ok: this version becomes the one a later hold publishes.
+// The verdict is values (its cause, the facts and the bounds it was decided on); describe() puts it in words.
 #pragma once
 
 #include <cstddef>
@@ -32,12 +33,24 @@ struct HealthFacts {
   bool refused_file = false;          // the calibration file was refused: started from nominal
 };
 
+// Why health is not ok, in the rule's order. The wire's HealthCause (idl/cellcal_msgs.idl) has these in this order.
+enum class HealthCause { kNone = 0, kTooFewPoses = 1, kOutliersInARow = 2, kPredictionAboveBound = 3, kDriftAlarm = 4 };
+// "none", "too_few_poses", "outliers_in_a_row", "prediction_above_bound", "drift_alarm"
+const char* healthCauseName(HealthCause c);
+
 struct HealthVerdict {
   Health health = Health::kUncalibrated;
-  std::string reason;        // why not ok; empty when ok
+  HealthCause cause = HealthCause::kTooFewPoses;  // kNone when ok
   bool hold = false;         // publish the last good version's model (health hold_last_good)
   bool drift_alarm = false;  // the facts' alarm, raised too by outliers in a row
+  // What it was decided on: the facts, and the settings' bounds they were held to.
+  HealthFacts facts;
+  int outlier_hold_after = 0;
+  double hold_prediction_sigma_m = 0;
+  double drift_alarm_nis_per_row = 0;
 };
+// Why health is not ok, in words: "holding v52: 5 poses in a row beyond the outlier gate: ..."; "" when ok.
+std::string describe(const HealthVerdict& verdict);
 
 // Rule 1's count: 2 x ceil(state / rows), rows 6 for 6D readings and 3 for points; 0 when started calibrated.
 std::size_t posesNeeded(std::size_t state, MeasurementKind kind, bool started_calibrated);

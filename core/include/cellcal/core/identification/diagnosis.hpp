@@ -237,7 +237,6 @@ struct DiagnosisResult {
   double gain_pct = 0;                      // verification mean position error, geometric -> final
   std::vector<DriverStructure> structure_before, structure_after;  // geometric / final model, strongest first
   Verdict verdict = Verdict::kNoise;
-  std::string verdict_text;                 // e.g. "partly explained by ...; structure left against workspace (31 %)"
   const DriverStructure* structureLeft() const;  // the strongest significant structure after; null: none
   NoiseEstimate noise;
   double noise_rms_mm = 0;                  // sqrt(3) noise.sigma_position_mm: the RMS error noise alone would leave
@@ -283,6 +282,9 @@ std::string unusableFit(const ErrorStats& start_held_out, const ErrorStats& held
 
 DiagnosisResult diagnose(const RobotModel& model, const Eigen::VectorXd& start, const DiagnosisData& data,
                          const DiagnosisOptions& options = {});
+// The verdict in words, from the result's values: "partly explained by joint_compliance:2; structure left against
+// workspace (31 %)", with what was left out and a drift the base frame explains; "no recommendation: ..." when unusable.
+std::string describeVerdict(const DiagnosisResult& result);
 
 // The region check diagnose runs on its selection: `obs` (rows without gross errors; diagnose passes identification and
 // verification together) split in two for each step's cause (RegionCheck); the causes kept before it without and with
