@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
+#include <random>
 
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/pose_selection.hpp"
@@ -104,210 +106,240 @@ void summarize(MaintenanceRun& run) {
   run.verify_after_m /= n;
 }
 
+// The experiment's measured groups and what every method is judged with; one method per table row family.
+class Experiment {
+ public:
+  Experiment(const RobotModel& nominal, const PaperExperimentConfig& cfg, const ProgressFn& progress)
+      : cfg_(cfg), progress_(progress), cell_(nominal, cfg.sim), model_(cell_.model()), p0_(cell_.nominalParams()),
+        zeros_(model_, p0_, cfg.kind), drift_(cfg.drift.sigmas(model_)),
+        prior0_(diagonalPrior(model_, p0_, model_.canonicalParams(), cfg.prior_sigma_length_m, cfg.prior_sigma_angle_rad)),
+        total_steps_(static_cast<int>(cfg.sweep_poses.size()) + 3 + 4 * static_cast<int>(cfg.continuous_poses.size()) + 1) {}
+
+  PaperExperimentResult run() {
+    measure();
+    for (int j = 0; j < model_.numJoints(); ++j) out_.joint_zero_names.push_back(zeros_.name(model_, j));
+    sweep();
+    std::vector<std::pair<std::string, int>> schedules = {{"periodic", cfg_.identification_poses}};
+    for (int k : cfg_.continuous_poses) schedules.emplace_back("continuous", k);
+    for (const auto& [mode, k] : schedules) {
+      rls(mode, k);
+      if (mode == "continuous") rlsChoosingPoses(mode, k);
+      lmFreshPoses(mode, k);
+      lmWithPrior(mode, k);
+    }
+    rlsForgetting();
+    out_.rls_time_per_pose_s = rls_poses_ ? rls_time_s_ / rls_poses_ : 0.0;
+    return out_;
+  }
+
+ private:
+  using Chooser = std::function<std::vector<Observation>(int group, int k)>;
+  using Update = std::function<void(int group, const std::vector<Observation>&)>;
+  using Params = std::function<const Eigen::VectorXd&()>;
+
+  void tick(const std::string& what) {
+    if (progress_) progress_(what, ++step_, total_steps_);
+  }
+
+  // Measurements: the code under test sees only these and the nominal model.
+  void measure() {
+    std::mt19937_64 rng(cfg_.sim.seed * 7919 + 17);
+    groups_.resize(static_cast<size_t>(cfg_.groups));
+    std::vector<double> floor_all;
+    for (int g = 0; g < cfg_.groups; ++g) {
+      Group& G = groups_[static_cast<size_t>(g)];
+      G.t_h = g * cfg_.hours_between_groups;
+      const auto qs = cell_.randomConfigurations(cfg_.poses_per_group, rng);
+      G.truth = cell_.trueParams(G.t_h);
+      for (int i = 0; i < cfg_.poses_per_group; ++i) {
+        Observation o = cell_.measure(qs[static_cast<size_t>(i)], G.t_h, rng, cfg_.kind);
+        (i < cfg_.identification_poses ? G.ident : G.verify).push_back(o);
+      }
+      const auto fl = positionErrors(model_, G.truth, G.verify);
+      G.noise_floor_m = mean(fl);
+      floor_all.insert(floor_all.end(), fl.begin(), fl.end());
+    }
+    out_.noise_floor_m = mean(floor_all);
+    out_.true_error_nominal_m = mean(positionErrors(model_, p0_, groups_[0].verify));
+  }
+
+  // Table 2: pose-number sweep (RLS, group 0).
+  void sweep() {
+    for (int n : cfg_.sweep_poses) {
+      RlsCalibrator rls(model_, p0_, prior0_, cfg_.kind);
+      const auto used = firstN(groups_[0].ident, n);
+      for (const auto& o : used) rls.addObservation(o);
+      out_.sweep.push_back({n, mean(positionErrors(model_, rls.params(), used)),
+                            mean(positionErrors(model_, rls.params(), groups_[0].verify))});
+      tick("pose sweep");
+    }
+  }
+
+  static MaintenanceRun newRun(const std::string& mode, const std::string& algorithm, int updated_poses) {
+    MaintenanceRun run;
+    run.mode = mode;
+    run.algorithm = algorithm;
+    run.updated_poses = updated_poses;
+    return run;
+  }
+
+  std::vector<Observation> firstK(int g, int k) const { return firstN(groups_[static_cast<size_t>(g)].ident, k); }
+
+  // Table 4, accuracy maintenance: one generic loop; `update` moves the estimate with the poses of one group.
+  void maintain(MaintenanceRun run, int per_group, const Update& update, const Params& params, const Chooser& choose) {
+    for (int g = 0; g < cfg_.groups; ++g) {
+      const Group& G = groups_[static_cast<size_t>(g)];
+      const int k = g == 0 ? cfg_.identification_poses : per_group;
+      const auto used = choose(g, k);
+      MaintenanceGroup mg;
+      mg.group = g;
+      mg.t_h = G.t_h;
+      mg.poses_used = k;
+      mg.noise_floor_m = G.noise_floor_m;
+      mg.ident_before_m = mean(positionErrors(model_, params(), used));
+      mg.verify_before_m = mean(positionErrors(model_, params(), G.verify));
+      const auto t0 = Clock::now();
+      update(g, used);
+      mg.update_time_s = since(t0);
+      mg.ident_after_m = mean(positionErrors(model_, params(), used));
+      mg.verify_after_m = mean(positionErrors(model_, params(), G.verify));
+      mg.joint_offsets_rad = zeros_.estimate(params(), p0_);
+      mg.true_joint_offsets_rad = zeros_.truth(G.truth, p0_);
+      run.groups.push_back(mg);
+    }
+    summarize(run);
+    out_.maintenance.push_back(run);
+    tick(run.mode + " " + run.algorithm);
+  }
+
+  Chooser firstKChooser() const {
+    return [this](int g, int k) { return firstK(g, k); };
+  }
+
+  // RLS: prior at group 0, process noise between groups (a random walk toward the previous estimate).
+  void rls(const std::string& mode, int k) {
+    RlsCalibrator rls(model_, p0_, prior0_, cfg_.kind);
+    maintain(
+        newRun(mode, "rls", k), k,
+        [&](int g, const std::vector<Observation>& used) {
+          if (g > 0) rls.addProcessNoise(drift_, cfg_.kind);
+          const auto t0 = Clock::now();
+          for (const auto& o : used) rls.addObservation(o);
+          rls_time_s_ += since(t0);
+          rls_poses_ += static_cast<int>(used.size());
+        },
+        [&]() -> const Eigen::VectorXd& { return rls.params(); }, firstKChooser());
+  }
+
+  // RLS that chooses which K poses to measure (continuous mode only): predict, choose, update.
+  void rlsChoosingPoses(const std::string& mode, int k) {
+    RlsCalibrator rls(model_, p0_, prior0_, cfg_.kind);
+    std::mt19937_64 select_rng(cfg_.sim.seed * 104729 + static_cast<std::uint64_t>(k));
+    PoseSelectionOptions sel;
+    sel.kind = cfg_.kind;
+    sel.sigma_position_m =
+        std::hypot(cfg_.sim.tracker.sigmaPosition(model_.nominal.segment<3>(model_.baseParam(FrameParam::kX)).norm()),
+                   cfg_.sim.repeatability_m / 2);
+    sel.sigma_orientation_rad = cfg_.sim.tracker.sigmaOrientation();
+    MaintenanceRun run = newRun(mode, "rls", k);
+    run.pose_selection = "i-optimal";
+    const Chooser choose = [&](int g, int count) {
+      const Group& G = groups_[static_cast<size_t>(g)];
+      if (g == 0) return firstN(G.ident, count);
+      rls.addProcessNoise(drift_, cfg_.kind);
+      std::vector<Eigen::VectorXd> qs;
+      if (cfg_.selection_candidates > 0) {
+        qs = cell_.randomConfigurations(cfg_.selection_candidates, select_rng);
+      } else {
+        for (const auto& o : G.ident) qs.push_back(o.q_rad);
+      }
+      std::vector<Observation> used;
+      for (int i : selectInformativePoses(model_, rls.params(), rls.estimated(), rls.covariance(), qs, count, sel))
+        // The tracker measures the chosen configurations.
+        used.push_back(cfg_.selection_candidates > 0 ? cell_.measure(qs[static_cast<size_t>(i)], G.t_h, select_rng, cfg_.kind)
+                                                     : G.ident[static_cast<size_t>(i)]);
+      return used;
+    };
+    maintain(
+        run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
+        [&]() -> const Eigen::VectorXd& { return rls.params(); }, choose);
+  }
+
+  // LM as in the paper: warm start from the previous estimate, fresh poses only.
+  void lmFreshPoses(const std::string& mode, int k) {
+    Eigen::VectorXd params = p0_;
+    maintain(
+        newRun(mode, "lm", k), k,
+        [&](int g, const std::vector<Observation>& used) {
+          CalibrationProblem p{&model_, params, used, std::nullopt, {}, {}};
+          const auto r = solveLevenbergMarquardt(p);
+          if (g == 0 && mode == "periodic") out_.lm_time_50_s = r.solve_time_s;
+          params = r.params;
+        },
+        [&]() -> const Eigen::VectorXd& { return params; }, firstKChooser());
+  }
+
+  // LM done like RLS: the same prior (previous estimate and covariance plus process noise).
+  void lmWithPrior(const std::string& mode, int k) {
+    Eigen::VectorXd params = p0_;
+    GaussianPrior prior = prior0_;
+    MaintenanceRun run = newRun(mode, "lm", k);
+    run.prior = true;
+    maintain(
+        run, k,
+        [&](int g, const std::vector<Observation>& used) {
+          if (g > 0) {  // as RlsCalibrator::addProcessNoise: with the drift of the parameters they stand for
+            const Eigen::MatrixXd T = structuralAbsorption(model_, params, cfg_.kind, prior.indices);
+            prior.covariance += T * drift_.cwiseAbs2().asDiagonal() * T.transpose();
+          }
+          CalibrationProblem p{&model_, params, used, prior, {}, {}};
+          const auto r = solveLevenbergMarquardt(p);
+          params = r.params;
+          prior.mean = r.params;
+          prior.indices = r.estimated;
+          prior.covariance = r.covariance;
+        },
+        [&]() -> const Eigen::VectorXd& { return params; }, firstKChooser());
+  }
+
+  // RLS with forgetting instead of process noise (continuous, smallest K), P bounded by the prior variance.
+  void rlsForgetting() {
+    const int k = cfg_.continuous_poses.empty() ? cfg_.identification_poses : cfg_.continuous_poses.front();
+    RlsCalibratorOptions opts;
+    opts.rls.forgetting = cfg_.forgetting;
+    RlsCalibrator probe(model_, p0_, prior0_, cfg_.kind);
+    opts.rls.max_covariance_diag = probe.covariance().diagonal();
+    RlsCalibrator rls(model_, p0_, prior0_, cfg_.kind, opts);
+    MaintenanceRun run = newRun("continuous", "rls", k);
+    run.forgetting = cfg_.forgetting;
+    maintain(
+        run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
+        [&]() -> const Eigen::VectorXd& { return rls.params(); }, firstKChooser());
+  }
+
+  const PaperExperimentConfig& cfg_;
+  const ProgressFn& progress_;
+  SimulatedCell cell_;
+  const RobotModel& model_;
+  const Eigen::VectorXd& p0_;
+  const ZeroCarriers zeros_;
+  const Eigen::VectorXd drift_;
+  const GaussianPrior prior0_;
+  const int total_steps_;
+  int step_ = 0;
+  std::vector<Group> groups_;
+  PaperExperimentResult out_;
+  double rls_time_s_ = 0;
+  int rls_poses_ = 0;
+};
+
 }  // namespace
 
 PaperExperimentResult runPaperExperiment(const RobotModel& nominal, const PaperExperimentConfig& cfg,
                                          const ProgressFn& progress) {
   std::string err;
   if (!cfg.IsValid(&err)) throw std::invalid_argument("PaperExperimentConfig: " + err);
-  SimulatedCell cell(nominal, cfg.sim);
-  const RobotModel& model = cell.model();
-  const Eigen::VectorXd& p0 = cell.nominalParams();
-  std::mt19937_64 rng(cfg.sim.seed * 7919 + 17);
-
-  // Measurements: the code under test sees only these and the nominal model.
-  std::vector<Group> groups(cfg.groups);
-  PaperExperimentResult out;
-  std::vector<double> floor_all;
-  for (int g = 0; g < cfg.groups; ++g) {
-    Group& G = groups[g];
-    G.t_h = g * cfg.hours_between_groups;
-    const auto qs = cell.randomConfigurations(cfg.poses_per_group, rng);
-    const Eigen::VectorXd truth = cell.trueParams(G.t_h);
-    G.truth = truth;
-    for (int i = 0; i < cfg.poses_per_group; ++i) {
-      Observation o = cell.measure(qs[i], G.t_h, rng, cfg.kind);
-      if (i < cfg.identification_poses) {
-        G.ident.push_back(o);
-      } else {
-        G.verify.push_back(o);
-      }
-    }
-    const auto fl = positionErrors(model, truth, G.verify);
-    G.noise_floor_m = mean(fl);
-    floor_all.insert(floor_all.end(), fl.begin(), fl.end());
-  }
-  out.noise_floor_m = mean(floor_all);
-  out.true_error_nominal_m = mean(positionErrors(model, p0, groups[0].verify));
-
-  const std::vector<int> all = model.canonicalParams();
-  const ZeroCarriers zeros(model, p0, cfg.kind);
-  for (int j = 0; j < model.numJoints(); ++j) out.joint_zero_names.push_back(zeros.name(model, j));
-  const Eigen::VectorXd drift = cfg.drift.sigmas(model);
-  const GaussianPrior prior0 = diagonalPrior(model, p0, all, cfg.prior_sigma_length_m, cfg.prior_sigma_angle_rad);
-  const int total_steps =
-      static_cast<int>(cfg.sweep_poses.size()) + 3 + 4 * static_cast<int>(cfg.continuous_poses.size()) + 1;
-  int step = 0;
-  auto tick = [&](const std::string& what) {
-    if (progress) progress(what, ++step, total_steps);
-  };
-
-  // ---- Table 2: pose-number sweep (RLS, group 0). ----
-  for (int n : cfg.sweep_poses) {
-    RlsCalibrator rls(model, p0, prior0, cfg.kind);
-    const auto used = firstN(groups[0].ident, n);
-    for (const auto& o : used) rls.addObservation(o);
-    out.sweep.push_back({n, mean(positionErrors(model, rls.params(), used)),
-                         mean(positionErrors(model, rls.params(), groups[0].verify))});
-    tick("pose sweep");
-  }
-
-  // ---- Table 4: accuracy maintenance. ----
-  // One generic loop; `update` moves the estimate with the poses of one group.
-  using Chooser = std::function<std::vector<Observation>(int group, int k)>;
-  const Chooser first_k = [&](int g, int k) { return firstN(groups[g].ident, k); };
-  auto newRun = [](const std::string& mode, const std::string& algorithm, int updated_poses) {
-    MaintenanceRun run;
-    run.mode = mode;
-    run.algorithm = algorithm;
-    run.updated_poses = updated_poses;
-    return run;
-  };
-  auto run_maintenance = [&](MaintenanceRun run, int per_group,
-                             const std::function<void(int group, const std::vector<Observation>&)>& update,
-                             const std::function<const Eigen::VectorXd&()>& params, const Chooser& choose) {
-    for (int g = 0; g < cfg.groups; ++g) {
-      const int k = g == 0 ? cfg.identification_poses : per_group;
-      const auto used = choose(g, k);
-      MaintenanceGroup mg;
-      mg.group = g;
-      mg.t_h = groups[g].t_h;
-      mg.poses_used = k;
-      mg.noise_floor_m = groups[g].noise_floor_m;
-      mg.ident_before_m = mean(positionErrors(model, params(), used));
-      mg.verify_before_m = mean(positionErrors(model, params(), groups[g].verify));
-      const auto t0 = Clock::now();
-      update(g, used);
-      mg.update_time_s = since(t0);
-      mg.ident_after_m = mean(positionErrors(model, params(), used));
-      mg.verify_after_m = mean(positionErrors(model, params(), groups[g].verify));
-      mg.joint_offsets_rad = zeros.estimate(params(), p0);
-      mg.true_joint_offsets_rad = zeros.truth(groups[g].truth, p0);
-      run.groups.push_back(mg);
-    }
-    summarize(run);
-    out.maintenance.push_back(run);
-    tick(run.mode + " " + run.algorithm);
-  };
-
-  std::vector<std::pair<std::string, int>> schedules = {{"periodic", cfg.identification_poses}};
-  for (int k : cfg.continuous_poses) schedules.emplace_back("continuous", k);
-
-  double rls_time = 0;
-  int rls_poses = 0;
-  for (const auto& schedule : schedules) {
-    const auto& mode = schedule.first;  // not a structured binding: lambdas below capture it (C++17, clang)
-    const auto& k = schedule.second;
-    // RLS: prior at group 0, process noise between groups (a random walk toward the previous estimate).
-    {
-      RlsCalibrator rls(model, p0, prior0, cfg.kind);
-      MaintenanceRun run = newRun(mode, "rls", k);
-      run_maintenance(
-          run, k,
-          [&](int g, const std::vector<Observation>& used) {
-            if (g > 0) rls.addProcessNoise(drift, cfg.kind);
-            const auto t0 = Clock::now();
-            for (const auto& o : used) rls.addObservation(o);
-            rls_time += since(t0);
-            rls_poses += static_cast<int>(used.size());
-          },
-          [&]() -> const Eigen::VectorXd& { return rls.params(); }, first_k);
-    }
-    // RLS that chooses which K poses to measure (continuous mode only): predict, choose, update.
-    if (mode == "continuous") {
-      RlsCalibrator rls(model, p0, prior0, cfg.kind);
-      std::mt19937_64 select_rng(cfg.sim.seed * 104729 + static_cast<std::uint64_t>(k));
-      PoseSelectionOptions sel;
-      sel.kind = cfg.kind;
-      sel.sigma_position_m = std::hypot(
-          cfg.sim.tracker.sigmaPosition(model.nominal.segment<3>(model.baseParam(FrameParam::kX)).norm()),
-          cfg.sim.repeatability_m / 2);
-      sel.sigma_orientation_rad = cfg.sim.tracker.sigmaOrientation();
-      MaintenanceRun run = newRun(mode, "rls", k);
-      run.pose_selection = "i-optimal";
-      const Chooser choose = [&](int g, int count) {
-        if (g == 0) return firstN(groups[g].ident, count);
-        rls.addProcessNoise(drift, cfg.kind);
-        std::vector<Eigen::VectorXd> qs;
-        if (cfg.selection_candidates > 0) {
-          qs = cell.randomConfigurations(cfg.selection_candidates, select_rng);
-        } else {
-          for (const auto& o : groups[g].ident) qs.push_back(o.q_rad);
-        }
-        std::vector<Observation> used;
-        for (int i : selectInformativePoses(model, rls.params(), rls.estimated(), rls.covariance(), qs, count, sel))
-          // The tracker measures the chosen configurations.
-          used.push_back(cfg.selection_candidates > 0 ? cell.measure(qs[i], groups[g].t_h, select_rng, cfg.kind)
-                                                      : groups[g].ident[i]);
-        return used;
-      };
-      run_maintenance(
-          run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
-          [&]() -> const Eigen::VectorXd& { return rls.params(); }, choose);
-    }
-    // LM as in the paper: warm start from the previous estimate, fresh poses only.
-    {
-      Eigen::VectorXd params = p0;
-      MaintenanceRun run = newRun(mode, "lm", k);
-      run_maintenance(
-          run, k,
-          [&](int g, const std::vector<Observation>& used) {
-            CalibrationProblem p{&model, params, used, std::nullopt, {}, {}};
-            const auto r = solveLevenbergMarquardt(p);
-            if (g == 0 && mode == "periodic") out.lm_time_50_s = r.solve_time_s;
-            params = r.params;
-          },
-          [&]() -> const Eigen::VectorXd& { return params; }, first_k);
-    }
-    // LM done like RLS: the same prior (previous estimate and covariance plus process noise).
-    {
-      Eigen::VectorXd params = p0;
-      GaussianPrior prior = prior0;
-      MaintenanceRun run = newRun(mode, "lm", k);
-      run.prior = true;
-      run_maintenance(
-          run, k,
-          [&](int g, const std::vector<Observation>& used) {
-            if (g > 0) {  // as RlsCalibrator::addProcessNoise: with the drift of the parameters they stand for
-              const Eigen::MatrixXd T = structuralAbsorption(model, params, cfg.kind, prior.indices);
-              prior.covariance += T * drift.cwiseAbs2().asDiagonal() * T.transpose();
-            }
-            CalibrationProblem p{&model, params, used, prior, {}, {}};
-            const auto r = solveLevenbergMarquardt(p);
-            params = r.params;
-            prior.mean = r.params;
-            prior.indices = r.estimated;
-            prior.covariance = r.covariance;
-          },
-          [&]() -> const Eigen::VectorXd& { return params; }, first_k);
-    }
-  }
-  // RLS with forgetting instead of process noise (continuous, smallest K), P bounded by the prior variance.
-  {
-    const int k = cfg.continuous_poses.empty() ? cfg.identification_poses : cfg.continuous_poses.front();
-    RlsCalibratorOptions opts;
-    opts.rls.forgetting = cfg.forgetting;
-    RlsCalibrator probe(model, p0, prior0, cfg.kind);
-    opts.rls.max_covariance_diag = probe.covariance().diagonal();
-    RlsCalibrator rls(model, p0, prior0, cfg.kind, opts);
-    MaintenanceRun run = newRun("continuous", "rls", k);
-    run.forgetting = cfg.forgetting;
-    run_maintenance(
-        run, k, [&](int, const std::vector<Observation>& used) { for (const auto& o : used) rls.addObservation(o); },
-        [&]() -> const Eigen::VectorXd& { return rls.params(); }, first_k);
-  }
-  out.rls_time_per_pose_s = rls_poses ? rls_time / rls_poses : 0.0;
-  return out;
+  return Experiment(nominal, cfg, progress).run();
 }
 
 }  // namespace cellcal

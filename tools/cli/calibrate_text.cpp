@@ -119,14 +119,79 @@ void printSetups(const CalibrateArgs& a, const CampaignProblem& problem, const C
               rep.extensions.empty() ? "" : " and extension parameters");
 }
 
+// The estimated parameters: value, change from the start (the robot file's, frames registered) and 1 sigma.
+void printParameters(const CalibrateArgs& a, const CampaignInput& in, const CampaignReport& rep) {
+  const RobotModel& robot = in.robot;
+  const ExtendedFit& after = rep.after;
+  const Eigen::VectorXd& start = in.start;
+  const PredictionModel& pm = rep.prediction;
+  // The readings' sigmas weight the fit; the residual says how far they hold: the sigmas are scaled by the square root
+  // of the a-posteriori variance factor (1 when the readings' sigmas and the model are right).
+  const double vf = std::sqrt(std::max(1.0, a.frames_only ? rep.frames_variance_factor : pm.variance_factor));
+  std::printf("\nestimated parameters: value, change from the start, 1 sigma (the fit's, x %.2f: the root of the "
+              "variance factor)\n", vf);
+  for (int i : after.estimated) {
+    const double sd = after.paramStddev(i), shown = std::isnan(sd) ? 0.0 : vf * robot.toHuman(i, sd);
+    std::printf("  %-24s %12.4f %+10.4f  sigma %.4f%s\n", robot.paramNameHuman(i).c_str(), robot.toHuman(i, after.params[i]),
+                robot.toHuman(i, after.params[i] - start[i]), shown,
+                a.frames_only ? "" : savedSigmaNote(robot, after, pm, i, shown).c_str());
+  }
+  for (int k : after.estimated_extension) {
+    const double shown = vf * after.extensionStddev(k);
+    std::printf("  %-24s %12.6g %+10.3g  sigma %.3g%s\n", after.extension_names[k].c_str(), after.extension_params[k],
+                after.extension_params[k], shown,
+                a.frames_only ? "" : savedSigmaNote(robot, after, pm, robot.numParams() + k, shown).c_str());
+  }
+}
+
+// The residual map: what the model leaves, learnt at the identification rows, applied near them.
+void printResidualMap(const CampaignReport& rep) {
+  const ResidualMap& map = *rep.residual_map;
+  const ResidualMapCheck& c = rep.residual_map_check;
+  std::string scales;
+  for (Eigen::Index j = 0; j < map.lengthScales_rad().size(); ++j)
+    scales += (j ? " " : "") + std::to_string(static_cast<int>(std::lround(map.lengthScales_rad()[j] * 180 / kPi)));
+  std::printf("residual map: %zu identification rows, length scales %s deg (joints 1-%d), signal %.4f mm, noise %.4f mm "
+              "(%.1f s)\n", map.rows(), scales.c_str(), static_cast<int>(map.lengthScales_rad().size()),
+              map.signalSigma_m() * 1e3, map.noiseSigma_m() * 1e3, c.fit_time_s);
+  std::printf("  verification rows within %.2g length scales of an identification row: %d of %d; their held-out mean "
+              "%.4f mm with the map, %.4f mm without (the map's 1 sigma there %.4f mm per axis)\n",
+              map.maxDistance(), c.verification_rows_near, c.verification_rows, c.near_mean_with_mm,
+              c.near_mean_without_mm, c.near_sigma_mean_mm);
+  std::printf("  every verification row (the map where it applies): %.4f mm, without the map %.4f mm\n",
+              c.all_mean_with_mm, c.all_mean_without_mm);
+}
+
+// Held: what the rows do not separate (rank), and what they pin no better than its plausible range.
+void printHeld(const RobotModel& robot, const CampaignReport& rep) {
+  std::string rank_held, prior_held;
+  const IdentifiabilityReport& ir = rep.geometric.identifiability;
+  for (const auto& d : ir.dropped) {
+    if (!d.below_prior) {
+      rank_held += " " + robot.paramNameHuman(d.index);
+      continue;
+    }
+    char buf[200];
+    if (d.prior_sigma_si > 0 && d.data_sigma_si >= d.prior_sigma_si)
+      std::snprintf(buf, sizeof buf, " %s (+-%.3g, plausible +-%.3g)", robot.paramNameHuman(d.index).c_str(),
+                    std::abs(robot.toHuman(d.index, d.data_sigma_si)), std::abs(robot.toHuman(d.index, d.prior_sigma_si)));
+    else  // pinned itself, but fitted with the kept ones it would loosen one of them beyond its range
+      std::snprintf(buf, sizeof buf, " %s (would loosen a kept parameter beyond its range)", robot.paramNameHuman(d.index).c_str());
+    prior_held += buf;
+  }
+  if (!rank_held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", rank_held.c_str());
+  if (!prior_held.empty())
+    std::printf("held at their start value: the data (at %.2fx the readings' sigmas, what the fit leaves) pin them "
+                "no better than their plausible deviation (--plausible-length-mm, --plausible-angle-deg):%s\n",
+                ir.noise_scale, prior_held.c_str());
+}
+
 }  // namespace
 
 void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem, const CampaignReport& rep) {
   if (rep.several_setups) return printSetups(a, problem, rep);
   const CampaignInput& in = problem.setups.front();
   const RobotModel& robot = in.robot;
-  const ExtendedFit& after = rep.after;
-  const Eigen::VectorXd& start = in.start;
   const PredictionModel& pm = rep.prediction;
   const PredictionCheck& trust = rep.check;
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s\n", a.input.data.c_str(),
@@ -176,24 +241,7 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
                       "its kinematics and extensions with the frames fitted)\n"
                     : "\n('before': the robot file's kinematics with the registered frames; 'after': every identifiable "
                       "parameter)\n");
-  // The estimated parameters: value, change from the start (the robot file's, frames registered) and 1 sigma.
-  // The readings' sigmas weight the fit; the residual says how far they hold: the sigmas are scaled by the square root
-  // of the a-posteriori variance factor (1 when the readings' sigmas and the model are right).
-  const double vf = std::sqrt(std::max(1.0, a.frames_only ? rep.frames_variance_factor : pm.variance_factor));
-  std::printf("\nestimated parameters: value, change from the start, 1 sigma (the fit's, x %.2f: the root of the "
-              "variance factor)\n", vf);
-  for (int i : after.estimated) {
-    const double sd = after.paramStddev(i), shown = std::isnan(sd) ? 0.0 : vf * robot.toHuman(i, sd);
-    std::printf("  %-24s %12.4f %+10.4f  sigma %.4f%s\n", robot.paramNameHuman(i).c_str(), robot.toHuman(i, after.params[i]),
-                robot.toHuman(i, after.params[i] - start[i]), shown,
-                a.frames_only ? "" : savedSigmaNote(robot, after, pm, i, shown).c_str());
-  }
-  for (int k : after.estimated_extension) {
-    const double shown = vf * after.extensionStddev(k);
-    std::printf("  %-24s %12.6g %+10.3g  sigma %.3g%s\n", after.extension_names[k].c_str(), after.extension_params[k],
-                after.extension_params[k], shown,
-                a.frames_only ? "" : savedSigmaNote(robot, after, pm, robot.numParams() + k, shown).c_str());
-  }
+  printParameters(a, in, rep);
   for (const auto& h : rep.held) std::printf("held: %s\n", deficitText(h).c_str());
   // Two different figures: how uncertain the fitted parameters are (small with many rows), and what the model leaves
   // (the residual it cannot explain, which no amount of data shrinks).
@@ -223,43 +271,8 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
   for (const auto& w : rep.implausible)
     std::printf("implausible: %s: a target offset or frame the robot file does not have (a gauge with its own frame?), "
                 "or too little excitation\n", w.c_str());
-  if (rep.residual_map) {  // what the model leaves, learnt at the identification rows, applied near them
-    const ResidualMap& map = *rep.residual_map;
-    const ResidualMapCheck& c = rep.residual_map_check;
-    std::string scales;
-    for (Eigen::Index j = 0; j < map.lengthScales_rad().size(); ++j)
-      scales += (j ? " " : "") + std::to_string(static_cast<int>(std::lround(map.lengthScales_rad()[j] * 180 / kPi)));
-    std::printf("residual map: %zu identification rows, length scales %s deg (joints 1-%d), signal %.4f mm, noise %.4f mm "
-                "(%.1f s)\n", map.rows(), scales.c_str(), static_cast<int>(map.lengthScales_rad().size()),
-                map.signalSigma_m() * 1e3, map.noiseSigma_m() * 1e3, c.fit_time_s);
-    std::printf("  verification rows within %.2g length scales of an identification row: %d of %d; their held-out mean "
-                "%.4f mm with the map, %.4f mm without (the map's 1 sigma there %.4f mm per axis)\n",
-                map.maxDistance(), c.verification_rows_near, c.verification_rows, c.near_mean_with_mm,
-                c.near_mean_without_mm, c.near_sigma_mean_mm);
-    std::printf("  every verification row (the map where it applies): %.4f mm, without the map %.4f mm\n",
-                c.all_mean_with_mm, c.all_mean_without_mm);
-  }
-  // Held: what the rows do not separate (rank), and what they pin no better than its plausible range.
-  std::string rank_held, prior_held;
-  const IdentifiabilityReport& ir = rep.geometric.identifiability;
-  for (const auto& d : ir.dropped) {
-    if (!d.below_prior) {
-      rank_held += " " + robot.paramNameHuman(d.index);
-      continue;
-    }
-    char buf[200];
-    if (d.prior_sigma_si > 0 && d.data_sigma_si >= d.prior_sigma_si)
-      std::snprintf(buf, sizeof buf, " %s (+-%.3g, plausible +-%.3g)", robot.paramNameHuman(d.index).c_str(),
-                    std::abs(robot.toHuman(d.index, d.data_sigma_si)), std::abs(robot.toHuman(d.index, d.prior_sigma_si)));
-    else  // pinned itself, but fitted with the kept ones it would loosen one of them beyond its range
-      std::snprintf(buf, sizeof buf, " %s (would loosen a kept parameter beyond its range)", robot.paramNameHuman(d.index).c_str());
-    prior_held += buf;
-  }
-  if (!rank_held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", rank_held.c_str());
-  if (!prior_held.empty())
-    std::printf("held at their start value: the data (at %.2fx the readings' sigmas, what the fit leaves) pin them "
-                "no better than their plausible deviation (--plausible-length-mm, --plausible-angle-deg):%s\n",
-                ir.noise_scale, prior_held.c_str());
+  if (rep.residual_map) printResidualMap(rep);
+  printHeld(robot, rep);
 }
 
 }  // namespace cellcal::cli

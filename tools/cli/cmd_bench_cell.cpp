@@ -63,6 +63,55 @@ void addOptions(CLI::App& cmd, BenchArgs& a) {
                  "received calibrations against the simulated truth (a soak's record)");
 }
 
+// What the bench receives: the calibrations (with the latest model of each robot) and the answers to its targets or
+// setpoints, each with its arrival time.
+void subscribe(DdsNode& node, const BenchRobots& robots, BenchReceived& rx) {
+  node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    const auto it = robots.index_of.find(m.robot_id().to_string());
+    std::optional<ReceivedCalibration> c;
+    if (it != robots.index_of.end()) c = fromCalibrationState(robots.sims[it->second].model(), m, nullptr);
+    std::lock_guard<std::mutex> l(rx.mutex);
+    rx.states.push_back({now, static_cast<std::int64_t>(m.last_measurement_stamp_ns()), m.version(), m.robot_id().to_string()});
+    if (c) rx.latest[it->second] = c->params;
+    else ++rx.bad_states;
+  });
+  node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    std::lock_guard<std::mutex> l(rx.mutex);
+    rx.comps.emplace_back(now, m.target_sequence());
+  });
+  node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
+    const std::int64_t now = wallNs();
+    std::lock_guard<std::mutex> l(rx.mutex);
+    rx.comps.emplace_back(now, m.setpoint_sequence());
+  });
+}
+
+// The compensation publisher's own figures: the CPU of a target's callback (take, compensate, write) against the
+// process's CPU per target (the rest: DDS's receive and event threads, the kernel's UDP path, wake-ups).
+void reportCompensation(const BenchArgs& a, const fs::path& dir, const BenchPlayed& played, double cpu_c, double wall,
+                        std::size_t answered, nlohmann::json* out_json) {
+  nlohmann::json& out = *out_json;
+  const auto cs = nlohmann::json::parse(std::ifstream((dir / "comp.json").string()), nullptr, false);
+  if (!cs.is_discarded() && cs[stats::kExtra].contains(stats::kTargetCpuUs)) {
+    const auto& tc = a.servo ? cs[stats::kExtra][stats::kServo]["cpu_us"] : cs[stats::kExtra][stats::kTargetCpuUs];
+    const double sent = static_cast<double>(played.target_seq);
+    const double process_us = sent > 0 ? cpu_c * wall / sent * 1e6 : 0.0;
+    const nlohmann::json outcomes = a.servo ? nlohmann::json{{"applied", cs[stats::kExtra][stats::kServo]["applied"]},
+                                                             {"answered", cs[stats::kExtra][stats::kServo]["answered"]},
+                                                             {"out_of_order", cs[stats::kExtra][stats::kServo]["out_of_order"]}}
+                                            : cs[stats::kExtra][stats::kOutcomes];
+    std::printf("compensation per %s: callback CPU mean %.1f us, p99 %.0f us, max %.0f us; process CPU %.0f us "
+                "a %s; answered %zu of %llu; outcomes %s\n",
+                a.servo ? "setpoint" : "target", tc.value("mean", 0.0), tc.value("p99", 0.0), tc.value("max", 0.0),
+                process_us, a.servo ? "setpoint" : "target", answered,
+                static_cast<unsigned long long>(played.target_seq), outcomes.dump().c_str());
+    out["compensation"] = {{"stream", a.servo ? "servo" : "target"}, {"target_callback_cpu_us", tc},
+                           {"process_cpu_us_per_target", process_us}, {"outcomes", outcomes}};
+  }
+}
+
 int runBench(const BenchArgs& a) {
   // Targets go out on the streams' ticks: at most one per tick, every rate/targets ticks.
   if (a.targets_hz > a.rate_hz)
@@ -83,27 +132,8 @@ int runBench(const BenchArgs& a) {
   auto js = node.writer<msg::JointState>();
   auto tp = node.writer<msg::TrackerPose>();
   auto tg = node.writer<msg::TargetPose>();
-  node.reader<msg::CalibrationState>([&](const msg::CalibrationState& m, const fdds::SampleInfo&) {
-    const std::int64_t now = wallNs();
-    const auto it = robots.index_of.find(m.robot_id().to_string());
-    std::optional<ReceivedCalibration> c;
-    if (it != robots.index_of.end()) c = fromCalibrationState(robots.sims[it->second].model(), m, nullptr);
-    std::lock_guard<std::mutex> l(rx.mutex);
-    rx.states.push_back({now, static_cast<std::int64_t>(m.last_measurement_stamp_ns()), m.version(), m.robot_id().to_string()});
-    if (c) rx.latest[it->second] = c->params;
-    else ++rx.bad_states;
-  });
-  node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& m, const fdds::SampleInfo&) {
-    const std::int64_t now = wallNs();
-    std::lock_guard<std::mutex> l(rx.mutex);
-    rx.comps.emplace_back(now, m.target_sequence());
-  });
   auto sv = node.writer<msg::ServoSetpoint>();
-  node.reader<msg::ServoCorrection>([&](const msg::ServoCorrection& m, const fdds::SampleInfo&) {
-    const std::int64_t now = wallNs();
-    std::lock_guard<std::mutex> l(rx.mutex);
-    rx.comps.emplace_back(now, m.setpoint_sequence());
-  });
+  subscribe(node, robots, rx);
   waitForReaders({js.entity(), tp.entity(), a.servo ? sv.entity() : tg.entity()}, recorder > 0 ? 2 : 1, dir);
 
   const CpuMeter cpu_engine(engine), cpu_comp(comp), cpu_self(::getpid()), cpu_recorder(recorder);
@@ -157,25 +187,7 @@ int runBench(const BenchArgs& a) {
               static_cast<unsigned long long>(js_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(tp_rx), static_cast<unsigned long long>(js_pub),
               static_cast<unsigned long long>(l.versions), static_cast<unsigned long long>(played.standstills));
-  // The compensation publisher's own figures: the CPU of a target's callback (take, compensate, write) against the
-  // process's CPU per target (the rest: DDS's receive and event threads, the kernel's UDP path, wake-ups).
-  const auto cs = nlohmann::json::parse(std::ifstream((dir / "comp.json").string()), nullptr, false);
-  if (!cs.is_discarded() && cs[stats::kExtra].contains(stats::kTargetCpuUs)) {
-    const auto& tc = a.servo ? cs[stats::kExtra][stats::kServo]["cpu_us"] : cs[stats::kExtra][stats::kTargetCpuUs];
-    const double sent = static_cast<double>(played.target_seq);
-    const double process_us = sent > 0 ? cpu_c * wall / sent * 1e6 : 0.0;
-    const nlohmann::json outcomes = a.servo ? nlohmann::json{{"applied", cs[stats::kExtra][stats::kServo]["applied"]},
-                                                             {"answered", cs[stats::kExtra][stats::kServo]["answered"]},
-                                                             {"out_of_order", cs[stats::kExtra][stats::kServo]["out_of_order"]}}
-                                            : cs[stats::kExtra][stats::kOutcomes];
-    std::printf("compensation per %s: callback CPU mean %.1f us, p99 %.0f us, max %.0f us; process CPU %.0f us "
-                "a %s; answered %zu of %llu; outcomes %s\n",
-                a.servo ? "setpoint" : "target", tc.value("mean", 0.0), tc.value("p99", 0.0), tc.value("max", 0.0),
-                process_us, a.servo ? "setpoint" : "target", l.comp_us.size(),
-                static_cast<unsigned long long>(played.target_seq), outcomes.dump().c_str());
-    out["compensation"] = {{"stream", a.servo ? "servo" : "target"}, {"target_callback_cpu_us", tc},
-                           {"process_cpu_us_per_target", process_us}, {"outcomes", outcomes}};
-  }
+  reportCompensation(a, dir, played, cpu_c, wall, l.comp_us.size(), &out);
   if (!es.is_discarded() && es[stats::kExtra].contains(stats::kInputQueue)) {
     const auto& iq = es[stats::kExtra][stats::kInputQueue];
     std::printf("engine input queue (samples waiting for its worker): peak %llu, refused %llu (bound %llu)\n",

@@ -212,6 +212,53 @@ void writeReport(const Iso9283Args& a, const std::string& robot_label,
         "![AP and RP](ap_rp.svg)\n\n![clouds](clouds.svg)\n";
 }
 
+// --register: each model's base and tool frames fitted on the rows, refused where the rows cannot tell them from the
+// robot's own error.
+void registerModels(const Iso9283Args& a, const RobotModel& m, const MeasurementFile& f, bool orientation,
+                    std::vector<Model>& models) {
+  // The frames can be fitted only on poses that span space and turn the flange: the standard's five lie in one
+  // plane with one orientation, where a fit would take the robot's own error into the frames and report it as gone.
+  KinematicsData kd(m);
+  Eigen::VectorXd flange_params = m.nominal;
+  flange_params.segment<6>(m.baseParam(FrameParam::kX)).setZero();
+  flange_params.segment<6>(m.toolParam(FrameParam::kX)).setZero();
+  std::vector<Pose> flange;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (const auto& r : f.rows) {
+    flange.push_back(forwardKinematics(m, kd, flange_params, r.q_rad));
+    centre += flange.back().translation() / static_cast<double>(f.rows.size());
+  }
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  double turn = 0;
+  for (const auto& F : flange) {
+    scatter += (F.translation() - centre) * (F.translation() - centre).transpose();
+    turn = std::max(turn, logSO3(F.linear() * flange.front().linear().transpose()).norm());
+  }
+  const Eigen::Vector3d sv = Eigen::JacobiSVD<Eigen::Matrix3d>(scatter).singularValues();
+  if (sv[2] < 0.01 * sv[0] || turn < degToRad(10))
+    throw ConfigError(a.data + ": --register: the rows' flange poses " +
+                      (turn < degToRad(10) ? "keep one orientation (within " + std::to_string(radToDeg(turn)) + " deg)"
+                                           : std::string("lie in one plane")) +
+                      ": the base and tool frames cannot be told from the robot's own error there (the standard's test "
+                      "poses lie in one plane with one orientation). Register the cell on other poses first "
+                      "(`cellcal calibrate --frames-only`) and give its frames in the robot file");
+  std::vector<Observation> obs;
+  for (const auto& r : f.rows)
+    obs.push_back(toObservation(r, orientation ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D, 25e-6, 1.7e-4));
+  for (auto& mm : models) {
+    try {
+      const RegistrationResult reg = registerFrames(*mm.m.model, mm.m.params, obs);
+      mm.m.params = reg.params;
+      std::printf("iso9283: the %s's base and tool frames fitted on the data (--register): RMS %.4f mm\n",
+                  mm.label.c_str(), reg.rms_position_m * 1e3);
+    } catch (const std::invalid_argument& e) {
+      throw ConfigError(a.data + ": --register: " + e.what() +
+                        " (the standard's test poses lie in one plane with one orientation: register the cell on "
+                        "other poses first, `cellcal calibrate --frames-only`, and give its frames in the robot file)");
+    }
+  }
+}
+
 int runIso9283(const Iso9283Args& a) {
   std::string robot_label;
   const RobotFile rf = robotOrCellRobot(a.robot, a.config, a.robot_id, &robot_label);
@@ -236,49 +283,7 @@ int runIso9283(const Iso9283Args& a) {
     if (!same) throw ConfigError(a.model_robot + ": not a model of " + robot_label + " (another joint layout)");
     models.push_back({"calibrated model " + a.model_robot, {calibratedModel(*cal), &cal->model}});
   }
-  if (a.register_frames) {
-    // The frames can be fitted only on poses that span space and turn the flange: the standard's five lie in one
-    // plane with one orientation, where a fit would take the robot's own error into the frames and report it as gone.
-    KinematicsData kd(m);
-    Eigen::VectorXd flange_params = m.nominal;
-    flange_params.segment<6>(m.baseParam(FrameParam::kX)).setZero();
-    flange_params.segment<6>(m.toolParam(FrameParam::kX)).setZero();
-    std::vector<Pose> flange;
-    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-    for (const auto& r : f.rows) {
-      flange.push_back(forwardKinematics(m, kd, flange_params, r.q_rad));
-      centre += flange.back().translation() / static_cast<double>(f.rows.size());
-    }
-    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-    double turn = 0;
-    for (const auto& F : flange) {
-      scatter += (F.translation() - centre) * (F.translation() - centre).transpose();
-      turn = std::max(turn, logSO3(F.linear() * flange.front().linear().transpose()).norm());
-    }
-    const Eigen::Vector3d sv = Eigen::JacobiSVD<Eigen::Matrix3d>(scatter).singularValues();
-    if (sv[2] < 0.01 * sv[0] || turn < degToRad(10))
-      throw ConfigError(a.data + ": --register: the rows' flange poses " +
-                        (turn < degToRad(10) ? "keep one orientation (within " + std::to_string(radToDeg(turn)) + " deg)"
-                                             : std::string("lie in one plane")) +
-                        ": the base and tool frames cannot be told from the robot's own error there (the standard's test "
-                        "poses lie in one plane with one orientation). Register the cell on other poses first "
-                        "(`cellcal calibrate --frames-only`) and give its frames in the robot file");
-    std::vector<Observation> obs;
-    for (const auto& r : f.rows)
-      obs.push_back(toObservation(r, orientation ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D, 25e-6, 1.7e-4));
-    for (auto& mm : models) {
-      try {
-        const RegistrationResult reg = registerFrames(*mm.m.model, mm.m.params, obs);
-        mm.m.params = reg.params;
-        std::printf("iso9283: the %s's base and tool frames fitted on the data (--register): RMS %.4f mm\n",
-                    mm.label.c_str(), reg.rms_position_m * 1e3);
-      } catch (const std::invalid_argument& e) {
-        throw ConfigError(a.data + ": --register: " + e.what() +
-                          " (the standard's test poses lie in one plane with one orientation: register the cell on "
-                          "other poses first, `cellcal calibrate --frames-only`, and give its frames in the robot file)");
-      }
-    }
-  }
+  if (a.register_frames) registerModels(a, m, f, orientation, models);
   // Visits of one pose at other joints are said (not one test pose?).
   std::map<std::string, std::pair<Eigen::VectorXd, double>> spread;
   for (const auto& r : f.rows) {

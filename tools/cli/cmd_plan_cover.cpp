@@ -59,21 +59,32 @@ void addCoverOptions(CLI::App& cmd, PlanCoverArgs& a) {
       ->check(outputFile());
 }
 
-int runPlanCover(const PlanCoverArgs& a) {
-  std::string robot_label;
-  const RobotFile rf = robotOrCellRobot(a.robot, a.config, a.robot_id, &robot_label);
-  const RobotFile cal = loadRobotFile(a.calibration);
+// A calibrated robot file of the robot rf describes (robot_label names it in errors).
+RobotFile loadCalibrationOf(const std::string& path, const RobotFile& rf, const std::string& robot_label) {
+  RobotFile cal = loadRobotFile(path);
   if (!cal.calibration)
-    throw ConfigError(a.calibration + ": not a calibrated robot file (no calibration section): calibrate --save-robot writes one");
+    throw ConfigError(path + ": not a calibrated robot file (no calibration section): calibrate --save-robot writes one");
   if (cal.model.numJoints() != rf.model.numJoints() || cal.model.numParams() != rf.model.numParams())
-    throw ConfigError(a.calibration + ": another robot than " + robot_label + " (" + std::to_string(cal.model.numJoints()) +
+    throw ConfigError(path + ": another robot than " + robot_label + " (" + std::to_string(cal.model.numJoints()) +
                       " joints, " + std::to_string(cal.model.numParams()) + " parameters against " +
                       std::to_string(rf.model.numJoints()) + " and " + std::to_string(rf.model.numParams()) + ")");
-  // The controller: the nominal kinematics with the frames the calibration registered (the tracker frame its targets
-  // are in), as the compensation publisher sees a cell registered by that campaign.
+  return cal;
+}
+
+// The controller: the nominal kinematics with the frames the calibration registered (the tracker frame its targets
+// are in), as the compensation publisher sees a cell registered by that campaign.
+RobotModel controllerOf(const RobotFile& rf, const RobotFile& cal) {
   RobotModel controller = rf.model;
   const int f0 = controller.baseParam(FrameParam::kX);
   controller.nominal.tail(controller.numParams() - f0) = cal.model.nominal.tail(controller.numParams() - f0);
+  return controller;
+}
+
+int runPlanCover(const PlanCoverArgs& a) {
+  std::string robot_label;
+  const RobotFile rf = robotOrCellRobot(a.robot, a.config, a.robot_id, &robot_label);
+  const RobotFile cal = loadCalibrationOf(a.calibration, rf, robot_label);
+  const RobotModel controller = controllerOf(rf, cal);
   IdentifiedModel model(calibratedModel(cal));
   attachRobotFile(cal, model);
   MeasurementCsvOptions po;

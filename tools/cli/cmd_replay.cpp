@@ -45,13 +45,15 @@ void addOptions(CLI::App& cmd, ReplayArgs& a) {
   cmd.add_flag("--no-progress", a.no_progress, "no progress bar");
 }
 
-int runReplay(const ReplayArgs& a) {
-  installStopHandlers();
-  if (!(a.rate > 0)) throw std::runtime_error("--rate must be > 0");
-  const Recording rec = readRecording(a.file);
-  if (!rec.file.complete)
-    std::fprintf(stderr, "replay: %s is incomplete (%s): replaying the messages of its complete chunks "
-                 "(`cellcal record --recover` makes it whole)\n", a.file.c_str(), rec.file.problem.c_str());
+// A topic's writer, and what became of its samples.
+struct Out {
+  std::function<int(const std::string&, std::int64_t, std::string*)> publish;  // 1 sent, 0 refused, -1 undecodable
+  fdds::DataWriter* writer = nullptr;
+  std::uint64_t sent = 0, refused = 0, undecodable = 0;
+};
+
+// The recording's messages on the selected topics, in log order.
+std::vector<const RecordedMessage*> selectMessages(const ReplayArgs& a, const Recording& rec) {
   const std::vector<std::string> topics = parseTopicList(a.topics);
   std::vector<const RecordedMessage*> msgs;
   for (const auto& m : rec.in_log_order)
@@ -62,13 +64,11 @@ int runReplay(const ReplayArgs& a) {
     throw std::runtime_error(a.file + ": no messages on the selected topics (--topics " + a.topics + "); it holds:" +
                              (have.empty() ? std::string(" nothing") : have));
   }
-  const CellConfig cell = loadCell(a.common);
-  DdsNode node(cell, "cellcal_replay", identity::kReplay);
-  struct Out {
-    std::function<int(const std::string&, std::int64_t, std::string*)> publish;  // 1 sent, 0 refused, -1 undecodable
-    fdds::DataWriter* writer = nullptr;
-    std::uint64_t sent = 0, refused = 0, undecodable = 0;
-  };
+  return msgs;
+}
+
+// One writer per topic the messages are on, publishing a message's CDR with its stamps shifted.
+std::map<std::string, Out> makeWriters(DdsNode& node, const std::vector<const RecordedMessage*>& msgs) {
   std::map<std::string, Out> outs;
   for (const auto* m : msgs) {
     if (outs.count(*m->topic)) continue;
@@ -86,9 +86,11 @@ int runReplay(const ReplayArgs& a) {
       outs[*m->topic] = std::move(o);
     });
   }
-  std::vector<Out*> out_of;  // per message, resolved once (not a map lookup per publish)
-  for (const auto* m : msgs) out_of.push_back(&outs.at(*m->topic));
-  // Subscribers first: a sample published before discovery is lost (volatile topics).
+  return outs;
+}
+
+// Subscribers first: a sample published before discovery is lost (volatile topics).
+void waitForReaders(const ReplayArgs& a, std::map<std::string, Out>& outs) {
   const auto wait_until = std::chrono::steady_clock::now() + std::chrono::duration<double>(a.wait_s);
   while (a.wait_for_readers > 0 && std::chrono::steady_clock::now() < wait_until && !stopRequested()) {
     bool all = true;
@@ -108,20 +110,26 @@ int runReplay(const ReplayArgs& a) {
                    st.current_count, a.wait_s, a.wait_for_readers);
   }
   if (a.wait_for_readers > 0) std::this_thread::sleep_for(std::chrono::milliseconds(250));  // the readers' side of the match
-  const std::uint64_t t0 = msgs.front()->message->log_time_ns;
-  const std::uint64_t span_ns = msgs.back()->message->log_time_ns - t0;
-  if (!a.keep_stamps && !a.as_fast_as_possible && a.rate != 1.0)
-    std::fprintf(stderr, "replay: stamps keep their recorded spacing; at --rate %g they drift from the clock: run the "
-                 "engine with engine.max_sample_age_s: 0\n", a.rate);
-  if (!a.keep_stamps && a.as_fast_as_possible)
-    std::fprintf(stderr, "replay: stamps keep their recorded spacing; as fast as possible they run ahead of the clock: "
-                 "run the engine with engine.max_sample_age_s: 0\n");
-  std::vector<double> timing_error_us;
-  timing_error_us.reserve(msgs.size());
+}
+
+// What the replay did: counted per topic in the Outs, the rest here.
+struct Played {
+  std::vector<double> timing_error_us;  // publish - schedule, per message (not as fast as possible)
   std::uint64_t published = 0, loops = 0;
   std::string first_error;
+};
+
+// The messages published on their recorded schedule (scaled by --rate) or as fast as possible, looped if asked.
+Played play(const ReplayArgs& a, const std::vector<const RecordedMessage*>& msgs, const std::vector<Out*>& out_of) {
+  const std::uint64_t t0 = msgs.front()->message->log_time_ns;
+  const std::uint64_t span_ns = msgs.back()->message->log_time_ns - t0;
+  Played p;
+  std::vector<double>& timing_error_us = p.timing_error_us;
+  std::uint64_t& published = p.published;
+  std::uint64_t& loops = p.loops;
+  std::string& first_error = p.first_error;
+  timing_error_us.reserve(msgs.size());
   std::int64_t shift_ns = 0;
-  const auto start = std::chrono::steady_clock::now();
   const RunLimit limit(a.duration_s);
   ProgressBar bar("replay", !a.no_progress);
   bool stop = false;
@@ -169,6 +177,36 @@ int runReplay(const ReplayArgs& a) {
     if (!a.loop) break;
   }
   bar.done();
+  return p;
+}
+
+int runReplay(const ReplayArgs& a) {
+  installStopHandlers();
+  if (!(a.rate > 0)) throw std::runtime_error("--rate must be > 0");
+  const Recording rec = readRecording(a.file);
+  if (!rec.file.complete)
+    std::fprintf(stderr, "replay: %s is incomplete (%s): replaying the messages of its complete chunks "
+                 "(`cellcal record --recover` makes it whole)\n", a.file.c_str(), rec.file.problem.c_str());
+  const std::vector<const RecordedMessage*> msgs = selectMessages(a, rec);
+  const CellConfig cell = loadCell(a.common);
+  DdsNode node(cell, "cellcal_replay", identity::kReplay);
+  std::map<std::string, Out> outs = makeWriters(node, msgs);
+  std::vector<Out*> out_of;  // per message, resolved once (not a map lookup per publish)
+  for (const auto* m : msgs) out_of.push_back(&outs.at(*m->topic));
+  waitForReaders(a, outs);
+  const std::uint64_t t0 = msgs.front()->message->log_time_ns;
+  const std::uint64_t span_ns = msgs.back()->message->log_time_ns - t0;
+  if (!a.keep_stamps && !a.as_fast_as_possible && a.rate != 1.0)
+    std::fprintf(stderr, "replay: stamps keep their recorded spacing; at --rate %g they drift from the clock: run the "
+                 "engine with engine.max_sample_age_s: 0\n", a.rate);
+  if (!a.keep_stamps && a.as_fast_as_possible)
+    std::fprintf(stderr, "replay: stamps keep their recorded spacing; as fast as possible they run ahead of the clock: "
+                 "run the engine with engine.max_sample_age_s: 0\n");
+  const auto start = std::chrono::steady_clock::now();
+  const Played played = play(a, msgs, out_of);
+  const std::vector<double>& timing_error_us = played.timing_error_us;
+  const std::uint64_t published = played.published, loops = played.loops;
+  const std::string& first_error = played.first_error;
   // Reliable samples still in the writers' histories reach late readers before the participant goes; best-effort
   // ones get a moment to leave the socket.
   for (auto& [t, o] : outs) o.writer->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(2, 0));

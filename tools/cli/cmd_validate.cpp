@@ -97,37 +97,32 @@ std::string robotOfTarget(const CellConfig& cell, const std::string& target_id) 
   return "";
 }
 
-int runValidate(const ValidateArgs& a) {
-  const auto t_read = std::chrono::steady_clock::now();
-  const Recording rec = readRecording(a.file);
-  const CellConfig cell = loadCell(a.common);
-  // What the engine process would publish, as a consumer receives it (through the wire type).
-  struct Run {
-    std::vector<ReceivedCalibration> reproduced;
-    std::map<std::uint64_t, ReceivedCalibration> recorded;  // first CalibrationState of each version
-    std::uint64_t joint_states = 0, tracker_readings = 0;
-  };
-  std::map<std::string, Run> runs;
-  for (const auto& r : cell.robots) runs[r.robot_id];
-  auto reproduce = [&](EngineHost::Robot& r) {
-    std::string error;
-    auto c = fromCalibrationState(r.robot->model, toCalibrationState(*r.robot, r.engine->snapshot(), 0, 0), &error);
-    if (!c) throw std::logic_error("validate: a calibration does not survive its own conversion: " + error);
-    runs[r.robot->robot_id].reproduced.push_back(std::move(*c));
-  };
-  EngineHost host(cell, {/*persist=*/false, nullptr}, reproduce);
-  // Where each engine stands at its start, as the engine process publishes it before any reading: a calibration
-  // file's model is a version of its own (v1), which the recording holds and must be reproduced too.
-  for (auto& [id, r] : host.robots())
-    if (r.engine->snapshot().version > 0) reproduce(r);
+// What the engine process would publish for one robot, as a consumer receives it (through the wire type), and what the
+// recording holds.
+struct Run {
+  std::vector<ReceivedCalibration> reproduced;
+  std::map<std::uint64_t, ReceivedCalibration> recorded;  // first CalibrationState of each version
+  std::uint64_t joint_states = 0, tracker_readings = 0;
+};
+
+// Messages the replay could not use, counted, the first named.
+struct Unused {
   std::uint64_t unknown_keys = 0, undecodable = 0, state_errors = 0;
   std::string first_error;
-  auto note = [&](std::uint64_t& counter, const std::string& what) {
+  void note(std::uint64_t& counter, const std::string& what) {
     ++counter;
     if (first_error.empty()) first_error = what;
-  };
-  const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
-  const auto t0 = std::chrono::steady_clock::now();
+  }
+};
+
+// The recording's inputs into the host in log order (it reproduces into runs), its CalibrationStates into runs.
+Unused replay(const ValidateArgs& a, const Recording& rec, const CellConfig& cell, EngineHost& host,
+              std::map<std::string, Run>& runs) {
+  Unused unused;
+  auto note = [&](std::uint64_t& counter, const std::string& what) { unused.note(counter, what); };
+  std::uint64_t& unknown_keys = unused.unknown_keys;
+  std::uint64_t& undecodable = unused.undecodable;
+  std::uint64_t& state_errors = unused.state_errors;
   ProgressBar bar("validate", !a.no_progress);
   // Decoded into reused samples: constructing one costs more than decoding it (see DdsNode::Listener).
   msg::JointState js;
@@ -171,6 +166,150 @@ int runValidate(const ValidateArgs& a) {
   }
   host.tick(static_cast<std::int64_t>(rec.end_ns) + 1000000000LL);
   bar.done();
+  return unused;
+}
+
+// One robot's reproduced calibrations against the recorded ones: printed, and returned as JSON; all_match false when a
+// version differs or was recorded but not reproduced.
+nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const Run& run, const EngineHost::Robot& hosted,
+                            bool* all_match) {
+  const RobotModel& model = hosted.robot->model;
+  const auto& exts = hosted.engine->snapshot().extensions;
+  std::uint64_t compared = 0, mismatched = 0, not_recorded = 0;
+  Difference worst;
+  std::string first_mismatch;
+  nlohmann::json series = nlohmann::json::array();
+  std::set<std::uint64_t> reproduced_versions;
+  for (const auto& c : run.reproduced) {
+    reproduced_versions.insert(c.version);
+    nlohmann::json row = {{"version", c.version}, {"poses_used", c.poses_used},
+                          {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()}};
+    auto it = run.recorded.find(c.version);
+    if (it == run.recorded.end()) {
+      ++not_recorded;
+      series.push_back(row);
+      continue;
+    }
+    ++compared;
+    const Difference d = compare(model, exts, c, it->second, a.tolerance_m, a.tolerance_rad);
+    row["recorded_verification_mm"] = std::isfinite(it->second.verification_mean_position_m) ? nlohmann::json(it->second.verification_mean_position_m * 1e3) : nlohmann::json();
+    row["max_difference_m"] = d.length_m;
+    row["max_difference_rad"] = d.angle_rad;
+    series.push_back(row);
+    worst.length_m = std::max(worst.length_m, d.length_m);
+    worst.angle_rad = std::max(worst.angle_rad, d.angle_rad);
+    worst.other = std::max(worst.other, d.other);
+    worst.verification_m = std::max(worst.verification_m, d.verification_m);
+    const bool ok = d.length_m <= a.tolerance_m && d.angle_rad <= a.tolerance_rad && d.other <= a.tolerance_rad &&
+                    d.verification_m <= a.tolerance_m && std::isfinite(d.worst_ratio);
+    if (!ok) {
+      ++mismatched;
+      if (first_mismatch.empty())
+        first_mismatch = "v" + std::to_string(c.version) + ": " +
+                         (!d.different_model.empty()
+                              ? d.different_model
+                              : d.worst + " differs by " + std::to_string(d.worst_ratio) +
+                                    "x the tolerance; a-priori error by " + std::to_string(d.verification_m * 1e3) + " mm");
+    }
+  }
+  std::uint64_t missing = 0;
+  for (const auto& [v, c] : run.recorded)
+    if (!reproduced_versions.count(v)) ++missing;
+  *all_match = !(mismatched || missing);
+  const ReceivedCalibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
+  const ReceivedCalibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
+  std::printf("validate: %s: %llu joint states, %llu tracker readings -> %zu calibrations (last v%llu, %u poses, "
+              "running a-priori error %.4f mm: the last 30 poses, each predicted before it was used)\n",
+              id.c_str(), static_cast<unsigned long long>(run.joint_states),
+              static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
+              static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
+              last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
+  // How the engine started shows in its first poses: each predicted a priori, windows of kRecentPoses.
+  std::vector<double> first_windows;  // a-priori mean of poses 1-30, 31-60, ...
+  for (const auto& c : run.reproduced)
+    if (c.poses_used == (first_windows.size() + 1) * CalibrationEngine::kRecentPoses && first_windows.size() < 10)
+      first_windows.push_back(c.verification_mean_position_m * 1e3);
+  const double first_window_mm = first_windows.empty() ? std::nan("") : first_windows.front();
+  const double first_ten_mm = first_windows.size() < 10 ? std::nan("")
+                              : std::accumulate(first_windows.begin(), first_windows.end(), 0.0) / 10;
+  if (!first_windows.empty()) {
+    std::printf("validate: %s: a-priori mean position error of the first %zu poses %.4f mm", id.c_str(),
+                CalibrationEngine::kRecentPoses, first_window_mm);
+    if (std::isfinite(first_ten_mm))
+      std::printf(", of the first %zu %.4f mm", 10 * CalibrationEngine::kRecentPoses, first_ten_mm);
+    std::printf(" (started %s)\n",
+                hosted.robot->start ? ("from " + hosted.robot->calibration_file).c_str() : "from the nominal model");
+  }
+  if (run.recorded.empty()) {
+    std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
+  } else {
+    std::printf("validate: %s: %zu recorded calibrations (last v%llu, running a-priori error %.4f mm): %llu compared, %llu differ, "
+                "%llu recorded but not reproduced, %llu reproduced but not recorded\n",
+                id.c_str(), run.recorded.size(), static_cast<unsigned long long>(last_rec->version),
+                last_rec->verification_mean_position_m * 1e3, static_cast<unsigned long long>(compared),
+                static_cast<unsigned long long>(mismatched), static_cast<unsigned long long>(missing),
+                static_cast<unsigned long long>(not_recorded));
+    std::printf("validate: %s: largest differences: %.3g m, %.3g rad, running a-priori error %.3g m (tolerance %.0e m, %.0e rad)%s\n",
+                id.c_str(), worst.length_m, worst.angle_rad, worst.verification_m, a.tolerance_m, a.tolerance_rad,
+                first_mismatch.empty() ? "" : ("; first: " + first_mismatch).c_str());
+  }
+  const auto& c = hosted.engine->counters();
+  nlohmann::json rej = nlohmann::json::object();
+  for (size_t k = 0; k < c.rejected.size(); ++k)
+    if (c.rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = c.rejected[k];
+  return {{"joint_states", run.joint_states},
+                {"tracker_readings", run.tracker_readings},
+                {"paired", c.paired},
+                {"rejected", rej},
+                {"reproduced", run.reproduced.size()},
+                {"recorded", run.recorded.size()},
+                {"compared", compared},
+                {"differ", mismatched},
+                {"recorded_not_reproduced", missing},
+                {"reproduced_not_recorded", not_recorded},
+                {"max_difference_m", worst.length_m},
+                {"max_difference_rad", worst.angle_rad},
+                {"max_difference_verification_m", worst.verification_m},
+                {"first_difference", first_mismatch},
+                {"final_version", last_rep ? last_rep->version : 0},
+                {"first_poses_verification_mm", std::isfinite(first_window_mm) ? nlohmann::json(first_window_mm) : nlohmann::json()},
+                {"first_ten_windows_verification_mm", std::isfinite(first_ten_mm) ? nlohmann::json(first_ten_mm) : nlohmann::json()},
+                {"started_from", hosted.robot->start ? hosted.robot->calibration_file : std::string("nominal")},
+                {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
+                {"final_parameters", [&] {
+                   nlohmann::json p = nlohmann::json::object();
+                   if (!last_rep) return p;
+                   for (int i = 0; i < model.numParams(); ++i) p[model.paramName(i)] = last_rep->params[i];
+                   const auto names = extensionParamNames(model, exts);
+                   for (size_t k = 0; k < names.size(); ++k) p[names[k]] = last_rep->extension_params[static_cast<Eigen::Index>(k)];
+                   return p;
+                 }()},
+                {"calibrations", series}};
+}
+
+int runValidate(const ValidateArgs& a) {
+  const auto t_read = std::chrono::steady_clock::now();
+  const Recording rec = readRecording(a.file);
+  const CellConfig cell = loadCell(a.common);
+  std::map<std::string, Run> runs;
+  for (const auto& r : cell.robots) runs[r.robot_id];
+  auto reproduce = [&](EngineHost::Robot& r) {
+    std::string error;
+    auto c = fromCalibrationState(r.robot->model, toCalibrationState(*r.robot, r.engine->snapshot(), 0, 0), &error);
+    if (!c) throw std::logic_error("validate: a calibration does not survive its own conversion: " + error);
+    runs[r.robot->robot_id].reproduced.push_back(std::move(*c));
+  };
+  EngineHost host(cell, {/*persist=*/false, nullptr}, reproduce);
+  // Where each engine stands at its start, as the engine process publishes it before any reading: a calibration
+  // file's model is a version of its own (v1), which the recording holds and must be reproduced too.
+  for (auto& [id, r] : host.robots())
+    if (r.engine->snapshot().version > 0) reproduce(r);
+  const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
+  const auto t0 = std::chrono::steady_clock::now();
+  const Unused unused = replay(a, rec, cell, host, runs);
+  const std::uint64_t unknown_keys = unused.unknown_keys, undecodable = unused.undecodable,
+                      state_errors = unused.state_errors;
+  const std::string& first_error = unused.first_error;
   const double process_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const double span_s = (rec.end_ns - rec.start_ns) / 1e9;
   const double real_time_factor = span_s / std::max(read_s + process_s, 1e-9);
@@ -184,119 +323,9 @@ int runValidate(const ValidateArgs& a) {
   nlohmann::json robots = nlohmann::json::object();
   for (auto& [id, run] : runs) {
     if (run.joint_states == 0 && run.tracker_readings == 0 && run.recorded.empty()) continue;
-    const EngineHost::Robot& hosted = host.robots().at(id);
-    const RobotModel& model = hosted.robot->model;
-    const auto& exts = hosted.engine->snapshot().extensions;
-    std::uint64_t compared = 0, mismatched = 0, not_recorded = 0;
-    Difference worst;
-    std::string first_mismatch;
-    nlohmann::json series = nlohmann::json::array();
-    std::set<std::uint64_t> reproduced_versions;
-    for (const auto& c : run.reproduced) {
-      reproduced_versions.insert(c.version);
-      nlohmann::json row = {{"version", c.version}, {"poses_used", c.poses_used},
-                            {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()}};
-      auto it = run.recorded.find(c.version);
-      if (it == run.recorded.end()) {
-        ++not_recorded;
-        series.push_back(row);
-        continue;
-      }
-      ++compared;
-      const Difference d = compare(model, exts, c, it->second, a.tolerance_m, a.tolerance_rad);
-      row["recorded_verification_mm"] = std::isfinite(it->second.verification_mean_position_m) ? nlohmann::json(it->second.verification_mean_position_m * 1e3) : nlohmann::json();
-      row["max_difference_m"] = d.length_m;
-      row["max_difference_rad"] = d.angle_rad;
-      series.push_back(row);
-      worst.length_m = std::max(worst.length_m, d.length_m);
-      worst.angle_rad = std::max(worst.angle_rad, d.angle_rad);
-      worst.other = std::max(worst.other, d.other);
-      worst.verification_m = std::max(worst.verification_m, d.verification_m);
-      const bool ok = d.length_m <= a.tolerance_m && d.angle_rad <= a.tolerance_rad && d.other <= a.tolerance_rad &&
-                      d.verification_m <= a.tolerance_m && std::isfinite(d.worst_ratio);
-      if (!ok) {
-        ++mismatched;
-        if (first_mismatch.empty())
-          first_mismatch = "v" + std::to_string(c.version) + ": " +
-                           (!d.different_model.empty()
-                                ? d.different_model
-                                : d.worst + " differs by " + std::to_string(d.worst_ratio) +
-                                      "x the tolerance; a-priori error by " + std::to_string(d.verification_m * 1e3) + " mm");
-      }
-    }
-    std::uint64_t missing = 0;
-    for (const auto& [v, c] : run.recorded)
-      if (!reproduced_versions.count(v)) ++missing;
-    if (mismatched || missing) all_match = false;
-    const ReceivedCalibration* last_rep = run.reproduced.empty() ? nullptr : &run.reproduced.back();
-    const ReceivedCalibration* last_rec = run.recorded.empty() ? nullptr : &run.recorded.rbegin()->second;
-    std::printf("validate: %s: %llu joint states, %llu tracker readings -> %zu calibrations (last v%llu, %u poses, "
-                "running a-priori error %.4f mm: the last 30 poses, each predicted before it was used)\n",
-                id.c_str(), static_cast<unsigned long long>(run.joint_states),
-                static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
-                static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
-                last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
-    // How the engine started shows in its first poses: each predicted a priori, windows of kRecentPoses.
-    std::vector<double> first_windows;  // a-priori mean of poses 1-30, 31-60, ...
-    for (const auto& c : run.reproduced)
-      if (c.poses_used == (first_windows.size() + 1) * CalibrationEngine::kRecentPoses && first_windows.size() < 10)
-        first_windows.push_back(c.verification_mean_position_m * 1e3);
-    const double first_window_mm = first_windows.empty() ? std::nan("") : first_windows.front();
-    const double first_ten_mm = first_windows.size() < 10 ? std::nan("")
-                                : std::accumulate(first_windows.begin(), first_windows.end(), 0.0) / 10;
-    if (!first_windows.empty()) {
-      std::printf("validate: %s: a-priori mean position error of the first %zu poses %.4f mm", id.c_str(),
-                  CalibrationEngine::kRecentPoses, first_window_mm);
-      if (std::isfinite(first_ten_mm))
-        std::printf(", of the first %zu %.4f mm", 10 * CalibrationEngine::kRecentPoses, first_ten_mm);
-      std::printf(" (started %s)\n",
-                  hosted.robot->start ? ("from " + hosted.robot->calibration_file).c_str() : "from the nominal model");
-    }
-    if (run.recorded.empty()) {
-      std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
-    } else {
-      std::printf("validate: %s: %zu recorded calibrations (last v%llu, running a-priori error %.4f mm): %llu compared, %llu differ, "
-                  "%llu recorded but not reproduced, %llu reproduced but not recorded\n",
-                  id.c_str(), run.recorded.size(), static_cast<unsigned long long>(last_rec->version),
-                  last_rec->verification_mean_position_m * 1e3, static_cast<unsigned long long>(compared),
-                  static_cast<unsigned long long>(mismatched), static_cast<unsigned long long>(missing),
-                  static_cast<unsigned long long>(not_recorded));
-      std::printf("validate: %s: largest differences: %.3g m, %.3g rad, running a-priori error %.3g m (tolerance %.0e m, %.0e rad)%s\n",
-                  id.c_str(), worst.length_m, worst.angle_rad, worst.verification_m, a.tolerance_m, a.tolerance_rad,
-                  first_mismatch.empty() ? "" : ("; first: " + first_mismatch).c_str());
-    }
-    const auto& c = host.robots().at(id).engine->counters();
-    nlohmann::json rej = nlohmann::json::object();
-    for (size_t k = 0; k < c.rejected.size(); ++k)
-      if (c.rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = c.rejected[k];
-    robots[id] = {{"joint_states", run.joint_states},
-                  {"tracker_readings", run.tracker_readings},
-                  {"paired", c.paired},
-                  {"rejected", rej},
-                  {"reproduced", run.reproduced.size()},
-                  {"recorded", run.recorded.size()},
-                  {"compared", compared},
-                  {"differ", mismatched},
-                  {"recorded_not_reproduced", missing},
-                  {"reproduced_not_recorded", not_recorded},
-                  {"max_difference_m", worst.length_m},
-                  {"max_difference_rad", worst.angle_rad},
-                  {"max_difference_verification_m", worst.verification_m},
-                  {"first_difference", first_mismatch},
-                  {"final_version", last_rep ? last_rep->version : 0},
-                  {"first_poses_verification_mm", std::isfinite(first_window_mm) ? nlohmann::json(first_window_mm) : nlohmann::json()},
-                  {"first_ten_windows_verification_mm", std::isfinite(first_ten_mm) ? nlohmann::json(first_ten_mm) : nlohmann::json()},
-                  {"started_from", hosted.robot->start ? hosted.robot->calibration_file : std::string("nominal")},
-                  {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
-                  {"final_parameters", [&] {
-                     nlohmann::json p = nlohmann::json::object();
-                     if (!last_rep) return p;
-                     for (int i = 0; i < model.numParams(); ++i) p[model.paramName(i)] = last_rep->params[i];
-                     const auto names = extensionParamNames(model, exts);
-                     for (size_t k = 0; k < names.size(); ++k) p[names[k]] = last_rep->extension_params[static_cast<Eigen::Index>(k)];
-                     return p;
-                   }()},
-                  {"calibrations", series}};
+    bool match = true;
+    robots[id] = compareRobot(a, id, run, host.robots().at(id), &match);
+    all_match = all_match && match;
   }
   if (!a.figures.empty()) {
     for (auto& [id, run] : runs) writeRecordingFigures(a.figures, id, host.robots().at(id).robot->model, run.reproduced, cell.time_compression);

@@ -104,6 +104,52 @@ std::array<Pose, 5> isoTestPoses(const IsoCube& cube, int plane) {
   return p;
 }
 
+namespace {
+
+// The best cube's centre moved and its orientation turned a little while that lets a larger cube fit (a random search
+// alone leaves a third of the edge on the table), in shrinking steps; best_q: the joints at its centre.
+void growCube(const RobotModel& model, const Eigen::VectorXd& p0, const IsoPlanOptions& o, const IkOptions& search,
+              IsoPlan& best, Eigen::VectorXd& best_q) {
+  double step_m = 0.05, step_rad = degToRad(8);
+  while (step_m > 2e-3) {
+    bool improved = false;
+    for (int move = 0; move < 12; ++move) {
+      IsoCube cube = best.cube;
+      const double sign = move % 2 ? -1 : 1;
+      const int axis = (move / 2) % 3;
+      if (move < 6) {
+        if (o.centre_m) continue;  // a given centre stays
+        cube.centre_m[axis] += sign * step_m;
+      } else {
+        cube.orientation = Eigen::AngleAxisd(sign * step_rad, Eigen::Vector3d::Unit(axis)) * cube.orientation;
+      }
+      const IkResult r = solveInverseKinematics(model, p0, at(cube.centre_m, cube.orientation), best_q, search);
+      if (!r.ok()) continue;
+      double lo = best.cube.edge_m + o.edge_resolution_m;
+      double hi = std::min({o.max_edge_m, 2 * (cube.centre_m.z() - o.min_z_m),
+                            std::sqrt(2.0) * (cube.centre_m.head<2>().norm() - o.min_radius_m)});
+      if (lo > hi) continue;
+      cube.edge_m = lo;
+      if (!reached(model, p0, cube, o.plane, r.q_rad, search, nullptr)) continue;
+      while (hi - lo > o.edge_resolution_m) {
+        cube.edge_m = 0.5 * (lo + hi);
+        (reached(model, p0, cube, o.plane, r.q_rad, search, nullptr) ? lo : hi) = cube.edge_m;
+      }
+      cube.edge_m = lo;
+      best.cube = cube;
+      best_q = r.q_rad;
+      ++best.refinements;
+      improved = true;
+    }
+    if (!improved) {
+      step_m /= 2;
+      step_rad /= 2;
+    }
+  }
+}
+
+}  // namespace
+
 IsoPlan planIso9283(const RobotModel& model, const Eigen::VectorXd& params, const IsoPlanOptions& o) {
   std::string error;
   if (!o.IsValid(&error)) throw std::invalid_argument("IsoPlanOptions: " + error);
@@ -174,46 +220,7 @@ IsoPlan planIso9283(const RobotModel& model, const Eigen::VectorXd& params, cons
     best.cube = cube;
     best_q = q;
   }
-  // Then the best cube's centre moved and its orientation turned a little while that lets a larger cube fit (a
-  // random search alone leaves a third of the edge on the table), in shrinking steps.
-  if (best_q && !o.edge_m) {
-    double step_m = 0.05, step_rad = degToRad(8);
-    while (step_m > 2e-3) {
-      bool improved = false;
-      for (int move = 0; move < 12; ++move) {
-        IsoCube cube = best.cube;
-        const double sign = move % 2 ? -1 : 1;
-        const int axis = (move / 2) % 3;
-        if (move < 6) {
-          if (o.centre_m) continue;  // a given centre stays
-          cube.centre_m[axis] += sign * step_m;
-        } else {
-          cube.orientation = Eigen::AngleAxisd(sign * step_rad, Eigen::Vector3d::Unit(axis)) * cube.orientation;
-        }
-        const IkResult r = solveInverseKinematics(model, p0, at(cube.centre_m, cube.orientation), *best_q, search);
-        if (!r.ok()) continue;
-        double lo = best.cube.edge_m + o.edge_resolution_m;
-        double hi = std::min({o.max_edge_m, 2 * (cube.centre_m.z() - o.min_z_m),
-                              std::sqrt(2.0) * (cube.centre_m.head<2>().norm() - o.min_radius_m)});
-        if (lo > hi) continue;
-        cube.edge_m = lo;
-        if (!reached(model, p0, cube, o.plane, r.q_rad, search, nullptr)) continue;
-        while (hi - lo > o.edge_resolution_m) {
-          cube.edge_m = 0.5 * (lo + hi);
-          (reached(model, p0, cube, o.plane, r.q_rad, search, nullptr) ? lo : hi) = cube.edge_m;
-        }
-        cube.edge_m = lo;
-        best.cube = cube;
-        best_q = r.q_rad;
-        ++best.refinements;
-        improved = true;
-      }
-      if (!improved) {
-        step_m /= 2;
-        step_rad /= 2;
-      }
-    }
-  }
+  if (best_q && !o.edge_m) growCube(model, p0, o, search, best, *best_q);
   if (!best_q)
     throw std::invalid_argument(std::string(o.edge_m ? "the cube of that edge" : "no cube") + " is reached within the joint limits with one tool orientation (" +
                                 std::to_string(best.candidates_tried) + " tool orientations tried" +

@@ -97,120 +97,78 @@ CompensationResult compensate(const RobotModel& nominal, const Eigen::VectorXd& 
   return compensate(nominal, IdentifiedModel(CalibratedModel::geometric(identified)), desired, q_seed, s);
 }
 
-CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
-                              const Eigen::VectorXd& q_seed, const CompensationSettings& s,
-                              const std::vector<Eigen::VectorXd>& path) {
-  CompensationResult out;
-  out.corrected_in_tracker = desired;
+namespace {
+
+// The residual map's correction at q, in this model's tracker frame (zero where it does not apply).
+Eigen::Vector3d mapCorrection(const IdentifiedModel& model, const Eigen::VectorXd& q, bool* applies) {
+  const ResidualMap::Prediction p = model.residual_map->predict(q);
+  *applies = p.applies;
+  return model.residual_map_rotation * p.correction_m;
+}
+
+// With extensions or a residual map, the joints depend on the correction at them: the fixed point
+// q = IK(params(q), desired - c(q)) from ik (the geometric answer). False, with out's outcome, when it does not settle.
+template <class DriversAt>  // Drivers(const Eigen::VectorXd& q)
+bool settle(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired, const DriversAt& driversAt,
+            const IkOptions& ik_options, IkResult& ik, CompensationResult& out) {
   const Eigen::VectorXd& identified = model.params;
-  if (identified.size() != nominal.numParams() || !identified.allFinite() ||
-      model.extension_params.size() != numExtensionParams(nominal, model.extensions) ||
-      !model.extension_params.allFinite()) {
-    out.outcome = CompensationOutcome::kUnusableModel;
-    return out;
-  }
-  Eigen::VectorXd seed = q_seed;
-  if (seed.size() != nominal.numJoints() || !seed.allFinite() || !nominal.withinLimits(seed)) {
-    seed = Eigen::VectorXd::Zero(nominal.numJoints());
-    for (int j = 0; j < nominal.numJoints(); ++j)
-      seed[j] = 0.5 * (nominal.limits[j].lower_rad + nominal.limits[j].upper_rad);
-  }
-  // The controller's own joints for the target are within a fraction of a degree of the answer, on its branch: one
-  // descent from them, at most 100 iterations (quadratic convergence takes 3-5). A target it does not reach is
-  // refused, not searched for: restarts (a path from the seed, a saddle escape, other branches) rescued none of the
-  // 3 % of random targets the seed did not reach (BM_Compensate: near a wrist singularity, 0.1 mm off) and cost
-  // 30 us a target on average, up to a millisecond each; another branch must not be commanded anyway.
-  IkOptions ik_options;
-  ik_options.max_iterations = 100;
-  ik_options.restarts = 0;
-  ik_options.extend_when_descending = false;
-  IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
   const bool mapped = model.residual_map && !model.residual_map->empty();
-  // The residual map's correction at q, in this model's tracker frame (zero where it does not apply).
-  auto mapCorrection = [&](const Eigen::VectorXd& q, bool* applies) -> Eigen::Vector3d {
-    const ResidualMap::Prediction p = model.residual_map->predict(q);
-    *applies = p.applies;
-    return model.residual_map_rotation * p.correction_m;
-  };
-  // The drivers of the extensions at q: the path to it (a play state; no thermal driver: 0).
-  auto driversAt = [&](const Eigen::VectorXd& q) {
-    return moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, q);
-  };
-  if ((!model.extensions.empty() || mapped) && ik.ok()) {
-    // Fixed point q = IK(params(q), desired - c(q)).
-    constexpr int kPasses = 10;
-    double moved = 0.0;
-    for (int pass = 0; pass < kPasses; ++pass) {
-      const Eigen::VectorXd p =
-          model.extensions.empty()
-              ? identified
-              : extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad, driversAt(ik.q_rad));
-      Pose target = desired;
-      if (mapped) target.translation() -= mapCorrection(ik.q_rad, &out.residual_map_applied);
-      IkResult next = solveInverseKinematics(nominal, p, target, ik.q_rad, ik_options);
-      moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
-      ik = std::move(next);
-      if (!ik.ok() || moved < 1e-10) break;
-    }
-    if (ik.ok() && moved > 1e-8) {
-      out.outcome = CompensationOutcome::kNotSettled;
-      out.settle_move_rad = moved;
-      out.settled_extensions = !model.extensions.empty();
-      return out;
-    }
-    if (mapped && ik.ok()) out.residual_map_correction_m = mapCorrection(ik.q_rad, &out.residual_map_applied);
+  constexpr int kPasses = 10;
+  double moved = 0.0;
+  for (int pass = 0; pass < kPasses; ++pass) {
+    const Eigen::VectorXd p =
+        model.extensions.empty()
+            ? identified
+            : extendedParams(nominal, identified, model.extensions, model.extension_params, ik.q_rad, driversAt(ik.q_rad));
+    Pose target = desired;
+    if (mapped) target.translation() -= mapCorrection(model, ik.q_rad, &out.residual_map_applied);
+    IkResult next = solveInverseKinematics(nominal, p, target, ik.q_rad, ik_options);
+    moved = next.ok() ? (next.q_rad - ik.q_rad).cwiseAbs().maxCoeff() : 0.0;
+    ik = std::move(next);
+    if (!ik.ok() || moved < 1e-10) break;
   }
-  if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
-    out.outcome = CompensationOutcome::kUnreachable;
-    out.ik_position_error_m = ik.position_error_m;
-    out.ik_orientation_error_rad = ik.orientation_error_rad;
-    return out;
+  if (ik.ok() && moved > 1e-8) {
+    out.outcome = CompensationOutcome::kNotSettled;
+    out.settle_move_rad = moved;
+    out.settled_extensions = !model.extensions.empty();
+    return false;
   }
-  KinematicsData data(nominal);
-  // Where the extensions were never judged (beyond_data), their correction is not known.
-  const BeyondRange* unjudged = model.extensions.empty() ? nullptr : firstUnjudged(model.beyond_data, ik.q_rad);
-  const Drivers at = model.beyond_drivers.empty() ? Drivers{} : driversAt(ik.q_rad);
-  double driver_x = 0;
-  const DriverRange* unjudged_driver =
-      model.extensions.empty() ? nullptr
-                               : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
-  if (unjudged || unjudged_driver)
-    out.unjudged = rangeAt(unjudged, unjudged_driver, ik.q_rad, driver_x);
-  else  // judged: within the data, or beyond it within the judged distance
-    out.beyond_data = static_cast<bool>(firstBeyondData(nominal, model, ik.q_rad, at));
-  if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
-    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
-    out.outcome = CompensationOutcome::kNeverJudged;
-    return out;
+  if (mapped && ik.ok()) out.residual_map_correction_m = mapCorrection(model, ik.q_rad, &out.residual_map_applied);
+  return true;
+}
+
+// The predicted 1-sigma position error at q: the calibration's covariance, what the extensions may do beyond their
+// data and drivers' ranges, and the residual map's own bound where it applies.
+double predictedSigma(const RobotModel& nominal, KinematicsData& data, const IdentifiedModel& model,
+                      const Eigen::VectorXd& q, const Drivers& at, bool map_applied) {
+  const Eigen::VectorXd& identified = model.params;
+  double sigma = 0;
+  // The kinematic block (the whole covariance unless it also covers extension parameters).
+  sigma =
+      model.estimated_extension.empty()
+          ? kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, q)
+          : kinematicPositionSigma(nominal, data, identified, model.estimated, model.kinematicCovariance(), q);
+  if (!model.extensions.empty() && !model.beyond_data.empty()) {  // what the extensions may do beyond their data
+    Eigen::MatrixXd J(6, nominal.numParams());
+    computePoseJacobian(nominal, data, J);  // at identified, q*: kinematicPositionSigma's forward kinematics
+    sigma = std::sqrt(std::pow(sigma, 2) +
+                                               beyondPositionVariance(nominal, J, model.beyond_data, q));
   }
-  if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
-    // The kinematic block (the whole covariance unless it also covers extension parameters).
-    out.predicted_sigma_position_m =
-        model.estimated_extension.empty()
-            ? kinematicPositionSigma(nominal, data, identified, model.estimated, model.covariance, ik.q_rad)
-            : kinematicPositionSigma(nominal, data, identified, model.estimated, model.kinematicCovariance(), ik.q_rad);
-    if (!model.extensions.empty() && !model.beyond_data.empty()) {  // what the extensions may do beyond their data
-      Eigen::MatrixXd J(6, nominal.numParams());
-      computePoseJacobian(nominal, data, J);  // at identified, q*: kinematicPositionSigma's forward kinematics
-      out.predicted_sigma_position_m = std::sqrt(std::pow(out.predicted_sigma_position_m, 2) +
-                                                 beyondPositionVariance(nominal, J, model.beyond_data, ik.q_rad));
-    }
-    if (!model.extensions.empty() && !model.beyond_drivers.empty())  // and beyond their drivers' ranges
-      out.predicted_sigma_position_m =
-          std::sqrt(std::pow(out.predicted_sigma_position_m, 2) +
-                    driverRangeVariance(nominal, identified, model.beyond_drivers, ik.q_rad, at));
-    if (out.residual_map_applied) {
-      const double map_sigma = model.residual_map->sigmaBound_m(ik.q_rad);
-      out.predicted_sigma_position_m = std::hypot(out.predicted_sigma_position_m, std::sqrt(3.0) * map_sigma);
-    }
-    if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
-      out.outcome = CompensationOutcome::kOutsideCalibration;
-      out.bound_sigma_m = s.max_predicted_sigma_m;
-      return out;
-    }
+  if (!model.extensions.empty() && !model.beyond_drivers.empty())  // and beyond their drivers' ranges
+    sigma =
+        std::sqrt(std::pow(sigma, 2) +
+                  driverRangeVariance(nominal, identified, model.beyond_drivers, q, at));
+  if (map_applied) {
+    const double map_sigma = model.residual_map->sigmaBound_m(q);
+    sigma = std::hypot(sigma, std::sqrt(3.0) * map_sigma);
   }
-  if (!out.unjudged.empty())  // guard off: said, applied
-    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
+  return sigma;
+}
+
+// The correction from desired to the joints ik found, within the settings' bounds, refused or clamped beyond them.
+CompensationResult applyCorrection(const RobotModel& nominal, KinematicsData& data, const Pose& desired,
+                                   const IkResult& ik, const CompensationSettings& s, const IkOptions& ik_options,
+                                   CompensationResult out) {
   const Pose corrected = forwardKinematics(nominal, data, nominal.nominal, ik.q_rad);
   const Eigen::Matrix<double, 6, 1> c = poseError(corrected, desired);  // [dp; dtheta], corrected relative to desired
   out.correction_position_m = c.head<3>().norm();
@@ -248,6 +206,80 @@ CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& 
   out.corrected_in_tracker = clamped;
   out.q_rad = back.q_rad;
   return out;
+}
+
+}  // namespace
+
+CompensationResult compensate(const RobotModel& nominal, const IdentifiedModel& model, const Pose& desired,
+                              const Eigen::VectorXd& q_seed, const CompensationSettings& s,
+                              const std::vector<Eigen::VectorXd>& path) {
+  CompensationResult out;
+  out.corrected_in_tracker = desired;
+  const Eigen::VectorXd& identified = model.params;
+  if (identified.size() != nominal.numParams() || !identified.allFinite() ||
+      model.extension_params.size() != numExtensionParams(nominal, model.extensions) ||
+      !model.extension_params.allFinite()) {
+    out.outcome = CompensationOutcome::kUnusableModel;
+    return out;
+  }
+  Eigen::VectorXd seed = q_seed;
+  if (seed.size() != nominal.numJoints() || !seed.allFinite() || !nominal.withinLimits(seed)) {
+    seed = Eigen::VectorXd::Zero(nominal.numJoints());
+    for (int j = 0; j < nominal.numJoints(); ++j)
+      seed[j] = 0.5 * (nominal.limits[j].lower_rad + nominal.limits[j].upper_rad);
+  }
+  // The controller's own joints for the target are within a fraction of a degree of the answer, on its branch: one
+  // descent from them, at most 100 iterations (quadratic convergence takes 3-5). A target it does not reach is
+  // refused, not searched for: restarts (a path from the seed, a saddle escape, other branches) rescued none of the
+  // 3 % of random targets the seed did not reach (BM_Compensate: near a wrist singularity, 0.1 mm off) and cost
+  // 30 us a target on average, up to a millisecond each; another branch must not be commanded anyway.
+  IkOptions ik_options;
+  ik_options.max_iterations = 100;
+  ik_options.restarts = 0;
+  ik_options.extend_when_descending = false;
+  IkResult ik = solveInverseKinematics(nominal, identified, desired, seed, ik_options);
+  const bool mapped = model.residual_map && !model.residual_map->empty();
+  // The drivers of the extensions at q: the path to it (a play state; no thermal driver: 0).
+  auto driversAt = [&](const Eigen::VectorXd& q) {
+    return moveDrivers(path.empty() ? std::vector<Eigen::VectorXd>{seed} : path, q);
+  };
+  if ((!model.extensions.empty() || mapped) && ik.ok()) {
+    if (!settle(nominal, model, desired, driversAt, ik_options, ik, out)) return out;
+  }
+  if (!ik.ok() || ik.position_error_m > s.max_ik_error_m) {
+    out.outcome = CompensationOutcome::kUnreachable;
+    out.ik_position_error_m = ik.position_error_m;
+    out.ik_orientation_error_rad = ik.orientation_error_rad;
+    return out;
+  }
+  KinematicsData data(nominal);
+  // Where the extensions were never judged (beyond_data), their correction is not known.
+  const BeyondRange* unjudged = model.extensions.empty() ? nullptr : firstUnjudged(model.beyond_data, ik.q_rad);
+  const Drivers at = model.beyond_drivers.empty() ? Drivers{} : driversAt(ik.q_rad);
+  double driver_x = 0;
+  const DriverRange* unjudged_driver =
+      model.extensions.empty() ? nullptr
+                               : firstUnjudged(nominal, identified, model.beyond_drivers, ik.q_rad, at, &driver_x);
+  if (unjudged || unjudged_driver)
+    out.unjudged = rangeAt(unjudged, unjudged_driver, ik.q_rad, driver_x);
+  else  // judged: within the data, or beyond it within the judged distance
+    out.beyond_data = static_cast<bool>(firstBeyondData(nominal, model, ik.q_rad, at));
+  if (!out.unjudged.empty() && s.max_predicted_sigma_m > 0) {
+    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
+    out.outcome = CompensationOutcome::kNeverJudged;
+    return out;
+  }
+  if (!model.estimated.empty() && model.covariance.rows() == model.numEstimated()) {
+    out.predicted_sigma_position_m = predictedSigma(nominal, data, model, ik.q_rad, at, out.residual_map_applied);
+    if (s.max_predicted_sigma_m > 0 && !(out.predicted_sigma_position_m <= s.max_predicted_sigma_m)) {
+      out.outcome = CompensationOutcome::kOutsideCalibration;
+      out.bound_sigma_m = s.max_predicted_sigma_m;
+      return out;
+    }
+  }
+  if (!out.unjudged.empty())  // guard off: said, applied
+    out.predicted_sigma_position_m = std::numeric_limits<double>::infinity();
+  return applyCorrection(nominal, data, desired, ik, s, ik_options, std::move(out));
 }
 
 ProgramCompensation compensateProgram(const RobotModel& nominal, const IdentifiedModel& identified,

@@ -161,13 +161,24 @@ void checkQuaternionOrder(const MeasurementFile& f, const RobotModel& robot, con
 
 }  // namespace
 
-MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
-                                    const MeasurementCsvOptions& options) {
-  MeasurementFile f;
-  f.source = source;
-  std::istringstream in(text);
+namespace {
+
+// The header's columns, as parseMeasurementCsv reads them.
+struct Columns {
+  std::vector<std::string> header;
+  std::map<std::string, int> col;  // name -> index
+  bool deg = false;                // joints in degrees (else radians)
+  std::vector<int> qcol;           // the joints' columns
+  bool has_q = false;              // an orientation (qw, qx, qy, qz)
+  int line = 0;                    // the header's line
+  bool has(const std::string& name) const { return col.count(name) > 0; }
+  int at(const std::string& name) const { return col.at(name); }
+};
+
+// The header: the first line that is neither empty nor a comment. f gets the columns it ignores.
+Columns readHeader(std::istream& in, int& lineno, const std::string& source, const RobotModel& robot,
+                   const MeasurementCsvOptions& options, MeasurementFile& f) {
   std::string line;
-  int lineno = 0;
   std::vector<std::string> header;
   while (std::getline(in, line)) {
     ++lineno;
@@ -177,7 +188,6 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     break;
   }
   if (header.empty()) throw ConfigError(source + ": no header row (expected q1_deg.., x_mm, y_mm, z_mm, ...)");
-  const int header_line = lineno;
   if (header.size() == 1)
     for (const char sep : {';', '\t', ' '})
       if (header[0].find(sep) != std::string::npos)
@@ -195,7 +205,7 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     col[header[i]] = static_cast<int>(i);
   }
   // Joint unit: all deg or all rad.
-  bool deg = col.count("q1_deg") > 0, rad = col.count("q1_rad") > 0;
+  const bool deg = col.count("q1_deg") > 0, rad = col.count("q1_rad") > 0;
   if (deg == rad)
     throw ConfigError(source + ":" + std::to_string(lineno) + ":1: header: expected q1_deg..q" + std::to_string(n) +
                       "_deg or q1_rad..q" + std::to_string(n) + "_rad" + (deg ? " (not both)" : ""));
@@ -221,96 +231,118 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
   for (int j = 1; j <= n; ++j) known["q" + std::to_string(j) + unit] = true;
   for (const auto& h : header)
     if (!known.count(h)) f.ignored_columns.push_back(h);
+  return {header, col, deg, qcol, has_q, lineno};
+}
 
+// One data row's cells into row; the first error in it, if any.
+std::optional<RowError> parseRow(const Columns& c, const std::vector<std::string>& cells, const RobotModel& robot,
+                                 const MeasurementCsvOptions& options, MeasurementRow& row) {
+  const std::vector<std::string>& header = c.header;
+  const int n = robot.numJoints();
+  const bool deg = c.deg;
+  std::optional<RowError> err;
+  auto cell = [&](int k) { return k < static_cast<int>(cells.size()) ? trim(cells[k]) : std::string(); };
+  auto number = [&](int k, bool required, double* out) -> bool {
+    if (err) return false;
+    const std::string s = cell(k);
+    if (s.empty()) {
+      if (required) err = RowError{k + 1, header[k], "missing value"};
+      return false;
+    }
+    char* end = nullptr;
+    errno = 0;
+    const double v = std::strtod(s.c_str(), &end);
+    if (*end != '\0' || errno == ERANGE || !std::isfinite(v)) {
+      err = RowError{k + 1, header[k], "'" + s + "' is not a finite number"};
+      return false;
+    }
+    *out = v;
+    return true;
+  };
+  if (static_cast<int>(cells.size()) > static_cast<int>(header.size()))
+    err = RowError{static_cast<int>(header.size()) + 1, "row", "more cells (" + std::to_string(cells.size()) +
+                                                                    ") than columns (" + std::to_string(header.size()) + ")"};
+  row.q_rad.resize(n);
+  for (int j = 0; j < n; ++j) {
+    double v = 0;
+    if (number(c.qcol[j], true, &v)) {
+      row.q_rad[j] = deg ? degToRad(v) : v;
+      if (row.q_rad[j] < robot.limits[j].lower_rad || row.q_rad[j] > robot.limits[j].upper_rad)
+        err = RowError{c.qcol[j] + 1, header[c.qcol[j]],
+                       "joint outside its limits [" + std::to_string(radToDeg(robot.limits[j].lower_rad)) + ", " +
+                           std::to_string(radToDeg(robot.limits[j].upper_rad)) + "] deg" +
+                           (!deg && std::abs(v) > 2 * kPi ? ": degrees written where radians are expected?" : "")};
+    }
+  }
+  for (int k = 0; k < 3 && !options.joints_only; ++k) {
+    double v = 0;
+    if (number(c.at(std::string(1, "xyz"[k]) + "_mm"), true, &v)) row.position_m[k] = v * 1e-3;
+  }
+  if (c.has_q && !err) {
+    const int cw = c.at("qw"), cx = c.at("qx"), cy = c.at("qy"), cz = c.at("qz");
+    const int empty = cell(cw).empty() + cell(cx).empty() + cell(cy).empty() + cell(cz).empty();
+    if (empty == 4) {
+      // position-only row
+    } else if (empty > 0) {
+      const int k = cell(cw).empty() ? cw : cell(cx).empty() ? cx : cell(cy).empty() ? cy : cz;
+      err = RowError{k + 1, header[k], "missing value (leave all of qw, qx, qy, qz empty for a position-only row)"};
+    } else {
+      double w = 0, x = 0, y = 0, z = 0;
+      if (number(cw, true, &w) && number(cx, true, &x) && number(cy, true, &y) && number(cz, true, &z)) {
+        const double norm = std::sqrt(w * w + x * x + y * y + z * z);
+        if (std::abs(norm - 1.0) > options.quaternion_tolerance)
+          err = RowError{cw + 1, "qw", "quaternion norm " + std::to_string(norm) + " is not 1"};
+        else
+          row.orientation = Eigen::Quaterniond(w, x, y, z).normalized();
+      }
+    }
+  }
+  double v = 0;
+  if (c.has("stamp_s") && number(c.at("stamp_s"), false, &v)) row.stamp_s = v;
+  if (c.has("temperature_c") && number(c.at("temperature_c"), false, &v)) row.temperature_c = v;
+  if (c.has("payload_kg") && number(c.at("payload_kg"), false, &v)) row.payload_kg = v;
+  for (const char* name : {"sigma_position_mm", "sigma_orientation_deg"})
+    if (c.has(name) && number(c.at(name), false, &v)) {
+      if (!(v > 0)) err = RowError{c.at(name) + 1, name, "a sigma must be > 0"};
+      else if (std::string(name) == "sigma_position_mm") row.sigma_position_m = v * 1e-3;
+      else row.sigma_orientation_rad = v * kPi / 180;
+    }
+  for (const char* name : {"setup", "pose"}) {
+    if (!c.has(name) || err || cell(c.at(name)).empty()) continue;
+    const std::string label = cell(c.at(name)), what = std::string(name) == "setup" ? "a set-up label" : "a pose name";
+    if (label.size() > 64) err = RowError{c.at(name) + 1, name, what + " has at most 64 characters"};
+    else if (label.find_first_of("\"'") != std::string::npos)
+      err = RowError{c.at(name) + 1, name, what + " may not contain quotes"};
+    else (std::string(name) == "setup" ? row.setup : row.pose) = label;
+  }
+  if (c.has("cycle") && number(c.at("cycle"), false, &v)) {
+    if (v != std::floor(v)) err = RowError{c.at("cycle") + 1, "cycle", "expected an integer"};
+    else row.cycle = static_cast<long long>(v);
+  }
+  if (c.has("group") && number(c.at("group"), false, &v)) {
+    if (v != std::floor(v)) err = RowError{c.at("group") + 1, "group", "expected an integer"};
+    else row.group = static_cast<long long>(v);
+  }
+  return err;
+}
+
+}  // namespace
+
+MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& source, const RobotModel& robot,
+                                    const MeasurementCsvOptions& options) {
+  MeasurementFile f;
+  f.source = source;
+  std::istringstream in(text);
+  int lineno = 0;
+  const Columns c = readHeader(in, lineno, source, robot, options, f);
+  const int header_line = c.line;
+  std::string line;
   while (std::getline(in, line)) {
     ++lineno;
     if (trim(line).empty()) continue;
-    const auto cells = splitCsv(line);
     MeasurementRow row;
     row.line = lineno;
-    std::optional<RowError> err;
-    auto cell = [&](int c) { return c < static_cast<int>(cells.size()) ? trim(cells[c]) : std::string(); };
-    auto number = [&](int c, bool required, double* out) -> bool {
-      if (err) return false;
-      const std::string s = cell(c);
-      if (s.empty()) {
-        if (required) err = RowError{c + 1, header[c], "missing value"};
-        return false;
-      }
-      char* end = nullptr;
-      errno = 0;
-      const double v = std::strtod(s.c_str(), &end);
-      if (*end != '\0' || errno == ERANGE || !std::isfinite(v)) {
-        err = RowError{c + 1, header[c], "'" + s + "' is not a finite number"};
-        return false;
-      }
-      *out = v;
-      return true;
-    };
-    if (static_cast<int>(cells.size()) > static_cast<int>(header.size()))
-      err = RowError{static_cast<int>(header.size()) + 1, "row", "more cells (" + std::to_string(cells.size()) +
-                                                                      ") than columns (" + std::to_string(header.size()) + ")"};
-    row.q_rad.resize(n);
-    for (int j = 0; j < n; ++j) {
-      double v = 0;
-      if (number(qcol[j], true, &v)) {
-        row.q_rad[j] = deg ? degToRad(v) : v;
-        if (row.q_rad[j] < robot.limits[j].lower_rad || row.q_rad[j] > robot.limits[j].upper_rad)
-          err = RowError{qcol[j] + 1, header[qcol[j]],
-                         "joint outside its limits [" + std::to_string(radToDeg(robot.limits[j].lower_rad)) + ", " +
-                             std::to_string(radToDeg(robot.limits[j].upper_rad)) + "] deg" +
-                             (!deg && std::abs(v) > 2 * kPi ? ": degrees written where radians are expected?" : "")};
-      }
-    }
-    for (int k = 0; k < 3 && !options.joints_only; ++k) {
-      double v = 0;
-      if (number(col[std::string(1, "xyz"[k]) + "_mm"], true, &v)) row.position_m[k] = v * 1e-3;
-    }
-    if (has_q && !err) {
-      const int cw = col["qw"], cx = col["qx"], cy = col["qy"], cz = col["qz"];
-      const int empty = cell(cw).empty() + cell(cx).empty() + cell(cy).empty() + cell(cz).empty();
-      if (empty == 4) {
-        // position-only row
-      } else if (empty > 0) {
-        const int c = cell(cw).empty() ? cw : cell(cx).empty() ? cx : cell(cy).empty() ? cy : cz;
-        err = RowError{c + 1, header[c], "missing value (leave all of qw, qx, qy, qz empty for a position-only row)"};
-      } else {
-        double w = 0, x = 0, y = 0, z = 0;
-        if (number(cw, true, &w) && number(cx, true, &x) && number(cy, true, &y) && number(cz, true, &z)) {
-          const double norm = std::sqrt(w * w + x * x + y * y + z * z);
-          if (std::abs(norm - 1.0) > options.quaternion_tolerance)
-            err = RowError{cw + 1, "qw", "quaternion norm " + std::to_string(norm) + " is not 1"};
-          else
-            row.orientation = Eigen::Quaterniond(w, x, y, z).normalized();
-        }
-      }
-    }
-    double v = 0;
-    if (col.count("stamp_s") && number(col["stamp_s"], false, &v)) row.stamp_s = v;
-    if (col.count("temperature_c") && number(col["temperature_c"], false, &v)) row.temperature_c = v;
-    if (col.count("payload_kg") && number(col["payload_kg"], false, &v)) row.payload_kg = v;
-    for (const char* name : {"sigma_position_mm", "sigma_orientation_deg"})
-      if (col.count(name) && number(col[name], false, &v)) {
-        if (!(v > 0)) err = RowError{col[name] + 1, name, "a sigma must be > 0"};
-        else if (std::string(name) == "sigma_position_mm") row.sigma_position_m = v * 1e-3;
-        else row.sigma_orientation_rad = v * kPi / 180;
-      }
-    for (const char* name : {"setup", "pose"}) {
-      if (!col.count(name) || err || cell(col[name]).empty()) continue;
-      const std::string label = cell(col[name]), what = std::string(name) == "setup" ? "a set-up label" : "a pose name";
-      if (label.size() > 64) err = RowError{col[name] + 1, name, what + " has at most 64 characters"};
-      else if (label.find_first_of("\"'") != std::string::npos)
-        err = RowError{col[name] + 1, name, what + " may not contain quotes"};
-      else (std::string(name) == "setup" ? row.setup : row.pose) = label;
-    }
-    if (col.count("cycle") && number(col["cycle"], false, &v)) {
-      if (v != std::floor(v)) err = RowError{col["cycle"] + 1, "cycle", "expected an integer"};
-      else row.cycle = static_cast<long long>(v);
-    }
-    if (col.count("group") && number(col["group"], false, &v)) {
-      if (v != std::floor(v)) err = RowError{col["group"] + 1, "group", "expected an integer"};
-      else row.group = static_cast<long long>(v);
-    }
+    const std::optional<RowError> err = parseRow(c, splitCsv(line), robot, options, row);
     if (err) {
       const std::string msg = source + ":" + std::to_string(lineno) + ":" + std::to_string(err->column) + ": " +
                               err->name + ": " + err->message;
@@ -325,12 +357,12 @@ MeasurementFile parseMeasurementCsv(const std::string& text, const std::string& 
     throw ConfigError(source + ":" + std::to_string(header_line) + ": no data rows after the header" +
                       (f.skipped_rows ? " (" + std::to_string(f.skipped_rows) + " bad rows skipped)" : std::string()));
   if (options.joints_only) {
-    if (deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(qcol[0] + 1));
+    if (c.deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(c.qcol[0] + 1));
     return f;
   }
-  checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["x_mm"] + 1));
-  if (deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(qcol[0] + 1));
-  if (has_q) checkQuaternionOrder(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(col["qw"] + 1));
+  checkPositionUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(c.at("x_mm") + 1));
+  if (c.deg) checkJointUnits(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(c.qcol[0] + 1));
+  if (c.has_q) checkQuaternionOrder(f, robot, source + ":" + std::to_string(header_line) + ":" + std::to_string(c.at("qw") + 1));
   return f;
 }
 

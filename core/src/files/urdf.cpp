@@ -185,6 +185,276 @@ struct ChainJoint {
   const TiXmlElement* element = nullptr;
 };
 
+// The links below the base link.
+struct Tree {
+  const urdf::ModelInterface& model;
+  urdf::LinkConstSharedPtr base;
+  // Is `l` below the base? The path from the base to it, joints in base-to-tip order.
+  bool pathFromBase(urdf::LinkConstSharedPtr l, std::vector<urdf::JointConstSharedPtr>* joints) const {
+    std::vector<urdf::JointConstSharedPtr> up;
+    while (l && l->name != base->name) {
+      if (!l->parent_joint) return false;
+      up.push_back(l->parent_joint);
+      l = model.getLink(l->parent_joint->parent_link_name);
+    }
+    if (!l) return false;
+    if (joints) joints->assign(up.rbegin(), up.rend());
+    return true;
+  }
+};
+
+// Without tip_link or a tool0 below the base: the one leaf the most movable joints lead to.
+urdf::LinkConstSharedPtr deepestLeaf(const Tree& tree, const std::string& where) {
+  const urdf::LinkConstSharedPtr& base = tree.base;
+  std::vector<urdf::LinkConstSharedPtr> leaves;
+  std::vector<urdf::LinkConstSharedPtr> todo = {base};
+  while (!todo.empty()) {
+    const auto l = todo.back();
+    todo.pop_back();
+    if (l->child_links.empty()) leaves.push_back(l);
+    for (const auto& c : l->child_links) todo.push_back(c);
+  }
+  std::vector<urdf::LinkConstSharedPtr> deepest;
+  size_t most = 0;
+  for (const auto& l : leaves) {
+    std::vector<urdf::JointConstSharedPtr> js;
+    tree.pathFromBase(l, &js);
+    const size_t revolute = std::count_if(js.begin(), js.end(), [](const auto& j) { return j->type != urdf::Joint::FIXED; });
+    if (revolute > most) {
+      most = revolute;
+      deepest = {l};
+    } else if (revolute == most && revolute > 0) {
+      deepest.push_back(l);
+    }
+  }
+  if (deepest.size() != 1) {
+    std::string names;
+    for (const auto& l : deepest) names += (names.empty() ? "" : ", ") + l->name;
+    throw ConfigError(where + ": no tool0 and " +
+                      (deepest.empty() ? std::string("no movable chain below ") + base->name
+                                       : "the chain branches to " + names) +
+                      ": name the tip with --tip-link");
+  }
+  return deepest.front();
+}
+
+// The tip: tip_link, else tool0 below the base, else the one leaf the most movable joints lead to.
+urdf::LinkConstSharedPtr findTip(const Tree& tree, const Parsed& parsed, const std::string& source,
+                                 const UrdfImportOptions& options) {
+  const TiXmlElement* robot = parsed.doc.RootElement();
+  if (!options.tip_link.empty()) {
+    urdf::LinkConstSharedPtr tip = tree.model.getLink(options.tip_link);
+    if (!tip) throw ConfigError(at(source, robot) + ": --tip-link " + options.tip_link + ": no such <link>");
+    if (!tree.pathFromBase(tip, nullptr)) {
+      const auto it = parsed.link_elements.find(tip->name);
+      throw ConfigError(at(source, it == parsed.link_elements.end() ? robot : it->second) + ": <link name=\"" +
+                        tip->name + "\">: not below the base link " + tree.base->name);
+    }
+    return tip;
+  }
+  if (urdf::LinkConstSharedPtr t = tree.model.getLink("tool0"); t && tree.pathFromBase(t, nullptr)) return t;
+  return deepestLeaf(tree, at(source, robot));
+}
+
+// The chain's joints from the base to the tip, each revolute (with limits and an axis) or fixed; out gets their names
+// and which are revolute.
+std::vector<ChainJoint> chainOf(const std::vector<urdf::JointConstSharedPtr>& path, const Parsed& parsed,
+                                const std::string& source, UrdfImport& out) {
+  const TiXmlElement* robot = parsed.doc.RootElement();
+  std::vector<ChainJoint> chain;
+  for (const auto& j : path) {
+    const auto it = parsed.joint_elements.find(j->name);
+    ChainJoint c{j, it == parsed.joint_elements.end() ? robot : it->second};
+    const std::string where = at(source, c.element) + ": <joint name=\"" + j->name + "\">: ";
+    if (j->type == urdf::Joint::CONTINUOUS)
+      throw ConfigError(where + "type continuous in the chain: a calibrated arm needs joint limits (make it revolute "
+                                "with its limits)");
+    if (j->type != urdf::Joint::REVOLUTE && j->type != urdf::Joint::FIXED)
+      throw ConfigError(where + "a joint that is neither revolute nor fixed in the chain (prismatic, floating or planar)");
+    if (j->type == urdf::Joint::REVOLUTE) {
+      const Eigen::Vector3d a(j->axis.x, j->axis.y, j->axis.z);
+      if (!(a.norm() > 1e-9)) throw ConfigError(where + "<axis> is zero");
+      if (!j->limits) throw ConfigError(where + "a revolute joint without <limit>");
+      if (!(j->limits->lower < j->limits->upper))
+        throw ConfigError(where + "<limit> lower " + std::to_string(j->limits->lower) + " is not below upper " +
+                          std::to_string(j->limits->upper));
+    }
+    chain.push_back(c);
+    out.chain_joints.push_back(j->name);
+    if (j->type == urdf::Joint::REVOLUTE) out.revolute.push_back(static_cast<int>(chain.size()) - 1);
+  }
+  return chain;
+}
+
+// The DH model of the axes (each revolute joint's point and direction at q = 0 in the base link's frame) up to the
+// tip: m's nominal parameters and parallel joints; the DH frames 0..n at q = 0; parallel_joints the (1-based) joints
+// whose axis is parallel to the next.
+std::vector<Pose> fitDh(const std::vector<Eigen::Vector3d>& axis_point, const std::vector<Eigen::Vector3d>& axis_dir,
+                        const Pose& tip_pose, double parallel_tolerance_rad, RobotModel& m,
+                        std::vector<int>* parallel_joints_out) {
+  const int n = m.numJoints();
+  // DH frame 0.
+  std::vector<Pose> dh(static_cast<size_t>(n) + 1, Pose::Identity());
+  {
+    const Eigen::Vector3d z = axis_dir[0], p = axis_point[0];
+    const Eigen::Vector3d o = p + (Eigen::Vector3d::Zero() - p).dot(z) * z;
+    Eigen::Vector3d x = Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX().dot(z) * z;
+    if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitY() - Eigen::Vector3d::UnitY().dot(z) * z;
+    x.normalize();
+    dh[0].linear() << x, z.cross(x), z;
+    dh[0].translation() = o;
+  }
+  std::vector<int>& parallel_joints = *parallel_joints_out;
+  for (int j = 0; j < n; ++j) {
+    const Pose& F = dh[static_cast<size_t>(j)];
+    const Eigen::Vector3d O = F.translation(), z = F.linear().col(2), x_prev = F.linear().col(0);
+    double theta = 0, d = 0, a = 0, alpha = 0, beta = 0;
+    Pose next = Pose::Identity();
+    if (j + 1 == n) {
+      // The last frame: z along the axis, the origin at the tip's foot on it, x as close to the tip's x as z allows.
+      d = (tip_pose.translation() - O).dot(z);
+      Eigen::Vector3d x = tip_pose.linear().col(0) - tip_pose.linear().col(0).dot(z) * z;
+      if (x.norm() < 1e-6) x = tip_pose.linear().col(1) - tip_pose.linear().col(1).dot(z) * z;
+      x.normalize();
+      theta = angleAbout(z, x_prev, x);
+      next.linear() << x, z.cross(x), z;
+      next.translation() = O + d * z;
+    } else {
+      const Eigen::Vector3d u2 = axis_dir[static_cast<size_t>(j) + 1], p2 = axis_point[static_cast<size_t>(j) + 1];
+      const double sine = z.cross(u2).norm();
+      if (sine < std::sin(parallel_tolerance_rad)) {
+        // Parallel (within the tolerance): Hayati, d = 0. The next origin is where the next axis crosses the plane
+        // through this origin normal to this axis; alpha and beta turn z onto the next axis.
+        m.parallel_to_next[static_cast<size_t>(j)] = true;
+        parallel_joints.push_back(j + 1);
+        const double t = (O - p2).dot(z) / u2.dot(z);
+        const Eigen::Vector3d P = p2 + t * u2, v = P - O;
+        Eigen::Vector3d x = x_prev;
+        if (v.norm() > 1e-12) x = v.normalized();
+        if (x.dot(x_prev) < 0) x = -x;
+        a = v.dot(x);
+        theta = angleAbout(z, x_prev, x);
+        Eigen::Matrix3d R = F.linear() * rotZ(theta);
+        const Eigen::Vector3d u = R.transpose() * u2;
+        beta = std::asin(std::clamp(u.x(), -1.0, 1.0));
+        alpha = std::atan2(-u.y(), u.z());
+        next.linear() = R * rotX(alpha) * rotY(beta);
+        next.translation() = O + a * R.col(0);
+      } else {
+        // Classic DH along the common normal of the two axes.
+        const Eigen::Vector3d w0 = O - p2;
+        const double b = z.dot(u2), dd = z.dot(w0), e = u2.dot(w0), den = 1 - b * b;
+        const double s1 = (b * e - dd) / den, s2 = (e - b * dd) / den;
+        const Eigen::Vector3d c1 = O + s1 * z, c2 = p2 + s2 * u2;
+        Eigen::Vector3d x = (c2 - c1).norm() > 1e-12 ? Eigen::Vector3d((c2 - c1).normalized()) : Eigen::Vector3d(z.cross(u2).normalized());
+        if (x.dot(x_prev) < 0) x = -x;
+        theta = angleAbout(z, x_prev, x);
+        d = (c1 - O).dot(z);
+        a = (c2 - c1).dot(x);
+        alpha = angleAbout(x, z, u2);
+        next.linear() << x, u2.cross(x), u2;
+        next.translation() = c2;
+      }
+    }
+    // Round-off of the geometry (1e-17 m, 1e-16 rad) is no length or angle: zero (the robot file then reads as the
+    // drawing it is).
+    auto clean = [](double v) { return std::abs(v) < 1e-12 ? 0.0 : v; };
+    m.nominal[m.jointParam(j, JointParam::kThetaOffset)] = clean(theta);
+    m.nominal[m.jointParam(j, JointParam::kD)] = clean(d);
+    m.nominal[m.jointParam(j, JointParam::kA)] = clean(a);
+    m.nominal[m.jointParam(j, JointParam::kAlpha)] = clean(alpha);
+    m.nominal[m.jointParam(j, JointParam::kBeta)] = clean(beta);
+    // The frame as the model composes it (rounding aside the same as `next`).
+    dh[static_cast<size_t>(j) + 1] = F * linkRest(m, m.nominal, j);
+    (void)next;
+  }
+  return dh;
+}
+
+// Masses: each body (the links rigidly attached after revolute joint k, up to the next revolute joint or the tip and
+// beyond it through fixed joints), its centre of mass in DH frame k. m.links is set when the URDF has any mass; the
+// total is returned.
+double linkMasses(const Tree& tree, const std::vector<ChainJoint>& chain, const std::vector<int>& revolute,
+                  const std::vector<Pose>& dh, RobotModel& m) {
+  const urdf::ModelInterface& model = tree.model;
+  const urdf::LinkConstSharedPtr& base = tree.base;
+  const int n = m.numJoints();
+  std::map<std::string, Pose> link_pose;  // at q = 0, in the base link's frame
+  {
+    std::vector<std::pair<urdf::LinkConstSharedPtr, Pose>> todo = {{base, Pose::Identity()}};
+    while (!todo.empty()) {
+      auto [l, P] = todo.back();
+      todo.pop_back();
+      link_pose[l->name] = P;
+      for (const auto& cj : l->child_joints)
+        if (auto c = model.getLink(cj->child_link_name)) todo.push_back({c, P * toPose(cj->parent_to_joint_origin_transform)});
+    }
+  }
+  double total = 0;
+  std::vector<LinkInertia> links(static_cast<size_t>(n));
+  std::string mass_note;
+  for (int k = 0; k < n; ++k) {
+    const auto& rj = chain[static_cast<size_t>(revolute[static_cast<size_t>(k)])].joint;
+    double mass = 0;
+    Eigen::Vector3d moment = Eigen::Vector3d::Zero();
+    std::vector<urdf::LinkConstSharedPtr> todo = {model.getLink(rj->child_link_name)};
+    while (!todo.empty()) {
+      const auto l = todo.back();
+      todo.pop_back();
+      if (!l) continue;
+      if (l->inertial && l->inertial->mass > 0) {
+        mass += l->inertial->mass;
+        moment += l->inertial->mass * (link_pose[l->name] * toPose(l->inertial->origin).translation());
+      }
+      for (const auto& cj : l->child_joints)
+        if (cj->type == urdf::Joint::FIXED) todo.push_back(model.getLink(cj->child_link_name));
+    }
+    links[static_cast<size_t>(k)].mass_kg = mass;
+    if (mass > 0)
+      links[static_cast<size_t>(k)].com_m = (dh[static_cast<size_t>(k) + 1].inverse() * (moment / mass)).unaryExpr([](double v) {
+        return std::abs(v) < 1e-12 ? 0.0 : v;
+      });
+    total += mass;
+  }
+  if (total > 0) m.links = links;
+  return total;
+}
+
+// What was chosen, in words.
+std::vector<std::string> importNotes(const RobotModel& m, const std::string& base, const std::string& tip,
+                                     size_t chain_joints, const std::vector<int>& parallel_joints, double total_mass) {
+  const int n = m.numJoints();
+  std::vector<std::string> notes;
+  auto list = [](const std::vector<int>& v) {
+    std::string s;
+    for (int x : v) s += (s.empty() ? "" : ", ") + std::to_string(x);
+    return s;
+  };
+  notes.push_back("chain " + base + " -> " + tip + ": " + std::to_string(chain_joints) + " joints, " +
+                      std::to_string(n) + " revolute (" + [&] {
+                        std::string s;
+                        for (const auto& name : m.joint_names) s += (s.empty() ? "" : ", ") + name;
+                        return s;
+                      }() + ")");
+  notes.push_back(parallel_joints.empty()
+                          ? std::string("no neighbouring axes parallel: classic DH throughout")
+                          : "joint" + std::string(parallel_joints.size() > 1 ? "s " : " ") + list(parallel_joints) +
+                                ": axis parallel to the next (Hayati: d = 0, beta)");
+  const bool mounted = m.mount.norm() > 1e-12, flanged = m.flange.norm() > 1e-12;
+  notes.push_back(std::string("mount (") + base + " -> DH frame 0): " +
+                      (mounted ? "kept as a fixed transform (joint 1's axis is not " + base + "'s z through its origin)"
+                               : "identity"));
+  notes.push_back(std::string("flange (DH frame ") + std::to_string(n) + " -> " + tip + "): " +
+                      (flanged ? "kept as a fixed transform" : "identity"));
+  notes.push_back(total_mass > 0 ? "link masses from the URDF's inertials: " + [&] {
+    std::ostringstream o;
+    o.precision(4);
+    for (int k = 0; k < n; ++k) o << (k ? ", " : "") << m.links[static_cast<size_t>(k)].mass_kg;
+    return o.str();
+  }() + " kg" : std::string("no link masses in the URDF (gravity-dependent extensions need them)"));
+  return notes;
+}
+
 }  // namespace
 
 bool isUrdfPath(const std::string& path) {
@@ -252,94 +522,15 @@ UrdfImport importUrdf(const std::string& xml, const std::string& source, const U
   const TiXmlElement* robot = parsed.doc.RootElement();
   UrdfImport out;
   out.robot_name = model.getName();
-  // The base link and the tip.
   urdf::LinkConstSharedPtr base = options.base_link.empty() ? model.getRoot() : model.getLink(options.base_link);
   if (!base) throw ConfigError(at(source, robot) + ": --base-link " + options.base_link + ": no such <link>");
-  auto linkElement = [&](const std::string& name) {
-    const auto it = parsed.link_elements.find(name);
-    return it == parsed.link_elements.end() ? robot : it->second;
-  };
-  // Is `l` below `base`? The path from l up to base, joints in base-to-tip order.
-  auto pathFromBase = [&](urdf::LinkConstSharedPtr l, std::vector<urdf::JointConstSharedPtr>* joints) {
-    std::vector<urdf::JointConstSharedPtr> up;
-    while (l && l->name != base->name) {
-      if (!l->parent_joint) return false;
-      up.push_back(l->parent_joint);
-      l = model.getLink(l->parent_joint->parent_link_name);
-    }
-    if (!l) return false;
-    if (joints) joints->assign(up.rbegin(), up.rend());
-    return true;
-  };
-  urdf::LinkConstSharedPtr tip;
-  if (!options.tip_link.empty()) {
-    tip = model.getLink(options.tip_link);
-    if (!tip) throw ConfigError(at(source, robot) + ": --tip-link " + options.tip_link + ": no such <link>");
-    if (!pathFromBase(tip, nullptr))
-      throw ConfigError(at(source, linkElement(tip->name)) + ": <link name=\"" + tip->name + "\">: not below the base link " +
-                        base->name);
-  } else if (urdf::LinkConstSharedPtr t = model.getLink("tool0"); t && pathFromBase(t, nullptr)) {
-    tip = t;
-  } else {
-    // The one leaf the revolute joints lead to: follow the links while exactly one child joint leads on.
-    std::vector<urdf::LinkConstSharedPtr> leaves;
-    std::vector<urdf::LinkConstSharedPtr> todo = {base};
-    while (!todo.empty()) {
-      const auto l = todo.back();
-      todo.pop_back();
-      if (l->child_links.empty()) leaves.push_back(l);
-      for (const auto& c : l->child_links) todo.push_back(c);
-    }
-    std::vector<urdf::LinkConstSharedPtr> deepest;
-    size_t most = 0;
-    for (const auto& l : leaves) {
-      std::vector<urdf::JointConstSharedPtr> js;
-      pathFromBase(l, &js);
-      const size_t revolute = std::count_if(js.begin(), js.end(), [](const auto& j) { return j->type != urdf::Joint::FIXED; });
-      if (revolute > most) {
-        most = revolute;
-        deepest = {l};
-      } else if (revolute == most && revolute > 0) {
-        deepest.push_back(l);
-      }
-    }
-    if (deepest.size() != 1) {
-      std::string names;
-      for (const auto& l : deepest) names += (names.empty() ? "" : ", ") + l->name;
-      throw ConfigError(at(source, robot) + ": no tool0 and " +
-                        (deepest.empty() ? std::string("no movable chain below ") + base->name
-                                         : "the chain branches to " + names) +
-                        ": name the tip with --tip-link");
-    }
-    tip = deepest.front();
-  }
+  const Tree tree{model, base};
+  const urdf::LinkConstSharedPtr tip = findTip(tree, parsed, source, options);
   out.base_link = base->name;
   out.tip_link = tip->name;
   std::vector<urdf::JointConstSharedPtr> path;
-  pathFromBase(tip, &path);
-  // The chain: every joint on the path must be revolute or fixed, with a nonzero axis.
-  std::vector<ChainJoint> chain;
-  for (const auto& j : path) {
-    const auto it = parsed.joint_elements.find(j->name);
-    ChainJoint c{j, it == parsed.joint_elements.end() ? robot : it->second};
-    const std::string where = at(source, c.element) + ": <joint name=\"" + j->name + "\">: ";
-    if (j->type == urdf::Joint::CONTINUOUS)
-      throw ConfigError(where + "type continuous in the chain: a calibrated arm needs joint limits (make it revolute "
-                                "with its limits)");
-    if (j->type != urdf::Joint::REVOLUTE && j->type != urdf::Joint::FIXED)
-      throw ConfigError(where + "a joint that is neither revolute nor fixed in the chain (prismatic, floating or planar)");
-    if (j->type == urdf::Joint::REVOLUTE) {
-      const Eigen::Vector3d a(j->axis.x, j->axis.y, j->axis.z);
-      if (!(a.norm() > 1e-9)) throw ConfigError(where + "<axis> is zero");
-      if (!j->limits) throw ConfigError(where + "a revolute joint without <limit>");
-      if (!(j->limits->lower < j->limits->upper))
-        throw ConfigError(where + "<limit> lower " + std::to_string(j->limits->lower) + " is not below upper " +
-                          std::to_string(j->limits->upper));
-    }
-    chain.push_back(c);
-    out.chain_joints.push_back(j->name);
-    if (j->type == urdf::Joint::REVOLUTE) out.revolute.push_back(static_cast<int>(chain.size()) - 1);
-  }
+  tree.pathFromBase(tip, &path);
+  const std::vector<ChainJoint> chain = chainOf(path, parsed, source, out);
   const int n = static_cast<int>(out.revolute.size());
   if (n < 3 || n > 7)
     throw ConfigError(at(source, robot) + ": the chain from " + base->name + " to " + tip->name + " has " +
@@ -369,81 +560,8 @@ UrdfImport importUrdf(const std::string& xml, const std::string& source, const U
     m.limits.push_back({j->limits->lower, j->limits->upper});
     m.joint_names.push_back(j->name);
   }
-  // DH frame 0.
-  std::vector<Pose> dh(static_cast<size_t>(n) + 1, Pose::Identity());
-  {
-    const Eigen::Vector3d z = axis_dir[0], p = axis_point[0];
-    const Eigen::Vector3d o = p + (Eigen::Vector3d::Zero() - p).dot(z) * z;
-    Eigen::Vector3d x = Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX().dot(z) * z;
-    if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitY() - Eigen::Vector3d::UnitY().dot(z) * z;
-    x.normalize();
-    dh[0].linear() << x, z.cross(x), z;
-    dh[0].translation() = o;
-  }
   std::vector<int> parallel_joints;
-  for (int j = 0; j < n; ++j) {
-    const Pose& F = dh[static_cast<size_t>(j)];
-    const Eigen::Vector3d O = F.translation(), z = F.linear().col(2), x_prev = F.linear().col(0);
-    double theta = 0, d = 0, a = 0, alpha = 0, beta = 0;
-    Pose next = Pose::Identity();
-    if (j + 1 == n) {
-      // The last frame: z along the axis, the origin at the tip's foot on it, x as close to the tip's x as z allows.
-      d = (tip_pose.translation() - O).dot(z);
-      Eigen::Vector3d x = tip_pose.linear().col(0) - tip_pose.linear().col(0).dot(z) * z;
-      if (x.norm() < 1e-6) x = tip_pose.linear().col(1) - tip_pose.linear().col(1).dot(z) * z;
-      x.normalize();
-      theta = angleAbout(z, x_prev, x);
-      next.linear() << x, z.cross(x), z;
-      next.translation() = O + d * z;
-    } else {
-      const Eigen::Vector3d u2 = axis_dir[static_cast<size_t>(j) + 1], p2 = axis_point[static_cast<size_t>(j) + 1];
-      const double sine = z.cross(u2).norm();
-      if (sine < std::sin(options.parallel_tolerance_rad)) {
-        // Parallel (within the tolerance): Hayati, d = 0. The next origin is where the next axis crosses the plane
-        // through this origin normal to this axis; alpha and beta turn z onto the next axis.
-        m.parallel_to_next[static_cast<size_t>(j)] = true;
-        parallel_joints.push_back(j + 1);
-        const double t = (O - p2).dot(z) / u2.dot(z);
-        const Eigen::Vector3d P = p2 + t * u2, v = P - O;
-        Eigen::Vector3d x = x_prev;
-        if (v.norm() > 1e-12) x = v.normalized();
-        if (x.dot(x_prev) < 0) x = -x;
-        a = v.dot(x);
-        theta = angleAbout(z, x_prev, x);
-        Eigen::Matrix3d R = F.linear() * rotZ(theta);
-        const Eigen::Vector3d u = R.transpose() * u2;
-        beta = std::asin(std::clamp(u.x(), -1.0, 1.0));
-        alpha = std::atan2(-u.y(), u.z());
-        next.linear() = R * rotX(alpha) * rotY(beta);
-        next.translation() = O + a * R.col(0);
-      } else {
-        // Classic DH along the common normal of the two axes.
-        const Eigen::Vector3d w0 = O - p2;
-        const double b = z.dot(u2), dd = z.dot(w0), e = u2.dot(w0), den = 1 - b * b;
-        const double s1 = (b * e - dd) / den, s2 = (e - b * dd) / den;
-        const Eigen::Vector3d c1 = O + s1 * z, c2 = p2 + s2 * u2;
-        Eigen::Vector3d x = (c2 - c1).norm() > 1e-12 ? Eigen::Vector3d((c2 - c1).normalized()) : Eigen::Vector3d(z.cross(u2).normalized());
-        if (x.dot(x_prev) < 0) x = -x;
-        theta = angleAbout(z, x_prev, x);
-        d = (c1 - O).dot(z);
-        a = (c2 - c1).dot(x);
-        alpha = angleAbout(x, z, u2);
-        next.linear() << x, u2.cross(x), u2;
-        next.translation() = c2;
-      }
-    }
-    // Round-off of the geometry (1e-17 m, 1e-16 rad) is no length or angle: zero (the robot file then reads as the
-    // drawing it is).
-    auto clean = [](double v) { return std::abs(v) < 1e-12 ? 0.0 : v; };
-    m.nominal[m.jointParam(j, JointParam::kThetaOffset)] = clean(theta);
-    m.nominal[m.jointParam(j, JointParam::kD)] = clean(d);
-    m.nominal[m.jointParam(j, JointParam::kA)] = clean(a);
-    m.nominal[m.jointParam(j, JointParam::kAlpha)] = clean(alpha);
-    m.nominal[m.jointParam(j, JointParam::kBeta)] = clean(beta);
-    // The frame as the model composes it (rounding aside the same as `next`).
-    dh[static_cast<size_t>(j) + 1] = F * linkRest(m, m.nominal, j);
-    (void)next;
-  }
+  const std::vector<Pose> dh = fitDh(axis_point, axis_dir, tip_pose, options.parallel_tolerance_rad, m, &parallel_joints);
   m.mount = xyzRpy(dh[0]).unaryExpr([](double v) { return std::abs(v) < 1e-12 ? 0.0 : v; });
   m.flange = xyzRpy(dh[static_cast<size_t>(n)].inverse() * tip_pose).unaryExpr([](double v) {
     return std::abs(v) < 1e-12 ? 0.0 : v;
@@ -451,78 +569,12 @@ UrdfImport importUrdf(const std::string& xml, const std::string& source, const U
   // Each revolute joint's child link frame in DH frame k-1 at q = 0 (the export keeps it).
   for (int k = 0; k < n; ++k)
     out.link_in_dh.push_back(dh[static_cast<size_t>(k)].inverse() * joint_frame[static_cast<size_t>(out.revolute[static_cast<size_t>(k)])]);
-  // Masses: each body (the links rigidly attached after revolute joint k, up to the next revolute joint or the tip
-  // and beyond it through fixed joints), its centre of mass in DH frame k.
-  std::map<std::string, Pose> link_pose;  // at q = 0, in the base link's frame
-  {
-    std::vector<std::pair<urdf::LinkConstSharedPtr, Pose>> todo = {{base, Pose::Identity()}};
-    while (!todo.empty()) {
-      auto [l, P] = todo.back();
-      todo.pop_back();
-      link_pose[l->name] = P;
-      for (const auto& cj : l->child_joints)
-        if (auto c = model.getLink(cj->child_link_name)) todo.push_back({c, P * toPose(cj->parent_to_joint_origin_transform)});
-    }
-  }
-  double total = 0;
-  std::vector<LinkInertia> links(static_cast<size_t>(n));
-  std::string mass_note;
-  for (int k = 0; k < n; ++k) {
-    const auto& rj = chain[static_cast<size_t>(out.revolute[static_cast<size_t>(k)])].joint;
-    double mass = 0;
-    Eigen::Vector3d moment = Eigen::Vector3d::Zero();
-    std::vector<urdf::LinkConstSharedPtr> todo = {model.getLink(rj->child_link_name)};
-    while (!todo.empty()) {
-      const auto l = todo.back();
-      todo.pop_back();
-      if (!l) continue;
-      if (l->inertial && l->inertial->mass > 0) {
-        mass += l->inertial->mass;
-        moment += l->inertial->mass * (link_pose[l->name] * toPose(l->inertial->origin).translation());
-      }
-      for (const auto& cj : l->child_joints)
-        if (cj->type == urdf::Joint::FIXED) todo.push_back(model.getLink(cj->child_link_name));
-    }
-    links[static_cast<size_t>(k)].mass_kg = mass;
-    if (mass > 0)
-      links[static_cast<size_t>(k)].com_m = (dh[static_cast<size_t>(k) + 1].inverse() * (moment / mass)).unaryExpr([](double v) {
-        return std::abs(v) < 1e-12 ? 0.0 : v;
-      });
-    total += mass;
-  }
-  if (total > 0) m.links = links;
+  const double total = linkMasses(tree, chain, out.revolute, dh, m);
   m.gravity_in_base_mps2 = dh[0].linear().transpose() * Eigen::Vector3d(0, 0, -9.81);
   std::string err;
   if (!m.IsValid(&err)) throw ConfigError(source + ": the converted model: " + err);
 
-  // What was chosen.
-  auto list = [](const std::vector<int>& v) {
-    std::string s;
-    for (int x : v) s += (s.empty() ? "" : ", ") + std::to_string(x);
-    return s;
-  };
-  out.notes.push_back("chain " + base->name + " -> " + tip->name + ": " + std::to_string(chain.size()) + " joints, " +
-                      std::to_string(n) + " revolute (" + [&] {
-                        std::string s;
-                        for (const auto& name : m.joint_names) s += (s.empty() ? "" : ", ") + name;
-                        return s;
-                      }() + ")");
-  out.notes.push_back(parallel_joints.empty()
-                          ? std::string("no neighbouring axes parallel: classic DH throughout")
-                          : "joint" + std::string(parallel_joints.size() > 1 ? "s " : " ") + list(parallel_joints) +
-                                ": axis parallel to the next (Hayati: d = 0, beta)");
-  const bool mounted = m.mount.norm() > 1e-12, flanged = m.flange.norm() > 1e-12;
-  out.notes.push_back(std::string("mount (") + base->name + " -> DH frame 0): " +
-                      (mounted ? "kept as a fixed transform (joint 1's axis is not " + base->name + "'s z through its origin)"
-                               : "identity"));
-  out.notes.push_back(std::string("flange (DH frame ") + std::to_string(n) + " -> " + tip->name + "): " +
-                      (flanged ? "kept as a fixed transform" : "identity"));
-  out.notes.push_back(total > 0 ? "link masses from the URDF's inertials: " + [&] {
-    std::ostringstream o;
-    o.precision(4);
-    for (int k = 0; k < n; ++k) o << (k ? ", " : "") << links[static_cast<size_t>(k)].mass_kg;
-    return o.str();
-  }() + " kg" : std::string("no link masses in the URDF (gravity-dependent extensions need them)"));
+  out.notes = importNotes(m, base->name, tip->name, chain.size(), parallel_joints, total);
   return out;
 }
 

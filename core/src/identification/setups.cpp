@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <optional>
 #include <cmath>
 #include <stdexcept>
 
@@ -119,47 +120,35 @@ void stack(const SetupsProblem& pr, const Bases& bases, const Eigen::VectorXd& x
 
 }  // namespace
 
-SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
-  std::string err;
-  if (!pr.IsValid(&err)) throw std::invalid_argument("fitSetups: " + err);
-  if (hasBacklash(pr.extensions)) {  // rows of an unknown play state do not take part (as in fitExtended)
-    SetupsProblem kept = pr;
-    std::vector<int> left_out(pr.observations.size(), 0);
-    bool any = false;
-    for (size_t s = 0; s < pr.observations.size(); ++s) {
-      const std::vector<int> rows = rowsWithKnownPlay(pr.extensions, pr.drivers[s]);
-      left_out[s] = static_cast<int>(pr.observations[s].size() - rows.size());
-      if (left_out[s] == 0) continue;
-      any = true;
-      if (rows.size() < 4)
-        throw std::invalid_argument("fitSetups: set-up " + std::to_string(s + 1) +
-                                    ": fewer than 4 rows with a known backlash play state");
-      kept.observations[s] = subset(pr.observations[s], rows);
-      kept.drivers[s] = subset(pr.drivers[s], rows);
-    }
-    if (any) {
-      SetupsFit fit = fitSetups(kept, options);
-      fit.rows_left_out = left_out;
-      return fit;
-    }
+namespace {
+
+// With backlash, rows of an unknown play state do not take part (as in fitExtended): the problem without them, and
+// how many each set-up left out; nullopt when every row's play state is known.
+std::optional<std::pair<SetupsProblem, std::vector<int>>> withKnownPlay(const SetupsProblem& pr) {
+  SetupsProblem kept = pr;
+  std::vector<int> left_out(pr.observations.size(), 0);
+  bool any = false;
+  for (size_t s = 0; s < pr.observations.size(); ++s) {
+    const std::vector<int> rows = rowsWithKnownPlay(pr.extensions, pr.drivers[s]);
+    left_out[s] = static_cast<int>(pr.observations[s].size() - rows.size());
+    if (left_out[s] == 0) continue;
+    any = true;
+    if (rows.size() < 4)
+      throw std::invalid_argument("fitSetups: set-up " + std::to_string(s + 1) +
+                                  ": fewer than 4 rows with a known backlash play state");
+    kept.observations[s] = subset(pr.observations[s], rows);
+    kept.drivers[s] = subset(pr.drivers[s], rows);
   }
+  if (!any) return std::nullopt;
+  return std::make_pair(std::move(kept), std::move(left_out));
+}
+
+// The state's columns in the order they are taken as identifiable: every set-up's tool first, then the kinematic
+// parameters in the model's priority, further set-ups' bases, the extension parameters last (ext0: the first
+// extension column, n: the state's size).
+std::vector<int> columnOrder(const SetupsProblem& pr, Eigen::Index ext0, Eigen::Index n) {
   const RobotModel& m = *pr.model;
-  const int np = m.numParams(), n_ext = numExtensionParams(m, pr.extensions);
-  Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
-  const auto n = x.size();
-  const Eigen::Index ext0 = n - n_ext;
-  // Identifiable columns of the stacked Jacobian at the start, in the model's priority, every set-up's tool first and
-  // further set-ups' bases last. The tools first: a common change at the flange (joint 6's flange-side parameters)
-  // is then what is held, as in a single set-up, and each set-up's tool takes it exactly, whatever its size. Holding
-  // a further set-up's tool instead leaves the rotations about the flange to reach the held value, which for a target
-  // near the flange axis takes a rotation of radians that Levenberg-Marquardt crawls along
-  // (CELLCAL_TEST_SEED=829672055: joint 6's offset at -1.1 rad after 200 iterations). Bases last: a base of set-up 2
-  // never replaces a kinematic parameter.
-  Eigen::VectorXd r;
-  Eigen::MatrixXd J;
-  Eigen::VectorXd widths = Eigen::VectorXd::Zero(n_ext);  // the extension parameters the bases are evaluated at
-  Bases bases = basesAtStart(pr, widths);
-  stack(pr, bases, x, r, &J);
+  const int np = m.numParams();
   std::vector<int> order;
   const auto& cand = pr.identifiability.candidates.empty() ? m.canonicalParams() : pr.identifiability.candidates;
   const int f = m.baseParam(FrameParam::kX), tool0 = m.toolParam(FrameParam::kX);
@@ -179,6 +168,39 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
     if (!is_tool(c) && candidate(c)) order.push_back(c);
   further(false);
   for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
+  return order;
+}
+
+}  // namespace
+
+SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
+  std::string err;
+  if (!pr.IsValid(&err)) throw std::invalid_argument("fitSetups: " + err);
+  if (hasBacklash(pr.extensions))
+    if (auto known = withKnownPlay(pr)) {
+      SetupsFit fit = fitSetups(known->first, options);
+      fit.rows_left_out = known->second;
+      return fit;
+    }
+  const RobotModel& m = *pr.model;
+  const int n_ext = numExtensionParams(m, pr.extensions);
+  Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
+  const auto n = x.size();
+  const Eigen::Index ext0 = n - n_ext;
+  // Identifiable columns of the stacked Jacobian at the start, in the model's priority, every set-up's tool first and
+  // further set-ups' bases last. The tools first: a common change at the flange (joint 6's flange-side parameters)
+  // is then what is held, as in a single set-up, and each set-up's tool takes it exactly, whatever its size. Holding
+  // a further set-up's tool instead leaves the rotations about the flange to reach the held value, which for a target
+  // near the flange axis takes a rotation of radians that Levenberg-Marquardt crawls along
+  // (CELLCAL_TEST_SEED=829672055: joint 6's offset at -1.1 rad after 200 iterations). Bases last: a base of set-up 2
+  // never replaces a kinematic parameter.
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  Eigen::VectorXd widths = Eigen::VectorXd::Zero(n_ext);  // the extension parameters the bases are evaluated at
+  Bases bases = basesAtStart(pr, widths);
+  stack(pr, bases, x, r, &J);
+  const std::vector<int> order = columnOrder(pr, ext0, n);
+  const int f = m.baseParam(FrameParam::kX);
   SetupsFit out;
   out.estimated = independentColumns(J, order, internal::withExtensionRanges(pr.identifiability, m, pr.starts.front(), pr.extensions, ext0));
   for (int c : out.estimated) {
