@@ -274,49 +274,9 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   const PairedReading& p = pending.reading;
   const auto t0 = steadyNs();
   if (file_date_ns_ != 0) addDriftSinceFile(p.tracker_stamp_ns);
-  const bool extended = !rls_->extensions().empty();
-  bool changed = false;
   const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
-  if (gate_.enabled()) {
-    // After a silence longer than the drift model's period (a tracker link down for hours of cell time), the gate's
-    // window describes the robot as it was: its innovations are judged afresh (once per silence), so a robot that
-    // drifted further than the model allows is followed after a few poses (and the drift alarm says so) instead of
-    // every pose after the silence being gated against the old window.
-    if (snap_.last_update_stamp_ns > 0 &&
-        (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0 > settings_->drift_per_h)
-      gate_.clearOnceAfter(snap_.last_update_stamp_ns);
-    const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
-    const int rows = p.observation.rows();
-    const double gate = gate_.gate(rows);  // scaled by the recent median NIS per row (outlier_gate.hpp)
-    const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
-    if (new_stand_still && std::isfinite(nis)) gate_.record(nis / rows);
-    if (!(nis <= gate)) {
-      std::ostringstream m;
-      m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
-        << " above the gate " << gate << " (" << rows << " rows)";
-      // A calibration file on probation (no pose has passed the gate since the engine started from it): its first
-      // stand-stills are held; kProbationPoses in a row beyond the gate mean it does not fit this cell.
-      if (new_stand_still && onProbation()) {
-        const Pose predicted = rls_->predict(p.observation.q_rad, extended ? &pending.drivers : nullptr);
-        const bool refused = probation_.hold(
-            {pending, m.str(), (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
-             nis / rows});
-        gated_q_ = p.observation.q_rad;
-        gated_joint_stamp_ns_ = p.joint_stamp_ns;
-        return refused && refuseCalibrationFile(gate);
-      }
-      reject(Rejection::kOutlier, m.str());
-      if (new_stand_still) {
-        ++consecutive_outliers_;
-        gated_q_ = p.observation.q_rad;
-        gated_joint_stamp_ns_ = p.joint_stamp_ns;
-        const Health before = snap_.health;
-        decideHealth();
-        if (snap_.health != before) changed = true;  // publish the hold at once
-      }
-      return changed;
-    }
-  }
+  if (gate_.enabled())
+    if (const std::optional<bool> stopped = gateReading(pending, same_as_used)) return *stopped;
   // A pose passed the gate: readings held on probation were outliers after all.
   for (const auto& h : probation_.take()) reject(Rejection::kOutlier, h.rejection);
   consecutive_outliers_ = 0;
@@ -326,34 +286,80 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   // using them as independent observations would overweight the pose. The first reading is used at once.
   if (same_as_used) {
     ++counters_.same_pose;
-    return changed;
+    return false;
   }
   used_q_ = p.observation.q_rad;
   used_joint_stamp_ns_ = p.joint_stamp_ns;
-  if (settings_->mode == EngineMode::kContinuous) {
-    if (applyPose(pending)) {
-      finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
-      changed = true;
-    }
-  } else {
-    batch_.push_back(pending);
-    if (static_cast<int>(batch_.size()) >= settings_->batch_poses) {
-      bool any = false;
-      for (const auto& b : batch_) any = applyPose(b) || any;
-      batch_.clear();
-      if (any) {
-        finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
-        changed = true;
-      }
-    } else {
-      snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
-      snap_.last_tracker_sequence = p.tracker_sequence;
-      pairing_.setAppliedUntil(p.tracker_stamp_ns);
-      ++state_revision_;
-    }
-  }
+  const bool changed = usePose(pending);
   last_update_duration_ns_ = steadyNs() - t0;
   return changed;
+}
+
+// The outlier gate on a paired reading: nullopt when it passed. Else the reading is rejected as an outlier, held while
+// the calibration file is on probation, or refuses the file, and the value is handlePaired's: true when the health
+// changed (outliers in a row hold the last good version at once) or the file was refused.
+std::optional<bool> CalibrationEngine::gateReading(const Pending& pending, bool same_as_used) {
+  const PairedReading& p = pending.reading;
+  const bool extended = !rls_->extensions().empty();
+  // After a silence longer than the drift model's period (a tracker link down for hours of cell time), the gate's
+  // window describes the robot as it was: its innovations are judged afresh (once per silence), so a robot that
+  // drifted further than the model allows is followed after a few poses (and the drift alarm says so) instead of
+  // every pose after the silence being gated against the old window.
+  if (snap_.last_update_stamp_ns > 0 &&
+      (p.tracker_stamp_ns - snap_.last_update_stamp_ns) * 1e-9 * time_compression_ / 3600.0 > settings_->drift_per_h)
+    gate_.clearOnceAfter(snap_.last_update_stamp_ns);
+  const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
+  const int rows = p.observation.rows();
+  const double gate = gate_.gate(rows);  // scaled by the recent median NIS per row (outlier_gate.hpp)
+  const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+  if (new_stand_still && std::isfinite(nis)) gate_.record(nis / rows);
+  if (nis <= gate) return std::nullopt;
+  std::ostringstream m;
+  m << robot_->target_id << " tracker reading #" << p.tracker_sequence << ": normalized innovation " << nis
+    << " above the gate " << gate << " (" << rows << " rows)";
+  // A calibration file on probation (no pose has passed the gate since the engine started from it): its first
+  // stand-stills are held; kProbationPoses in a row beyond the gate mean it does not fit this cell.
+  if (new_stand_still && onProbation()) {
+    const Pose predicted = rls_->predict(p.observation.q_rad, extended ? &pending.drivers : nullptr);
+    const bool refused = probation_.hold(
+        {pending, m.str(), (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
+         nis / rows});
+    gated_q_ = p.observation.q_rad;
+    gated_joint_stamp_ns_ = p.joint_stamp_ns;
+    return refused && refuseCalibrationFile(gate);
+  }
+  reject(Rejection::kOutlier, m.str());
+  if (!new_stand_still) return false;
+  ++consecutive_outliers_;
+  gated_q_ = p.observation.q_rad;
+  gated_joint_stamp_ns_ = p.joint_stamp_ns;
+  const Health before = snap_.health;
+  decideHealth();
+  return snap_.health != before;  // publish the hold at once
+}
+
+// A pose that passed the gate into the estimate: at once (continuous), or with its batch (periodic). True when a
+// version was made.
+bool CalibrationEngine::usePose(const Pending& pending) {
+  const PairedReading& p = pending.reading;
+  if (settings_->mode == EngineMode::kContinuous) {
+    if (!applyPose(pending)) return false;
+    finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+    return true;
+  }
+  batch_.push_back(pending);
+  if (static_cast<int>(batch_.size()) < settings_->batch_poses) {
+    snap_.last_measurement_stamp_ns = p.tracker_stamp_ns;
+    snap_.last_tracker_sequence = p.tracker_sequence;
+    pairing_.setAppliedUntil(p.tracker_stamp_ns);
+    ++state_revision_;
+    return false;
+  }
+  bool any = false;
+  for (const auto& b : batch_) any = applyPose(b) || any;
+  batch_.clear();
+  if (any) finishUpdate(p.tracker_stamp_ns, p.tracker_sequence);
+  return any;
 }
 
 bool CalibrationEngine::applyPose(const Pending& pending) {

@@ -153,6 +153,8 @@ class CalibrationEngine {
  private:
   using Pending = DrivenReading;  // the play state when it was paired (the joint history moves on while a batch fills)
   bool handlePaired(const Pending& pending);
+  std::optional<bool> gateReading(const Pending& pending, bool same_as_used);  // nullopt: passed
+  bool usePose(const Pending& pending);
   bool onProbation() const { return started_calibrated_ && !refused_file_ && snap_.poses_used == 0; }
   bool refuseCalibrationFile(double gate);
   void addDriftSinceFile(std::int64_t stamp_ns);
