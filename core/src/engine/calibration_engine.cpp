@@ -171,8 +171,6 @@ bool CalibrationEngine::refuseCalibrationFile(double gate) {
   last_good_.reset();
   recent_.clear();
   gate_.clear();
-  consecutive_outliers_ = 0;
-  gated_q_.resize(0);
   used_q_.resize(0);
   snap_.last_update_stamp_ns = 0;
   snap_.start_warning = why;
@@ -279,8 +277,7 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
     if (const std::optional<bool> stopped = gateReading(pending, same_as_used)) return *stopped;
   // A pose passed the gate: readings held on probation were outliers after all.
   for (const auto& h : probation_.take()) reject(Rejection::kOutlier, h.rejection);
-  consecutive_outliers_ = 0;
-  gated_q_.resize(0);
+  gate_.passed();
   ++counters_.paired;
   // One update per stand-still: further readings of the same pose repeat its robot error (repeatability), so
   // using them as independent observations would overweight the pose. The first reading is used at once.
@@ -311,7 +308,7 @@ std::optional<bool> CalibrationEngine::gateReading(const Pending& pending, bool 
   const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
   const int rows = p.observation.rows();
   const double gate = gate_.gate(rows);  // scaled by the recent median NIS per row (outlier_gate.hpp)
-  const bool new_stand_still = !same_as_used && !samePose(p, gated_q_, gated_joint_stamp_ns_);
+  const bool new_stand_still = !same_as_used && !samePose(p, gate_.gatedQ(), gate_.gatedJointStampNs());
   if (new_stand_still && std::isfinite(nis)) gate_.record(nis / rows);
   if (nis <= gate) return std::nullopt;
   std::ostringstream m;
@@ -324,15 +321,12 @@ std::optional<bool> CalibrationEngine::gateReading(const Pending& pending, bool 
     const bool refused = probation_.hold(
         {pending, m.str(), (p.observation.measured_in_tracker.translation() - predicted.translation()).norm(),
          nis / rows});
-    gated_q_ = p.observation.q_rad;
-    gated_joint_stamp_ns_ = p.joint_stamp_ns;
+    gate_.gatedStandStill(p.observation.q_rad, p.joint_stamp_ns, /*count=*/false);
     return refused && refuseCalibrationFile(gate);
   }
   reject(Rejection::kOutlier, m.str());
   if (!new_stand_still) return false;
-  ++consecutive_outliers_;
-  gated_q_ = p.observation.q_rad;
-  gated_joint_stamp_ns_ = p.joint_stamp_ns;
+  gate_.gatedStandStill(p.observation.q_rad, p.joint_stamp_ns, /*count=*/true);
   const Health before = snap_.health;
   decideHealth();
   return snap_.health != before;  // publish the hold at once
@@ -454,7 +448,7 @@ void CalibrationEngine::decideHealth() {
   f.poses_used = snap_.poses_used;
   f.poses_needed = posesNeeded(rls_->estimated().size() + rls_->estimatedExtension().size(), robot_->measurement,
                                started_calibrated_);
-  f.consecutive_outliers = consecutive_outliers_;
+  f.consecutive_outliers = gate_.inARow();
   f.prediction_sigma_m = snap_.prediction_sigma_position_m;
   f.drift_alarm = snap_.drift_alarm;
   f.recent_nis_per_row = snap_.recent_nis_per_row;
@@ -515,7 +509,7 @@ EngineState CalibrationEngine::exportState() const {
   for (const auto& e : rls_->extensions()) s.extensions.push_back(extensionSpec(e));
   s.extension_params = rls_->extensionParams();
   s.estimated_extension = rls_->estimatedExtension();
-  s.consecutive_outliers = consecutive_outliers_;
+  s.consecutive_outliers = gate_.inARow();
   s.gate_window.assign(gate_.window().begin(), gate_.window().end());
   if (last_good_ && snap_.health != Health::kOk)
     s.last_good = last_good_;
@@ -611,8 +605,7 @@ void CalibrationEngine::importState(const EngineState& s) {
   for (const auto& r : s.recent) recent_.push_back({r.prior_error_m, r.post_error_m, r.post_error_rad, r.nis_per_row});
   batch_.clear();
   for (const auto& b : s.pending_batch) batch_.push_back({b.reading, b.drivers ? *b.drivers : Drivers{}});
-  consecutive_outliers_ = s.consecutive_outliers;
-  gate_.assign(s.gate_window.begin(), s.gate_window.end());
+  gate_.restore(s.gate_window.begin(), s.gate_window.end(), s.consecutive_outliers);
   if (good) {  // the files keep its extensions and their estimated set once, as the state's
     good->extensions = rls_->extensions();
     good->estimated_extension = rls_->estimatedExtension();

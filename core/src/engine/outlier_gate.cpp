@@ -20,6 +20,17 @@ void OutlierGate::record(double nis_per_row) {
   while (window_.size() > window_size_) window_.pop_front();
 }
 
+void OutlierGate::clear() {
+  window_.clear();
+  passed();
+}
+
+void OutlierGate::gatedStandStill(const Eigen::VectorXd& q_rad, std::int64_t joint_stamp_ns, bool count) {
+  gated_q_ = q_rad;
+  gated_joint_stamp_ns_ = joint_stamp_ns;
+  if (count) ++in_a_row_;
+}
+
 void OutlierGate::clearOnceAfter(std::int64_t last_update_ns) {
   if (cleared_after_ns_ == last_update_ns) return;
   window_.clear();

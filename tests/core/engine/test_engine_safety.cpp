@@ -342,5 +342,44 @@ TEST(OutlierGate, TheGateIsTheRuleItsHeaderStates) {
   EXPECT_FALSE(OutlierGate(0, 10).enabled());
 }
 
+// What the gate keeps besides its window: the stand-stills gated in a row (counted unless held on probation), the
+// last one gated, forgotten when a reading passes; clear() forgets everything, restore() gives back what a state file
+// saved (the window and the count) and leaves the last gated stand-still alone.
+TEST(OutlierGate, KeepsTheStandStillsGatedInARow) {
+  std::mt19937_64 rng(test::testSeed());
+  OutlierGate gate(50, 30);
+  int expected = 0;
+  Eigen::VectorXd last;
+  for (int k = 0; k < 200; ++k) {
+    const double u = std::uniform_real_distribution<double>(0, 1)(rng);
+    if (u < 0.2) {
+      gate.passed();
+      expected = 0;
+      last.resize(0);
+    } else {
+      const Eigen::VectorXd q = Eigen::VectorXd::Random(6);
+      const bool count = u > 0.3;
+      gate.gatedStandStill(q, k, count);
+      expected += count;
+      last = q;
+      EXPECT_EQ(gate.gatedJointStampNs(), k);
+    }
+    gate.record(u);
+    EXPECT_EQ(gate.inARow(), expected) << "step " << k;
+    ASSERT_EQ(gate.gatedQ().size(), last.size());
+    EXPECT_TRUE(gate.gatedQ() == last);
+  }
+  const std::vector<double> saved(gate.window().begin(), gate.window().end());
+  gate.clear();
+  EXPECT_EQ(gate.inARow(), 0);
+  EXPECT_TRUE(gate.window().empty());
+  EXPECT_EQ(gate.gatedQ().size(), 0);
+  gate.gatedStandStill(Eigen::VectorXd::Ones(6), 7, true);
+  gate.restore(saved.begin(), saved.end(), 4);
+  EXPECT_EQ(gate.inARow(), 4);
+  EXPECT_EQ(std::vector<double>(gate.window().begin(), gate.window().end()), saved);
+  EXPECT_EQ(gate.gatedQ().size(), 6);
+}
+
 }  // namespace
 }  // namespace cellcal

@@ -200,10 +200,7 @@ class CalibrationEngine {
   std::deque<Recent> recent_;
   InputWatch inputs_;  // stand-stills, when the robot moved, stale streams (input_watch.hpp)
   std::optional<EngineState::Good> last_good_;  // the last version published with health ok
-  int consecutive_outliers_ = 0;
-  OutlierGate gate_;  // NIS per row of the recent new stand-stills (outlier_gate.hpp)
-  Eigen::VectorXd gated_q_;
-  std::int64_t gated_joint_stamp_ns_ = 0;
+  OutlierGate gate_;  // the recent new stand-stills' NIS, those gated in a row, the last gated (outlier_gate.hpp)
   std::vector<Eigen::VectorXd> reference_q_;
   // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters
   // over the state (the estimated kinematic columns; zero for extension columns), for the estimated set they are of.
