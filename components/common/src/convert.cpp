@@ -197,7 +197,6 @@ const char* healthCauseText(msg::HealthCause c) {
 const char* outcomeText(msg::CompensationOutcome o) {
   if (static_cast<int>(o) < kNumCompensationOutcomes) return outcomeName(static_cast<CompensationOutcome>(static_cast<int>(o)));
   switch (o) {
-    case msg::OUTCOME_BAD_INPUT: return "bad_input";
     case msg::OUTCOME_PASS_THROUGH: return "pass_through";
     case msg::OUTCOME_NO_CALIBRATION: return "no_calibration";
     case msg::OUTCOME_NO_GOOD_CALIBRATION: return "no_good_calibration";

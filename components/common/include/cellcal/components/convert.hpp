@@ -73,7 +73,7 @@ const char* healthText(msg::CalibrationHealth h);
 const char* healthCauseText(msg::HealthCause c);
 
 // A compensation outcome's name: core's (outcomeName: "applied", "unreachable", "never_judged", ...), then the
-// publisher's own ("bad_input", "pass_through", "no_calibration", "no_good_calibration").
+// publisher's own ("pass_through", "no_calibration", "no_good_calibration").
 const char* outcomeText(msg::CompensationOutcome o);
 
 Pose toPose(const std::array<double, 3>& p_m, const std::array<double, 4>& q_xyzw);
