@@ -52,9 +52,14 @@ json setupsJson(const CalibrateArgs& a, const CampaignProblem& problem, const Ca
           {"iterations", fit.iterations}, {"unusable", unusableJson(rep.unusable)}};
 }
 
-json identifiabilityJson(const RobotModel& robot, const IdentifiabilityReport& ir) {
-  json rank = json::array(), plausible = json::array();
+json identifiabilityJson(const RobotModel& robot, const Eigen::VectorXd& start, const IdentifiabilityReport& ir) {
+  json gauge_held = json::array(), rank = json::array(), plausible = json::array();
+  const std::vector<int> gauge = frameGauge(robot, start);
   for (const auto& d : ir.dropped) {
+    if (std::binary_search(gauge.begin(), gauge.end(), d.index)) {
+      gauge_held.push_back(robot.paramNameHuman(d.index));
+      continue;
+    }
     if (!d.below_prior) {
       rank.push_back(robot.paramNameHuman(d.index));
       continue;
@@ -64,7 +69,8 @@ json identifiabilityJson(const RobotModel& robot, const IdentifiabilityReport& i
                                                                         : json(nullptr)},
                          {"plausible_sigma", std::abs(robot.toHuman(d.index, d.prior_sigma_si))}});
   }
-  return {{"noise_scale", ir.noise_scale}, {"not_identifiable", rank}, {"held_within_plausible", plausible}};
+  return {{"noise_scale", ir.noise_scale}, {"carried_by_frames", gauge_held}, {"not_identifiable", rank},
+          {"held_within_plausible", plausible}};
 }
 
 // What the region folds of one joint or driver found (FoldStats), under `key`: `value` (the joint, or the extension).
@@ -152,7 +158,7 @@ json campaignJson(const CalibrateArgs& a, const CampaignProblem& problem, const 
                                                    : json{{"line", in.setup_change_line}, {"text", in.setup_hint}}},
             {"registration_time_s", in.registration_s}, {"solve_time_s", rep.solve_s},
             {"parameters", params}, {"extension_params", ext}, {"extension_stddev", ext_sd},
-            {"held", heldJson(rep.held)}, {"identifiability", identifiabilityJson(robot, rep.geometric.identifiability)},
+            {"held", heldJson(rep.held)}, {"identifiability", identifiabilityJson(robot, in.start, rep.geometric.identifiability)},
             {"prediction", json{{"identification_rms_mm", t.identification_rms_mm},
                                 {"identification_max_mm", t.identification_max_mm},
                                 {"verification_rms_mm", t.verification_rms_mm},

@@ -97,9 +97,15 @@ void printSetups(const CalibrateArgs& a, const CampaignProblem& problem, const C
     std::printf("\n");
   }
   if (!rep.held_names.empty()) {
-    std::string held;
-    for (const auto& h : rep.held_names) held += " " + h;
-    std::printf("not identifiable from these data (held at their start value):%s\n", held.c_str());
+    std::string held, gauge_held;
+    std::vector<std::string> gauge;
+    for (int c : frameGauge(problem.setups.front().robot, problem.setups.front().start))
+      gauge.push_back(problem.setups.front().robot.paramNameHuman(c));
+    for (const auto& h : rep.held_names) (std::count(gauge.begin(), gauge.end(), h) ? gauge_held : held) += " " + h;
+    if (!gauge_held.empty())
+      std::printf("held at their start value, carried by every set-up's base and tool frames (no data tell them from "
+                  "the frames):%s\n", gauge_held.c_str());
+    if (!held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", held.c_str());
   }
   for (size_t s = 0; s < ins.size(); ++s) {
     const CampaignInput& in = ins[s];
@@ -162,11 +168,17 @@ void printResidualMap(const CampaignReport& rep) {
               c.all_mean_with_mm, c.all_mean_without_mm);
 }
 
-// Held: what the rows do not separate (rank), and what they pin no better than its plausible range.
-void printHeld(const RobotModel& robot, const CampaignReport& rep) {
-  std::string rank_held, prior_held;
+// Held: what the frames stand for, what the rows do not separate (rank), and what they pin no better than its
+// plausible range.
+void printHeld(const RobotModel& robot, const Eigen::VectorXd& start, const CampaignReport& rep) {
+  std::string gauge_held, rank_held, prior_held;
   const IdentifiabilityReport& ir = rep.geometric.identifiability;
+  const std::vector<int> gauge = frameGauge(robot, start);
   for (const auto& d : ir.dropped) {
+    if (std::binary_search(gauge.begin(), gauge.end(), d.index)) {
+      gauge_held += " " + robot.paramNameHuman(d.index);
+      continue;
+    }
     if (!d.below_prior) {
       rank_held += " " + robot.paramNameHuman(d.index);
       continue;
@@ -179,6 +191,9 @@ void printHeld(const RobotModel& robot, const CampaignReport& rep) {
       std::snprintf(buf, sizeof buf, " %s (would loosen a kept parameter beyond its range)", robot.paramNameHuman(d.index).c_str());
     prior_held += buf;
   }
+  if (!gauge_held.empty())
+    std::printf("held at their start value, carried by the base and tool frames (no data tell them from the frames):%s\n",
+                gauge_held.c_str());
   if (!rank_held.empty()) std::printf("not identifiable from these data (held at their start value):%s\n", rank_held.c_str());
   if (!prior_held.empty())
     std::printf("held at their start value: the data (at %.2fx the readings' sigmas, what the fit leaves) pin them "
@@ -272,7 +287,7 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
     std::printf("implausible: %s: a target offset or frame the robot file does not have (a gauge with its own frame?), "
                 "or too little excitation\n", w.c_str());
   if (rep.residual_map) printResidualMap(rep);
-  printHeld(robot, rep);
+  printHeld(robot, in.start, rep);
 }
 
 }  // namespace cellcal::cli

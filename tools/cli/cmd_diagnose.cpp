@@ -267,6 +267,9 @@ int recommend(const DiagnosisResult& d) {
                 "against %.4f mm for the geometric model (%.1f %% better)%s\n",
                 modelLabel(b.fit.extensions).c_str(), b.verification.mean_mm, g.verification.mean_mm, d.gain_pct,
                 d.structureLeft() ? "; it explains only part of what the geometric model leaves" : "");
+    std::printf("  to the cell's compensation publisher (it carries the extensions); a URDF or a controller's kinematics "
+                "file cannot: `cellcal robot export` writes the geometric calibration the saved robot file keeps beside "
+                "it (docs/robot-file.md)\n");
   }
   return 0;
 }

@@ -80,7 +80,21 @@ struct ExportCost {
   ErrorStats full, geometric;
 };
 
-ExportCost exportCost(const RobotFile& rf) {
+// What a format that carries no extensions gets from the robot file: of an extended calibration, the geometric
+// calibration of the same data the file keeps beside it (geometric_parameters: fitted on its own, so the best
+// geometric model of those data, not the extended one truncated); else the file's model (its geometric part).
+// `own_fit`: whether it is that geometric calibration.
+CalibratedModel exportedModel(const RobotFile& rf, bool* own_fit) {
+  CalibratedModel full = calibratedModel(rf);
+  *own_fit = !full.extensions.empty() && rf.calibration &&
+             rf.calibration->geometric_params.size() == rf.model.numParams();
+  if (!*own_fit) return full;
+  CalibratedModel g = CalibratedModel::geometric(rf.calibration->geometric_params);
+  g.estimated = full.estimated;  // a calibration: what the target's frame absorbed is said as for the full model
+  return g;
+}
+
+ExportCost exportCost(const RobotFile& rf, const CalibratedModel& exported) {
   ExportCost c;
   if (!rf.calibration) {
     c.why = "the robot file has no calibration section";
@@ -102,11 +116,27 @@ ExportCost exportCost(const RobotFile& rf) {
     verify.push_back(toObservation(f.rows[i], MeasurementKind::kPose6D, 0.01e-3, 0.001 * kPi / 180));
     drivers.push_back(table.rows[i]);
   }
-  const CalibratedModel full = calibratedModel(rf), geometric = CalibratedModel::geometric(rf.model.nominal);
+  const CalibratedModel full = calibratedModel(rf), geometric = CalibratedModel::geometric(exported.params);
   c.full = errorStats(rf.model, full, verify, drivers);
   c.geometric = errorStats(rf.model, geometric, verify, drivers);
   c.measured = true;
   return c;
+}
+
+// How the export moves base_link -> tool0 from the nominal description (tool0Change), printed and under tool0_change.
+void printTool0Change(const Tool0Change& c, nlohmann::json& j) {
+  if (c.configurations == 0) return;
+  std::printf("  base_link -> tool0 against the nominal description (%d configurations within the joint limits): "
+              "%.4f mm mean (max %.4f), %.4f deg mean (max %.4f); a rigid motion of base_link explains %.4f deg "
+              "(%+.4f about joint 1's axis) and %.4f mm of it, %.4f mm mean left\n",
+              c.configurations, c.mean_mm, c.max_mm, c.mean_deg, c.max_deg, c.rigid_deg, c.yaw_about_joint1_deg,
+              c.rigid_mm, c.beyond_rigid_mean_mm);
+  j["tool0_change"] = {{"configurations", c.configurations}, {"mean_mm", c.mean_mm}, {"max_mm", c.max_mm},
+                       {"mean_deg", c.mean_deg}, {"max_deg", c.max_deg},
+                       {"mean_offset_mm", {c.mean_offset_mm.x(), c.mean_offset_mm.y(), c.mean_offset_mm.z()}},
+                       {"rigid_deg", c.rigid_deg}, {"rigid_mm", c.rigid_mm},
+                       {"yaw_about_joint1_deg", c.yaw_about_joint1_deg},
+                       {"beyond_rigid_mean_mm", c.beyond_rigid_mean_mm}};
 }
 
 int runExport(const ExportArgs& a) {
@@ -139,7 +169,15 @@ int runExport(const ExportArgs& a) {
                "\nfor ur_robot_driver's kinematics_params_file (ur_calibration's format)";
   }
   o.model_source = a.robot;
-  const RobotExport e = write(m, calibratedModel(rf), *format, o);
+  bool own_fit = false;
+  const CalibratedModel exported = exportedModel(rf, &own_fit);
+  RobotExport e = write(m, exported, *format, o);
+  if (own_fit)
+    e.not_carried.insert(e.not_carried.begin(),
+                         "the model extensions (" + modelLabel(calibratedModel(rf).extensions) +
+                             "): the geometric calibration of the same data, which the robot file keeps beside the "
+                             "extended model, is exported in their place (the cell's compensation publisher takes the "
+                             "extended model: --robot " + a.robot + ")");
   writeText(a.out, e.text);
   const Eigen::Matrix<double, 6, 1> tc = xyzRpyFromPose(e.tip_correction);
   j["tip_correction"] = {{"x_mm", tc[0] * 1e3}, {"y_mm", tc[1] * 1e3}, {"z_mm", tc[2] * 1e3}, {"roll_deg", radToDeg(tc[3])},
@@ -154,20 +192,23 @@ int runExport(const ExportArgs& a) {
       rows.push_back({{"joint", r.joint}, {"name", r.name}, {"theta_offset_deg", r.theta_offset_deg}, {"d_mm", r.d_mm},
                       {"a_mm", r.a_mm}, {"alpha_deg", r.alpha_deg}, {"beta_deg", r.beta_deg},
                       {"parallel_to_next", r.parallel_to_next}});
-    const auto b = m.nominal.segment<6>(m.baseParam(FrameParam::kX)), t = m.nominal.segment<6>(m.toolParam(FrameParam::kX));
+    const auto b = exported.params.segment<6>(m.baseParam(FrameParam::kX)),
+               t = exported.params.segment<6>(m.toolParam(FrameParam::kX));
     j["dh"] = rows;
     j["base_in_tracker"] = {b[0] * 1e3, b[1] * 1e3, b[2] * 1e3, radToDeg(b[3]), radToDeg(b[4]), radToDeg(b[5])};
     j["tool_in_flange"] = {t[0] * 1e3, t[1] * 1e3, t[2] * 1e3, radToDeg(t[3]), radToDeg(t[4]), radToDeg(t[5])};
   }
   const std::vector<std::string>& not_carried = e.not_carried;
   // What it costs not to carry the extensions: the geometric part against the full model on the calibration rows.
-  const ExportCost cost = exportCost(rf);
+  const ExportCost cost = exportCost(rf, exported);
   std::printf("robot export: %s -> %s (%s)\n", a.robot.c_str(), a.out.c_str(), a.format.c_str());
   for (const auto& n : not_carried) std::printf("  not carried: %s\n", n.c_str());
+  printTool0Change(e.tool0_change, j);
   if (cost.measured) {
-    std::printf("  held-out on its calibration rows: full model %.4f mm mean (%.4f RMS), the exported geometric part "
-                "%.4f mm (%.4f RMS)\n",
-                cost.full.mean_mm, cost.full.rms_mm, cost.geometric.mean_mm, cost.geometric.rms_mm);
+    std::printf("  held-out on its calibration rows: full model %.4f mm mean (%.4f RMS), the exported %s %.4f mm "
+                "(%.4f RMS)\n",
+                cost.full.mean_mm, cost.full.rms_mm, own_fit ? "geometric calibration" : "geometric part",
+                cost.geometric.mean_mm, cost.geometric.rms_mm);
     j["verification_full_model"] = errorStatsJson(cost.full);
     j["verification_exported"] = errorStatsJson(cost.geometric);
   } else {
@@ -184,7 +225,8 @@ int runExport(const ExportArgs& a) {
 }  // namespace
 
 Runner addRobotCommand(CLI::App& app) {
-  CLI::App* robot = app.add_subcommand("robot", "Robot descriptions: a URDF as a robot file, a calibration back into the robot stack");
+  CLI::App* robot = app.add_subcommand("robot", "Robot descriptions: a URDF as a robot file, a calibration back into the "
+                                                "robot stack, a controller checked against it");
   robot->require_subcommand(1);
   auto imp = std::make_shared<ImportArgs>();
   CLI::App* i = addSubcommand(*robot, "import");
@@ -208,9 +250,11 @@ Runner addRobotCommand(CLI::App& app) {
                 "the target's nominal place on the flange, X,Y,Z,ROLL,PITCH,YAW (mm, deg): what the calibrated tool frame "
                 "moved from it goes into the chain's last origin");
   e->add_option("--ur-hash", exp->ur_hash, "--format ur-kinematics: the controller's calibration hash");
+  const Runner check = addRobotCheck(*robot);
   return [=]() -> int {
     if (*i) return runImport(*imp);
     if (*e) return runExport(*exp);
+    if (robot->got_subcommand("check")) return check();
     return 0;
   };
 }

@@ -1,10 +1,13 @@
 #include "cellcal/core/files/export.hpp"
 
+#include <Eigen/SVD>
 #include <cstdio>
+#include <random>
 #include <sstream>
 
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/extended_fit.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
 namespace {
@@ -63,6 +66,84 @@ void addBaseFrame(std::string& xml, const std::string& source, const std::string
 
 }  // namespace
 
+std::vector<Eigen::VectorXd> spreadConfigurations(const RobotModel& model, int n) {
+  std::mt19937_64 rng(20261206);
+  std::vector<Eigen::VectorXd> out;
+  for (int k = 0; k < n; ++k) {
+    Eigen::VectorXd q(model.numJoints());
+    for (int j = 0; j < model.numJoints(); ++j) {
+      const auto js = static_cast<size_t>(j);
+      const double lo = std::max(model.limits[js].lower_rad, -kPi), hi = std::min(model.limits[js].upper_rad, kPi);
+      q[j] = std::uniform_real_distribution<double>(lo, hi)(rng);
+    }
+    out.push_back(q);
+  }
+  return out;
+}
+
+Tool0Change tool0Change(const RobotModel& model, const Eigen::VectorXd& nominal_params, const Eigen::VectorXd& params,
+                        const Pose& tip_correction, const std::vector<Eigen::VectorXd>& q_rad) {
+  if (q_rad.size() < 3) throw std::invalid_argument("tool0Change: at least 3 configurations");
+  if (nominal_params.size() != model.numParams() || params.size() != model.numParams())
+    throw std::invalid_argument("tool0Change: parameters not of the model");
+  // base_link -> tool0: the frames at identity (as the test of an exported URDF reads it back).
+  Eigen::VectorXd exported = params, nominal = nominal_params;
+  for (Eigen::VectorXd* p : {&exported, &nominal}) {
+    p->segment<6>(model.baseParam(FrameParam::kX)).setZero();
+    p->segment<6>(model.toolParam(FrameParam::kX)).setZero();
+  }
+  KinematicsData data(model);
+  Tool0Change c;
+  c.configurations = static_cast<int>(q_rad.size());
+  std::vector<Eigen::Vector3d> a, b;
+  for (const auto& q : q_rad) {
+    const Pose n = forwardKinematics(model, data, nominal, q) * tip_correction;
+    const Pose e = forwardKinematics(model, data, exported, q) * tip_correction;
+    const Eigen::Vector3d d = e.translation() - n.translation();
+    const double angle = logSO3(n.linear().transpose() * e.linear()).norm();
+    c.mean_mm += d.norm() * 1e3;
+    c.max_mm = std::max(c.max_mm, d.norm() * 1e3);
+    c.mean_deg += radToDeg(angle);
+    c.max_deg = std::max(c.max_deg, radToDeg(angle));
+    c.mean_offset_mm += d * 1e3;
+    a.push_back(n.translation());
+    b.push_back(e.translation());
+  }
+  const double k = static_cast<double>(q_rad.size());
+  c.mean_mm /= k;
+  c.mean_deg /= k;
+  c.mean_offset_mm /= k;
+  // The best rigid motion (Kabsch): R a + t ~ b.
+  Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < a.size(); ++i) {
+    ca += a[i] / k;
+    cb += b[i] / k;
+  }
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < a.size(); ++i) H += (a[i] - ca) * (b[i] - cb).transpose();
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
+  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
+  const Eigen::Vector3d t = cb - R * ca;
+  c.rigid_deg = radToDeg(logSO3(R).norm());
+  c.rigid_mm = t.norm() * 1e3;
+  for (size_t i = 0; i < a.size(); ++i) c.beyond_rigid_mean_mm += (R * a[i] + t - b[i]).norm() * 1e3 / k;
+  // About joint 1's axis (z of DH frame 0, the mount's): the plane's Procrustes angle.
+  const Pose mount = poseFromXyzRpy(model.mount[0], model.mount[1], model.mount[2], model.mount[3], model.mount[4],
+                                    model.mount[5]);
+  const Eigen::Vector3d axis = mount.linear().col(2), origin = mount.translation();
+  const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - axis * axis.transpose();
+  double sin_sum = 0, cos_sum = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const Eigen::Vector3d u = P * (a[i] - origin), v = P * (b[i] - origin);
+    sin_sum += axis.dot(u.cross(v));
+    cos_sum += u.dot(v);
+  }
+  c.yaw_about_joint1_deg = radToDeg(std::atan2(sin_sum, cos_sum));
+  return c;
+}
+
 const char* exportFormatName(ExportFormat f) {
   switch (f) {
     case ExportFormat::kUrdf: return "urdf";
@@ -111,6 +192,7 @@ RobotExport write(const RobotModel& m, const CalibratedModel& calibrated, Export
     throw ConfigError(o.nominal_urdf_source + ": not the description " +
                       (o.model_source.empty() ? std::string("the model") : o.model_source) + " was calibrated from (" +
                       mismatch + "): nothing written");
+  e.tool0_change = tool0Change(m, u.model.nominal, p, e.tip_correction, spreadConfigurations(m, kTool0ChangeConfigurations));
   if (format == ExportFormat::kUrdf) {
     e.text = exportUrdf(o.nominal_urdf_xml, o.nominal_urdf_source, u, p, e.tip_correction);
     if (!o.base_frame_link.empty())

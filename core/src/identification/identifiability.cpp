@@ -36,8 +36,8 @@ double noiseScaleOf(const Eigen::VectorXd& r, int estimated) {
 std::vector<int> identificationPriority(const RobotModel& model) {
   std::vector<int> out;
   for (int k = 0; k < 6; ++k) out.push_back(model.toolParam(static_cast<FrameParam>(k)));
-  for (int i = 0; i < 5 * model.numJoints(); ++i) out.push_back(i);
   for (int k = 0; k < 6; ++k) out.push_back(model.baseParam(static_cast<FrameParam>(k)));
+  for (int i = 0; i < 5 * model.numJoints(); ++i) out.push_back(i);
   std::vector<int> canonical;
   for (int i : out)
     if (model.isCanonical(i)) canonical.push_back(i);
@@ -272,6 +272,27 @@ IdentifiabilityReport analyzeIdentifiability(const RobotModel& model, const Eige
   return analyzeIdentifiability(model, J, options);
 }
 
+
+std::vector<int> frameGauge(const RobotModel& model, const Eigen::VectorXd& params, double rank_tolerance) {
+  Eigen::VectorXd r;
+  Eigen::MatrixXd J;
+  stackResiduals(model, params, structuralObservations(model, params, MeasurementKind::kPose6D), r, &J);
+  std::vector<int> frames;
+  for (int k = 0; k < 6; ++k) {
+    frames.push_back(model.baseParam(static_cast<FrameParam>(k)));
+    frames.push_back(model.toolParam(static_cast<FrameParam>(k)));
+  }
+  const KeptSpan span(J, frames);
+  std::vector<int> out;
+  for (int c : model.canonicalParams()) {
+    if (c >= 5 * model.numJoints()) continue;
+    const double norm = J.col(c).norm();
+    if (!(norm > 0)) continue;
+    const Eigen::VectorXd u = J.col(c) / norm;
+    if ((span.Js * span.qr.solve(u) - u).norm() < rank_tolerance) out.push_back(c);
+  }
+  return out;
+}
 
 IdentifiabilityReport structuralIdentifiability(const RobotModel& model, const Eigen::VectorXd& params,
                                                 MeasurementKind kind, const IdentifiabilityOptions& options) {

@@ -81,7 +81,10 @@ PredictionModel predictionModel(const RobotModel& model, const CalibratedModel& 
   const int k = static_cast<int>(fit.extension_params.size());
   PredictionModel pm;
   std::vector<double> prior;
+  // What the frames stand for (frameGauge) is theirs: its prior would only split the frames' pinned sum in two.
+  const std::vector<int> gauge = frameGauge(model, fit.params);
   for (int c : model.canonicalParams()) {
+    if (std::binary_search(gauge.begin(), gauge.end(), c)) continue;
     pm.columns.push_back(c);
     prior.push_back(model.isLength(c) ? options.prior_length_m : options.prior_angle_rad);
   }

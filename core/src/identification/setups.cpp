@@ -165,8 +165,10 @@ std::vector<int> columnOrder(const SetupsProblem& pr, Eigen::Index ext0, Eigen::
     if (is_tool(c) && candidate(c)) order.push_back(c);
   further(true);
   for (int c : priority)
-    if (!is_tool(c) && candidate(c)) order.push_back(c);
+    if (c >= f && !is_tool(c) && candidate(c)) order.push_back(c);
   further(false);
+  for (int c : priority)
+    if (c < f && candidate(c)) order.push_back(c);
   for (Eigen::Index c = ext0; c < n; ++c) order.push_back(static_cast<int>(c));  // extension columns last
   return order;
 }
@@ -187,13 +189,14 @@ SetupsFit fitSetups(const SetupsProblem& pr, const SolverOptions& options) {
   Eigen::VectorXd x = stateOf(m, pr.starts, n_ext);
   const auto n = x.size();
   const Eigen::Index ext0 = n - n_ext;
-  // Identifiable columns of the stacked Jacobian at the start, in the model's priority, every set-up's tool first and
-  // further set-ups' bases last. The tools first: a common change at the flange (joint 6's flange-side parameters)
+  // Identifiable columns of the stacked Jacobian at the start, in the model's priority: every set-up's tool first,
+  // then every set-up's base, then the joints. The tools first: a common change at the flange (joint 6's flange-side parameters)
   // is then what is held, as in a single set-up, and each set-up's tool takes it exactly, whatever its size. Holding
   // a further set-up's tool instead leaves the rotations about the flange to reach the held value, which for a target
   // near the flange axis takes a rotation of radians that Levenberg-Marquardt crawls along
-  // (CELLCAL_TEST_SEED=829672055: joint 6's offset at -1.1 rad after 200 iterations). Bases last: a base of set-up 2
-  // never replaces a kinematic parameter.
+  // (CELLCAL_TEST_SEED=829672055: joint 6's offset at -1.1 rad after 200 iterations). Then every set-up's base, then
+  // the joints: what the frames stand for (frameGauge: joint 1's offset along and about its axis) is held in the
+  // kinematic chain and the bases carry it, as in a single set-up.
   Eigen::VectorXd r;
   Eigen::MatrixXd J;
   Eigen::VectorXd widths = Eigen::VectorXd::Zero(n_ext);  // the extension parameters the bases are evaluated at

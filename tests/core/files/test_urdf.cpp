@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 
@@ -409,6 +410,37 @@ std::string perturbedOrigins(const std::string& xml, const std::vector<std::stri
   return printer.CStr();
 }
 
+// A tracker 1.5-4 m away, any orientation; a target up to 100 mm beside the tip's axis, 0-150 mm out.
+struct Placement {
+  Pose base, target;
+};
+Placement randomPlacement(std::mt19937_64& rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  Placement p{Pose::Identity(), Pose::Identity()};
+  const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+  p.base.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+  p.base.translation() = (1.5 + 2.5 * u01(rng)) * dir;
+  p.target.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+  const double side = 0.1 * u01(rng), az = 2 * kPi * u01(rng);
+  p.target.translation() = Eigen::Vector3d(side * std::cos(az), side * std::sin(az), 0.15 * u01(rng));
+  return p;
+}
+
+// A configuration within 80 % of each joint's range (at most +-180 deg).
+Eigen::VectorXd innerConfiguration(const RobotModel& m, std::mt19937_64& rng) {
+  Eigen::VectorXd q(m.numJoints());
+  for (int j = 0; j < m.numJoints(); ++j)
+    q[j] = std::uniform_real_distribution<double>(0.8 * std::max(m.limits[j].lower_rad, -kPi),
+                                                  0.8 * std::min(m.limits[j].upper_rad, kPi))(rng);
+  return q;
+}
+
+// The frame whose x, y, z, roll, pitch, yaw start at p[first].
+Pose frameAt(const Eigen::VectorXd& p, int first) {
+  return poseFromXyzRpy(p[first], p[first + 1], p[first + 2], p[first + 3], p[first + 4], p[first + 5]);
+}
+
 // Calibration through a URDF: a true robot made by moving every joint origin of a random one of the eleven arms,
 // measured through KDL (a random tracker placement and target, points or 6D, tracker noise), calibrated from the
 // nominal URDF as `calibrate --robot nominal.urdf` does (registration, Gauss-Newton), exported with the target's
@@ -428,16 +460,7 @@ TEST(Urdf, ACalibrationThroughAUrdfExportsTheCalibratedArm) {
     const RobotModel& m = u.model;
     const std::string truth_xml = perturbedOrigins(xml, u.chain_joints, rng);
     const KdlChain truth(truth_xml, u.base_link, u.tip_link);
-    // A tracker 1.5-4 m away, any orientation; a target up to 100 mm beside the tip's axis, 0-150 mm out.
-    std::uniform_real_distribution<double> u01(0.0, 1.0);
-    const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
-    Pose base = Pose::Identity();
-    base.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
-    base.translation() = (1.5 + 2.5 * u01(rng)) * dir;
-    Pose target = Pose::Identity();
-    target.linear() = Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
-    const double side = 0.1 * u01(rng), az = 2 * kPi * u01(rng);
-    target.translation() = Eigen::Vector3d(side * std::cos(az), side * std::sin(az), 0.15 * u01(rng));
+    const auto [base, target] = randomPlacement(rng);
     const double sp = 0.01e-3, so = degToRad(0.001);
     auto measure = [&](const Eigen::VectorXd& q) {
       Observation o;
@@ -451,26 +474,15 @@ TEST(Urdf, ACalibrationThroughAUrdfExportsTheCalibratedArm) {
       o.measured_in_tracker.linear() = expSO3(so * Eigen::Vector3d(g(rng), g(rng), g(rng))) * T.linear();
       return std::make_pair(o, T);
     };
-    // Configurations within 80 % of each joint's range (at most +-180 deg).
-    auto config = [&] {
-      Eigen::VectorXd q(m.numJoints());
-      for (int j = 0; j < m.numJoints(); ++j)
-        q[j] = std::uniform_real_distribution<double>(0.8 * std::max(m.limits[j].lower_rad, -kPi),
-                                                      0.8 * std::min(m.limits[j].upper_rad, kPi))(rng);
-      return q;
-    };
+    auto config = [&] { return innerConfiguration(m, rng); };
     std::vector<Observation> ident;
     for (int k = 0; k < 80; ++k) ident.push_back(measure(config()).first);
     const RegistrationResult reg = registerFrames(m, m.nominal, ident);
     const CalibrationResult r = solveGaussNewton(CalibrationProblem{&m, reg.params, ident, std::nullopt, {}, {}});
     EXPECT_TRUE(r.converged) << r.message;
     // The export: the target's nominal place is known (the one the readings were made with).
-    const Pose tool_cal = poseFromXyzRpy(r.params[m.toolParam(FrameParam::kX)], r.params[m.toolParam(FrameParam::kY)],
-                                         r.params[m.toolParam(FrameParam::kZ)], r.params[m.toolParam(FrameParam::kRoll)],
-                                         r.params[m.toolParam(FrameParam::kPitch)], r.params[m.toolParam(FrameParam::kYaw)]);
-    const Pose base_cal = poseFromXyzRpy(r.params[m.baseParam(FrameParam::kX)], r.params[m.baseParam(FrameParam::kY)],
-                                         r.params[m.baseParam(FrameParam::kZ)], r.params[m.baseParam(FrameParam::kRoll)],
-                                         r.params[m.baseParam(FrameParam::kPitch)], r.params[m.baseParam(FrameParam::kYaw)]);
+    const Pose tool_cal = frameAt(r.params, m.toolParam(FrameParam::kX));
+    const Pose base_cal = frameAt(r.params, m.baseParam(FrameParam::kX));
     const std::string exported = exportUrdf(xml, f.string(), u, r.params, tool_cal * target.inverse());
     const KdlChain calibrated(exported, u.base_link, u.tip_link), nominal(xml, u.base_link, u.tip_link);
     double floor = 0, after = 0, before = 0;
@@ -486,6 +498,166 @@ TEST(Urdf, ACalibrationThroughAUrdfExportsTheCalibratedArm) {
                 f.filename().c_str(), six_d ? "6D" : "points", after * 1e3, before * 1e3, floor * 1e3);
     EXPECT_LT(after, 1.3 * floor) << "nominal " << before * 1e3 << " mm";
     EXPECT_GT(before, 5 * floor);  // the moved origins are far above the noise
+  }
+}
+
+// A true arm for the convention test, twice. `identifiable`: the nominal arm with every joint parameter moved (0.1-0.5
+// mm, 0.01-0.05 deg) but those the frames stand for on the base side (frameGauge: joint 1's offset about and along its
+// axis), and the tip moved likewise, written by exportUrdf (itself checked against KDL above). `with_gauge`: the same
+// arm with what no data tell from the base moved too: the first revolute joint's origin moved before it anywhere and
+// after it along and about its axis. base_move: the constant transform that stands for that (FK_with_gauge(q) =
+// base_move FK_identifiable(q)).
+struct MovedChain {
+  std::string identifiable, with_gauge;
+  Pose base_move = Pose::Identity();
+};
+
+MovedChain movedChain(const std::string& xml, const std::string& source, const UrdfImport& u, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  auto signedIn = [&](double lo, double hi) { return (u01(rng) < 0.5 ? -1 : 1) * (lo + (hi - lo) * u01(rng)); };
+  auto small = [&] {
+    return poseFromXyzRpy(signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4), signedIn(1e-4, 5e-4),
+                          degToRad(signedIn(0.01, 0.05)), degToRad(signedIn(0.01, 0.05)), degToRad(signedIn(0.01, 0.05)));
+  };
+  const RobotModel& m = u.model;
+  Eigen::VectorXd p = m.nominal;
+  const std::vector<int> base_side = {m.jointParam(0, JointParam::kThetaOffset), m.jointParam(0, JointParam::kD)};
+  for (int i : m.canonicalParams())
+    if (i < 5 * m.numJoints() && std::find(base_side.begin(), base_side.end(), i) == base_side.end())
+      p[i] += m.isLength(i) ? signedIn(1e-4, 5e-4) : degToRad(signedIn(0.01, 0.05));
+  MovedChain out;
+  out.identifiable = exportUrdf(xml, source, u, p, small());
+  // The gauge: the first revolute joint's origin O becomes D O G, G along and about its axis (in its own frame).
+  TiXmlDocument doc;
+  doc.Parse(out.identifiable.c_str());
+  std::map<std::string, TiXmlElement*> joints;
+  for (TiXmlElement* e = doc.RootElement()->FirstChildElement("joint"); e; e = e->NextSiblingElement("joint"))
+    joints[e->Attribute("name")] = e;
+  const size_t first = static_cast<size_t>(u.revolute.front());
+  TiXmlElement* j1 = joints.at(u.chain_joints[first]);
+  Eigen::Vector3d axis(1, 0, 0);
+  if (TiXmlElement* a = j1->FirstChildElement("axis")) std::sscanf(a->Attribute("xyz"), "%lf %lf %lf", &axis[0], &axis[1], &axis[2]);
+  axis.normalize();
+  auto originOf = [](TiXmlElement* e) {
+    double xyz[3] = {0, 0, 0}, rpy[3] = {0, 0, 0};
+    if (TiXmlElement* o = e->FirstChildElement("origin")) {
+      if (const char* a = o->Attribute("xyz")) std::sscanf(a, "%lf %lf %lf", &xyz[0], &xyz[1], &xyz[2]);
+      if (const char* a = o->Attribute("rpy")) std::sscanf(a, "%lf %lf %lf", &rpy[0], &rpy[1], &rpy[2]);
+    }
+    return poseFromXyzRpy(xyz[0], xyz[1], xyz[2], rpy[0], rpy[1], rpy[2]);
+  };
+  Pose before = Pose::Identity();  // base_link -> the first revolute joint's parent link
+  for (size_t k = 0; k < first; ++k) before = before * originOf(joints.at(u.chain_joints[k]));
+  const Pose O = originOf(j1), D = small();
+  Pose G = Pose::Identity();
+  G.linear() = expSO3(axis * degToRad(signedIn(0.01, 0.05)));
+  G.translation() = axis * signedIn(1e-4, 5e-4);
+  const Pose moved = D * O * G;
+  const Eigen::Matrix<double, 6, 1> v = xyzRpyFromPose(moved);
+  TiXmlElement* o = j1->FirstChildElement("origin");
+  if (!o) o = j1->InsertEndChild(TiXmlElement("origin"))->ToElement();
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g", v[0], v[1], v[2]);
+  o->SetAttribute("xyz", buf);
+  std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g", v[3], v[4], v[5]);
+  o->SetAttribute("rpy", buf);
+  out.base_move = before * moved * O.inverse() * before.inverse();
+  TiXmlPrinter printer;
+  doc.Accept(&printer);
+  out.with_gauge = printer.CStr();
+  return out;
+}
+
+// What the data cannot see stays at nominal in an export, on the eleven arms through KDL: a true arm moved only in
+// what the data tell from the base and the target (movedChain), measured at a random tracker placement with a target
+// beside the flange (points or 6D), calibrated from its nominal URDF (registration, Gauss-Newton) and exported with
+// the target's nominal place: KDL's base_link -> tool0 on the exported file is the true arm's, with no rigid re-fit,
+// within a few times the readings' noise. The same arm with joint 1's origin moved anywhere and the next joint along
+// and about joint 1's axis (what no data tell from the base) exports the same chain, and the calibrated base carries
+// the move.
+TEST(Urdf, AnExportMovesTool0OnlyByWhatTheDataTellFromTheBase) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int draw = 0; draw < 4; ++draw) {
+    const fs::path f = files[rng() % files.size()];
+    const bool six_d = rng() % 2 == 0;
+    SCOPED_TRACE(f.filename().string() + (six_d ? ", 6D" : ", points"));
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    const MovedChain truth = movedChain(xml, f.string(), u, rng);
+    const KdlChain identifiable(truth.identifiable, u.base_link, u.tip_link);
+    const auto [base, target] = randomPlacement(rng);
+    const double sp = 0.01e-3, so = degToRad(0.001);
+    auto config = [&] { return innerConfiguration(m, rng); };
+    std::vector<Eigen::VectorXd> qs;
+    for (int k = 0; k < 80; ++k) qs.push_back(config());
+    double noise_mean = 0;
+    std::vector<Eigen::Vector3d> noise;
+    std::vector<Eigen::Vector3d> turn;
+    for (size_t k = 0; k < qs.size(); ++k) {
+      noise.push_back(sp * Eigen::Vector3d(g(rng), g(rng), g(rng)));
+      turn.push_back(so * Eigen::Vector3d(g(rng), g(rng), g(rng)));
+      noise_mean += noise.back().norm() / static_cast<double>(qs.size());
+    }
+    Pose exported_base[2];
+    for (int with_gauge = 0; with_gauge < 2; ++with_gauge) {
+      SCOPED_TRACE(with_gauge ? "joint 1 moved too" : "identifiable moves only");
+      const KdlChain truth_chain(with_gauge ? truth.with_gauge : truth.identifiable, u.base_link, u.tip_link);
+      std::vector<Observation> ident;
+      for (size_t k = 0; k < qs.size(); ++k) {  // the same readings' noise for both arms
+        Observation o;
+        o.q_rad = qs[k];
+        o.kind = six_d ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D;
+        o.sigma_position_m = sp;
+        o.sigma_orientation_rad = so;
+        const Pose T = base * truth_chain.at(qs[k]) * target;
+        o.measured_in_tracker = T;
+        o.measured_in_tracker.translation() += noise[k];
+        o.measured_in_tracker.linear() = expSO3(turn[k]) * T.linear();
+        ident.push_back(o);
+      }
+      const RegistrationResult reg = registerFrames(m, m.nominal, ident);
+      const CalibrationResult r = solveGaussNewton(CalibrationProblem{&m, reg.params, ident, std::nullopt, {}, {}});
+      EXPECT_TRUE(r.converged) << r.message;
+      const Pose tool_cal = frameAt(r.params, m.toolParam(FrameParam::kX));
+      exported_base[with_gauge] = frameAt(r.params, m.baseParam(FrameParam::kX));
+      const KdlChain exported(exportUrdf(xml, f.string(), u, r.params, tool_cal * target.inverse()), u.base_link,
+                              u.tip_link);
+      const KdlChain nominal(xml, u.base_link, u.tip_link);
+      double mean = 0, worst = 0, worst_deg = 0, nominal_mean = 0;
+      const int n = 100;
+      for (int k = 0; k < n; ++k) {
+        const Eigen::VectorXd q = config();
+        // 6D: tool0 itself; points: the target (the tool frame's turn is not seen, so neither is tool0's place).
+        const Pose seen = six_d ? Pose::Identity() : target;
+        const Pose e = exported.at(q) * seen, t = identifiable.at(q) * seen;
+        const double d = (e.translation() - t.translation()).norm();
+        mean += d / n;
+        worst = std::max(worst, d);
+        if (six_d) worst_deg = std::max(worst_deg, radToDeg(logSO3(e.linear().transpose() * t.linear()).norm()));
+        nominal_mean += ((nominal.at(q) * seen).translation() - t.translation()).norm() / n;
+      }
+      std::printf("  %-22s %-6s %-17s KDL base_link -> %s on the export against the true arm's: %.4f mm mean (max "
+                  "%.4f, %.5f deg; the nominal URDF %.4f mm; readings' noise %.4f mm)\n",
+                  f.filename().c_str(), six_d ? "6D" : "points", with_gauge ? "joint 1 moved too" : "identifiable only",
+                  six_d ? "tool0" : "the target", mean * 1e3, worst * 1e3, worst_deg, nominal_mean * 1e3,
+                  noise_mean * 1e3);
+      EXPECT_LT(mean, noise_mean);
+      EXPECT_LT(worst_deg, 0.002);
+      EXPECT_GT(nominal_mean, 10 * noise_mean);  // the arm did move, far above the noise
+    }
+    // The base carries what no data tell from it: the calibrated base moved by the chain's move.
+    const Pose expected = exported_base[0] * truth.base_move;
+    const double dp = (exported_base[1].translation() - expected.translation()).norm();
+    const double dr = logSO3(exported_base[1].linear().transpose() * expected.linear()).norm();
+    const double moved_p = truth.base_move.translation().norm(), moved_r = logSO3(truth.base_move.linear()).norm();
+    std::printf("  the base carries the move of %.4f mm and %.4f deg to %.5f mm and %.5f deg\n", moved_p * 1e3,
+                radToDeg(moved_r), dp * 1e3, radToDeg(dr));
+    EXPECT_LT(dp, 0.1 * moved_p);
+    EXPECT_LT(dr, 0.1 * moved_r);
   }
 }
 

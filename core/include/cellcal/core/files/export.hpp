@@ -55,6 +55,31 @@ struct DhRow {
   double lower_deg = 0, upper_deg = 0;
 };
 
+// How the exported base_link -> tool0 differs from the nominal description's over configurations: what a consumer of
+// the export sees change (the nominal with the tip correction's frame at tool0 too, so only the chain counts), and the
+// part of it a rigid motion of base_link explains. A calibration's chain moves only by what the data tell from the
+// base and the target (identifiability.hpp, frameGauge), so that rigid part stays small; a large one is a base or a
+// mount moved into the chain, which a world frame fixed to base_link would see as an error.
+struct Tool0Change {
+  int configurations = 0;
+  double mean_mm = 0, max_mm = 0, mean_deg = 0, max_deg = 0;  // |position| and rotation angle of the difference
+  Eigen::Vector3d mean_offset_mm = Eigen::Vector3d::Zero();   // the positions' mean difference, in base_link
+  // The rigid motion of base_link that best maps the nominal tool0 positions onto the exported ones (least squares):
+  // its angle and its translation; what is left of the positions' difference after it (mean).
+  double rigid_deg = 0, rigid_mm = 0, beyond_rigid_mean_mm = 0;
+  // The turn about joint 1's axis alone that best maps them (signed, right-handed about the axis): a base yaw moved
+  // into the chain shows here.
+  double yaw_about_joint1_deg = 0;
+};
+// `nominal`, `params`: the nominal description's parameters and the calibrated ones, in model's layout (their base and
+// tool frames are not used); q_rad: the configurations (at least 3).
+Tool0Change tool0Change(const RobotModel& model, const Eigen::VectorXd& nominal, const Eigen::VectorXd& params,
+                        const Pose& tip_correction, const std::vector<Eigen::VectorXd>& q_rad);
+// n configurations spread within the joint limits (each joint within [-180, 180] deg), drawn with a fixed seed: the
+// same for every call.
+std::vector<Eigen::VectorXd> spreadConfigurations(const RobotModel& model, int n);
+constexpr int kTool0ChangeConfigurations = 300;
+
 struct RobotExport {
   std::string text;                      // the file
   std::vector<std::string> not_carried;  // what the format cannot carry, one sentence each
@@ -62,6 +87,9 @@ struct RobotExport {
   // ur-kinematics: the flange's calibration beyond joint 6's turn and shift, not carried (0 for other formats).
   double not_carried_beyond_joint6_m = 0, not_carried_beyond_joint6_rad = 0;
   std::vector<DhRow> dh_rows;            // dh-table: the rows of `text`
+  // urdf and ur-kinematics: against the nominal URDF, over spreadConfigurations(model, kTool0ChangeConfigurations);
+  // dh-table: none (configurations 0), there is no nominal description.
+  Tool0Change tool0_change;
 };
 
 // `model`: the robot's structure (its joints, limits, mount and flange); `calibrated`: the parameters to write

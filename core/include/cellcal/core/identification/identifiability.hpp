@@ -3,13 +3,13 @@
 // The whitened Jacobian's columns are scaled to unit norm first (so metres and radians compare), then kept one at a
 // time while some column leaves the span of the kept ones by more than rank_tolerance (the sine of its angle to that
 // span): greedy QR with column pivoting, where the pivot is the highest-priority column whose sine is at least
-// conditioning_guard times the largest one left. Priority (identificationPriority): the tool frame, then the joints
-// from base to flange, then the base frame; only canonical parameters are candidates.
+// conditioning_guard times the largest one left. Priority (identificationPriority): the tool frame, then the base
+// frame, then the joints from base to flange; only canonical parameters are candidates.
 //   - The tool frame first: with the last joint's parameters the tool frame describes one rigid motion, and the
 //     tool's Cartesian parameters describe it for any target (a point target 1 mm or 100 mm off the flange axis,
 //     any orientation). Keeping joint n's offset and a instead parametrizes a sideways target in polar form, which
 //     degenerates where the fixed part is small: a fit in such a basis stalls above the optimum.
-//   - Joints before the base: d1 stays and base z, which only duplicates it, is fixed.
+//   - The base before the joints: base z stays and joint 1's d, which only duplicates it, is held (frameGauge).
 //   - The guard: a column nearly inside the kept span (a tool roll next to joint 6's alpha, separated only by a tool
 //     tilt of a few hundredths of a degree) is not taken while a clearly separable one is left; a basis of
 //     nearly parallel columns identifies the same span linearly but is ill-conditioned and nonlinear far from it.
@@ -92,8 +92,18 @@ struct IdentifiabilityReport {
   std::string summary(const RobotModel& model) const;
 };
 
-// The canonical parameters in the priority order above: tool frame, joints base to flange, base frame.
+// The canonical parameters in the priority order above: tool frame, base frame, joints base to flange.
 std::vector<int> identificationPriority(const RobotModel& model);
+
+// The kinematic parameters the base and tool frames stand for on any data: a change of one moves every reading as a
+// change of the frames would (joint 1's offset about and along its axis with the base's yaw and z; the last joint's
+// flange-side parameters with the tool frame). Found from the Jacobian, not listed: the canonical kinematic columns
+// within rank_tolerance (sine) of the span of the twelve frame columns over the structural pose set, 6D. Taking the
+// frames first (identificationPriority) holds them at their start value wherever the frames are estimated, and the
+// frames carry them: a calibration moves the kinematic chain only by what the data tell from the base and the target,
+// and an exported description's base_link -> tool0 differs from the nominal one only by that. They carry no
+// uncertainty of their own either (predictionModel leaves them out: the frames' columns are theirs). Ascending.
+std::vector<int> frameGauge(const RobotModel& model, const Eigen::VectorXd& params, double rank_tolerance = 1e-5);
 
 // The columns of J (indices taken from `order`, highest priority first) that the rule above keeps, ascending.
 // Works on any stacked Jacobian, e.g. kinematic parameters plus the parameters of a model extension.

@@ -2,7 +2,8 @@
 // the parameters the identification rows leave unexcited (extrapolation).
 //
 // The prediction covers every parameter the model could get wrong, not only the estimated ones: each canonical
-// kinematic parameter and each extension parameter starts with a prior (lengths and angles as plausible for a robot
+// kinematic parameter (but those the frames stand for, frameGauge: the frames' columns are theirs) and each extension
+// parameter starts with a prior (lengths and angles as plausible for a robot
 // that has not been calibrated; extension parameters from extensionPriorSigma), and the identification rows' whitened
 // Jacobian at the fit turns it into a posterior
 //     C = D (D^T J^T J D / s^2 + I)^-1 D,      D = diag(prior sigmas),
