@@ -252,10 +252,10 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
                                                  : ": the geometric calibration is used (--keep-extensions keeps them)");
   printErrorsAndGrossErrors(
       rep.errors, problem.outliers.threshold, in,
-      a.frames_only ? "\n('before': the robot file's kinematics, no extensions, frames registered in closed form; 'after': "
+      a.frames_only ? "\n('before': the robot file's kinematics, no extensions, at their least-squares frames; 'after': "
                       "its kinematics and extensions with the frames fitted)\n"
-                    : "\n('before': the robot file's kinematics with the registered frames; 'after': every identifiable "
-                      "parameter)\n");
+                    : "\n('before': the robot file's kinematics at their least-squares frames; 'after': every "
+                      "identifiable parameter)\n");
   printParameters(a, in, rep);
   for (const auto& h : rep.held) std::printf("held: %s\n", deficitText(h).c_str());
   // Two different figures: how uncertain the fitted parameters are (small with many rows), and what the model leaves

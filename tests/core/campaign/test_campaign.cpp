@@ -13,6 +13,8 @@
 #include "cellcal/core/campaign/campaign.hpp"
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/identification/pose_plan.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/model_extension.hpp"
@@ -149,6 +151,25 @@ TEST(Campaign, ItsFiguresAndVerdictAreThoseOfAPlainReference) {
     const auto& e = r.errors;
     const auto& ident = in.data.identification;
     const auto& verify = in.data.verification;
+    // 'Before' is registered as 'after' is: the start is the nominal kinematics at their least-squares frames. The
+    // reference fits the twelve frame parameters with Ceres' Levenberg-Marquardt from the closed-form registration.
+    {
+      CalibrationProblem frames{&robot, registerFrames(robot, robot.nominal, ident).params, ident, std::nullopt, {}, {}};
+      frames.outliers.enabled = false;
+      for (int k = 0; k < 6; ++k) {
+        frames.identifiability.candidates.push_back(robot.baseParam(static_cast<FrameParam>(k)));
+        frames.identifiability.candidates.push_back(robot.toolParam(static_cast<FrameParam>(k)));
+      }
+      const CalibrationResult ref = solveLevenbergMarquardt(frames);
+      auto cost = [&](const Eigen::VectorXd& params) {
+        Eigen::VectorXd res;
+        stackResiduals(robot, params, ident, res, nullptr);
+        return res.squaredNorm();
+      };
+      EXPECT_NEAR(cost(in.start), cost(ref.params), 1e-6 * cost(ref.params));
+      EXPECT_LE(cost(in.start), cost(frames.initial_params));
+      EXPECT_EQ(in.start.head(5 * robot.numJoints()), robot.nominal.head(5 * robot.numJoints()));
+    }
     expectSame(e.identification_before, plainStats(robot, in.start, ident), "identification before");
     expectSame(e.identification_after, plainStats(robot, r.after.params, ident), "identification after");
     expectSame(e.verification_before, plainStats(robot, in.start, verify), "verification before");
