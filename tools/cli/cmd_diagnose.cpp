@@ -140,9 +140,15 @@ void printCause(const LoadedInput& in, const DiagnosisResult& d) {
     std::printf("; with the gross errors (%zu rows): %.4f -> %.4f mm", vo.rows.size(), d.geometric_verification_all_rows.mean_mm,
                 d.verification_all_rows.mean_mm);
   std::printf("\n");
-  std::printf("reading noise: %.4f mm per axis (%.4f mm RMS), estimated from the %s\n", d.noise.sigma_position_mm,
-              d.noise_rms_mm, d.noise.source.c_str());
-  std::printf("unexplained: %.4f mm RMS beyond that noise (diagnosis %.2f s)\n", d.unexplained_rms_mm, d.solve_time_s);
+  if (d.noise.from_repeats) {
+    std::printf("reading noise: %.4f mm per axis (%.4f mm RMS), estimated from the %s\n", d.noise.sigma_position_mm,
+                d.noise_rms_mm, d.noise.source.c_str());
+    std::printf("unexplained: %.4f mm RMS beyond that noise (diagnosis %.2f s)\n", d.unexplained_rms_mm, d.solve_time_s);
+  } else {  // without repeated poses the noise is the model's residual: nothing is 'beyond' it
+    std::printf("reading noise: not measured (no pose measured twice); the %s leaves %.4f mm per axis (%.4f mm RMS), "
+                "the readings' noise and what the model misses together (diagnosis %.2f s)\n",
+                d.noise.source.c_str(), d.noise.sigma_position_mm, d.noise_rms_mm, d.solve_time_s);
+  }
   {
     // Kinematic parameters held at the robot file's value: the rows pin them no better than their plausible range.
     std::string held;
@@ -213,6 +219,7 @@ void writeDiagnoseJson(const DiagnoseArgs& a, const LoadedInput& in, const Diagn
   nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
                       {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},
                       {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
+                      {"constant_temperature_c", in.data.constant_temperature_c ? nlohmann::json(*in.data.constant_temperature_c) : nlohmann::json(nullptr)},
                       {"verdict", verdictName(d.verdict)}, {"verdict_text", describeVerdict(d)},
                       {"structure_left", left ? nlohmann::json({{"driver", left->driver}, {"share", left->share},
                                                                 {"p_value", left->p_value}})
@@ -233,7 +240,7 @@ void writeDiagnoseJson(const DiagnoseArgs& a, const LoadedInput& in, const Diagn
                                  {"from_repeats", d.noise.from_repeats}, {"source", d.noise.source}}},
                       {"noise_rms_mm", d.noise_rms_mm},
                       {"identifiability_noise_scale", d.identifiability_noise_scale},
-                      {"unexplained_rms_mm", d.unexplained_rms_mm}, {"diagnosis_time_s", d.solve_time_s},
+                      {"unexplained_rms_mm", d.noise.from_repeats ? nlohmann::json(d.unexplained_rms_mm) : nlohmann::json(nullptr)}, {"diagnosis_time_s", d.solve_time_s},
                       {"held", heldJson(b.held)},
                       {"unusable", d.unusable.empty() ? nlohmann::json(nullptr) : nlohmann::json(d.unusable)}};
   std::ofstream o(a.json);
@@ -291,7 +298,7 @@ int runDiagnose(const DiagnoseArgs& a) {
   std::printf("%s: %zu rows (%s split: %zu identify, %zu verify), %s, robot %s, thermal driver: %s\n",
               a.input.data.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
               in.data.verification.size(), in.measurementText().c_str(),
-              in.robot.name.c_str(), in.data.has_thermal ? in.data.thermal_source.c_str() : "none");
+              in.robot.name.c_str(), in.data.thermalText().c_str());
   printCandidates(in, d, options);
   printCause(in, d);
   const std::vector<std::string> cell_extensions = printEngineAdvice(d);

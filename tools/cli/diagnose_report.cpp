@@ -50,9 +50,15 @@ void writeDiagnosisReport(const std::string& dir, const InputArgs& input, const 
     md << "Beyond the rows fitted (docs/diagnosis.md, \"Regions the fit never saw\"):\n\n```\n" << r << "```\n\n";
   if (const std::string r = driftCheckText(d); !r.empty())
     md << "A drift or the frame (docs/diagnosis.md, \"A drift or the frame\"):\n\n```\n" << r << "```\n\n";
-  std::snprintf(buf, sizeof buf,
-                "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
-                d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());
+  if (d.noise.from_repeats)
+    std::snprintf(buf, sizeof buf,
+                  "Still unexplained: %.4f mm RMS beyond the reading noise (%.4f mm RMS, estimated from the %s).\n\n",
+                  d.unexplained_rms_mm, d.noise_rms_mm, d.noise.source.c_str());
+  else
+    std::snprintf(buf, sizeof buf,
+                  "The reading noise is not measured (no pose measured twice): the %s leaves %.4f mm RMS, the readings' "
+                  "noise and what the model misses together.\n\n",
+                  d.noise.source.c_str(), d.noise_rms_mm);
   md << buf;
   if (!d.identification_outliers.rows.empty() || !d.verification_outliers.rows.empty())
     md << "Gross errors left out: identification " << d.identification_outliers.rows.size() << " rows, verification "

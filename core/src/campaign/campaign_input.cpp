@@ -80,6 +80,7 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
   const DriverTable drivers = driversOf(in.file);
   in.data.has_thermal = drivers.has_thermal;
   in.data.thermal_source = drivers.thermal_source;
+  in.data.constant_temperature_c = drivers.constant_temperature_c;
   // 'positions': rows measured within kPositionRadiusMm of a position's first row are that position (in row order);
   // even positions identify, odd ones verify, so no verification row has an identification row that near.
   std::vector<int> position_of(rows.size(), 0);

@@ -20,6 +20,16 @@
 
 namespace cellcal {
 
+std::string DiagnosisData::thermalText() const {
+  std::string out = has_thermal ? thermal_source : "none";
+  if (constant_temperature_c) {
+    char b[80];
+    std::snprintf(b, sizeof b, " (temperature_c constant at %.2f C)", *constant_temperature_c);
+    out += b;
+  }
+  return out;
+}
+
 namespace internal {
 double meanZ(const std::vector<double>& d) {
   const auto n = static_cast<double>(d.size());

@@ -60,6 +60,19 @@ DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad,
     all_stamp = all_stamp && stamp_s[i].has_value();
   }
   if (all_temp) {
+    double mean_c = 0, lo = INFINITY, hi = -INFINITY;
+    for (const auto& c : temperature_c) {
+      mean_c += *c;
+      lo = std::min(lo, *c);
+      hi = std::max(hi, *c);
+    }
+    mean_c /= static_cast<double>(n);
+    if (hi - lo < kConstantTemperatureC) {
+      t.constant_temperature_c = mean_c;
+      all_temp = false;
+    }
+  }
+  if (all_temp) {
     double mean_c = 0;
     for (const auto& c : temperature_c) mean_c += *c;
     mean_c /= static_cast<double>(n);

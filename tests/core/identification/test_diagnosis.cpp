@@ -229,6 +229,22 @@ TEST(Drivers, DirectionAndThermalSources) {
   EXPECT_DOUBLE_EQ(temp.rows[0].thermal, -1.5);
   const DriverTable partial = driversFromSequence(q, {20.0, std::nullopt, 22.0, 23.0}, {});
   EXPECT_FALSE(partial.has_thermal);  // a thermal driver only when every row has one
+  // A temperature that does not change (within 0.05 C) drives nothing: the stamps do, and it is said.
+  const DriverTable still = driversFromSequence(q, {22.4, 22.41, 22.42, 22.4}, {0.0, 3600.0, 7200.0, 9000.0});
+  EXPECT_EQ(still.thermal_source, "stamp_s");
+  ASSERT_TRUE(still.constant_temperature_c.has_value());
+  EXPECT_NEAR(*still.constant_temperature_c, 22.4075, 1e-12);
+  DiagnosisData data;
+  data.has_thermal = still.has_thermal;
+  data.thermal_source = still.thermal_source;
+  data.constant_temperature_c = still.constant_temperature_c;
+  EXPECT_EQ(data.thermalText(), "stamp_s (temperature_c constant at 22.41 C)");
+  const DriverTable still_no_stamps = driversFromSequence(q, {22.4, 22.4, 22.4, 22.4}, {});
+  EXPECT_FALSE(still_no_stamps.has_thermal);
+  EXPECT_TRUE(still_no_stamps.constant_temperature_c.has_value());
+  const DriverTable barely = driversFromSequence(q, {22.4, 22.4, 22.46, 22.4}, {});  // 0.06 C: it changes
+  EXPECT_EQ(barely.thermal_source, "temperature_c");
+  EXPECT_FALSE(barely.constant_temperature_c.has_value());
 }
 
 // The extended fit's covariance describes the scatter of its estimates: the same robot with a hidden joint scale

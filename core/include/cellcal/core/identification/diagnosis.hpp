@@ -32,6 +32,7 @@
 
 #include <Eigen/Core>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,10 @@ struct DiagnosisData {
   std::vector<Drivers> identification_drivers, verification_drivers;
   bool has_thermal = false;
   std::string thermal_source;  // for reports: "temperature_c" or "stamp_s"
+  // The rows' temperature where the column holds one that never changes (DriverTable): said, not used as a driver.
+  std::optional<double> constant_temperature_c;
+  // "temperature_c", "stamp_s (temperature_c constant at 22.40 C)", "none (temperature_c constant at 22.40 C)", "none".
+  std::string thermalText() const;
 };
 
 // A split of rows by region of the workspace: the measured target positions cut at their median along the direction

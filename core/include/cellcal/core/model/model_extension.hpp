@@ -62,12 +62,16 @@ inline double playStep(double state, double step_rad, double width_rad) {
 }
 
 // Drivers of rows given in visiting order. thermal: temperature_c[i] - temperature reference (their mean) if every
-// row has a temperature; else (stamp_s[i] - stamp_s[0]) / 3600 if every row has a stamp; else none
-// (has_thermal = false). Joints that moved less than 1e-4 rad get direction of the last real motion.
+// row has a temperature and it changes (by kConstantTemperatureC or more over the rows: a constant column drives
+// nothing); else (stamp_s[i] - stamp_s[0]) / 3600 if every row has a stamp; else none (has_thermal = false). Joints
+// that moved less than 1e-4 rad get direction of the last real motion.
+constexpr double kConstantTemperatureC = 0.05;
 struct DriverTable {
   std::vector<Drivers> rows;
   bool has_thermal = false;
   std::string thermal_source;  // "temperature_c", "stamp_s" or ""
+  // Every row's temperature, when they all lie within kConstantTemperatureC of each other (their mean): not a driver.
+  std::optional<double> constant_temperature_c;
 };
 DriverTable driversFromSequence(const std::vector<Eigen::VectorXd>& q_rad, const std::vector<std::optional<double>>& temperature_c,
                                 const std::vector<std::optional<double>>& stamp_s);
