@@ -66,12 +66,6 @@ int runImport(const ImportArgs& a) {
   return 0;
 }
 
-// x, y, z in mm and roll, pitch, yaw in deg, comma-separated.
-Pose parseFrameMmDeg(const std::string& text, const std::string& option) {
-  const std::vector<double> v = parseNumbers(text, 6, option, "X,Y,Z,ROLL,PITCH,YAW in mm and deg");
-  return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
-}
-
 // The held-out error of the full calibrated model and of its geometric part (what the formats carry) on the rows it was
 // calibrated on (provenance data_file, split), when that file is there.
 struct ExportCost {

@@ -21,9 +21,7 @@ struct CheckArgs {
 };
 
 Pose frameMmDeg(const std::string& text, const std::string& option) {
-  if (text.empty()) return Pose::Identity();
-  const std::vector<double> v = parseNumbers(text, 6, option, "X,Y,Z,ROLL,PITCH,YAW in mm and deg");
-  return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
+  return text.empty() ? Pose::Identity() : parseFrameMmDeg(text, option);
 }
 
 int runCheck(const CheckArgs& a) {

@@ -232,6 +232,11 @@ std::vector<double> parseNumbers(const std::string& text, size_t count, const st
   return v;
 }
 
+Pose parseFrameMmDeg(const std::string& text, const std::string& option) {
+  const std::vector<double> v = parseNumbers(text, 6, option, "X,Y,Z,ROLL,PITCH,YAW in mm and deg");
+  return poseFromXyzRpy(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3, degToRad(v[3]), degToRad(v[4]), degToRad(v[5]));
+}
+
 RobotFile robotOrCellRobot(const std::string& robot, const std::string& config, const std::string& robot_id,
                            std::string* label) {
   if (robot.empty() == config.empty())

@@ -69,6 +69,8 @@ void addRobotOrCellOptions(CLI::App& cmd, std::string& robot, std::string& confi
 // naming the option and what it expects (e.g. "X,Y,Z in mm").
 std::vector<double> parseNumbers(const std::string& text, size_t count, const std::string& option,
                                  const std::string& expected);
+// A frame given as X,Y,Z,ROLL,PITCH,YAW in mm and deg (parseNumbers' errors, naming `option`).
+Pose parseFrameMmDeg(const std::string& text, const std::string& option);
 
 // The robot file of --robot, or of robot `robot_id` of the cell file `config` with that cell's registration (its
 // base_in_tracker and tool_in_flange: the frames a tracker user sets up before an acceptance test); robot_id may be

@@ -1,12 +1,12 @@
 #include "cellcal/core/files/export.hpp"
 
-#include <Eigen/SVD>
 #include <cstdio>
 #include <random>
 #include <sstream>
 
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/extended_fit.hpp"
+#include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -113,19 +113,10 @@ Tool0Change tool0Change(const RobotModel& model, const Eigen::VectorXd& nominal_
   c.mean_mm /= k;
   c.mean_deg /= k;
   c.mean_offset_mm /= k;
-  // The best rigid motion (Kabsch): R a + t ~ b.
-  Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
-  for (size_t i = 0; i < a.size(); ++i) {
-    ca += a[i] / k;
-    cb += b[i] / k;
-  }
-  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-  for (size_t i = 0; i < a.size(); ++i) H += (a[i] - ca) * (b[i] - cb).transpose();
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
-  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
-  const Eigen::Vector3d t = cb - R * ca;
+  // The best rigid motion: R a + t ~ b.
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+  rigidFit(a, b, R, t);
   c.rigid_deg = radToDeg(logSO3(R).norm());
   c.rigid_mm = t.norm() * 1e3;
   for (size_t i = 0; i < a.size(); ++i) c.beyond_rigid_mean_mm += (R * a[i] + t - b[i]).norm() * 1e3 / k;

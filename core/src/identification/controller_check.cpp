@@ -6,20 +6,13 @@
 
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/identifiability.hpp"
+#include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
 namespace {
 
-void setFrame(Eigen::VectorXd& p, int first, const Pose& T) {
-  const Eigen::Matrix3d& R = T.linear();
-  p[first] = T.translation().x();
-  p[first + 1] = T.translation().y();
-  p[first + 2] = T.translation().z();
-  p[first + 3] = std::atan2(R(2, 1), R(2, 2));
-  p[first + 4] = std::asin(std::clamp(-R(2, 0), -1.0, 1.0));
-  p[first + 5] = std::atan2(R(1, 0), R(0, 0));
-}
+void setFrame(Eigen::VectorXd& p, int first, const Pose& T) { p.segment<6>(first) = xyzRpyFromPose(T); }
 
 // The readings against the model at p: the figures of ControllerCheck's first block.
 void compare(const RobotModel& model, const Eigen::VectorXd& p, const std::vector<Observation>& readings,

@@ -23,10 +23,7 @@ Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T) {
   return v;
 }
 
-namespace {
-
-// Rotation R and translation t minimizing sum |R a_i + t - b_i|^2.
-void kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
+void rigidFit(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
             Eigen::Vector3d& t) {
   Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
   for (size_t i = 0; i < a.size(); ++i) {
@@ -45,6 +42,9 @@ void kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vect
   R = svd.matrixV() * D * svd.matrixU().transpose();
   t = cb - R * ca;
 }
+
+
+namespace {
 
 Eigen::Matrix3d projectToRotation(const Eigen::Matrix3d& M) {
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -79,7 +79,7 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
   for (int it = 0; it < iterations; ++it) {
     std::vector<Eigen::Vector3d> a;
     for (const auto& F : flange) a.push_back(F * tool);
-    kabsch(a, measured, Rb, tb);
+    rigidFit(a, measured, Rb, tb);
     double ss = 0;
     for (size_t i = 0; i < obs.size(); ++i) ss += (Rb * a[i] + tb - measured[i]).squaredNorm();
     const double noise_m = std::sqrt(ss / (3 * n));

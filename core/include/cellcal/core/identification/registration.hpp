@@ -22,6 +22,11 @@ struct RegistrationResult {
   int iterations = 0;
 };
 
+// The rotation R and translation t minimizing sum |R a_i + t - b_i|^2 (Kabsch; a proper rotation). Throws
+// std::invalid_argument when the points are (nearly) collinear.
+void rigidFit(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
+              Eigen::Vector3d& t);
+
 // Needs >= 4 observations with non-coplanar flange positions; throws std::invalid_argument otherwise.
 RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd& initial,
                                   const std::vector<Observation>& observations, int iterations = 10);
