@@ -234,6 +234,11 @@ TEST(CliRobot, RealSeriesAExportMovesTool0OnlyByWhatTheDataSee) {
   std::printf("  the joint_compliance:2 calibration exported as UR kinematics: held-out %.4f mm (full model %.4f, plain "
               "geometric calibration %.4f)\n", exported_mean, full_mean, cal_mean);
   EXPECT_LT(exported_mean, 1.01 * cal_mean);
+  // What each written file leaves out at its tool0 over the calibration rows: nothing for the plain calibration's
+  // URDF (the file is the calibration), the compliance's sag and the two fits' difference for the UR file.
+  EXPECT_EQ(j["left_out_at_tool0"]["rows"].get<int>(), static_cast<int>(f.rows.size()));
+  EXPECT_LT(j["left_out_at_tool0"]["max_mm"].get<double>(), 1e-9) << j.dump(2);
+  EXPECT_GT(je["left_out_at_tool0"]["mean_mm"].get<double>(), 0.01) << je.dump(2);
 }
 
 // `robot check`: a simulated UR controller (its `base` frame half a turn from base_link, poses rounded to a micrometre
@@ -307,6 +312,21 @@ TEST(CliRobot, CheckTellsWhichModelAControllerRuns) {
     if (std::abs(moved) < 1e-12) continue;  // a parameter the move did not touch, explaining a little
     EXPECT_NEAR(e["change"].get<double>(), -moved, 0.02 * std::abs(moved)) << e.dump();
   }
+  // `robot fk` of the calibrated file with the controller's frame gives that controller's poses (to their rounding).
+  Process fk(dir, "fk", {"cellcal", "robot", "fk", "--robot", dir + "/cal.yaml", "--data", dir + "/runs_cal.csv",
+                         "--base-in-controller", "0,0,0,0,0,180", "--out", dir + "/fk.csv"});
+  ASSERT_EQ(fk.wait(60), 0) << fk.log();
+  const MeasurementFile made = readMeasurementCsv(dir + "/fk.csv", nominal),
+                        logged = readMeasurementCsv(dir + "/runs_cal.csv", nominal);
+  ASSERT_EQ(made.rows.size(), logged.rows.size());
+  double fk_worst_m = 0, fk_worst_rad = 0;
+  for (size_t i = 0; i < made.rows.size(); ++i) {
+    EXPECT_LT((made.rows[i].q_rad - logged.rows[i].q_rad).norm(), 1e-12);
+    fk_worst_m = std::max(fk_worst_m, (made.rows[i].position_m - logged.rows[i].position_m).norm());
+    fk_worst_rad = std::max(fk_worst_rad, made.rows[i].orientation->angularDistance(*logged.rows[i].orientation));
+  }
+  EXPECT_LT(fk_worst_m, 1e-6);
+  EXPECT_LT(fk_worst_rad, 1e-8);
   // A bad row: refused naming its line, exit 2.
   std::string text = readTextFile(dir + "/runs_cal.csv");
   const auto last = text.rfind('\n', text.size() - 2);

@@ -66,12 +66,13 @@ int runImport(const ImportArgs& a) {
   return 0;
 }
 
-// The held-out error of the full calibrated model and of its geometric part (what the formats carry) on the rows it was
-// calibrated on (provenance data_file, split), when that file is there.
+// The held-out error of the full calibrated model and of the written file's own model (writtenParams) on the rows it
+// was calibrated on (provenance data_file, split), when that file is there; and how far the file's tool0 lies from the
+// full model's over all those rows (what the file leaves out: extensions, what the format cannot carry at the tip).
 struct ExportCost {
   bool measured = false;
   std::string why;
-  ErrorStats full, geometric;
+  ErrorStats full, written, at_tool0;
 };
 
 // What a format that carries no extensions gets from the robot file: of an extended calibration, the geometric
@@ -88,7 +89,7 @@ CalibratedModel exportedModel(const RobotFile& rf, bool* own_fit) {
   return g;
 }
 
-ExportCost exportCost(const RobotFile& rf, const CalibratedModel& exported) {
+ExportCost exportCost(const RobotFile& rf, const CalibratedModel& exported, const RobotExport& e, const ExportOptions& o) {
   ExportCost c;
   if (!rf.calibration) {
     c.why = "the robot file has no calibration section";
@@ -100,19 +101,37 @@ ExportCost exportCost(const RobotFile& rf, const CalibratedModel& exported) {
             ") is not here";
     return c;
   }
-  const MeasurementFile f = readMeasurementCsv(data, rf.model);
-  std::vector<Observation> verify;
-  std::vector<Drivers> drivers;
+  const RobotModel& m = rf.model;
+  const MeasurementFile f = readMeasurementCsv(data, m);
+  std::vector<Observation> all, verify;
+  std::vector<Drivers> drivers, verify_drivers;
   const DriverTable table = driversOf(f);
   for (size_t i = 0; i < f.rows.size(); ++i) {
-    const bool to_verify = split == "halves" ? i >= f.rows.size() / 2 : i % 2 == 1;
-    if (!to_verify) continue;
-    verify.push_back(toObservation(f.rows[i], MeasurementKind::kPose6D, 0.01e-3, 0.001 * kPi / 180));
+    all.push_back(toObservation(f.rows[i], MeasurementKind::kPose6D, 0.01e-3, 0.001 * kPi / 180));
     drivers.push_back(table.rows[i]);
+    if (split == "halves" ? i >= f.rows.size() / 2 : i % 2 == 1) {
+      verify.push_back(all.back());
+      verify_drivers.push_back(drivers.back());
+    }
   }
-  const CalibratedModel full = calibratedModel(rf), geometric = CalibratedModel::geometric(exported.params);
-  c.full = errorStats(rf.model, full, verify, drivers);
-  c.geometric = errorStats(rf.model, geometric, verify, drivers);
+  const CalibratedModel full = calibratedModel(rf);
+  const CalibratedModel written = CalibratedModel::geometric(writtenParams(m, exported.params, e, o));
+  c.full = errorStats(m, full, verify, verify_drivers);
+  c.written = errorStats(m, written, verify, verify_drivers);
+  // At the file's tool0: both targets moved back by the target's place on it (the nominal one given, else the
+  // calibrated one).
+  const int t = m.toolParam(FrameParam::kX);
+  const Eigen::VectorXd& p = exported.params;
+  const Pose target = o.target_in_flange ? *o.target_in_flange
+                                         : poseFromXyzRpy(p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5]);
+  const std::vector<Pose> a = predictedPoses(m, full, all, drivers), b = predictedPoses(m, written, all, drivers);
+  ErrorStatsAccumulator acc;
+  for (size_t i = 0; i < all.size(); ++i) {
+    Observation at_tool0;
+    at_tool0.measured_in_tracker = a[i] * target.inverse();
+    acc.add(at_tool0, b[i] * target.inverse());
+  }
+  c.at_tool0 = acc.stats();
   c.measured = true;
   return c;
 }
@@ -131,6 +150,31 @@ void printTool0Change(const Tool0Change& c, nlohmann::json& j) {
                        {"rigid_deg", c.rigid_deg}, {"rigid_mm", c.rigid_mm},
                        {"yaw_about_joint1_deg", c.yaw_about_joint1_deg},
                        {"beyond_rigid_mean_mm", c.beyond_rigid_mean_mm}};
+}
+
+// What the written file costs against the full calibrated model, printed and in the JSON.
+void printExportCost(const ExportCost& cost, bool own_fit, nlohmann::json& j) {
+  if (!cost.measured) {
+    std::printf("  the cost of the export not measured: %s\n", cost.why.c_str());
+    j["verification_full_model"] = nullptr;
+    j["verification_exported"] = nullptr;
+    j["cost_not_measured"] = cost.why;
+    return;
+  }
+  std::printf("  held-out on its calibration rows: full model %.4f mm mean (%.4f RMS), the written file (%s) %.4f mm "
+              "(%.4f RMS)\n",
+              cost.full.mean_mm, cost.full.rms_mm, own_fit ? "the geometric calibration" : "the geometric part",
+              cost.written.mean_mm, cost.written.rms_mm);
+  std::printf("  the written file's tool0 against the full model's over the %d calibration rows: %.4f mm mean (max "
+              "%.4f)",
+              cost.at_tool0.rows, cost.at_tool0.mean_mm, cost.at_tool0.max_mm);
+  if (cost.at_tool0.oriented > 0)
+    std::printf(", %.4f deg mean (max %.4f)", cost.at_tool0.mean_deg, cost.at_tool0.max_deg);
+  std::printf("\n");
+  j["verification_full_model"] = errorStatsJson(cost.full);
+  j["verification_exported"] = errorStatsJson(cost.written);
+  j["left_out_at_tool0"] = errorStatsJson(cost.at_tool0);
+  j["left_out_at_tool0"]["rows"] = cost.at_tool0.rows;
 }
 
 int runExport(const ExportArgs& a) {
@@ -193,24 +237,14 @@ int runExport(const ExportArgs& a) {
     j["tool_in_flange"] = {t[0] * 1e3, t[1] * 1e3, t[2] * 1e3, radToDeg(t[3]), radToDeg(t[4]), radToDeg(t[5])};
   }
   const std::vector<std::string>& not_carried = e.not_carried;
-  // What it costs not to carry the extensions: the geometric part against the full model on the calibration rows.
-  const ExportCost cost = exportCost(rf, exported);
   std::printf("robot export: %s -> %s (%s)\n", a.robot.c_str(), a.out.c_str(), a.format.c_str());
+  if (o.target_in_flange)
+    std::printf("  carried into tool0: the target's calibrated place against its nominal one, %.4f mm and %.4f deg "
+                "(what the target's frame absorbed of the robot)\n",
+                e.tip_correction.translation().norm() * 1e3, radToDeg(logSO3(e.tip_correction.linear()).norm()));
   for (const auto& n : not_carried) std::printf("  not carried: %s\n", n.c_str());
   printTool0Change(e.tool0_change, j);
-  if (cost.measured) {
-    std::printf("  held-out on its calibration rows: full model %.4f mm mean (%.4f RMS), the exported %s %.4f mm "
-                "(%.4f RMS)\n",
-                cost.full.mean_mm, cost.full.rms_mm, own_fit ? "geometric calibration" : "geometric part",
-                cost.geometric.mean_mm, cost.geometric.rms_mm);
-    j["verification_full_model"] = errorStatsJson(cost.full);
-    j["verification_exported"] = errorStatsJson(cost.geometric);
-  } else {
-    std::printf("  the cost of the export not measured: %s\n", cost.why.c_str());
-    j["verification_full_model"] = nullptr;
-    j["verification_exported"] = nullptr;
-    j["cost_not_measured"] = cost.why;
-  }
+  printExportCost(exportCost(rf, exported, e, o), own_fit, j);
   j["not_carried"] = not_carried;
   if (!a.json.empty()) std::ofstream(a.json) << j.dump(2) << "\n";
   return 0;
@@ -245,10 +279,12 @@ Runner addRobotCommand(CLI::App& app) {
                 "moved from it goes into the chain's last origin");
   e->add_option("--ur-hash", exp->ur_hash, "--format ur-kinematics: the controller's calibration hash");
   const Runner check = addRobotCheck(*robot);
+  const Runner fk = addRobotFk(*robot);
   return [=]() -> int {
     if (*i) return runImport(*imp);
     if (*e) return runExport(*exp);
     if (robot->got_subcommand("check")) return check();
+    if (robot->got_subcommand("fk")) return fk();
     return 0;
   };
 }

@@ -1,5 +1,7 @@
 // `cellcal robot check`: does the robot's controller compute with this calibration? Its own tool poses at its joint
 // angles against the forward kinematics of a robot file or URDF (core's checkController: controller_check.hpp).
+// `cellcal robot fk`: the tool poses a robot file or URDF computes at given joint angles, as a controller running it
+// would report them (the same frames as the check).
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -9,6 +11,8 @@
 #include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/controller_check.hpp"
+#include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/model/kinematics.hpp"
 #include "commands.hpp"
 #include "measurement_input.hpp"
 
@@ -18,6 +22,10 @@ namespace {
 struct CheckArgs {
   std::string robot, data, json, base_in_controller, tool_in_flange;
   double tolerance_mm = 0.01, tolerance_deg = 0.001;
+};
+
+struct FkArgs {
+  std::string robot, data, out, base_in_controller, tool_in_flange;
 };
 
 Pose frameMmDeg(const std::string& text, const std::string& option) {
@@ -73,7 +81,58 @@ int runCheck(const CheckArgs& a) {
   return c.matches ? 0 : 3;
 }
 
+// The model's kinematics (its extensions left out: no controller runs them) with the controller's frames:
+// T = base_in_controller * mount * chain(q) * flange * tool_in_flange, each row's pose replaced by it.
+int runFk(const FkArgs& a) {
+  const RobotModel model = loadRobotModel(a.robot);
+  MeasurementCsvOptions csv;
+  csv.joints_only = true;
+  MeasurementFile f = readMeasurementCsv(a.data, model, csv);
+  if (f.rows.empty()) throw ConfigError(a.data + ": no rows");
+  Eigen::VectorXd p = model.nominal;
+  p.segment<6>(model.baseParam(FrameParam::kX)) = xyzRpyFromPose(frameMmDeg(a.base_in_controller, "--base-in-controller"));
+  p.segment<6>(model.toolParam(FrameParam::kX)) = xyzRpyFromPose(frameMmDeg(a.tool_in_flange, "--tool-in-flange"));
+  KinematicsData data(model);
+  for (MeasurementRow& row : f.rows) {
+    const Pose& T = forwardKinematics(model, data, p, row.q_rad);
+    row.position_m = T.translation();
+    row.orientation = Eigen::Quaterniond(T.linear()).normalized();
+    row.sigma_position_m.reset();
+    row.sigma_orientation_rad.reset();
+  }
+  std::ofstream out(a.out);
+  writeMeasurementCsv(out, f, model.numJoints(),
+                      "the tool poses " + a.robot + " computes at the joint angles of " + a.data +
+                          " (cellcal robot fk), in the controller's base frame");
+  out.close();
+  if (!out) throw std::runtime_error(a.out + ": cannot write");
+  std::printf("robot fk: %zu rows of %s through %s -> %s\n", f.rows.size(), a.data.c_str(), a.robot.c_str(),
+              a.out.c_str());
+  return 0;
+}
+
+void addControllerFrames(CLI::App* c, std::string& base_in_controller, std::string& tool_in_flange) {
+  c->add_option("--base-in-controller", base_in_controller,
+                "the robot's base link in the controller's base frame, X,Y,Z,ROLL,PITCH,YAW (mm, deg; default: the same "
+                "frame; UR: 0,0,0,0,0,180)");
+  c->add_option("--tool-in-flange", tool_in_flange,
+                "the tool the controller reports, on the robot's tip link, X,Y,Z,ROLL,PITCH,YAW (mm, deg; default: the tip "
+                "link itself)");
+}
+
 }  // namespace
+
+Runner addRobotFk(CLI::App& robot) {
+  auto a = std::make_shared<FkArgs>();
+  CLI::App* c = addSubcommand(robot, "fk");
+  c->add_option("--robot", a->robot, "robot file or URDF")->required()->check(CLI::ExistingFile);
+  c->add_option("--data", a->data, "the joint angles: a measurement CSV or a robot program (q*_deg or q*_rad columns)")
+      ->required()->check(CLI::ExistingFile);
+  c->add_option("--out", a->out, "measurement CSV to write: the joints with the model's tool pose")->required()
+      ->check(outputFile());
+  addControllerFrames(c, a->base_in_controller, a->tool_in_flange);
+  return [=]() -> int { return runFk(*a); };
+}
 
 Runner addRobotCheck(CLI::App& robot) {
   auto a = std::make_shared<CheckArgs>();
@@ -82,12 +141,7 @@ Runner addRobotCheck(CLI::App& robot) {
   c->add_option("--data", a->data,
                 "the controller's joint angles with the tool pose it reports in its base frame (measurement CSV: "
                 "q*_deg or q*_rad, x_mm, y_mm, z_mm, qw..qz)")->required()->check(CLI::ExistingFile);
-  c->add_option("--base-in-controller", a->base_in_controller,
-                "the robot's base link in the controller's base frame, X,Y,Z,ROLL,PITCH,YAW (mm, deg; default: the same "
-                "frame; UR: 0,0,0,0,0,180)");
-  c->add_option("--tool-in-flange", a->tool_in_flange,
-                "the tool the controller reports, on the robot's tip link, X,Y,Z,ROLL,PITCH,YAW (mm, deg; default: the tip "
-                "link itself)");
+  addControllerFrames(c, a->base_in_controller, a->tool_in_flange);
   c->add_option("--tolerance-mm", a->tolerance_mm, "largest position difference of a controller running the model")
       ->check(CLI::PositiveNumber)->capture_default_str();
   c->add_option("--tolerance-deg", a->tolerance_deg, "largest orientation difference of a controller running the model")

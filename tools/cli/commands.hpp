@@ -43,8 +43,9 @@ Runner addStatusCommand(CLI::App& app);
 Runner addFoxgloveCommand(CLI::App& app);
 // cmd_robot.cpp: `robot import` (a URDF as a robot file) and `robot export` (URDF, UR kinematics YAML, DH table).
 Runner addRobotCommand(CLI::App& app);
-// `robot check` under `robot` (cmd_robot_check.cpp); the runner is `robot`'s to call when check was given.
+// `robot check` and `robot fk` under `robot` (cmd_robot_check.cpp); the runners are `robot`'s to call when given.
 Runner addRobotCheck(CLI::App& robot);
+Runner addRobotFk(CLI::App& robot);
 // cmd_iso9283.cpp: ISO 9283 pose and distance figures of a measured test.
 Runner addIso9283Command(CLI::App& app);
 // cmd_plan.cpp: `plan iso9283` (the standard's test program).

@@ -162,9 +162,16 @@ RobotExport write(const RobotModel& m, const CalibratedModel& calibrated, Export
   if (o.target_in_flange) {
     e.tip_correction = frameOf(p, m.toolParam(FrameParam::kX)) * o.target_in_flange->inverse();
   } else if (!calibrated.estimated.empty()) {
+    // Its size is not in the data: they see the target's place on the flange and the flange's calibration only
+    // together (identifiability.hpp, frameGauge). What they see is the target's calibrated place, said.
+    const Eigen::Matrix<double, 6, 1> v = p.segment<6>(m.toolParam(FrameParam::kX));
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "%.4f, %.4f, %.4f mm, %.4f, %.4f, %.4f deg", v[0] * 1e3, v[1] * 1e3, v[2] * 1e3,
+                  radToDeg(v[3]), radToDeg(v[4]), radToDeg(v[5]));
     e.not_carried.push_back("what the target's frame absorbed of the robot (joint " + std::to_string(m.numJoints()) +
-                            "'s flange-side parameters): give the target's nominal place with --target-in-flange to "
-                            "carry it");
+                            "'s flange-side parameters), of a size these data cannot tell from the target's own place: "
+                            "the target's calibrated place on the tip link is " + buf +
+                            "; give its nominal place with --target-in-flange to carry the difference into tool0");
   }
   if (format == ExportFormat::kDhTable) {
     e.dh_rows = dhRows(m, p);
@@ -194,7 +201,8 @@ RobotExport write(const RobotModel& m, const CalibratedModel& calibrated, Export
   std::istringstream lines(o.header);
   for (std::string line; std::getline(lines, line);) header += "# " + line + "\n";
   e.text = header + exportUrKinematics(o.nominal_urdf_xml, o.nominal_urdf_source, u, p, e.tip_correction, o.ur_hash,
-                                       &e.not_carried_beyond_joint6_m, &e.not_carried_beyond_joint6_rad);
+                                       &e.not_carried_beyond_joint6_m, &e.not_carried_beyond_joint6_rad,
+                                       &e.tip_not_carried);
   if (e.not_carried_beyond_joint6_m * 1e3 > 1e-6 || radToDeg(e.not_carried_beyond_joint6_rad) > 1e-6) {
     char buf[300];
     std::snprintf(buf, sizeof buf,
@@ -207,6 +215,15 @@ RobotExport write(const RobotModel& m, const CalibratedModel& calibrated, Export
     e.not_carried.push_back("the controller's calibration hash (--ur-hash): written empty, so the driver cannot check "
                             "the file against the robot");
   return e;
+}
+
+Eigen::VectorXd writtenParams(const RobotModel& m, const Eigen::VectorXd& p, const RobotExport& e,
+                              const ExportOptions& o) {
+  const int t = m.toolParam(FrameParam::kX);
+  const Pose target = o.target_in_flange ? *o.target_in_flange : frameOf(p, t);
+  Eigen::VectorXd w = p;
+  w.segment<6>(t) = xyzRpyFromPose(e.tip_correction * e.tip_not_carried * target);
+  return w;
 }
 
 }  // namespace cellcal

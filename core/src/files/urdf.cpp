@@ -684,7 +684,7 @@ std::string exportUrdf(const std::string& nominal_xml, const std::string& source
 
 std::string exportUrKinematics(const std::string& nominal_xml, const std::string& source, const UrdfImport& nominal,
                                const Eigen::VectorXd& params, const Pose& tip_correction, const std::string& hash,
-                               double* rest_m, double* rest_rad) {
+                               double* rest_m, double* rest_rad, Pose* tip_not_carried) {
   static const char* kNames[] = {"shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"};
   if (nominal.model.numJoints() != 6)
     throw ConfigError(source + ": a UR arm has 6 revolute joints, this chain " + std::to_string(nominal.model.numJoints()));
@@ -709,6 +709,14 @@ std::string exportUrKinematics(const std::string& nominal_xml, const std::string
   const Pose rest = commuting.inverse() * D;
   if (rest_m) *rest_m = rest.translation().norm();
   if (rest_rad) *rest_rad = logSO3(rest.linear()).norm();
+  // The composed tip: wrist_3 * commuting * N = (wrist_3 * D * N) * N^-1 rest^-1 N, N the nominal fixed joints from
+  // wrist_3 to the tip.
+  if (tip_not_carried) {
+    Pose N = Pose::Identity();
+    for (size_t k = static_cast<size_t>(nominal.revolute.back()) + 1; k < chain.size(); ++k)
+      N = N * urdfJointOrigin(nominal_xml, source, chain[k]);
+    *tip_not_carried = N.inverse() * rest.inverse() * N;
+  }
   std::ostringstream y;
   y << "kinematics:\n";
   for (int k = 0; k < 6; ++k) {

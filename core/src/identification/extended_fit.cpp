@@ -400,11 +400,20 @@ std::vector<Eigen::Vector3d> positionResiduals(const RobotModel& model, const Ca
 
 ErrorStats errorStats(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers) {
+  const std::vector<Pose> predicted = predictedPoses(model, fit, obs, drivers);
+  ErrorStatsAccumulator acc;
+  for (size_t i = 0; i < obs.size(); ++i) acc.add(obs[i], predicted[i]);
+  return acc.stats();
+}
+
+std::vector<Pose> predictedPoses(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
+                                 const std::vector<Drivers>& drivers) {
   const std::vector<Eigen::MatrixXd> B = bases(model, fit, obs, drivers);
   KinematicsData data(model);
-  ErrorStatsAccumulator acc;
-  for (size_t i = 0; i < obs.size(); ++i) acc.add(obs[i], forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad));
-  return acc.stats();
+  std::vector<Pose> poses;
+  poses.reserve(obs.size());
+  for (size_t i = 0; i < obs.size(); ++i) poses.push_back(forwardKinematics(model, data, rowParams(fit, B[i]), obs[i].q_rad));
+  return poses;
 }
 
 void ErrorStatsAccumulator::add(const Observation& obs, const Pose& predicted) {

@@ -102,21 +102,26 @@ TEST(Identifiability, WhatTheFramesStandForIsHeldAndTheFramesCarryIt) {
     std::printf("  %-18s the frames stand for:%s\n", m.name.c_str(), names.c_str());
     for (JointParam jp : {JointParam::kThetaOffset, JointParam::kD}) {
       const int c = m.jointParam(0, jp);
-      if (m.isCanonical(c)) EXPECT_TRUE(contains(gauge, c)) << m.paramName(c);
+      if (m.isCanonical(c)) {
+        EXPECT_TRUE(contains(gauge, c)) << m.paramName(c);
+      }
     }
     for (const auto kind : {MeasurementKind::kPose6D, MeasurementKind::kPosition3D}) {
       const auto rep = structuralIdentifiability(m, m.nominal, kind);
       for (int c : gauge) {
         EXPECT_FALSE(contains(rep.identifiable, c)) << m.paramName(c) << "\n" << rep.summary(m);
-        for (const auto& d : rep.dropped)
-          if (d.index == c)
-            for (const auto& [k, coef] : d.merged_into)
-              EXPECT_TRUE(contains(frames, k)) << m.paramName(c) << " merged into " << m.paramName(k);
+        for (const auto& d : rep.dropped) {
+          if (d.index != c) continue;
+          for (const auto& [k, coef] : d.merged_into) {
+            EXPECT_TRUE(contains(frames, k)) << m.paramName(c) << " merged into " << m.paramName(k);
+          }
+        }
       }
       for (int c : frames) {
         const bool tool_angle = c >= m.toolParam(FrameParam::kRoll) && c < m.toolParam(FrameParam::kX) + 6;
-        if (kind == MeasurementKind::kPose6D || !tool_angle)
+        if (kind == MeasurementKind::kPose6D || !tool_angle) {
           EXPECT_TRUE(contains(rep.identifiable, c)) << m.paramName(c) << "\n" << rep.summary(m);
+        }
       }
     }
   }

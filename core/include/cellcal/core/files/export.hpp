@@ -84,8 +84,10 @@ struct RobotExport {
   std::string text;                      // the file
   std::vector<std::string> not_carried;  // what the format cannot carry, one sentence each
   Pose tip_correction = Pose::Identity();  // the tip's move from its nominal place (identity without target_in_flange)
-  // ur-kinematics: the flange's calibration beyond joint 6's turn and shift, not carried (0 for other formats).
+  // ur-kinematics: the flange's calibration beyond joint 6's turn and shift, not carried (0 for other formats), and
+  // what it does at the tip: the file's tip is the calibrated tip times tip_not_carried (identity for other formats).
   double not_carried_beyond_joint6_m = 0, not_carried_beyond_joint6_rad = 0;
+  Pose tip_not_carried = Pose::Identity();
   std::vector<DhRow> dh_rows;            // dh-table: the rows of `text`
   // urdf and ur-kinematics: against the nominal URDF, over spreadConfigurations(model, kTool0ChangeConfigurations);
   // dh-table: none (configurations 0), there is no nominal description.
@@ -97,5 +99,12 @@ struct RobotExport {
 // fit the format (no nominal URDF for urdf, a URDF of another robot, no </robot>).
 RobotExport write(const RobotModel& model, const CalibratedModel& calibrated, ExportFormat format,
                   const ExportOptions& options);
+
+// The parameters a consumer of the written file computes with, in the calibration's frames: the file's chain, the
+// calibrated base, and the target at its nominal place (options.target_in_flange) on the file's tip, or without it at
+// its calibrated place: `params` with the tool frame moved by what the format did not carry at the tip. Their
+// positions at the calibration's rows are the file's own held-out figures.
+Eigen::VectorXd writtenParams(const RobotModel& model, const Eigen::VectorXd& params, const RobotExport& written,
+                              const ExportOptions& options);
 
 }  // namespace cellcal

@@ -86,10 +86,11 @@ std::string exportUrdf(const std::string& nominal_xml, const std::string& source
 // forearm, wrist_1, wrist_2, wrist_3, each x y z roll pitch yaw) of the same calibration as exportUrdf. The fixed
 // joints after wrist_3 are ur_description's own: of what exportUrdf puts into the first of them, the part that commutes
 // with joint 6 (a turn about its axis, a shift along it) goes into wrist_3, the rest is not carried (*rest_m, *rest_rad:
-// its size). `hash`: the controller's calibration hash ("" written as empty).
+// its size; *tip_not_carried: what it does at the tip, so that the tip ur_description composes from the file is the
+// calibrated tip times *tip_not_carried). `hash`: the controller's calibration hash ("" written as empty).
 std::string exportUrKinematics(const std::string& nominal_xml, const std::string& source, const UrdfImport& nominal,
                                const Eigen::VectorXd& params, const Pose& tip_correction, const std::string& hash,
-                               double* rest_m, double* rest_rad);
+                               double* rest_m, double* rest_rad, Pose* tip_not_carried = nullptr);
 
 // The <origin> of joint `name` in `xml` (identity when it has none). ConfigError when there is no such joint.
 Pose urdfJointOrigin(const std::string& xml, const std::string& source, const std::string& name);

@@ -98,6 +98,9 @@ struct ErrorStats {
 };
 ErrorStats errorStats(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers);
+// The target poses `fit` predicts in the tracker frame at each observation's joints and drivers.
+std::vector<Pose> predictedPoses(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
+                                 const std::vector<Drivers>& drivers);
 // The same figures accumulated one observation and predicted pose at a time.
 class ErrorStatsAccumulator {
  public:
