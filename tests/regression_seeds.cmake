@@ -15,3 +15,5 @@ cellcal_seed_case(test_accuracy Iso9283.ASimulatedTestGivesTheAccuracyItsTruthSa
                   "none of 10 random configurations held a UR10's cube above its floor; 40 tried since")
 cellcal_seed_case(test_accuracy Iso9283.ASimulatedTestGivesTheAccuracyItsTruthSays 16165661952249499748
                   "the same: no cube among 10 configurations; 40 tried since")
+cellcal_seed_case(test_campaign Campaign.AFitAtTheNoiseFloorConverges 14998941758427650685
+                  "LM on a TX60 over 15 % of its joint ranges still moving after 50 iterations; converged on the predictions since")

@@ -177,6 +177,12 @@ json campaignJson(const CalibrateArgs& a, const CampaignProblem& problem, const 
                                             {"used", after.extensions.empty() ? "geometric" : "extended"},
                                             {"text", c->text}}
                                      : json(nullptr)},
+            {"against_nominal", rep.against_nominal
+                                    ? json{{"mean_carried_mm", rep.against_nominal->mean_carried_mm},
+                                           {"mean_nominal_mm", rep.against_nominal->mean_nominal_mm},
+                                           {"z", rep.against_nominal->z},
+                                           {"used", rep.nominalDeployed() ? "nominal" : "carried"}}
+                                    : json(nullptr)},
             {"beyond_data", beyondJson(a, rep)}, {"implausible", rep.implausible},
             {"residual_map", residualMapJson(rep)}, {"unusable", unusableJson(rep.unusable)}};
   j.update(errorsJson(rep.errors, problem.outliers.threshold, in));

@@ -250,10 +250,20 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
                 rep.carried->extensions_transfer ? ""
                 : a.keep_extensions              ? ": kept (--keep-extensions)"
                                                  : ": the geometric calibration is used (--keep-extensions keeps them)");
+  if (const auto& n = rep.against_nominal)
+    std::printf("the robot file's calibration against its nominal kinematics, registered alike on these rows: %.4f mm "
+                "held-out mean against %.4f mm (%.1f standard errors %s)%s\n",
+                n->mean_carried_mm, n->mean_nominal_mm, std::abs(n->z), n->z <= 0 ? "better" : "worse",
+                rep.nominalDeployed() ? ": the nominal kinematics are used"
+                : n->nominal_better   ? ": kept (--keep-extensions), not to be deployed"
+                                      : "");
   printErrorsAndGrossErrors(
       rep.errors, problem.outliers.threshold, in,
-      a.frames_only ? "\n('before': the robot file's kinematics, no extensions, at their least-squares frames; 'after': "
-                      "its kinematics and extensions with the frames fitted)\n"
+      a.frames_only && rep.against_nominal
+          ? "\n('before': the kinematics the robot file's calibration started from, at their least-squares frames; "
+            "'after': the model deployed, with the frames fitted)\n"
+      : a.frames_only ? "\n('before': the robot file's kinematics, no extensions, at their least-squares frames; 'after': "
+                        "its kinematics and extensions with the frames fitted)\n"
                     : "\n('before': the robot file's kinematics at their least-squares frames; 'after': every "
                       "identifiable parameter)\n");
   printParameters(a, in, rep);

@@ -28,10 +28,12 @@ void addOptions(CLI::App& cmd, CalibrateArgs& a) {
                  "and where it came from (not written when the exit status is not 0)")->check(outputFile());
   cmd.add_flag("--frames-only", a.frames_only,
                "keep the robot file's kinematics and extensions (e.g. a calibrated robot file) and register only the "
-               "base and tool frames on the identification rows: the tracker or the target was moved");
+               "base and tool frames on the identification rows: the tracker or the target was moved. Judged against "
+               "the kinematics the calibration started from, registered alike: where those do better, they are used");
   cmd.add_flag("--keep-extensions", a.keep_extensions,
-               "--frames-only: keep the robot file's extensions where they do not transfer to these rows (by default "
-               "the same campaign's geometric calibration, saved beside them, is used instead; both are judged)");
+               "--frames-only: keep the robot file's model as it is: its extensions where they do not transfer to these "
+               "rows (by default the same campaign's geometric calibration, saved beside them, is used instead), and "
+               "the model where its nominal kinematics do better (exit 4: not to be deployed)");
   cmd.add_flag("--residual-map", a.residual_map,
                "learn what the calibrated model leaves at the identification rows (a Gaussian process over the joints, "
                "residual_map.hpp) and judge it on the verification rows: applied only within "

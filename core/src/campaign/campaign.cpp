@@ -206,6 +206,15 @@ void registerFrames(const CampaignProblem& problem, const CampaignInput& in, Cam
           "the campaign's geometric calibration (the robot file's extensions do not transfer), frames only";
     }
   }
+  // The carried model against the kinematics it started from, registered alike on the same rows: the better one.
+  if (in.calibration && in.calibration->nominal_params.size() == robot.numParams()) {
+    rep.against_nominal = compareWithNominal(robot, after, in.calibration->nominal_params, ident, idr, verify, vdr);
+    rep.nominal_deployed = rep.against_nominal->nominal_better && !problem.keep_extensions;
+    if (rep.nominal_deployed) {
+      after = rep.against_nominal->nominal;
+      rep.model_label = "the nominal kinematics (the robot file's calibration does worse on these rows), frames only";
+    }
+  }
   *ident_outliers = screenRows(robot, after, ident, idr, problem.outliers);
 }
 
@@ -278,7 +287,7 @@ PredictionModel campaignPrediction(const CampaignProblem& problem, const Campaig
     return own;
   }
   PredictionModel carried;
-  if (in.calibration) {
+  if (in.calibration && !rep.nominalDeployed()) {
     // Over the kinematic parameters alone where the extensions were left for the geometric calibration (its own
     // covariance is not in the file: the extended fit's, marginal, stands for it).
     const auto& kc = in.calibration->columns;
@@ -318,7 +327,11 @@ void saveCalibration(const CampaignProblem& problem, const CampaignInput& in, Ca
                            : rep.carried        ? rep.carried->geometric.params
                            : in.calibration     ? in.calibration->geometric_params
                                                 : Eigen::VectorXd();
-  if (problem.frames_only) {  // estimated: the new frames, and what the robot file's own calibration estimated
+  // The kinematics it started from: a recalibration or a carried model keeps the robot file's.
+  cal.nominal_params = in.calibration && in.calibration->nominal_params.size() == robot.numParams()
+                           ? in.calibration->nominal_params
+                           : problem.frames_only ? Eigen::VectorXd() : Eigen::VectorXd(robot.nominal);
+  if (problem.frames_only && !rep.nominalDeployed()) {  // estimated: the new frames, and what the file's calibration estimated
     for (size_t k = 0; k < cal.columns.size(); ++k) {
       if (cal.estimated[k] || !in.calibration) continue;
       const auto& kc = in.calibration->columns;
@@ -326,7 +339,7 @@ void saveCalibration(const CampaignProblem& problem, const CampaignInput& in, Ca
       cal.estimated[k] = it != kc.end() && in.calibration->estimated[static_cast<size_t>(it - kc.begin())];
     }
   }
-  if (problem.frames_only && in.calibration)
+  if (problem.frames_only && in.calibration && !rep.nominalDeployed())
     for (const auto& kv : in.calibration->provenance) cal.provenance.emplace_back("kinematics_" + kv.first, kv.second);
   std::vector<std::pair<std::string, std::string>> pv = problem.provenance;
   for (const auto& kv : std::vector<std::pair<std::string, std::string>>{
@@ -335,7 +348,9 @@ void saveCalibration(const CampaignProblem& problem, const CampaignInput& in, Ca
            {"identification_rows", std::to_string(ident.size())},
            {"verification_rows", std::to_string(verify.size())},
            {"measurement", in.measurementName()},
-           {"model", problem.frames_only ? "frames only" : rep.model_label},
+           {"model", !problem.frames_only ? rep.model_label
+                     : rep.nominalDeployed() ? "nominal kinematics, frames only"
+                                             : "frames only"},
            {"verification_before_mean_mm", fixed(e.verification_kept_before.mean_mm, 4)},
            {"verification_mean_mm", fixed(e.verification_kept_after.mean_mm, 4)},
            {"verification_rms_mm", fixed(e.verification_kept_after.rms_mm, 4)},
@@ -367,7 +382,9 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
   if (problem.frames_only) registerFrames(problem, in, rep, &ident_outliers);
   else fitModel(problem, in, p, rep, &ident_outliers);
   rep.solve_s = std::chrono::duration<double>(Clock::now() - t1).count();
-  rep.before = geometricFit(start);
+  // 'before': the nominal kinematics at their least-squares frames (with frames only, the carried model's nominal
+  // when the robot file keeps it).
+  rep.before = rep.against_nominal ? rep.against_nominal->nominal : geometricFit(start);
   rep.errors = internal::campaignErrors(robot, rep.before, after, in.data, ident_outliers, p.outliers);
   const CampaignErrors& e = rep.errors;
   const std::vector<int> vk = keptRows(static_cast<int>(verify.size()), e.verification_outliers.rows);
@@ -407,6 +424,14 @@ CampaignReport calibrateOne(const CampaignProblem& problem) {
   // only the extrapolation rule applies.
   rep.unusable = unusableFit(problem.frames_only ? e.verification_kept_after : e.verification_kept_before,
                              e.verification_kept_after, e.identification_kept_after);
+  if (rep.against_nominal && rep.against_nominal->nominal_better && !rep.nominal_deployed && rep.unusable.empty()) {
+    char buf[300];
+    std::snprintf(buf, sizeof buf,
+                  "the robot file's model, kept by --keep-extensions, does worse on these rows than its nominal "
+                  "kinematics registered alike (%.4f mm held-out mean against %.4f mm)",
+                  rep.against_nominal->mean_carried_mm, rep.against_nominal->mean_nominal_mm);
+    rep.unusable = buf;
+  }
   rep.implausible = implausibleParameters(robot, start, after);
   if (problem.residual_map)
     judgeResidualMap(robot, after, ident_kept, idr_kept, verify_kept, vdr_kept, problem.residual_map_options, &rep);
@@ -432,9 +457,17 @@ std::string recommendationText(const CampaignReport& rep) {
   if (!rep.converged) return "recommendation: do not deploy: the solver did not converge (exit 3)";
   if (!rep.unusable.empty()) return "recommendation: do not deploy: " + rep.unusable + " (exit 4)";
   const double gain = before.mean_mm > 0 ? 100.0 * (1.0 - after.mean_mm / before.mean_mm) : 0.0;
-  if (frames_only)
+  if (frames_only && rep.nominalDeployed())
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the nominal kinematics with these frames: held-out mean "
+                  "%.4f mm against %.4f mm for the robot file's calibration registered alike (it does not hold on these "
+                  "rows: calibrate again)", rep.against_nominal->mean_nominal_mm, rep.against_nominal->mean_carried_mm);
+  else if (frames_only && rep.against_nominal)
     std::snprintf(buf, sizeof buf, "recommendation: deploy the robot file's model with these frames: held-out mean "
-                  "%.4f mm", after.mean_mm);
+                  "%.4f mm against %.4f mm for its nominal kinematics registered alike",
+                  rep.against_nominal->mean_carried_mm, rep.against_nominal->mean_nominal_mm);
+  else if (frames_only)
+    std::snprintf(buf, sizeof buf, "recommendation: deploy the robot file's model with these frames: held-out mean "
+                  "%.4f mm (not judged against its nominal kinematics: the robot file does not keep them)", after.mean_mm);
   else
     std::snprintf(buf, sizeof buf, "recommendation: deploy the %s model: held-out mean %.4f mm against %.4f mm before "
                   "(%.0f %% better)", model.c_str(), after.mean_mm, before.mean_mm, gain);

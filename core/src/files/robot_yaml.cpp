@@ -72,13 +72,13 @@ void readExtensions(const YamlReader& r, const YAML::Node& ex, const RobotModel&
   }
 }
 
-// calibration.geometric_parameters: the geometric model fitted on the same data, one {name, value} per parameter.
-void readGeometricParams(const YamlReader& r, const YAML::Node& gp, const RobotModel& m, RobotCalibration& cal) {
-  const std::string f = "calibration";
-  const std::string fg = f + ".geometric_parameters";
+// calibration.geometric_parameters (the geometric model fitted on the same data) and calibration.nominal_parameters
+// (the kinematics the calibration started from): one {name, value} per parameter.
+Eigen::VectorXd readParameterList(const YamlReader& r, const YAML::Node& gp, const RobotModel& m, const std::string& key) {
+  const std::string fg = "calibration." + key;
   if (!gp.IsSequence() || static_cast<int>(gp.size()) != m.numParams())
     r.fail(gp, fg, "expected one {name, value} per kinematic parameter and frame (" + std::to_string(m.numParams()) + ")");
-  cal.geometric_params.resize(m.numParams());
+  Eigen::VectorXd v(m.numParams());
   for (int k = 0; k < m.numParams(); ++k) {
     const std::string fk = fg + "[" + std::to_string(k) + "]";
     const YAML::Node e = gp[static_cast<size_t>(k)];
@@ -87,8 +87,9 @@ void readGeometricParams(const YamlReader& r, const YAML::Node& gp, const RobotM
     const YAML::Node name = r.required(e, "name", fk + ".name");
     if (!name.IsScalar() || name.Scalar() != m.paramNameHuman(k))
       r.fail(name, fk + ".name", "expected " + m.paramNameHuman(k) + " (the robot's parameters, in order)");
-    cal.geometric_params[k] = r.number(r.required(e, "value", fk + ".value"), fk + ".value") / columnScale(m, k);
+    v[k] = r.number(r.required(e, "value", fk + ".value"), fk + ".value") / columnScale(m, k);
   }
+  return v;
 }
 
 // calibration.beyond_data: the joint ranges the data covered, and how the error grows beyond them.
@@ -249,7 +250,8 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
   const std::string f = "calibration";
   r.requireMap(c, f);
   r.checkKeys(c, f, {"provenance", "extensions", "extension_parameters", "variance_factor_position", "parameters",
-                     "correlation", "residual_map", "geometric_parameters", "beyond_data", "beyond_drivers"});
+                     "correlation", "residual_map", "geometric_parameters", "nominal_parameters", "beyond_data",
+                     "beyond_drivers"});
   RobotCalibration cal;
   if (const YAML::Node pv = c["provenance"]; pv.IsDefined() && !pv.IsNull()) {
     r.requireMap(pv, f + ".provenance");
@@ -277,7 +279,10 @@ RobotCalibration readCalibration(const YamlReader& r, const YAML::Node& c, const
       cal.extension_params[static_cast<Eigen::Index>(k)] = r.number(r.required(ep[k], "value", fk + ".value"), fk + ".value");
     }
   }
-  if (const YAML::Node gp = c["geometric_parameters"]; gp.IsDefined() && !gp.IsNull()) readGeometricParams(r, gp, m, cal);
+  if (const YAML::Node gp = c["geometric_parameters"]; gp.IsDefined() && !gp.IsNull())
+    cal.geometric_params = readParameterList(r, gp, m, "geometric_parameters");
+  if (const YAML::Node np = c["nominal_parameters"]; np.IsDefined() && !np.IsNull())
+    cal.nominal_params = readParameterList(r, np, m, "nominal_parameters");
   if (const YAML::Node bd = c["beyond_data"]; bd.IsDefined() && !bd.IsNull()) readBeyondData(r, bd, m, cal);
   if (const YAML::Node bd = c["beyond_drivers"]; bd.IsDefined() && !bd.IsNull()) readBeyondDrivers(r, bd, m, cal);
   if (const YAML::Node vf = c["variance_factor_position"]; vf.IsDefined() && !vf.IsNull()) {
@@ -412,6 +417,9 @@ bool RobotCalibration::IsValid(const RobotModel& model, std::string* error) cons
   if (geometric_params.size() != 0 && geometric_params.size() != model.numParams())
     return fail("geometric_params: expected " + std::to_string(model.numParams()) + " values");
   if (!geometric_params.allFinite()) return fail("geometric_params: not finite");
+  if (nominal_params.size() != 0 && nominal_params.size() != model.numParams())
+    return fail("nominal_params: expected " + std::to_string(model.numParams()) + " values");
+  if (!nominal_params.allFinite()) return fail("nominal_params: not finite");
   for (const auto& b : beyond_data) {
     std::string why;
     if (!b.IsValid(model.numJoints(), &why)) return fail("beyond_data: " + why);
@@ -452,6 +460,12 @@ void writeCalibration(std::ostream& o, const RobotModel& m, const RobotCalibrati
          "  # it (calibrate --frames-only)\n  geometric_parameters:\n";
     for (int k = 0; k < m.numParams(); ++k)
       o << "    - { name: " << m.paramNameHuman(k) << ", value: " << num(cal->geometric_params[k] * columnScale(m, k)) << " }\n";
+  }
+  if (cal->nominal_params.size() == m.numParams()) {
+    o << "  # the kinematics the calibration started from: a new set-up judges the calibration against them\n"
+         "  # (calibrate --frames-only)\n  nominal_parameters:\n";
+    for (int k = 0; k < m.numParams(); ++k)
+      o << "    - { name: " << m.paramNameHuman(k) << ", value: " << num(cal->nominal_params[k] * columnScale(m, k)) << " }\n";
   }
   if (!cal->beyond_data.empty()) {
     o << "  # beyond the joint ranges of the campaign's data, a further joint error of sigma x (rad beyond)^growth\n"

@@ -3,6 +3,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
+#include <cstdio>
 #include <string>
 #include <utility>
 #include <vector>
@@ -76,6 +77,13 @@ struct ReducedProblem {
   void finish(CalibrationResult& result) const;
 };
 
+// "0.001 of the readings' sigma": SolverOptions::prediction_tolerance in words.
+inline std::string settledText(const SolverOptions& options) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%g of the readings' sigma", options.prediction_tolerance);
+  return buf;
+}
+
 struct GaussNewtonOutcome {
   Eigen::VectorXd x;
   int iterations = 0;
@@ -117,6 +125,11 @@ GaussNewtonOutcome gaussNewton(Eval&& eval, Eigen::VectorXd x, const SolverOptio
     if ((t * y).norm() < options.step_tolerance) {
       out.converged = true;
       out.message = "converged (step below tolerance)";
+      break;
+    }
+    if ((A * (t * step)).norm() < options.prediction_tolerance * std::sqrt(static_cast<double>(b.size()))) {
+      out.converged = true;
+      out.message = "converged (the last step moved the predictions by less than " + settledText(options) + ")";
       break;
     }
     eval(x, b, &A);

@@ -188,4 +188,26 @@ CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& ext
   return c;
 }
 
+NominalComparison compareWithNominal(const RobotModel& model, const ExtendedFit& carried,
+                                     const Eigen::VectorXd& nominal_params,
+                                     const std::vector<Observation>& identification,
+                                     const std::vector<Drivers>& identification_drivers,
+                                     const std::vector<Observation>& verification,
+                                     const std::vector<Drivers>& verification_drivers) {
+  if (nominal_params.size() != model.numParams()) throw std::invalid_argument("compareWithNominal: nominal_params has the wrong size");
+  if (verification.empty()) throw std::invalid_argument("compareWithNominal: no verification rows");
+  NominalComparison c;
+  c.nominal.params = refineFrames(model, registerFrames(model, nominal_params, identification).params, {},
+                                  Eigen::VectorXd(), identification, identification_drivers).params;
+  c.nominal.converged = true;
+  c.nominal.estimated = carried.estimated;  // the frames
+  const auto rc = positionResiduals(model, carried, verification, verification_drivers);
+  const auto rn = positionResiduals(model, c.nominal, verification, verification_drivers);
+  c.mean_carried_mm = internal::residualMeans(rc).mean_mm;
+  c.mean_nominal_mm = internal::residualMeans(rn).mean_mm;
+  c.z = internal::pairedZ(rc, rn);
+  c.nominal_better = c.mean_nominal_mm < c.mean_carried_mm;
+  return c;
+}
+
 }  // namespace cellcal

@@ -88,8 +88,8 @@ bool CalibrationProblem::IsValid(std::string* error) const {
 }
 
 bool SolverOptions::IsValid(std::string* error) const {
-  if (max_iterations < 1 || !(step_tolerance > 0)) {
-    if (error) *error = "max_iterations must be >= 1 and step_tolerance > 0";
+  if (max_iterations < 1 || !(step_tolerance > 0) || !(prediction_tolerance >= 0)) {
+    if (error) *error = "max_iterations must be >= 1, step_tolerance > 0 and prediction_tolerance >= 0";
     return false;
   }
   return true;

@@ -63,6 +63,36 @@ class PriorCost final : public ceres::CostFunction {
   Eigen::VectorXd mean_;
 };
 
+// Stops the solver once a successful step moved the whitened predictions by less than `tolerance` RMS over the rows
+// (SolverOptions::prediction_tolerance): Ceres' own tests look at the parameters and the cost, which a direction the
+// data barely pin keeps from settling.
+class PredictionsSettled final : public ceres::IterationCallback {
+ public:
+  PredictionsSettled(const internal::ReducedProblem& rp, const std::vector<double>& x, const Eigen::VectorXd& base,
+                     double tolerance)
+      : rp_(rp), x_(x), params_(base), tolerance_(tolerance) {
+    rp_.evaluate(current(), last_, nullptr);
+  }
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
+    if (s.iteration == 0 || !s.step_is_successful) return ceres::SOLVER_CONTINUE;
+    Eigen::VectorXd r;
+    rp_.evaluate(current(), r, nullptr);
+    const bool settled = (r - last_).norm() < tolerance_ * std::sqrt(static_cast<double>(r.size()));
+    last_ = std::move(r);
+    return settled ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  const Eigen::VectorXd& current() {
+    for (size_t k = 0; k < x_.size(); ++k) params_[rp_.estimated[k]] = x_[k];
+    return params_;
+  }
+  const internal::ReducedProblem& rp_;
+  const std::vector<double>& x_;
+  Eigen::VectorXd params_, last_;
+  double tolerance_;
+};
+
 }  // namespace
 
 CalibrationResult solveLevenbergMarquardt(const CalibrationProblem& problem, const SolverOptions& options) {
@@ -99,13 +129,18 @@ CalibrationResult internal::solveLevenbergMarquardtPlain(const CalibrationProble
   so.parameter_tolerance = options.step_tolerance;
   so.num_threads = 1;
   so.logging_type = ceres::SILENT;
+  PredictionsSettled settled(rp, x, res.params, options.prediction_tolerance);
+  so.callbacks.push_back(&settled);
+  so.update_state_every_iteration = true;
   ceres::Solver::Summary summary;
   ceres::Solve(so, &cp, &summary);
 
   for (size_t k = 0; k < x.size(); ++k) res.params[rp.estimated[k]] = x[k];
   res.iterations = static_cast<int>(summary.iterations.size()) - 1;
-  res.converged = summary.termination_type == ceres::CONVERGENCE;
-  res.message = summary.message;
+  res.converged = summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::USER_SUCCESS;
+  res.message = summary.termination_type == ceres::USER_SUCCESS
+                    ? "converged (the last step moved the predictions by less than " + internal::settledText(options) + ")"
+                    : summary.message;
   rp.finish(res);
   res.solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;

@@ -114,6 +114,12 @@ struct CampaignReport {
   std::vector<ExcitationDeficit> held;     // held for an excitation deficit
   std::optional<DiagnosisResult> diagnosis;                // kAuto: what diagnose found
   std::optional<CarriedComparison> carried;                // frames_only: the file's extensions against its geometry
+  // frames_only, when the robot file keeps the kinematics its calibration started from: the carried model against
+  // them on the same rows ('before' is then the nominal kinematics); the nominal deployed when better, unless
+  // keep_extensions keeps the file's model (then unusable: exit 4).
+  std::optional<NominalComparison> against_nominal;
+  bool nominal_deployed = false;
+  bool nominalDeployed() const { return nominal_deployed; }
   std::optional<ExtensionTransfer> transfer;               // extensions: measured on region folds
   std::vector<BeyondRange> beyond;                         // what the extensions may do beyond the data (or carried)
   std::vector<DriverRange> beyond_drivers;                 // the same beyond their drivers' ranges

@@ -39,6 +39,10 @@ struct RobotCalibration {
   // beside an extended model so that a new set-up can judge the extensions against it (calibrate --frames-only).
   // Empty: none. Key geometric_parameters.
   Eigen::VectorXd geometric_params;
+  // The kinematics the calibration started from (the robot file's before it was calibrated; SI, every parameter, the
+  // frames as they were), so that a new set-up can judge the calibration against them (calibrate --frames-only).
+  // Empty: not known. Key nominal_parameters.
+  Eigen::VectorXd nominal_params;
   // What the extensions may do beyond the joint ranges of the campaign's data (extensionTransfer, prediction.hpp):
   // predictions carried to other rows (calibrate --frames-only) include it, and how far beyond each range the folds
   // judged it: farther, compensation calls the extensions' correction unknown (compensation.hpp). One entry per joint

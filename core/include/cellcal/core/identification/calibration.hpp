@@ -60,6 +60,10 @@ struct CalibrationProblem {
 struct SolverOptions {
   int max_iterations = 50;
   double step_tolerance = 1e-9;  // stop when the column-scaled step norm falls below this
+  // Or when a step moves the model's predictions at the rows by less than this, RMS over the whitened rows (in the
+  // readings' sigmas): the fit is at its solution for everything the data see, while parameters the data barely pin
+  // may still drift along directions that move no prediction.
+  double prediction_tolerance = 1e-3;
   bool IsValid(std::string* error) const;
 };
 

@@ -320,6 +320,23 @@ CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& ext
                                  const std::vector<Drivers>& verification_drivers, double z_limit = 2.0,
                                  double min_gain = 0.03);
 
+// A calibration carried to a new set-up judged against the kinematics it started from (RobotCalibration::
+// nominal_params): the nominal kinematics with their frames registered on `identification` as the carried model's
+// are, both judged on `verification` (the same rows). The nominal is better when its held-out mean is lower: the
+// same data then show the calibration worse than no calibration, and it is not to be deployed.
+struct NominalComparison {
+  ExtendedFit nominal;                                // the nominal kinematics, frames registered
+  double mean_carried_mm = 0, mean_nominal_mm = 0;    // verification rows
+  double z = 0;                                       // paired improvement of the nominal over the carried model
+  bool nominal_better = false;
+};
+NominalComparison compareWithNominal(const RobotModel& model, const ExtendedFit& carried,
+                                     const Eigen::VectorXd& nominal_params,
+                                     const std::vector<Observation>& identification,
+                                     const std::vector<Drivers>& identification_drivers,
+                                     const std::vector<Observation>& verification,
+                                     const std::vector<Drivers>& verification_drivers);
+
 // The drift check diagnose runs (DriftCheck) on its result: `identification` and `verification` are the rows kept
 // (without gross errors); `best` the model chosen. kNotRun where it does not apply (no thermal driver, neither a
 // drift chosen nor structure against the thermal driver left).
