@@ -122,6 +122,16 @@ json residualMapJson(const CampaignReport& rep) {
 
 }  // namespace
 
+// Tool frame parameters held at the robot file's values (frames only), each with the sigma the rows would give it
+// (null: none).
+json framesHeldJson(const RobotModel& robot, const CampaignReport& rep) {
+  json held = json::array();
+  for (const auto& [c, sigma] : rep.frames_held)
+    held.push_back({{"name", robot.paramNameHuman(c)},
+                    {"rows_sigma", std::isfinite(sigma) ? json(robot.toHuman(c, sigma)) : json(nullptr)}});
+  return held;
+}
+
 json campaignJson(const CalibrateArgs& a, const CampaignProblem& problem, const CampaignReport& rep) {
   if (rep.several_setups) return setupsJson(a, problem, rep);
   const CampaignInput& in = problem.setups.front();
@@ -177,6 +187,7 @@ json campaignJson(const CalibrateArgs& a, const CampaignProblem& problem, const 
                                             {"used", after.extensions.empty() ? "geometric" : "extended"},
                                             {"text", c->text}}
                                      : json(nullptr)},
+            {"frames_held", framesHeldJson(robot, rep)},
             {"against_nominal", rep.against_nominal
                                     ? json{{"mean_carried_mm", rep.against_nominal->mean_carried_mm},
                                            {"mean_nominal_mm", rep.against_nominal->mean_nominal_mm},

@@ -250,6 +250,20 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
                 rep.carried->extensions_transfer ? ""
                 : a.keep_extensions              ? ": kept (--keep-extensions)"
                                                  : ": the geometric calibration is used (--keep-extensions keeps them)");
+  if (!rep.frames_held.empty()) {
+    std::string held;
+    for (const auto& [c, sigma] : rep.frames_held) {
+      char buf[120];
+      if (std::isfinite(sigma))
+        std::snprintf(buf, sizeof buf, " %s (the rows: +-%.3g)", in.robot.paramNameHuman(c).c_str(), in.robot.toHuman(c, sigma));
+      else
+        std::snprintf(buf, sizeof buf, " %s (the rows: not at all)", in.robot.paramNameHuman(c).c_str());
+      held += buf;
+    }
+    std::printf("held at the robot file's values, where its calibration put the target (these rows cannot tell them "
+                "from the base frame: one tool orientation, or nearly; a re-mounted target needs rows at several "
+                "orientations):%s\n", held.c_str());
+  }
   if (const auto& n = rep.against_nominal)
     std::printf("the robot file's calibration against its nominal kinematics, registered alike on these rows: %.4f mm "
                 "held-out mean against %.4f mm (%.1f standard errors %s)%s\n",

@@ -1,10 +1,12 @@
 // calibrateCampaign for one set-up; several set-ups are in campaign_setups.cpp.
 #include "cellcal/core/campaign/campaign.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/outliers.hpp"
@@ -171,6 +173,57 @@ std::string fixed(double v, int digits) {
   return b;
 }
 
+// With frames only, the tool frame's translation (or rotation) that these rows leave open in some direction beyond
+// kToolUnpinned (one tool orientation, or nearly: the target's place cannot be told from the base's) is held at the
+// robot file's values, where its calibration put the target on the flange, and named with what the rows would give
+// each parameter. A tool rotation that position readings do not see at all stays as it is (not estimated, not named).
+constexpr double kToolUnpinnedM = 1e-3, kToolUnpinnedRad = 0.1 * kPi / 180;
+void holdUnpinnedTool(const CampaignInput& in, CampaignReport& rep) {
+  const RobotModel& robot = in.robot;
+  ExtendedFit& after = rep.after;
+  Eigen::MatrixXd cov;
+  double variance_factor = 1;
+  const std::vector<int> determined = conditionalCovariance(robot, after, in.data.identification,
+                                                            in.data.identification_drivers, after.estimated, &cov,
+                                                            &variance_factor);
+  const double scale = std::sqrt(std::max(1.0, variance_factor));
+  // The translation's three parameters, and the rotation's, share what the rows leave open (the flange's one
+  // orientation turns them alike): each block is held whole when its weakest direction is unpinned.
+  std::vector<int> held;
+  for (const bool length : {true, false}) {
+    std::vector<int> block;
+    for (int k = length ? 0 : 3; k < (length ? 3 : 6); ++k) block.push_back(robot.toolParam(static_cast<FrameParam>(k)));
+    std::vector<Eigen::Index> at;
+    for (int c : block) {
+      const auto it = std::find(determined.begin(), determined.end(), c);
+      if (it != determined.end()) at.push_back(static_cast<Eigen::Index>(it - determined.begin()));
+    }
+    if (!length && at.empty()) continue;  // a rotation position readings do not see: not estimated, not named
+    const double weakest = at.size() < block.size()
+                               ? std::numeric_limits<double>::infinity()
+                               : std::sqrt(Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(cov(at, at)).eigenvalues().maxCoeff()) * scale;
+    if (!(weakest > (length ? kToolUnpinnedM : kToolUnpinnedRad))) continue;
+    for (size_t k = 0; k < block.size(); ++k) {
+      const auto it = std::find(determined.begin(), determined.end(), block[k]);
+      const double sigma = it == determined.end()
+                               ? std::numeric_limits<double>::infinity()
+                               : std::sqrt(cov(it - determined.begin(), it - determined.begin())) * scale;
+      held.push_back(block[k]);
+      rep.frames_held.emplace_back(block[k], sigma);
+    }
+  }
+  if (held.empty()) return;
+  Eigen::VectorXd p = after.params;
+  for (int c : held) p[c] = robot.nominal[c];
+  after.params = refineFrames(robot, p, after.extensions, after.extension_params, in.data.identification,
+                              in.data.identification_drivers, 20, held).params;
+  std::vector<int> estimated;
+  for (int c : after.estimated)
+    if (std::find(held.begin(), held.end(), c) == held.end()) estimated.push_back(c);
+  after.estimated = estimated;
+  rep.estimated = estimated.size();
+}
+
 // With frames only: the robot file's kinematics and extensions carried to these rows, its frames registered on them.
 void registerFrames(const CampaignProblem& problem, const CampaignInput& in, CampaignReport& rep,
                     OutlierScreen* ident_outliers) {
@@ -215,6 +268,7 @@ void registerFrames(const CampaignProblem& problem, const CampaignInput& in, Cam
       rep.model_label = "the nominal kinematics (the robot file's calibration does worse on these rows), frames only";
     }
   }
+  if (in.calibration) holdUnpinnedTool(in, rep);
   *ident_outliers = screenRows(robot, after, ident, idr, problem.outliers);
 }
 

@@ -138,12 +138,15 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
 RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& params,
                                 const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
                                 const std::vector<Observation>& observations, const std::vector<Drivers>& drivers,
-                                int iterations) {
+                                int iterations, const std::vector<int>& held) {
   if (drivers.size() != observations.size()) throw std::invalid_argument("refineFrames: one Drivers entry per observation");
   if (params.size() != model.numParams()) throw std::invalid_argument("refineFrames: params has the wrong size");
   std::vector<int> frames;
-  for (int k = 0; k < 6; ++k) frames.push_back(model.toolParam(static_cast<FrameParam>(k)));
-  for (int k = 0; k < 6; ++k) frames.push_back(model.baseParam(static_cast<FrameParam>(k)));
+  auto free = [&](int c) { return std::find(held.begin(), held.end(), c) == held.end(); };
+  for (int k = 0; k < 6; ++k)
+    if (free(model.toolParam(static_cast<FrameParam>(k)))) frames.push_back(model.toolParam(static_cast<FrameParam>(k)));
+  for (int k = 0; k < 6; ++k)
+    if (free(model.baseParam(static_cast<FrameParam>(k)))) frames.push_back(model.baseParam(static_cast<FrameParam>(k)));
   const int rows = totalRows(observations);
   KinematicsData data(model);
   RegistrationResult out;

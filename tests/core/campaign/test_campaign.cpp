@@ -18,6 +18,7 @@
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/model_extension.hpp"
+#include "cellcal/core/model/inverse_kinematics.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "core/identification/hidden_effect.hpp"
 #include "core/identification/placements.hpp"
@@ -424,6 +425,83 @@ TEST(Campaign, ACarriedCalibrationWorseThanNominalIsNotDeployed) {
   EXPECT_GE(right, static_cast<int>(std::ceil(0.95 * judged)));
   EXPECT_GT(nominal_used, 0);
   EXPECT_LT(nominal_used, 24);
+}
+
+// A calibration carried to rows at one tool orientation (a grid, as trackers are often run, through the nominal
+// model's inverse kinematics): the rows cannot tell the target's place on the flange from the base's, so the tool
+// frame is held at the robot file's value and named, not fitted to wherever the near-singular fit puts it. The
+// target stays where the calibration put it: the carried model then lands the held-out rows as well as a fit of
+// every frame parameter, and its tool frame is the file's. With rows at many orientations nothing is held.
+TEST(Campaign, OneToolOrientationHoldsTheTargetAtTheRobotFilesPlace) {
+  const std::vector<RobotModel> robots = armsToDraw({"kuka/kr10r1420.urdf", "abb/irb1600_6_12.urdf"});
+  std::mt19937_64 rng(test::testSeed());
+  for (int draw = 0; draw < 6; ++draw) {
+    const RobotModel& file = robots[rng() % robots.size()];
+    SimulatedArm arm{file, rng};
+    arm.six_d = rng() % 2 == 0;
+    RobotFile rf;
+    rf.model = file;
+    const Eigen::VectorXd truth = arm.placed(file.nominal + arm.jointErrors(1.0));
+    CampaignProblem first;
+    first.setups = {prepareCampaignInput("first.csv", rf, arm.measure(truth, 120), arm.options())};
+    const CampaignReport r1 = calibrateCampaign(first);
+    ASSERT_EQ(r1.exitCode(), 0) << r1.unusable << r1.message;
+    // The tracker moved; the robot and its target as they were. Rows at one flange orientation.
+    Eigen::VectorXd moved = arm.placed(truth);
+    moved.segment<6>(file.toolParam(FrameParam::kX)) = truth.segment<6>(file.toolParam(FrameParam::kX));
+    KinematicsData data(file);
+    Eigen::VectorXd seed_q = arm.configuration();
+    const Pose centre = forwardKinematics(file, data, file.nominal, seed_q);
+    MeasurementFile grid;
+    for (int k = 0; k < 200 && grid.rows.size() < 80; ++k) {
+      Pose target = centre;
+      target.translation() += 0.4 * Eigen::Vector3d(arm.u01() - 0.5, arm.u01() - 0.5, arm.u01() - 0.5);
+      const IkResult ik = solveInverseKinematics(file, file.nominal, target, seed_q);
+      if (!ik.ok()) continue;
+      seed_q = ik.q_rad;
+      const Pose T = forwardKinematics(file, data, moved, ik.q_rad);
+      MeasurementRow row;
+      row.line = static_cast<int>(grid.rows.size()) + 2;
+      row.q_rad = ik.q_rad;
+      row.position_m = T.translation() + arm.sigma_m * Eigen::Vector3d(arm.g(), arm.g(), arm.g());
+      if (arm.six_d)
+        row.orientation = Eigen::Quaterniond(expSO3(arm.sigma_rad * Eigen::Vector3d(arm.g(), arm.g(), arm.g())) * T.linear());
+      grid.rows.push_back(row);
+    }
+    if (grid.rows.size() < 40) continue;  // the grid not reached from this configuration
+    RobotFile carried;
+    carried.model = file.withParams(r1.saved_params);
+    carried.calibration = r1.calibration;
+    CampaignProblem second;
+    second.frames_only = true;
+    second.setups = {prepareCampaignInput("grid.csv", carried, grid, arm.options())};
+    const CampaignReport r2 = calibrateCampaign(second);
+    ASSERT_TRUE(r2.converged) << r2.message;
+    std::string held;
+    for (const auto& [c, sigma] : r2.frames_held) held += " " + file.paramNameHuman(c);
+    const int t = file.toolParam(FrameParam::kX);
+    const double tool_move_mm = (r2.after.params.segment<3>(t) - r1.saved_params.segment<3>(t)).norm() * 1e3;
+    std::printf("  %-16s %-6s one orientation, %zu rows: held%s; the target moved %.4f mm from the file's; held-out "
+                "%.4f mm\n",
+                file.name.c_str(), arm.six_d ? "6D" : "points", grid.rows.size(), held.c_str(), tool_move_mm,
+                r2.errors.verification_kept_after.mean_mm);
+    // The translation of the target is held (the rows cannot pin it), and stays the file's.
+    for (int k = 0; k < 3; ++k) {
+      const int c = t + k;
+      EXPECT_TRUE(std::any_of(r2.frames_held.begin(), r2.frames_held.end(), [&](const auto& h) { return h.first == c; }))
+          << file.paramNameHuman(c) << " not held";
+      EXPECT_FALSE(std::count(r2.after.estimated.begin(), r2.after.estimated.end(), c)) << file.paramNameHuman(c);
+    }
+    EXPECT_LT(tool_move_mm, 1e-9);
+    // And the carried model still lands these rows at the readings' level: the base took the move.
+    EXPECT_LT(r2.errors.verification_kept_after.mean_mm, 4 * arm.sigma_m * 1e3 * std::sqrt(3.0)) << held;
+    // Rows at many orientations pin the tool: nothing held.
+    CampaignProblem spread;
+    spread.frames_only = true;
+    spread.setups = {prepareCampaignInput("spread.csv", carried, arm.measure(moved, 80), arm.options())};
+    const CampaignReport r3 = calibrateCampaign(spread);
+    EXPECT_TRUE(r3.frames_held.empty()) << file.name;
+  }
 }
 
 // A fit at the readings' noise converges and is used: arms of the robot files and of ../shared's URDFs, points or 6D,

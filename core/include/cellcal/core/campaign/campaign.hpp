@@ -118,6 +118,10 @@ struct CampaignReport {
   // them on the same rows ('before' is then the nominal kinematics); the nominal deployed when better, unless
   // keep_extensions keeps the file's model (then unusable: exit 4).
   std::optional<NominalComparison> against_nominal;
+  // frames_only: the tool frame's translation or rotation that these rows leave open beyond 1 mm or 0.1 deg in some
+  // direction (one tool orientation, or nearly), held at the robot file's values, each parameter with the sigma (SI)
+  // the rows would give it (infinite: none).
+  std::vector<std::pair<int, double>> frames_held;
   bool nominal_deployed = false;
   bool nominalDeployed() const { return nominal_deployed; }
   std::optional<ExtensionTransfer> transfer;               // extensions: measured on region folds

@@ -33,11 +33,12 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
 
 // Base and tool frames of a calibrated model on new readings ("the tracker was moved"): Gauss-Newton on the 12 frame
 // parameters (those the readings excite) with the kinematics and the model extensions held, starting from `params`
-// (e.g. registerFrames on the calibrated kinematics). `drivers`: one per observation (extensions only).
+// (e.g. registerFrames on the calibrated kinematics). `drivers`: one per observation (extensions only). `held`: frame
+// parameters kept at their value in `params` (e.g. a tool frame the readings cannot tell from the base).
 RegistrationResult refineFrames(const RobotModel& model, const Eigen::VectorXd& params,
                                 const std::vector<Extension>& extensions, const Eigen::VectorXd& extension_params,
                                 const std::vector<Observation>& observations, const std::vector<Drivers>& drivers,
-                                int iterations = 20);
+                                int iterations = 20, const std::vector<int>& held = {});
 
 // Where rows of two tracker (or target) placements meet in one file, in visiting order. A single registration of
 // rows from two set-ups leaves residuals of the size of the move (hundreds of mm); registered apart, each side fits to
