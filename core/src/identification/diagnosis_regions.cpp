@@ -153,6 +153,17 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
   return out;
 }
 
+namespace {
+// A geometric model's frames registered on `identification` as a carried model's are (closed form, then
+// refineFrames with the kinematics held): compareCarried and compareWithNominal judge their models alike.
+Eigen::VectorXd registeredAlike(const RobotModel& model, const Eigen::VectorXd& params,
+                                const std::vector<Observation>& identification,
+                                const std::vector<Drivers>& identification_drivers) {
+  return refineFrames(model, registerFrames(model, params, identification).params, {}, Eigen::VectorXd(),
+                      identification, identification_drivers).params;
+}
+}  // namespace
+
 CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& extended, const Eigen::VectorXd& geometric_params,
                                  const std::vector<Observation>& identification,
                                  const std::vector<Drivers>& identification_drivers,
@@ -162,8 +173,7 @@ CarriedComparison compareCarried(const RobotModel& model, const ExtendedFit& ext
   if (verification.empty()) throw std::invalid_argument("compareCarried: no verification rows");
   CarriedComparison c;
   c.extended = extended;
-  c.geometric.params = refineFrames(model, registerFrames(model, geometric_params, identification).params, {},
-                                    Eigen::VectorXd(), identification, identification_drivers).params;
+  c.geometric.params = registeredAlike(model, geometric_params, identification, identification_drivers);
   c.geometric.converged = true;
   c.geometric.estimated = extended.estimated;  // the frames
   const auto re = positionResiduals(model, c.extended, verification, verification_drivers);
@@ -197,8 +207,7 @@ NominalComparison compareWithNominal(const RobotModel& model, const ExtendedFit&
   if (nominal_params.size() != model.numParams()) throw std::invalid_argument("compareWithNominal: nominal_params has the wrong size");
   if (verification.empty()) throw std::invalid_argument("compareWithNominal: no verification rows");
   NominalComparison c;
-  c.nominal.params = refineFrames(model, registerFrames(model, nominal_params, identification).params, {},
-                                  Eigen::VectorXd(), identification, identification_drivers).params;
+  c.nominal.params = registeredAlike(model, nominal_params, identification, identification_drivers);
   c.nominal.converged = true;
   c.nominal.estimated = carried.estimated;  // the frames
   const auto rc = positionResiduals(model, carried, verification, verification_drivers);
