@@ -55,6 +55,7 @@ bench: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -L bench
 	$(BUILD_DIR)/bin/cellcal_bench
 	$(BUILD_DIR)/bin/cellcal_ik_sweep --seeds 5000
+	$(BUILD_DIR)/bin/cellcal_servo_rt_bench --json $(BUILD_DIR)/servo_rt_bench.json
 	bash tools/bench/diagnose_speed.sh $(BUILD_DIR)
 	bash tools/bench/hot_path.sh $(BUILD_DIR) 20
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20

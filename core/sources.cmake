@@ -62,6 +62,8 @@ set(CELLCAL_CORE_SOURCES
   src/engine/compensation.cpp
   src/engine/servo.cpp
   src/engine/pose_requests.cpp
+  # servo/: compensation inside a controller's cycle (no allocation, no lock), versions handed over wait-free
+  src/servo/realtime_compensator.cpp
   # sim/: a simulated robot and tracker
   src/sim/simulation.cpp
   # accuracy/: ISO 9283 figures from measured poses, and the standard's test cube and poses

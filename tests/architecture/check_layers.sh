@@ -16,6 +16,7 @@ rules=(
   "core/include/cellcal/core/files core/src/files|core/model core/identification core/files|no"
   "core/include/cellcal/core/campaign core/src/campaign|core/model core/identification core/files core/campaign|no"
   "core/include/cellcal/core/engine core/src/engine|core/model core/identification core/files core/engine|no"
+  "core/include/cellcal/core/servo core/src/servo|core/model core/identification core/files core/engine core/servo|no"
   "core/include/cellcal/core/accuracy core/src/accuracy|core/model core/identification core/files core/accuracy|no"
   "core/|core/|no"
   "lab/|core/ lab/|no"
