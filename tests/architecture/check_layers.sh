@@ -22,7 +22,7 @@ rules=(
   "lab/|core/ lab/|no"
   "recording/mcap/|mcap/ core/files/crc32.hpp|no"
   "recording/foxglove/|foxglove/|no"
-  "components/|core/ lab/ components/|yes"
+  "components/|core/ lab/ components/ servo_compensation.h|yes"
   "recording/|core/ lab/ components/ mcap/ foxglove/ recording/|yes"
 )
 

@@ -13,7 +13,7 @@ cmake --install "$build" --prefix "$prefix" >"$work/install.log"
 
 fail() { echo "check_install: $*" >&2; exit 1; }
 for f in bin/cellcal bin/cellcal_tracker_adapter bin/cellcal_joint_state_adapter bin/cellcal_calibration_engine \
-         bin/cellcal_compensation_publisher lib/libcellcal_core.a include/cellcal/core/identification/calibration.hpp \
+         bin/cellcal_compensation_publisher lib/libcellcal_core.a lib/libcellcal_servo.so include/cellcal/servo_compensation.h include/cellcal/core/identification/calibration.hpp \
          include/cellcal/core/identification/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
          lib/cmake/cellcal/cellcalTargets.cmake share/cellcal/idl/cellcal_msgs.idl share/cellcal/config/cell.yaml \
          share/cellcal/config/dds/cellcal_qos.xml share/cellcal/config/robots/staubli_tx60.yaml \
@@ -35,4 +35,11 @@ cmake -S "$here/consumer" -B "$work/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DCM
 cmake --build "$work/consumer" >"$work/consumer_build.log" 2>&1 ||
   { cat "$work/consumer_build.log"; fail "the consumer project did not build against $prefix"; }
 (cd "$work" && "$work/consumer/consumer")  # it writes its measurement file there
+# The servo library from C, on the installed cell file's robot: a copy beside it (its relative paths hold) on a domain
+# no test uses.
+servo_cell=$prefix/share/cellcal/config/servo_check.yaml
+sed -e 's/domain_id: [0-9]*/domain_id: 231/' "$prefix/share/cellcal/config/cell.yaml" >"$servo_cell"
+grep -q "domain_id: 231" "$servo_cell" || fail "the installed cell.yaml has no dds domain_id"
+"$work/consumer/servo_consumer" "$servo_cell" ||
+  fail "the C servo consumer failed against $prefix"
 echo "check_install: installed tree in $prefix is complete and usable"
