@@ -64,6 +64,8 @@ set(CELLCAL_CORE_SOURCES
   src/engine/pose_requests.cpp
   # servo/: compensation inside a controller's cycle (no allocation, no lock), versions handed over wait-free
   src/servo/realtime_compensator.cpp
+  src/servo/rsi_xml.cpp                        # KUKA RSI's <Rob> and <Sen> packets, without allocation
+  src/servo/rsi_session.cpp                    # one RSI connection's packets answered by the compensator
   # sim/: a simulated robot and tracker
   src/sim/simulation.cpp
   # accuracy/: ISO 9283 figures from measured poses, and the standard's test cube and poses

@@ -27,7 +27,7 @@ cmake --build "$BUILD" -j "$(nproc)" >"$BUILD.build.log" 2>&1 || { tail -50 "$BU
 [ "$BUILD_ONLY" = 1 ] && { echo "fuzz: built in $BUILD"; exit 0; }
 echo "fuzz: built; running each parser for $WHAT"
 status=0
-for t in robot_yaml cell_yaml measurement_csv mcap state_journal urdf; do
+for t in robot_yaml cell_yaml measurement_csv mcap state_journal urdf rsi_xml; do
   corpus="$ROOT/tests/fuzz/corpus/$t"
   work="$BUILD/work/$t"; findings="$BUILD/findings/$t"
   [ "$FRESH" = 1 ] && rm -rf "$work"  # a repeatable run starts from the committed corpus alone

@@ -9,6 +9,7 @@
 #include <malloc.h>
 
 #include <atomic>
+#include <functional>
 #include <cerrno>
 #include <cstdlib>
 #include <random>
@@ -78,6 +79,13 @@ long allocationsIn(F&& f) {
   g_counting = false;
   return g_allocations.load() - before;
 }
+
+}  // namespace
+
+// For the other test files of this binary (test_rsi_xml.cpp).
+long allocationsInRsi(const std::function<void()>& f) { return allocationsIn(f); }
+
+namespace {
 
 struct RealtimeFixture : ::testing::Test {
   std::uint64_t seed = test::testSeed();
