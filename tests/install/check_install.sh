@@ -13,7 +13,7 @@ cmake --install "$build" --prefix "$prefix" >"$work/install.log"
 
 fail() { echo "check_install: $*" >&2; exit 1; }
 for f in bin/cellcal bin/cellcal_tracker_adapter bin/cellcal_joint_state_adapter bin/cellcal_calibration_engine \
-         bin/cellcal_compensation_publisher lib/libcellcal_core.a lib/libcellcal_servo.so include/cellcal/servo_compensation.h include/cellcal/core/identification/calibration.hpp \
+         bin/cellcal_compensation_publisher bin/cellcal_rsi_bridge lib/libcellcal_core.a lib/libcellcal_servo.so include/cellcal/servo_compensation.h include/cellcal/core/identification/calibration.hpp \
          include/cellcal/core/identification/rls.hpp lib/cmake/cellcal/cellcalConfig.cmake lib/cmake/cellcal/cellcalConfigVersion.cmake \
          lib/cmake/cellcal/cellcalTargets.cmake share/cellcal/idl/cellcal_msgs.idl share/cellcal/config/cell.yaml \
          share/cellcal/config/dds/cellcal_qos.xml share/cellcal/config/robots/staubli_tx60.yaml \

@@ -205,7 +205,8 @@ TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
       "cellcal import csv", "cellcal diagnose", "cellcal continuous", "cellcal record", "cellcal replay",
       "cellcal validate", "cellcal export", "cellcal status", "cellcal foxglove", "cellcal robot import",
       "cellcal robot export", "cellcal robot check", "cellcal robot fk", "cellcal plan iso9283", "cellcal plan poses", "cellcal plan cover", "cellcal iso9283", "cellcal_tracker_adapter",
-      "cellcal_joint_state_adapter", "cellcal_calibration_engine", "cellcal_compensation_publisher"};
+      "cellcal_joint_state_adapter", "cellcal_calibration_engine", "cellcal_compensation_publisher",
+      "cellcal_rsi_bridge"};
   std::set<std::string> pages;
   for (const auto& e : fs::directory_iterator(kRepo / "docs" / "man")) pages.insert(e.path().stem().string());
   for (const auto& c : commands) {
