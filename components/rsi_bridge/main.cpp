@@ -17,9 +17,8 @@ int main(int argc, char** argv) {
         ->capture_default_str();
     app.add_option("--cycle-ms", o.cycle_ms, "RSI's cycle (4: IPO_FAST; 12)")->capture_default_str();
     app.add_option("--max-correction-deg", o.max_correction_deg,
-                   "largest axis correction sent; keep compensation.max_joint_correction_deg below it and AXISCORR's "
-                   "limits above it")
-        ->capture_default_str();
+                   "largest axis correction sent (default: the cell file's compensation.max_joint_correction_deg, "
+                   "above which the compensator holds by itself); AXISCORR's limits at or above it");
     app.add_option("--rt-priority", o.rt_priority,
                    "run the cycle's thread SCHED_FIFO at this priority (1-99; needs root or CAP_SYS_NICE)");
     app.add_option("--cpu", o.cpu, "pin the cycle's thread to this core");

@@ -26,17 +26,11 @@ const CellRobot& robotOf(const CellConfig& cell, const std::string& id) {
   throw ConfigError(id.empty() ? "--robot: the cell file has several robots (" + ids + "): name the controller's"
                                : "--robot: '" + id + "' is not a robot of " + cell.source + " (its robots: " + ids + ")");
 }
-RealtimeSettings realtimeSettings(const CellConfig& cell) {
-  RealtimeSettings s;
-  s.compensation = cell.compensation;
-  s.blend_s = cell.compensation.blend_s;
-  return s;
-}
-RsiSettings rsiSettings(const RsiBridge::Options& o) {
+RsiSettings rsiSettings(const RsiBridge::Options& o, const CellConfig& cell) {
   RsiSettings s;
   s.sensor_type = o.sensor_type.c_str();
   s.cycle_s = o.cycle_ms * 1e-3;
-  s.max_correction_deg = o.max_correction_deg;
+  s.max_correction_deg = o.max_correction_deg == 0 ? rsiLimitDeg(cell.compensation) : o.max_correction_deg;
   return s;
 }
 sockaddr_in ipv4(const std::string& text, const char* option) {
@@ -70,10 +64,10 @@ RsiBridge::RsiBridge(const Options& o)
       robot_(&robotOf(cell_, o.robot)),
       compensator_(robot_->model, realtimeSettings(cell_)),
       feed_(cell_, robot_->robot_id, compensator_, "cellcal_rsi_bridge"),
-      session_(compensator_, robot_->model.numJoints(), rsiSettings(options_)) {
+      session_(compensator_, robot_->model.numJoints(), rsiSettings(options_, cell_)) {
   if (o.controller.empty()) throw ConfigError("--controller: the controller's IPv4 address is required");
-  if (!(o.cycle_ms > 0) || !(o.max_correction_deg > 0))
-    throw ConfigError("--cycle-ms and --max-correction-deg must be > 0");
+  if (!(o.cycle_ms > 0) || !(o.max_correction_deg >= 0))
+    throw ConfigError("--cycle-ms must be > 0 and --max-correction-deg >= 0");
   controller_ = ipv4(o.controller, "--controller").sin_addr;
   const sockaddr_in listen = ipv4(o.listen, "--listen");
   socket_ = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
@@ -84,7 +78,7 @@ RsiBridge::RsiBridge(const Options& o)
   }
   std::cerr << "cellcal_rsi_bridge: robot " << robot_->robot_id << " (" << robot_->model.numJoints()
             << " axes), listening on " << o.listen << " for " << o.controller << ", cycle " << o.cycle_ms
-            << " ms, corrections up to " << o.max_correction_deg << " deg per axis\n";
+            << " ms, corrections up to " << session_.settings().max_correction_deg << " deg per axis\n";
 }
 
 RsiBridge::~RsiBridge() {
@@ -155,6 +149,9 @@ int RsiBridge::run() {
     last_packet_ns_.store(t0, std::memory_order_relaxed);
     // A datagram longer than the buffer arrives cut (MSG_TRUNC gives its length): the session refuses it as too long.
     const std::size_t m = session_.onPacket(in, static_cast<std::size_t>(n), out, sizeof out);
+    if (const std::uint64_t v = compensator_.version();
+        v != (taken_count_ ? taken_[taken_count_ - 1].second : 0) && taken_count_ < taken_.size())
+      taken_[taken_count_++] = {session_.lastIpoc(), v};
     if (m == 0) continue;
     ::sendto(socket_, out, m, 0, reinterpret_cast<const sockaddr*>(&from), from_len);
     const std::int64_t us = (steadyNs() - t0) / 1000;
@@ -178,6 +175,8 @@ int RsiBridge::run() {
   for (std::size_t e = 1; e < c.refused.size(); ++e)
     if (c.refused[e] > 0) refused[rsiErrorName(static_cast<RsiError>(e))] = c.refused[e];
   const FeedStatus feed = feed_.status();
+  nlohmann::json taken = nlohmann::json::array();
+  for (std::size_t k = 0; k < taken_count_; ++k) taken.push_back({taken_[k].first, taken_[k].second});
   const nlohmann::json stats = {
       {"robot_id", robot_->robot_id},
       {"packets", c.packets},
@@ -193,7 +192,10 @@ int RsiBridge::run() {
       {"foreign_dropped", foreign_.load()},
       {"latency_us", {{"p50", p50}, {"p99", p99}, {"max", max}, {"count", total}}},
       {"calibration", {{"applied_version", feed.applied_version}, {"received", feed.received},
-                       {"versions_applied", feed.applied}, {"holding", feed.holding}, {"describe", describe(feed)}}}};
+                       {"versions_applied", feed.applied}, {"holding", feed.holding}, {"describe", describe(feed)}}},
+      // [IPOC, version]: the cycle each version first answered (at most 4096; taken_full says the list was cut)
+      {"versions_taken", taken},
+      {"taken_full", taken_count_ == taken_.size()}};
   writeJsonFile(options_.process.stats_json, stats);
   std::cerr << "cellcal_rsi_bridge: " << c.packets << " packets, " << c.answered << " answered (" << c.applied
             << " corrected, " << c.held << " held), " << foreign_.load() << " from other addresses dropped; answer "

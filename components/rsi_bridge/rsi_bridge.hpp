@@ -31,7 +31,7 @@ class RsiBridge {
     std::string controller;              // the controller's IPv4 address: datagrams from any other are dropped
     std::string sensor_type = "ImFree";
     double cycle_ms = 4;
-    double max_correction_deg = 1.0;
+    double max_correction_deg = 0;  // 0: rsiLimitDeg of the cell file's compensation settings
     int rt_priority = 0;  // SCHED_FIFO priority of the cycle's thread (1-99); 0: the default scheduler
     int cpu = -1;         // pin the cycle's thread to this core
     double duration_s = 0;
@@ -56,6 +56,10 @@ class RsiBridge {
   in_addr controller_{};
   // Receive-to-send time of each answer, µs (the last bin: 10 ms and over).
   std::array<std::uint32_t, 10001> latency_us_{};
+  // (IPOC, version) of each cycle whose answer came from another version than the one before (the first of each
+  // version), kept in storage of the cycle's thread for --stats-json: a check replays the stream with them.
+  std::array<std::pair<std::uint64_t, std::uint64_t>, 4096> taken_{};
+  std::size_t taken_count_ = 0;
   std::atomic<std::uint64_t> foreign_{0}, packets_{0};
   std::atomic<std::int64_t> last_packet_ns_{0};
   std::atomic<bool> done_{false};

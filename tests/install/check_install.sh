@@ -42,4 +42,6 @@ sed -e 's/domain_id: [0-9]*/domain_id: 231/' "$prefix/share/cellcal/config/cell.
 grep -q "domain_id: 231" "$servo_cell" || fail "the installed cell.yaml has no dds domain_id"
 "$work/consumer/servo_consumer" "$servo_cell" ||
   fail "the C servo consumer failed against $prefix"
+"$work/consumer/servo_loops" "$servo_cell" ||
+  fail "the C++ servo loops (ros2_control, ur_rtde) failed against $prefix"
 echo "check_install: installed tree in $prefix is complete and usable"

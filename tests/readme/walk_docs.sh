@@ -5,7 +5,7 @@
 # incomplete (a trailing backslash, a loop, an open parenthesis). A command must exit 0, or the code its first line
 # names in a comment (`# exit 3`). Not run, each with its reason printed: `make ...` (the set-up that runs this test),
 # `export ...`, commands that start a long-running process (`... &`, the component processes, `record`/`replay`
-# that wait for a running cell, `foxglove`), benchmarks (`bench-cell`: minutes, `make bench`), commands that need root
+# that wait for a running cell, `foxglove`), benchmarks (`bench-cell`, `bench-servo`: minutes, `make bench`), commands that need root
 # and change this host (`sudo`, files under /etc), a Docker engine or a systemd journal. Commands that read
 # ../shared need the dataset: without it the rest of that file is skipped; with nothing run the test is skipped (77).
 # A ```output block right after a command quotes what it prints (```output tol=0.05: figures within 5 %; without it,
@@ -36,7 +36,7 @@ why_not() {  # the reason a command is not run, or nothing
     build/bin/cellcal_* | *" build/bin/cellcal_"*) echo "a component process: runs until stopped" ;;
     "build/bin/cellcal record --out"* | "build/bin/cellcal replay "*) echo "needs a running cell" ;;
     "build/bin/cellcal foxglove"*) echo "serves until stopped (ctest -R Foxglove runs it beside a cell)" ;;
-    *bench-cell*) echo "a benchmark: minutes of load (make bench)" ;;
+    *bench-cell* | *bench-servo*) echo "a benchmark: minutes of load (make bench)" ;;
     sudo\ * | *" /etc/"*) echo "needs root and changes this host" ;;
     docker\ * | *"docker compose"*) echo "needs a Docker engine" ;;
     journalctl\ *) echo "reads a systemd journal" ;;

@@ -201,7 +201,7 @@ namespace {
 // docs/man, and every page there is a command's.
 TEST(Help, EveryCommandHasAManPageWhoseExamplesUseRealOptions) {
   const std::vector<std::string> commands = {
-      "cellcal experiment paper", "cellcal cell", "cellcal bench-cell", "cellcal calibrate", "cellcal import ipa",
+      "cellcal experiment paper", "cellcal cell", "cellcal bench-cell", "cellcal bench-servo", "cellcal calibrate", "cellcal import ipa",
       "cellcal import csv", "cellcal diagnose", "cellcal continuous", "cellcal record", "cellcal replay",
       "cellcal validate", "cellcal export", "cellcal status", "cellcal foxglove", "cellcal robot import",
       "cellcal robot export", "cellcal robot check", "cellcal robot fk", "cellcal plan iso9283", "cellcal plan poses", "cellcal plan cover", "cellcal iso9283", "cellcal_tracker_adapter",

@@ -166,6 +166,12 @@ class CellJudge::Impl {
     }
   }
 
+  double cellTimeS(std::size_t robot) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return judges_.at(robot).cell_time_s;
+  }
+  const Judge& judge(std::size_t robot) const { return judges_.at(robot); }
+
  private:
   static double mean(const std::vector<double>& v) {
     double s = 0;
@@ -198,6 +204,7 @@ class CellJudge::Impl {
     if (m.last_measurement_stamp_ns() > 0)
       tracker_to_state_us_.push_back((now - static_cast<std::int64_t>(m.last_measurement_stamp_ns())) / 1e3);
     j->version = c->version;
+    if (a_.rsi_hz > 0) j->calibrations[c->version] = *c;
     j->identified = *c;
     double cell_time;
     {
@@ -286,5 +293,7 @@ void CellJudge::attach(DdsNode& node) { impl_->attach(node); }
 double CellJudge::runningSeconds() { return impl_->runningSeconds(); }
 void CellJudge::score() { impl_->score(); }
 void CellJudge::summarize(nlohmann::json* summary) const { impl_->summarize(summary); }
+double CellJudge::cellTimeS(std::size_t robot) { return impl_->cellTimeS(robot); }
+const Judge& CellJudge::judge(std::size_t robot) const { return impl_->judge(robot); }
 
 }  // namespace cellcal::cli

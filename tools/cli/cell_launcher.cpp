@@ -36,7 +36,8 @@ Child spawn(const std::string& name, std::vector<std::string> args, const std::s
 
 // The cell's processes, each with its output in <work_dir>/<name>.log. The recorder first: the robot program waits
 // for its RobotTruth reader too, so the recording starts with the program.
-std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, const std::string& state_dir) {
+std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, const std::string& state_dir,
+                                  const std::vector<int>& rsi_ports) {
   const std::vector<std::string> common = {"--config", fs::absolute(a.common.config_path).string(), "--domain-id",
                                            std::to_string(cell.dds.domain_id), "--dds-profile",
                                            cell.dds.participant_profile};
@@ -81,6 +82,14 @@ std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, con
   // RobotTruth's readers are every tracker adapter, this launcher and the recorder.
   each("joint_state_adapter",
        {"--source", "sim", "--wait-for-readers", std::to_string(n + 1 + (a.record.empty() ? 0 : 1))});
+  // --rsi-hz: one RSI bridge per robot, listening for its simulated controller (cell_rsi.cpp) on loopback.
+  for (std::size_t i = 0; i < rsi_ports.size(); ++i) {
+    std::vector<std::string> args = {"--robot", cell.robots[i].robot_id, "--listen",
+                                     "127.0.0.1:" + std::to_string(rsi_ports[i]), "--controller", "127.0.0.1",
+                                     "--cycle-ms", std::to_string(1000.0 / a.rsi_hz)};
+    if (a.rsi_rt_priority > 0) args.insert(args.end(), {"--rt-priority", std::to_string(a.rsi_rt_priority)});
+    children.push_back(spawn("rsi_bridge_" + std::to_string(i + 1), with({}, args), a.work_dir, false, "", "rsi_bridge"));
+  }
   return children;
 }
 
@@ -102,6 +111,10 @@ int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohm
     if (!in) continue;
     const nlohmann::json p = nlohmann::json::parse(in, nullptr, false);
     if (p.is_discarded()) continue;
+    if (c.name.rfind("rsi_bridge", 0) == 0) {  // its own counts, no DDS topics of its own (cell_rsi.cpp reads them)
+      s["rsi_bridges"][c.name] = p;
+      continue;
+    }
     for (const auto& [topic, counts] : p[stats::kTopics].items()) {
       if (!topics.contains(topic)) topics[topic] = {{stats::kPublished, 0ULL}, {stats::kReceived, 0ULL}};
       auto& t = topics[topic];

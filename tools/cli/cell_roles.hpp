@@ -47,6 +47,10 @@ struct CellArgs {
   // --shards N: the robots split into N consecutive groups, each served by its own engine, compensation publisher
   // and adapters (each with --robots: content-filtered readers), named <process>_<k>.
   int shards = 1;
+  // --rsi-hz R: a KUKA RSI stream per robot, answered by a cellcal_rsi_bridge process fed by the cell's calibrations
+  // (cell_rsi.cpp); --rsi-rt-priority: SCHED_FIFO for the bridges and the simulated controllers.
+  double rsi_hz = 0;
+  int rsi_rt_priority = 0;
 };
 
 // The launcher.
@@ -59,7 +63,9 @@ struct Child {
 
 // The cell's processes, each with its output in <work_dir>/<name>.log. The recorder first: the robot program waits
 // for its RobotTruth reader too, so the recording starts with the program.
-std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, const std::string& state_dir);
+// `rsi_ports`: with --rsi-hz, the UDP port of each robot's RSI bridge (CellRsi::ports).
+std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, const std::string& state_dir,
+                                  const std::vector<int>& rsi_ports = {});
 // Adds each process's exit code and its --stats-json (topic counts summed with the launcher's own, the engine's,
 // compensation's and recorder's counters) to the summary; returns how many processes failed.
 int mergeProcessStats(std::vector<Child>& children, nlohmann::json topics, nlohmann::json* summary);
@@ -82,6 +88,8 @@ struct Judge {
   std::string health = "uncalibrated";  // of the latest CalibrationState
   std::uint64_t applied_version = 0;    // the calibration the compensation publisher applied last
   size_t landed_reported = 0;           // compensated_error_mm up to here is in a printed line
+  // Every calibration received, by version (kept with --rsi-hz: the stream's check replays them).
+  std::map<std::uint64_t, CalibratedModel> calibrations;
   // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
   std::vector<std::array<double, 4>> history;
 
@@ -179,6 +187,32 @@ class CellJudge {
   void score();  // scores what arrived since the last call; a line per calibration update unless --quiet
   // The summary of the run (processes and their topic counts: mergeProcessStats) and its printed lines.
   void summarize(nlohmann::json* summary) const;
+  // The simulated cell's time of robot `robot` (index in the cell file), s; and its view, read after the node is gone.
+  double cellTimeS(std::size_t robot);
+  const Judge& judge(std::size_t robot) const;
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// --rsi-hz: per robot, a simulated KUKA controller (lab/rsi_controller.hpp) on a thread of the launcher sends RSI's
+// <Rob> every cycle to that robot's cellcal_rsi_bridge process (started with the cell's processes, ports()) and
+// counts the answers late or missing; at the end, where the corrected robot landed against the simulator's truth, and
+// the stream replayed in memory through core's RsiSession with the versions the bridge took (its stats) and the
+// calibrations the judge received: every answer must equal the bridge's to 1e-12 rad.
+class CellRsi {
+ public:
+  // Throws ConfigError when SCHED_FIFO is asked for and refused.
+  CellRsi(const CellConfig& cell, const CellArgs& a);
+  ~CellRsi();
+  // Each robot's bridge port on 127.0.0.1: one the kernel gave as free when this was made.
+  const std::vector<int>& ports() const;
+  void start();                                        // the controllers' threads (connect, then stream)
+  void setCellTimeS(std::size_t robot, double cell_time_s);
+  void stop();                                         // the streams end; joins
+  // The streams' figures into summary["rsi"] and their printed lines; false when an answer differs from the replay.
+  bool summarize(const std::vector<Child>& children, const CellJudge& judge, nlohmann::json* summary) const;
 
  private:
   class Impl;

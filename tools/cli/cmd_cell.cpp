@@ -5,6 +5,7 @@
 // simulator's truth on a hold-out pose set (the engine never sees the truth).
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -33,6 +34,14 @@ void addOptions(CLI::App& cmd, CellArgs& a) {
   cmd.add_flag("--servo", a.servo,
                "also stream a joint setpoint per robot with each target (cellcal/servo_setpoint, answered on "
                "cellcal/servo_correction), as a servo loop would at its controller's rate");
+  cmd.add_option("--rsi-hz", a.rsi_hz,
+                 "also a KUKA RSI stream per robot at this rate (250: RSI's 4 ms; 500): a cellcal_rsi_bridge process "
+                 "per robot answers a simulated controller inside its cycle with the cell's calibrations; the summary "
+                 "says late cycles and where the robot landed; default: the cell file's simulation.rsi_hz")
+      ->check(CLI::Range(0.0, 1000.0));
+  cmd.add_option("--rsi-rt-priority", a.rsi_rt_priority,
+                 "SCHED_FIFO priority of the RSI bridges and simulated controllers (needs root or CAP_SYS_NICE)")
+      ->check(CLI::Range(0, 99));
   cmd.add_flag("--quiet", a.quiet, "no line per update");
   cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
   cmd.add_option("--shards", a.shards,
@@ -63,9 +72,11 @@ void addOptions(CLI::App& cmd, CellArgs& a) {
       ->each([&a](const std::string& h) { a.hosts[h.substr(0, h.find('='))] = h.substr(h.find('=') + 1); });
 }
 
-int runCell(const CellArgs& a) {
+int runCell(const CellArgs& options) {
   installStopHandlers();
-  const CellConfig cell = loadCell(a.common);
+  const CellConfig cell = loadCell(options.common);
+  CellArgs a = options;
+  if (a.rsi_hz == 0) a.rsi_hz = cell.simulation.rsi_hz;  // the cell file's, unless --rsi-hz says
   if (static_cast<std::size_t>(a.shards) > cell.robots.size())
     throw ConfigError("--shards " + std::to_string(a.shards) + ": the cell has " + std::to_string(cell.robots.size()) +
                       " robot(s)");
@@ -75,10 +86,12 @@ int runCell(const CellArgs& a) {
   // The launcher's participant: the application and the judge, then the participant they share (deleted first).
   CellApplication application(cell, a);
   CellJudge judge(cell, a, application.sent());
+  std::optional<CellRsi> rsi;
+  if (a.rsi_hz > 0) rsi.emplace(cell, a);
   DdsNode node(cell, "cellcal_cell_launcher", identity::kApplication);
   application.attach(node);
   judge.attach(node);
-  std::vector<Child> children = startProcesses(cell, a, state_dir);
+  std::vector<Child> children = startProcesses(cell, a, state_dir, rsi ? rsi->ports() : std::vector<int>{});
   std::printf("cell: %zu processes on domain %d (%s), cell time x%g, %zu robot(s); logs in %s\n", children.size(),
               cell.dds.domain_id, cell.dds.participant_profile.c_str(), cell.time_compression, cell.robots.size(),
               a.work_dir.c_str());
@@ -90,7 +103,7 @@ int runCell(const CellArgs& a) {
 
   const auto period = std::chrono::duration<double>(1.0 / a.targets_hz);
   auto next = std::chrono::steady_clock::now();
-  bool child_died = false;
+  bool child_died = false, rsi_started = false;
   while (judge.runningSeconds() < a.duration_s && !stopRequested() && !child_died) {
     next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
     std::this_thread::sleep_until(next);
@@ -103,7 +116,12 @@ int runCell(const CellArgs& a) {
     if (child_died) break;
     judge.score();
     application.sendTargets();
+    if (rsi && judge.runningSeconds() > 0) {  // the streams start with the robot program (every process is up)
+      if (!rsi_started) rsi->start(), rsi_started = true;
+      for (std::size_t i = 0; i < cell.robots.size(); ++i) rsi->setCellTimeS(i, judge.cellTimeS(i));
+    }
   }
+  if (rsi) rsi->stop();  // before the bridges stop: their last cycles are not late
   // Stopped in the reverse of their start: the cell's processes, which flush what they published last (a reliable
   // writer waits for its acknowledgements on a clean exit), then the recorder, so the recording holds it.
   std::vector<ChildProcess*> cell_processes, recorder;
@@ -118,11 +136,12 @@ int runCell(const CellArgs& a) {
   const int failures = mergeProcessStats(children, node.stats(), &summary);
   judge.summarize(&summary);
   application.summarize(&summary);
+  const bool rsi_equal = !rsi || rsi->summarize(children, judge, &summary);
   if (!a.summary_json.empty()) {
     writeJsonFile(a.summary_json, summary);
     std::printf("cell: summary in %s\n", a.summary_json.c_str());
   }
-  return failures == 0 ? 0 : 1;
+  return failures == 0 && rsi_equal ? 0 : 1;
 }
 
 }  // namespace

@@ -24,6 +24,8 @@ Runner addExperimentCommand(CLI::App& app);
 Runner addCellCommand(CLI::App& app);
 // Adds `bench-cell` (latency and load through real processes).
 Runner addBenchCellCommand(CLI::App& app);
+// Adds `bench-servo` (the RSI bridge against simulated controllers, through real processes).
+Runner addBenchServoCommand(CLI::App& app);
 // Adds `calibrate` (batch calibration of a measurement file).
 Runner addCalibrateCommand(CLI::App& app);
 // Adds `import ipa` (the ipa UR10 series to CSV v1) and `import csv` (CSV v1 to a recording).

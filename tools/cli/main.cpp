@@ -87,7 +87,8 @@ int main(int argc, char** argv) {
   // In the order of `cellcal --help`.
   const std::vector<std::pair<std::string, Runner>> commands = {
       {"experiment", addExperimentCommand(app)}, {"cell", addCellCommand(app)},
-      {"bench-cell", addBenchCellCommand(app)},  {"calibrate", addCalibrateCommand(app)},
+      {"bench-cell", addBenchCellCommand(app)},  {"bench-servo", addBenchServoCommand(app)},
+      {"calibrate", addCalibrateCommand(app)},
       {"import", addImportCommand(app)},         {"diagnose", addDiagnoseCommand(app)},
       {"continuous", addContinuousCommand(app)}, {"record", addRecordCommand(app)},
       {"replay", addReplayCommand(app)},         {"validate", addValidateCommand(app)},

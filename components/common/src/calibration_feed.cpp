@@ -95,6 +95,13 @@ void CalibrationFeed::take(const msg::CalibrationState& m) {
   s.holding = false;
 }
 
+RealtimeSettings realtimeSettings(const CellConfig& cell) {
+  RealtimeSettings s;
+  s.compensation = cell.compensation;
+  s.blend_s = cell.compensation.blend_s;
+  return s;
+}
+
 std::string describe(const FeedStatus& s, std::chrono::steady_clock::time_point now) {
   std::string out = s.robot_id + ": ";
   auto version = [](std::uint64_t v, msg::CalibrationHealth h) {

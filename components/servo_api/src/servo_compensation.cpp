@@ -45,10 +45,8 @@ cellcal_servo* cellcal_servo_create(const char* cell_file, const char* robot_id,
     if (!s->robot)
       throw std::invalid_argument(std::string("robot '") + robot_id + "' is not in " + cell_file + " (its robots: " +
                                   ids + ")");
-    cellcal::RealtimeSettings settings;
-    settings.compensation = s->cell.compensation;
-    settings.blend_s = s->cell.compensation.blend_s;
-    s->compensator = std::make_unique<cellcal::RealtimeCompensator>(s->robot->model, settings);
+    s->compensator = std::make_unique<cellcal::RealtimeCompensator>(s->robot->model,
+                                                                    cellcal::components::realtimeSettings(s->cell));
     s->feed = std::make_unique<cellcal::components::CalibrationFeed>(s->cell, robot_id, *s->compensator);
     return s.release();
   } catch (const std::exception& e) {

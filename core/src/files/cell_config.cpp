@@ -379,7 +379,7 @@ void parseSimulation(const YamlReader& r, const YAML::Node& root, const std::str
                             {"seed", "initial_poses", "poses_per_group", "groups", "hours_between_groups", "pose_time_s",
                              "settle_fraction", "joint_rate_hz", "tracker_readings_per_pose", "tracker_delay_fraction",
                              "hidden_effect", "tracker_clock_offset_ms", "true_robot_file", "program_csv",
-                             "follow_pose_requests"});
+                             "follow_pose_requests", "rsi_hz"});
   if (s.has("seed")) {
     c.simulation.seed = r.unsignedInteger(s.node["seed"], s.f("seed"));
   }
@@ -398,6 +398,8 @@ void parseSimulation(const YamlReader& r, const YAML::Node& root, const std::str
   s.num("tracker_clock_offset_ms", c.simulation.tracker_clock_offset_s, 1e-3);
   if (std::abs(c.simulation.tracker_clock_offset_s) > 10)
     r.fail(s.node["tracker_clock_offset_ms"], s.f("tracker_clock_offset_ms"), "must be within +-10000 ms");
+  s.num("rsi_hz", c.simulation.rsi_hz, 1, 0);
+  if (c.simulation.rsi_hz > 1000) r.fail(s.node["rsi_hz"], s.f("rsi_hz"), "must be <= 1000 (a controller cycle of 1 ms or more)");
   if (s.has("follow_pose_requests"))
     c.simulation.follow_pose_requests = r.boolean(s.node["follow_pose_requests"], s.f("follow_pose_requests"));
   if (c.simulation.follow_pose_requests && c.engine.pose_requests.count == 0)

@@ -18,6 +18,7 @@ bool RealtimeSettings::IsValid(std::string* error) const {
                     : !(c.max_ik_error_m > 0)              ? "compensation.max_ik_error_m must be > 0"
                     : !(c.max_predicted_sigma_m >= 0)      ? "compensation.max_predicted_sigma_m must be >= 0"
                     : !(c.max_joint_correction_rad > 0)    ? "compensation.max_joint_correction_rad must be > 0"
+                    : !(recovery_rate_rad_s > 0)           ? "recovery_rate_rad_s must be > 0"
                                                            : nullptr;
   if (bad && error) *error = std::string("RealtimeSettings: ") + bad;
   return !bad;
@@ -174,6 +175,16 @@ void RealtimeCompensator::startBlendFromLast(std::int64_t t) noexcept {
   from_ = settings_.blend_s > 0 ? From::kFrozen : From::kNone;
   frozen_dq_ = last_dq_;
   blend_start_ns_ = t;
+  blend_duration_s_ = settings_.blend_s;
+  blend_duration_pending_ = true;
+  // The blend restarts at weight 0 (this cycle commands the frozen correction): the newest version can be its target
+  // without a step. Without this, blends restarted by refusals near a singularity kept a waiting version out for as
+  // long as they went on (a stream saw one version in 9 s while the feed handed over 15).
+  if (waiting_) {
+    retire(current_);
+    current_ = waiting_;
+    waiting_ = nullptr;
+  }
 }
 
 void RealtimeCompensator::takeNewest(std::int64_t t) noexcept {
@@ -193,6 +204,8 @@ void RealtimeCompensator::takeNewest(std::int64_t t) noexcept {
     from_version_ = current_;
     current_ = v;
     blend_start_ns_ = t;
+    blend_duration_s_ = settings_.blend_s;
+    blend_duration_pending_ = false;
   }
 }
 
@@ -337,7 +350,7 @@ RealtimeAnswer RealtimeCompensator::correct(std::int64_t t, const double* q_setp
   const double blend_s = settings_.blend_s;
   double w = 1.0;
   if (from_ != From::kNone) {
-    w = std::clamp(static_cast<double>(t - blend_start_ns_) * 1e-9 / blend_s, 0.0, 1.0);
+    w = std::clamp(static_cast<double>(t - blend_start_ns_) * 1e-9 / blend_duration_s_, 0.0, 1.0);
     if (w >= 1.0) {
       if (from_ == From::kVersion) retire(from_version_);
       from_version_ = nullptr;
@@ -348,6 +361,8 @@ RealtimeAnswer RealtimeCompensator::correct(std::int64_t t, const double* q_setp
         current_ = waiting_;
         waiting_ = nullptr;
         blend_start_ns_ = t;
+        blend_duration_s_ = blend_s;
+        blend_duration_pending_ = false;
         w = 0.0;
       }
     }
@@ -394,6 +409,12 @@ RealtimeAnswer RealtimeCompensator::correct(std::int64_t t, const double* q_setp
           dq_from = frozen_dq_;
           w = 0.0;
         }
+      }
+      if (from_ == From::kFrozen && blend_duration_pending_) {  // its length from the jump it has to make
+        blend_duration_pending_ = false;
+        const double jump = n_ > 0 ? (to.dq - dq_from).cwiseAbs().maxCoeff() : 0.0;
+        blend_duration_s_ = std::clamp(jump / settings_.recovery_rate_rad_s, 1e-9, blend_s);
+        w = std::clamp(static_cast<double>(t - blend_start_ns_) * 1e-9 / blend_duration_s_, 0.0, 1.0);
       }
       a.status = ServoStatus::kApplied;
       if (from_ == From::kVersion) a.from_version = from_version_->version();

@@ -233,6 +233,14 @@ TEST(CellFile, ExtensionsAndHiddenEffectsAreChecked) {
             std::string::npos);
   EXPECT_NE(errorOf(cell("[]", "simulation:\n  hidden_effect: { cause: joint_scale, joint: 3 }\n")).find("size_deg"),
             std::string::npos);
+  // simulation.rsi_hz: the RSI streams `cellcal cell` runs (0: none), a controller cycle of 1 ms or more.
+  EXPECT_EQ(hid.simulation.rsi_hz, 0.0);
+  EXPECT_EQ(parseCellConfig(cell("[]", "simulation:\n  rsi_hz: 250\n"), "cell.yaml", CELLCAL_CONFIG_DIR).simulation.rsi_hz,
+            250.0);
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  rsi_hz: 4000\n")).find("simulation.rsi_hz: must be <= 1000"),
+            std::string::npos)
+      << errorOf(cell("[]", "simulation:\n  rsi_hz: 4000\n"));
+  EXPECT_NE(errorOf(cell("[]", "simulation:\n  rsi_hz: -1\n")).find("simulation.rsi_hz"), std::string::npos);
 }
 
 // engine.pose_requests and simulation.follow_pose_requests: read in the file's units, bad values named with line and

@@ -217,10 +217,59 @@ TEST_F(RealtimeFixture, AnswersAsTheReferenceAndBlendsVersionsIn) {
   }
 }
 
+// A version that arrives during a blend waits for it; when refusals restart the blend from the correction last
+// commanded, the waiting version becomes the blend's target at once (at weight 0: no step) instead of waiting for a
+// blend that refusals can keep restarting. The recovery then takes |jump| / recovery_rate_rad_s, not blend_s.
+TEST_F(RealtimeFixture, ARecoveryTakesTheWaitingVersionAndEndsAtTheRecoveryRate) {
+  const int j = static_cast<int>(rng() % static_cast<unsigned>(m->numJoints()));
+  const double delta = degToRad(0.02 + 0.08 * u(rng));
+  Eigen::VectorXd p1 = m->nominal, p2 = m->nominal;
+  p2[m->jointParam(j, JointParam::kThetaOffset)] -= delta;  // v2, v3: q* = q_s + delta on joint j
+  RealtimeSettings rs{settings, 30.0};                       // a blend longer than the whole path
+  RealtimeCompensator rt(*m, rs);
+  ASSERT_TRUE(rt.publish(prepared(1, IdentifiedModel(CalibratedModel::geometric(p1)))));
+  const double upper = m->limits[j].upper_rad;
+  const IdentifiedModel v2(CalibratedModel::geometric(p2));
+  Eigen::VectorXd base = randomConfiguration();
+  for (int tries = 0; tries < 50; ++tries) {  // a configuration v2 answers away from the limit
+    base[j] = upper - 3 * delta;
+    const CompensationResult c = compensate(*m, v2, forwardKinematics(*m, m->nominal, base), base, settings);
+    if (c.applied && (c.q_rad - base).cwiseAbs().maxCoeff() < settings.max_joint_correction_rad) break;
+    base = randomConfiguration();
+  }
+  const std::int64_t dt = 4'000'000;
+  const int cycles = 1000;
+  int recovered_at = -1, settled_at = -1;
+  for (int k = 0; k < cycles; ++k) {
+    if (k == 10) {
+      ASSERT_TRUE(rt.publish(prepared(2, v2)));  // a blend from v1 (30 s long)
+    }
+    if (k == 20) {
+      ASSERT_TRUE(rt.publish(prepared(3, v2)));  // waits for it
+    }
+    Eigen::VectorXd q = base;
+    q[j] = upper - delta * (3.0 - 3.0 * std::sin(kPi * k / (cycles - 1)));  // to the limit, where v2 refuses, and back
+    const RealtimeAnswer a = correct(rt, k * dt, q);
+    if (k > 20 && recovered_at < 0) {
+      if (a.status == ServoStatus::kApplied && rt.version() == 3) recovered_at = k;
+      else ASSERT_NE(rt.version(), 3u) << "v3 taken before the recovery, at cycle " << k;
+    }
+    if (recovered_at >= 0 && settled_at < 0 && a.weight >= 1.0) settled_at = k;
+  }
+  ASSERT_GE(recovered_at, 0) << "v3 was never taken";
+  ASSERT_GE(settled_at, 0) << "the recovery never ended";
+  // The jump at the recovery is at most the held correction (v1's zero blended a little towards delta) plus delta.
+  const double bound_s = 2 * delta / rs.recovery_rate_rad_s + 2 * dt * 1e-9;
+  std::printf("  joint %d, delta %.4f deg: v3 taken at the recovery (cycle %d), blend ended %.3f s later (bound %.3f s, "
+              "blend_s %.0f s)\n", j + 1, radToDeg(delta), recovered_at, (settled_at - recovered_at) * dt * 1e-9, bound_s,
+              rs.blend_s);
+  EXPECT_LE((settled_at - recovered_at) * dt * 1e-9, bound_s);
+}
+
 // A joint driven to its upper limit and back, with a version whose zero of that joint puts the answer beyond the
 // limit for the last stretch: the version refuses there. The stream holds the correction last commanded, fades it to
 // zero over blend_s, and blends back to the version's answer when it answers again: no cycle steps the correction by
-// more than the fade's or the blend's rate. The reference (ServoCompensator) passes those setpoints through: a step
+// more than the fade's rate or the recovery's (recovery_rate_rad_s, or the jump over blend_s where that is faster). The reference (ServoCompensator) passes those setpoints through: a step
 // of the whole correction.
 TEST_F(RealtimeFixture, ARefusalHoldsTheLastCorrectionAndFadesIt) {
   const int j = static_cast<int>(rng() % static_cast<unsigned>(m->numJoints()));
@@ -278,7 +327,9 @@ TEST_F(RealtimeFixture, ARefusalHoldsTheLastCorrectionAndFadesIt) {
     last_ref = ref;
     last_status = a.status;
   }
-  const double allowed = (delta + spread) * dt * 1e-9 / blend_s + 2 * spread;
+  // The blend back from the held correction moves at recovery_rate_rad_s, or over blend_s where that is faster.
+  const double rate = std::max((delta + spread) / blend_s, RealtimeSettings{}.recovery_rate_rad_s);
+  const double allowed = rate * dt * 1e-9 + 2 * spread;
   for (double step : steps) worst_excess = std::max(worst_excess, step - allowed);
   std::printf("  joint %d, delta %.4f deg (answers within %.2g rad of it), blend %.2f s: %d cycles held, %d recoveries; "
               "largest step beyond the rate %.3g rad; the reference's largest step %.3g rad\n",

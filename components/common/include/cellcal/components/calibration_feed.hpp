@@ -51,6 +51,10 @@ struct FeedStatus {
 // sample 42.0 s ago".
 std::string describe(const FeedStatus& status, std::chrono::steady_clock::time_point now = std::chrono::steady_clock::now());
 
+// The compensator's settings a cell file gives (its compensation section, blend_s included): what every bridge built
+// on the feed uses, so that a check replaying a stream in memory answers as the bridge did.
+RealtimeSettings realtimeSettings(const CellConfig& cell);
+
 class CalibrationFeed {
  public:
   // `robot_id` must be one of the cell file's robots (std::invalid_argument names them); the participant follows the

@@ -191,6 +191,9 @@ struct SimulationSettings {
   // ones, wherever a proposal has arrived: each pose of a campaign the first proposed configuration it has not
   // visited in that campaign (lab/sim_program.hpp).
   bool follow_pose_requests = false;
+  // `cellcal cell` also streams KUKA RSI at this rate per robot (a simulated controller against a cellcal_rsi_bridge
+  // process each, docs/deployment.md); 0: none. The launcher's --rsi-hz overrides it.
+  double rsi_hz = 0;
 };
 
 struct CellConfig {

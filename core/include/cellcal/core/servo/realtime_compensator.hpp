@@ -29,12 +29,15 @@
 // clock, not the wall clock):  dq = dq_from + w (dq_to - dq_from), w = (t - t_start) / blend_s clipped to [0, 1], with
 // dq_from the previous version's answer at this setpoint (solved every cycle of the blend), or the correction last
 // commanded where there is no previous version. A version arriving during a blend waits for it to end (only the
-// newest waits). blend_s = 0 switches at once.
+// newest waits; a blend restarted from the correction last commanded takes the waiting version as its target at
+// once, at weight 0). blend_s = 0 switches at once. A blend from the correction last commanded (no previous version)
+// takes |jump| / recovery_rate_rad_s, at most blend_s.
 //
 // Refusals. A setpoint the current version refuses (unreachable, predicted error or correction over the bounds, a
 // joint jump) is answered with the correction last commanded, held, and faded linearly to zero over blend_s of the
 // refusals' stamps; when the version answers again, the answer blends from what the stream was last commanded to the
-// version's answer over blend_s. No refusal steps the stream. A previous version that refuses during a blend is
+// version's answer over |jump| / recovery_rate_rad_s (the largest joint's jump at the first answer), at most blend_s.
+// No refusal steps the stream. A previous version that refuses during a blend is
 // replaced by the correction last commanded, the blend restarted from it.
 //
 // Threads: one thread (the feed) calls publish() and collectRetired(); one thread (the controller's) calls correct()
@@ -65,6 +68,11 @@ using ServoJoints = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxServoJoints,
 struct RealtimeSettings {
   CompensationSettings compensation;
   double blend_s = 2.0;  // version switches, and the fade of a held correction (see above); 0: at once
+  // A blend from the correction last commanded (after refusals, or a first version on a running stream) moves each
+  // joint at most this fast, so it ends sooner than blend_s when the jump is small: a correction held at one
+  // configuration is wrong at the next, and a 3 deg wrist correction held near a singularity, blended back over 2 s
+  // while the robot moved on, landed 10-20 mm off (cellcal cell --rsi-hz).
+  double recovery_rate_rad_s = 0.1;
   // Forward-kinematics evaluations one version's descent may spend (its damped steps and their trials). From the
   // controller's own setpoint the answer takes 2-5 (cellcal_servo_rt_bench prints how many); the budget is spent where
   // the model's answer lies beyond a joint limit (the damping grows without a better step) or the descent is slow near
@@ -187,6 +195,8 @@ class RealtimeCompensator {
   const ServoVersion* from_version_ = nullptr;
   From from_ = From::kNone;
   std::int64_t blend_start_ns_ = 0;
+  double blend_duration_s_ = 0;         // of the blend in progress
+  bool blend_duration_pending_ = false;  // a blend from the last correction: its duration set at its first answer
   ServoJoints frozen_dq_, last_dq_, hold_dq_;
   bool cycled_ = false, refusing_ = false;
   std::int64_t refuse_start_ns_ = 0;

@@ -5,7 +5,7 @@
 // Each <Rob> is one controller cycle: its IPOC (the controller's cycle stamp, ms) is the compensator's clock, its
 // ASPos (the program's axis setpoint, deg) the setpoint, and the answer <Sen> carries AK = the correction (deg) in
 // RSI's AXISCORR absolute mode: the controller commands ASPos + AK. Configure AXISCORR's limits (LowerLimA1 ...
-// UpperLimA6) at or above RsiSettings::max_correction_deg.
+// UpperLimA6) at or above RsiSettings::max_correction_deg (rsiLimitDeg by default).
 //
 // Faults (counted in RsiCounters, never answered with a correction built from them): a packet the reader refuses
 // (rsi_xml.hpp; answered with the correction last sent when its IPOC can be read, else not at all), a packet with
@@ -28,8 +28,11 @@ namespace cellcal {
 struct RsiSettings {
   const char* sensor_type = "ImFree";  // the Type of <Sen>, as RSI's ETHERNET object is configured
   double cycle_s = 0.004;              // RSI's interpolation cycle: 4 ms (IPO_FAST) or 12 ms
-  double max_correction_deg = 1.0;     // per axis; above it the correction last sent is sent again
+  double max_correction_deg = 5.0;     // per axis; above it the correction last sent is sent again
 };
+// The limit that never trips on an answer the compensator gives: its max_joint_correction_rad (above which it refuses
+// and holds by itself), in degrees, with 1e-6 deg for the conversion's rounding. The bridge's default.
+double rsiLimitDeg(const CompensationSettings& compensation);
 
 struct RsiCounters {
   std::uint64_t packets = 0;         // every datagram given
@@ -51,8 +54,11 @@ class RsiSession {
   // One datagram from the controller: the answer written into `out`, its length returned (0: no answer).
   std::size_t onPacket(const char* data, std::size_t size, char* out, std::size_t capacity) noexcept;
   const RsiCounters& counters() const noexcept { return counters_; }
+  const RsiSettings& settings() const noexcept { return settings_; }
   // The compensator's answer to the last packet it was given (for a log, off the controller's thread).
   const RealtimeAnswer& lastAnswer() const noexcept { return last_answer_; }
+  // The IPOC of the last packet whose IPOC was read (0: none yet).
+  std::uint64_t lastIpoc() const noexcept { return last_ipoc_; }
   // The correction last sent, deg.
   const std::array<double, kMaxServoJoints>& lastSentDeg() const noexcept { return sent_deg_; }
 
