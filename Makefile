@@ -61,6 +61,7 @@ bench: build
 	$(BUILD_DIR)/bin/cellcal bench-cell --duration-s 20
 	-$(BUILD_DIR)/bin/cellcal bench-servo --robots 8 --rate-hz 250 --duration-s 60 --hogs 2 --rt-priority 80 --json $(BUILD_DIR)/bench_servo_250.json
 	-$(BUILD_DIR)/bin/cellcal bench-servo --robots 8 --rate-hz 500 --duration-s 60 --hogs 2 --rt-priority 80 --json $(BUILD_DIR)/bench_servo_500.json
+	-$(BUILD_DIR)/bin/cellcal bench-servo --robots 8 --rate-hz 500 --duration-s 60 --hogs 2 --rt-priority 80 --pass-through --json $(BUILD_DIR)/bench_servo_500_floor.json
 	bash tools/bench/foxglove_bench.sh $(BUILD_DIR) 20
 	bash tools/bench/engine_saturation.sh $(BUILD_DIR) 10
 	bash tools/bench/durability_bench.sh $(BUILD_DIR) 40 2

@@ -23,5 +23,8 @@ int main(int argc, char** argv) {
                    "run the cycle's thread SCHED_FIFO at this priority (1-99; needs root or CAP_SYS_NICE)");
     app.add_option("--cpu", o.cpu, "pin the cycle's thread to this core");
     app.add_option("--duration-s", o.duration_s, "stop after this many seconds (0: run until SIGINT/SIGTERM)");
+    app.add_flag("--pass-through", o.pass_through,
+                 "answer every readable packet with a zero correction, no compensator: the floor of the transport and "
+                 "the host for a bench, never for a robot");
   });
 }

@@ -128,6 +128,13 @@ void RsiBridge::monitor() {
   }
 }
 
+std::size_t RsiBridge::passThrough(const char* in, std::size_t n, char* out, std::size_t capacity) noexcept {
+  RsiRob rob;
+  if (parseRsiRob(in, n, rob) != RsiError::kNone) return 0;
+  const std::array<double, kMaxServoJoints> zero{};
+  return writeRsiSen(out, capacity, options_.sensor_type.c_str(), zero.data(), rob.axes, rob.ipoc, false);
+}
+
 int RsiBridge::run() {
   setUpRealTime();
   monitor_ = std::thread([this] { monitor(); });
@@ -148,7 +155,8 @@ int RsiBridge::run() {
     packets_.fetch_add(1, std::memory_order_relaxed);
     last_packet_ns_.store(t0, std::memory_order_relaxed);
     // A datagram longer than the buffer arrives cut (MSG_TRUNC gives its length): the session refuses it as too long.
-    const std::size_t m = session_.onPacket(in, static_cast<std::size_t>(n), out, sizeof out);
+    const std::size_t m = options_.pass_through ? passThrough(in, static_cast<std::size_t>(n), out, sizeof out)
+                                                : session_.onPacket(in, static_cast<std::size_t>(n), out, sizeof out);
     if (const std::uint64_t v = compensator_.version();
         v != (taken_count_ ? taken_[taken_count_ - 1].second : 0) && taken_count_ < taken_.size())
       taken_[taken_count_++] = {session_.lastIpoc(), v};
@@ -179,8 +187,9 @@ int RsiBridge::run() {
   for (std::size_t k = 0; k < taken_count_; ++k) taken.push_back({taken_[k].first, taken_[k].second});
   const nlohmann::json stats = {
       {"robot_id", robot_->robot_id},
-      {"packets", c.packets},
-      {"answered", c.answered},
+      {"pass_through", options_.pass_through},
+      {"packets", packets_.load()},
+      {"answered", options_.pass_through ? total : c.answered},
       {"applied", c.applied},
       {"held", c.held},
       {"no_calibration", c.no_calibration},

@@ -35,6 +35,9 @@ class RsiBridge {
     int rt_priority = 0;  // SCHED_FIFO priority of the cycle's thread (1-99); 0: the default scheduler
     int cpu = -1;         // pin the cycle's thread to this core
     double duration_s = 0;
+    // Answer every readable <Rob> with a zero correction, with no compensator: the floor of the transport and the
+    // host (bench-servo --pass-through), never for a robot.
+    bool pass_through = false;
   };
   explicit RsiBridge(const Options& options);
   ~RsiBridge();
@@ -45,6 +48,7 @@ class RsiBridge {
  private:
   void setUpRealTime();
   void monitor();  // a thread of normal priority: says the feed's changes and a silent controller
+  std::size_t passThrough(const char* in, std::size_t n, char* out, std::size_t capacity) noexcept;
 
   Options options_;
   CellConfig cell_;

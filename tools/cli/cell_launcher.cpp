@@ -88,6 +88,7 @@ std::vector<Child> startProcesses(const CellConfig& cell, const CellArgs& a, con
                                      "127.0.0.1:" + std::to_string(rsi_ports[i]), "--controller", "127.0.0.1",
                                      "--cycle-ms", std::to_string(1000.0 / a.rsi_hz)};
     if (a.rsi_rt_priority > 0) args.insert(args.end(), {"--rt-priority", std::to_string(a.rsi_rt_priority)});
+    if (a.rsi_pass_through) args.push_back("--pass-through");
     children.push_back(spawn("rsi_bridge_" + std::to_string(i + 1), with({}, args), a.work_dir, false, "", "rsi_bridge"));
   }
   return children;

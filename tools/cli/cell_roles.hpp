@@ -51,6 +51,7 @@ struct CellArgs {
   // (cell_rsi.cpp); --rsi-rt-priority: SCHED_FIFO for the bridges and the simulated controllers.
   double rsi_hz = 0;
   int rsi_rt_priority = 0;
+  bool rsi_pass_through = false;  // --rsi-pass-through: the bridges answer zero corrections (the floor, for a bench)
 };
 
 // The launcher.

@@ -216,18 +216,23 @@ class CellRsi::Impl {
         for (const auto& t : bridge["versions_taken"])
           taken.emplace_back(t[0].get<std::uint64_t>(), t[1].get<std::uint64_t>());
       Replay rp;
-      if (bridge.is_object())
+      if (a_.rsi_pass_through)
+        rp.stopped = "pass-through: zero corrections, nothing to replay";
+      else if (bridge.is_object())
         rp = replay(cell_, robot, log, taken, judge.judge(i).calibrations, controllers_[i]->cycleMs());
       else
         rp.stopped = "the bridge wrote no stats";
       // Every packet the bridge ran was replayed (an answer lost on the way back would hide one from the log).
-      if (bridge.is_object() && rp.stopped.empty() && bridge.value("packets", 0ULL) != rp.replayed)
+      if (!a_.rsi_pass_through && bridge.is_object() && rp.stopped.empty() &&
+          bridge.value("packets", 0ULL) != rp.replayed)
         rp.stopped = "the bridge ran " + std::to_string(bridge.value("packets", 0ULL)) +
                      " packets, the controller saw " + std::to_string(rp.replayed) + " reach it";
-      const LandedErrors le = landedErrors(sims_[i], log, taken.empty() ? ~0ULL : taken.front().first);
+      // From the first version on (pass-through: every cycle, all uncorrected).
+      const std::uint64_t from = a_.rsi_pass_through ? 0 : taken.empty() ? ~0ULL : taken.front().first;
+      const LandedErrors le = landedErrors(sims_[i], log, from);
       cycles += c, answered += a, switched += taken.size(), compared += rp.compared;
       max_difference = std::max(max_difference, rp.max_difference_rad);
-      equal = equal && rp.first_difference_ipoc == 0 && errors_[i].empty() && rp.stopped.empty();
+      equal = equal && rp.first_difference_ipoc == 0 && errors_[i].empty() && (rp.stopped.empty() || a_.rsi_pass_through);
       landed.insert(landed.end(), le.compensated_mm.begin(), le.compensated_mm.end());
       unlanded.insert(unlanded.end(), le.uncompensated_mm.begin(), le.uncompensated_mm.end());
       sigma.insert(sigma.end(), rp.predicted_sigma_mm.begin(), rp.predicted_sigma_mm.end());
@@ -278,6 +283,7 @@ class CellRsi::Impl {
           static_cast<double>(robots_in_episodes) / static_cast<double>(episodes), controllers_.size());
     (*summary)["rsi"] = {
         {"rate_hz", a_.rsi_hz},
+        {"pass_through", a_.rsi_pass_through},
         {"late_stalls", episodes},
         {"streams_late_per_stall",
          episodes ? static_cast<double>(robots_in_episodes) / static_cast<double>(episodes) : 0.0},

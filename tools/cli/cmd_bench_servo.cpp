@@ -35,6 +35,7 @@ struct Args {
   double rate_hz = 250, duration_s = 10;
   int hogs = 0, rt_priority = 0, domain_id = 213;
   std::uint64_t seed = 1;
+  bool pass_through = false;
   std::string json;
 };
 
@@ -138,6 +139,7 @@ int run(const Args& a) {
                                    summary_file,
                                    "--quiet"};
   if (a.rt_priority > 0) args.insert(args.end(), {"--rsi-rt-priority", std::to_string(a.rt_priority)});
+  if (a.pass_through) args.push_back("--rsi-pass-through");
   std::printf("bench-servo: %d robots x %.0f Hz for %.0f s, %d hogs, %s; the cell's logs in %s\n", a.robots, a.rate_hz,
               a.duration_s, a.hogs,
               a.rt_priority > 0 ? ("SCHED_FIFO " + std::to_string(a.rt_priority)).c_str() : "default scheduler",
@@ -167,6 +169,7 @@ int run(const Args& a) {
                          {"bridge_missed_cycles", rb["bridge"].value("missed_cycles", 0)}});
   out["per_robot"] = per_robot;
   out.update({{"robots", a.robots},
+              {"pass_through", a.pass_through},
               {"rate_hz", a.rate_hz},
               {"duration_s", a.duration_s},
               {"hogs", a.hogs},
@@ -174,15 +177,17 @@ int run(const Args& a) {
               {"verify_after_mm", s["verify_after_mm"]},
               {"calibration_updates", s["calibration_updates"]}});
   const bool late = r["late"].get<std::uint64_t>() > 0, slow = r["latency_us"]["p99"].get<double>() >= 500;
+  char replayed[160];
+  std::snprintf(replayed, sizeof replayed, "answers equal the in-memory compensator's to %.1e rad over %llu cycles",
+                r["max_difference_rad"].get<double>(), r["compared_cycles"].get<unsigned long long>());
   std::printf(
       "bench-servo: %llu cycles, %llu answered in their cycle, %llu late or missing; answer p50 %.0f us, p99 "
-      "%.0f us, max %.0f us; %llu version switches; answers equal the in-memory compensator's to %.1e rad "
-      "over %llu cycles; landed %.4f mm (uncompensated %.4f mm, calibration hold-out %.4f mm); in memory "
-      "correct() p50 %.2f us, p99.9 %.2f us, inverse kinematics p50 %.2f us\n",
+      "%.0f us, max %.0f us; %llu version switches; %s; landed %.4f mm (uncompensated %.4f mm, calibration hold-out "
+      "%.4f mm); in memory correct() p50 %.2f us, p99.9 %.2f us, inverse kinematics p50 %.2f us\n",
       r["cycles"].get<unsigned long long>(), r["answered"].get<unsigned long long>(),
       r["late"].get<unsigned long long>(), r["latency_us"]["p50"].get<double>(), r["latency_us"]["p99"].get<double>(),
       r["latency_us"]["max"].get<double>(), r["versions_switched"].get<unsigned long long>(),
-      r["max_difference_rad"].get<double>(), r["compared_cycles"].get<unsigned long long>(),
+      a.pass_through ? "pass-through: zero corrections, nothing replayed" : replayed,
       r["landed_error_compensated_mean_mm"].get<double>(), r["landed_error_uncompensated_mean_mm"].get<double>(),
       s["verify_after_mm"].get<double>(), out["correct_us"]["p50"].get<double>(),
       out["correct_us"]["p999"].get<double>(), out["ik_us"]["p50"].get<double>());
@@ -215,6 +220,8 @@ Runner addBenchServoCommand(CLI::App& app) {
                   "SCHED_FIFO priority of the simulated controllers and the bridges (0: none)")
       ->check(CLI::Range(0, 99))
       ->capture_default_str();
+  cmd->add_flag("--pass-through", a->pass_through,
+                "the bridges answer zero corrections with no compensator: the floor of the transport and this host");
   cmd->add_option("--seed", a->seed, "the simulated robots' hidden errors and paths")->capture_default_str();
   cmd->add_option("--domain-id", a->domain_id, "DDS domain")->check(CLI::Range(0, 232))->capture_default_str();
   cmd->add_option("--json", a->json, "write the figures as JSON")->check(outputFile());

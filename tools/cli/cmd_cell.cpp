@@ -42,6 +42,9 @@ void addOptions(CLI::App& cmd, CellArgs& a) {
   cmd.add_option("--rsi-rt-priority", a.rsi_rt_priority,
                  "SCHED_FIFO priority of the RSI bridges and simulated controllers (needs root or CAP_SYS_NICE)")
       ->check(CLI::Range(0, 99));
+  cmd.add_flag("--rsi-pass-through", a.rsi_pass_through,
+               "the RSI bridges answer every cycle with a zero correction and no compensator: the floor of the "
+               "transport and the host (cellcal bench-servo --pass-through)");
   cmd.add_flag("--quiet", a.quiet, "no line per update");
   cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
   cmd.add_option("--shards", a.shards,
