@@ -227,8 +227,8 @@ class CellRsi::Impl {
           bridge.value("packets", 0ULL) != rp.replayed)
         rp.stopped = "the bridge ran " + std::to_string(bridge.value("packets", 0ULL)) +
                      " packets, the controller saw " + std::to_string(rp.replayed) + " reach it";
-      // From the first version on (pass-through: every cycle, all uncorrected).
-      const std::uint64_t from = a_.rsi_pass_through ? 0 : taken.empty() ? ~0ULL : taken.front().first;
+      // From the first version on (none taken, or pass-through: every cycle, all uncorrected).
+      const std::uint64_t from = taken.empty() ? 0 : taken.front().first;
       const LandedErrors le = landedErrors(sims_[i], log, from);
       cycles += c, answered += a, switched += taken.size(), compared += rp.compared;
       max_difference = std::max(max_difference, rp.max_difference_rad);
@@ -269,6 +269,11 @@ class CellRsi::Impl {
           taken.size(), meanOf(le.compensated_mm), meanOf(le.uncompensated_mm), targets_mm,
           meanOf(rp.predicted_sigma_mm), rp.max_difference_rad, (unsigned long long)rp.compared,
           rp.stopped.empty() ? "" : " (replay stopped: ", rp.stopped.empty() ? "" : (rp.stopped + ")").c_str());
+      if (taken.empty() && !a_.rsi_pass_through)  // nothing was corrected: say why, from the bridge's feed
+        std::printf("cell: %s RSI: the bridge applied no calibration, every cycle went uncorrected: %s\n",
+                    robot.robot_id.c_str(),
+                    bridge.is_object() ? bridge["calibration"].value("describe", std::string("?")).c_str()
+                                       : "it wrote no stats");
       if (rp.first_difference_ipoc)
         std::printf("cell: %s RSI: the bridge's answer differs from the in-memory compensator's from IPOC %llu on\n",
                     robot.robot_id.c_str(), (unsigned long long)rp.first_difference_ipoc);
