@@ -206,8 +206,8 @@ int RsiBridge::run() {
       {"versions_taken", taken},
       {"taken_full", taken_count_ == taken_.size()}};
   writeJsonFile(options_.process.stats_json, stats);
-  std::cerr << "cellcal_rsi_bridge: " << c.packets << " packets, " << c.answered << " answered (" << c.applied
-            << " corrected, " << c.held << " held), " << foreign_.load() << " from other addresses dropped; answer "
+  std::cerr << "cellcal_rsi_bridge: " << stats["packets"] << " packets, " << stats["answered"] << " answered ("
+            << c.applied << " corrected, " << c.held << " held), " << foreign_.load() << " from other addresses dropped; answer "
             << "p50 " << p50 << " us, p99 " << p99 << " us\n";
   return 0;
 }

@@ -21,7 +21,6 @@
 namespace cellcal {
 
 namespace {
-constexpr double kPiHere = 3.14159265358979323846;
 std::int64_t nsUntil(const timespec& deadline) {
   timespec now{};
   clock_gettime(CLOCK_MONOTONIC, &now);
@@ -46,7 +45,7 @@ SimulatedRsiController::SimulatedRsiController(const SimulatedCell& sim, const R
   Eigen::MatrixXd J(6, model.numJoints());
   auto regular = [&](const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
     for (int k = 0; k <= 16; ++k) {
-      const double w = 0.5 - 0.5 * std::cos(kPiHere * k / 16.0);
+      const double w = 0.5 - 0.5 * std::cos(kPi * k / 16.0);
       forwardKinematics(model, data, sim.nominalParams(), Eigen::VectorXd((1 - w) * a + w * b));
       computeJointJacobian(model, data, J);
       if (Eigen::JacobiSVD<Eigen::MatrixXd>(J).singularValues().minCoeff() < options.min_singular_value) return false;
@@ -74,10 +73,10 @@ void SimulatedRsiController::setpoint(std::uint64_t k, double* q_deg) const {
   const double per_segment = options_.rate_hz * options_.segment_s;
   const double x = static_cast<double>(k) / per_segment;
   const auto s = static_cast<std::size_t>(x);
-  const double w = 0.5 - 0.5 * std::cos(kPiHere * (x - static_cast<double>(s)));
+  const double w = 0.5 - 0.5 * std::cos(kPi * (x - static_cast<double>(s)));
   const Eigen::VectorXd& a = waypoints_[s];
   const Eigen::VectorXd& b = waypoints_[s + 1];
-  for (Eigen::Index j = 0; j < a.size(); ++j) q_deg[j] = ((1 - w) * a[j] + w * b[j]) * 180.0 / kPiHere;
+  for (Eigen::Index j = 0; j < a.size(); ++j) q_deg[j] = radToDeg((1 - w) * a[j] + w * b[j]);
 }
 
 void SimulatedRsiController::run(const std::atomic<bool>& stop, const std::atomic<double>& cell_time_h) {
@@ -99,8 +98,7 @@ void SimulatedRsiController::run(const std::atomic<bool>& stop, const std::atomi
   const auto ipoc_step = static_cast<std::uint64_t>(std::lround(cycleMs()));
   char out[kMaxRsiPacketBytes], in[kMaxRsiPacketBytes];
   // The log's storage written before the first cycle: a first touch of a page inside a cycle is a page fault, which
-  // waits for the process's memory map while another thread of the launcher (DDS, the judge) may hold it; 2 ms stalls
-  // of every controller at once were seen before this.
+  // can wait for the process's memory map while another thread of the launcher (DDS, the judge) holds it.
   log_.assign(max_cycles_, RsiCycleRecord{});
   std::size_t used = 0;
   timespec deadline{};
@@ -159,9 +157,9 @@ LandedErrors landedErrors(const SimulatedCell& sim, const std::vector<RsiCycleRe
   for (const RsiCycleRecord& r : cycles) {
     if (!r.answered || !r.counted || r.ipoc < from_ipoc) continue;
     for (int j = 0; j < n; ++j) {
-      q[j] = r.setpoint_deg[static_cast<std::size_t>(j)] * kPiHere / 180.0;
-      q_corrected[j] = (r.setpoint_deg[static_cast<std::size_t>(j)] + r.correction_deg[static_cast<std::size_t>(j)]) *
-                       kPiHere / 180.0;
+      q[j] = degToRad(r.setpoint_deg[static_cast<std::size_t>(j)]);
+      q_corrected[j] =
+          degToRad(r.setpoint_deg[static_cast<std::size_t>(j)] + r.correction_deg[static_cast<std::size_t>(j)]);
     }
     const Eigen::Vector3d desired = forwardKinematics(model, data, sim.nominalParams(), q).translation();
     out.compensated_mm.push_back((sim.truePose(q_corrected, r.cell_time_h).translation() - desired).norm() * 1e3);

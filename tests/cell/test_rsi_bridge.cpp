@@ -10,6 +10,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <memory>
 #include <random>
 
 #include "cell/cell_test_support.hpp"
@@ -45,6 +46,14 @@ struct BridgeCell {
     ::close(udpSocket("127.0.0.1", &bridge));
     listen = "127.0.0.1:" + std::to_string(ntohs(bridge.sin_port));
   }
+  // The bridge on that port, its output in <dir>/<name>.log; `more`: more of its options.
+  std::unique_ptr<ChildProcess> start(const std::string& name, std::vector<std::string> more = {}) const {
+    std::vector<std::string> args = {"--config", cfg, "--controller", "127.0.0.1", "--listen", listen, "--duration-s",
+                                     "60"};
+    args.insert(args.end(), more.begin(), more.end());
+    return std::make_unique<ChildProcess>(std::string(CELLCAL_BIN_DIR) + "/cellcal_rsi_bridge", args,
+                                          dir + "/" + name + ".log");
+  }
   std::string dir = test::testDir(), cfg = dir + "/cell.yaml", listen;
   CellConfig cell;
   sockaddr_in bridge{};
@@ -76,14 +85,11 @@ CalibrationSnapshot jointZerosMoved(const RobotModel& m, std::uint64_t version) 
 
 TEST(RsiBridgeProcess, AnswersEveryCycleWithTheCellsCalibration) {
   const BridgeCell b;
-  const std::string &dir = b.dir, &cfg = b.cfg, &listen = b.listen;
+  const std::string& dir = b.dir;
   const CellConfig& cell = b.cell;
   const RobotModel& m = cell.robots[0].model;
   sockaddr_in bridge = b.bridge;
-  ChildProcess proc(std::string(CELLCAL_BIN_DIR) + "/cellcal_rsi_bridge",
-                    {"--config", cfg, "--controller", "127.0.0.1", "--listen", listen, "--duration-s", "60",
-                     "--stats-json", dir + "/rsi.json"},
-                    dir + "/rsi.log");
+  const std::unique_ptr<ChildProcess> proc = b.start("rsi", {"--stats-json", dir + "/rsi.json"});
   const CalibrationSnapshot v1 = jointZerosMoved(m, 1);
   components::DdsNode engine(cell, "test_engine", components::identity::kCalibrationEngine);
   auto writer = engine.writer<msg::CalibrationState>();
@@ -146,7 +152,7 @@ TEST(RsiBridgeProcess, AnswersEveryCycleWithTheCellsCalibration) {
   }
   ::close(controller);
   ::close(stranger);
-  EXPECT_EQ(proc.stop(SIGINT, 15), 0) << test::readTextFile(dir + "/rsi.log");
+  EXPECT_EQ(proc->stop(SIGINT, 15), 0) << test::readTextFile(dir + "/rsi.log");
   const nlohmann::json stats = test::readJson(dir + "/rsi.json");
   std::printf("  %d of %d cycles answered within their 4 ms (%d late or missing); %d answers with zero before the "
               "calibration, %d compared with the in-memory compensator, %d axis values differing; stats: %s\n",
@@ -219,17 +225,11 @@ namespace {
 // printed).
 TEST(RsiBridgeProcess, ARestartedBridgeAnswersAtOnceAndGetsTheCalibrationBack) {
   const BridgeCell b;
-  const std::string &dir = b.dir, &cfg = b.cfg, &listen = b.listen;
+  const std::string& dir = b.dir;
   const CellConfig& cell = b.cell;
   const RobotModel& m = cell.robots[0].model;
   sockaddr_in bridge = b.bridge;
-  auto start = [&](const std::string& name) {
-    return std::make_unique<ChildProcess>(std::string(CELLCAL_BIN_DIR) + "/cellcal_rsi_bridge",
-                                          std::vector<std::string>{"--config", cfg, "--controller", "127.0.0.1",
-                                                                   "--listen", listen, "--duration-s", "60"},
-                                          dir + "/" + name + ".log");
-  };
-  std::unique_ptr<ChildProcess> proc = start("first");
+  std::unique_ptr<ChildProcess> proc = b.start("first");
   const CalibrationSnapshot v = jointZerosMoved(m, 7);
   components::DdsNode engine(cell, "test_engine", components::identity::kCalibrationEngine);
   auto writer = engine.writer<msg::CalibrationState>();
@@ -251,7 +251,7 @@ TEST(RsiBridgeProcess, ARestartedBridgeAnswersAtOnceAndGetsTheCalibrationBack) {
   for (int k = 0; k < cycles; ++k) {
     if (k == kill_at) {
       proc->stop(SIGKILL, 5);
-      proc = start("second");
+      proc = b.start("second");
     }
     double q_deg[kMaxServoJoints], q_rad[kMaxServoJoints];
     for (int j = 0; j < m.numJoints(); ++j) q_deg[j] = 20 * std::sin(0.001 * k + j) + (j == 2 ? 90 : 0);

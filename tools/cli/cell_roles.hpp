@@ -212,8 +212,9 @@ class CellRsi {
   void start();                                        // the controllers' threads (connect, then stream)
   void setCellTimeS(std::size_t robot, double cell_time_s);
   void stop();                                         // the streams end; joins
-  // The streams' figures into summary["rsi"] and their printed lines; false when an answer differs from the replay.
-  bool summarize(const std::vector<Child>& children, const CellJudge& judge, nlohmann::json* summary) const;
+  // The streams' figures into summary["rsi"] and their printed lines, the bridges' counts from summary["rsi_bridges"]
+  // (mergeProcessStats); false when an answer differs from the replay.
+  bool summarize(const CellJudge& judge, nlohmann::json* summary) const;
 
  private:
   class Impl;

@@ -11,12 +11,12 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <set>
 #include <thread>
 
 #include "cell_roles.hpp"
 #include "cellcal/components/calibration_feed.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/core/servo/rsi_session.hpp"
 #include "cellcal/lab/rsi_controller.hpp"
 #include "cellcal/lab/sim_program.hpp"
@@ -25,13 +25,6 @@ namespace cellcal::cli {
 
 namespace {
 
-constexpr double kDegToRad = 3.14159265358979323846 / 180.0;
-
-double percentileOf(std::vector<double> v, double f) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(f * static_cast<double>(v.size())))];
-}
 double meanOf(const std::vector<double>& v) {
   double s = 0;
   for (double x : v) s += x;
@@ -93,9 +86,8 @@ Replay replay(const CellConfig& cell, const CellRobot& robot, const std::vector<
     if (!r.answered) continue;
     ++out.compared;
     for (int j = 0; j < n; ++j) {
-      const double d =
-          std::abs(sen.correction_deg[static_cast<std::size_t>(j)] - r.correction_deg[static_cast<std::size_t>(j)]) *
-          kDegToRad;
+      const double d = degToRad(
+          std::abs(sen.correction_deg[static_cast<std::size_t>(j)] - r.correction_deg[static_cast<std::size_t>(j)]));
       out.max_difference_rad = std::max(out.max_difference_rad, d);
       if (d > 1e-12 && out.first_difference_ipoc == 0) out.first_difference_ipoc = r.ipoc;
     }
@@ -117,14 +109,12 @@ int freeUdpPort() {
   return ntohs(a.sin_port);
 }
 
-// The bridge of robot `i`'s --stats-json: its counts and the versions it took (null when it wrote none).
-nlohmann::json bridgeStats(const std::vector<Child>& children, std::size_t i) {
-  for (const Child& ch : children)
-    if (ch.name == "rsi_bridge_" + std::to_string(i + 1)) {
-      std::ifstream in(ch.stats_file);
-      return nlohmann::json::parse(in, nullptr, false);
-    }
-  return nlohmann::json();
+// The bridge of robot `i`'s --stats-json as mergeProcessStats put it in the summary: its counts and the versions it
+// took (null when it wrote none).
+nlohmann::json bridgeStats(const nlohmann::json& summary, std::size_t i) {
+  const std::string name = "rsi_bridge_" + std::to_string(i + 1);
+  return summary.contains("rsi_bridges") && summary["rsi_bridges"].contains(name) ? summary["rsi_bridges"][name]
+                                                                                  : nlohmann::json();
 }
 
 // Late cycles of several streams within 10 ms of each other are one stall of the machine, not of a stream: how many
@@ -191,7 +181,7 @@ class CellRsi::Impl {
       if (t.joinable()) t.join();
   }
 
-  bool summarize(const std::vector<Child>& children, const CellJudge& judge, nlohmann::json* summary) const {
+  bool summarize(const CellJudge& judge, nlohmann::json* summary) const {
     nlohmann::json robots = nlohmann::json::array();
     std::vector<double> latency, landed, unlanded, sigma;
     std::vector<std::pair<std::int64_t, std::size_t>> late_at;  // (sent, robot) of every late cycle
@@ -210,7 +200,7 @@ class CellRsi::Impl {
         else
           late_at.emplace_back(r.sent_ns, i);
       }
-      const nlohmann::json bridge = bridgeStats(children, i);
+      const nlohmann::json bridge = bridgeStats(*summary, i);
       std::vector<std::pair<std::uint64_t, std::uint64_t>> taken;  // the cycles it took each version at
       if (bridge.is_object())
         for (const auto& t : bridge["versions_taken"])
@@ -232,7 +222,8 @@ class CellRsi::Impl {
       const LandedErrors le = landedErrors(sims_[i], log, from);
       cycles += c, answered += a, switched += taken.size(), compared += rp.compared;
       max_difference = std::max(max_difference, rp.max_difference_rad);
-      equal = equal && rp.first_difference_ipoc == 0 && errors_[i].empty() && (rp.stopped.empty() || a_.rsi_pass_through);
+      equal =
+          equal && rp.first_difference_ipoc == 0 && errors_[i].empty() && (rp.stopped.empty() || a_.rsi_pass_through);
       landed.insert(landed.end(), le.compensated_mm.begin(), le.compensated_mm.end());
       unlanded.insert(unlanded.end(), le.uncompensated_mm.begin(), le.uncompensated_mm.end());
       sigma.insert(sigma.end(), rp.predicted_sigma_mm.begin(), rp.predicted_sigma_mm.end());
@@ -255,8 +246,7 @@ class CellRsi::Impl {
             le.compensated_mm.empty() ? std::nan("")
                                       : *std::max_element(le.compensated_mm.begin(), le.compensated_mm.end())},
            {"landed_error_uncompensated_mean_mm", meanOf(le.uncompensated_mm)},
-           {"predicted_sigma_mean_mm", meanOf(rp.predicted_sigma_mm)},
-           {"bridge", bridge}});
+           {"predicted_sigma_mean_mm", meanOf(rp.predicted_sigma_mm)}});
       double targets_mm = std::nan("");  // the judge's: the targets the compensation publisher corrected over DDS
       if (summary->contains("robots") && i < (*summary)["robots"].size())
         targets_mm = (*summary)["robots"][i].value("landed_error_compensated_mean_mm", std::nan(""));
@@ -297,8 +287,8 @@ class CellRsi::Impl {
         {"answered", answered},
         {"late", cycles - answered},
         {"latency_us",
-         {{"p50", percentileOf(latency, 0.5)},
-          {"p99", percentileOf(latency, 0.99)},
+         {{"p50", percentile(latency, 0.5)},
+          {"p99", percentile(latency, 0.99)},
           {"max", latency.empty() ? std::nan("") : *std::max_element(latency.begin(), latency.end())}}},
         {"versions_switched", switched},
         {"compared_cycles", compared},
@@ -329,8 +319,8 @@ const std::vector<int>& CellRsi::ports() const { return impl_->ports(); }
 void CellRsi::start() { impl_->start(); }
 void CellRsi::setCellTimeS(std::size_t robot, double t_s) { impl_->setCellTimeS(robot, t_s); }
 void CellRsi::stop() { impl_->stop(); }
-bool CellRsi::summarize(const std::vector<Child>& children, const CellJudge& judge, nlohmann::json* summary) const {
-  return impl_->summarize(children, judge, summary);
+bool CellRsi::summarize(const CellJudge& judge, nlohmann::json* summary) const {
+  return impl_->summarize(judge, summary);
 }
 
 }  // namespace cellcal::cli

@@ -6,11 +6,8 @@
 // kinematics are timed in this process, side by side. The figures come from the cell's summary: cycles answered in
 // their cycle, late ones, the answer's latency, the versions the bridges switched to, the answers replayed in memory
 // (equal to the bit), where the robots landed.
-#include <pthread.h>
 #include <unistd.h>
 
-#include <algorithm>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -18,6 +15,7 @@
 
 #include "cellcal/components/child_process.hpp"
 #include "cellcal/components/process.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/core/model/inverse_kinematics.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/servo/realtime_compensator.hpp"
@@ -37,28 +35,6 @@ struct Args {
   std::uint64_t seed = 1;
   bool pass_through = false;
   std::string json;
-};
-
-// Microseconds, one bin each up to 10 ms (the last: 10 ms and over).
-struct Histogram {
-  std::vector<std::uint64_t> bins = std::vector<std::uint64_t>(10001, 0);
-  void add(double us) { ++bins[static_cast<std::size_t>(std::clamp(us, 0.0, 10000.0))]; }
-  void add(const Histogram& o) {
-    for (std::size_t i = 0; i < bins.size(); ++i) bins[i] += o.bins[i];
-  }
-  double at(double fraction) const {
-    std::uint64_t total = 0, seen = 0;
-    for (auto b : bins) total += b;
-    for (std::size_t i = 0; i < bins.size(); ++i)
-      if ((seen += bins[i]) > 0 && static_cast<double>(seen) >= fraction * static_cast<double>(total))
-        return static_cast<double>(i);
-    return 0;
-  }
-  double max() const {
-    for (std::size_t i = bins.size(); i-- > 0;)
-      if (bins[i]) return static_cast<double>(i);
-    return 0;
-  }
 };
 
 // The cell file: --robots TX60s, campaigns every 2 h of cell time (10 s at x720) for the whole run, so the engine
@@ -83,8 +59,7 @@ nlohmann::json inMemory(const RobotModel& m) {
   Eigen::VectorXd p = m.nominal;
   for (int j = 0; j < m.numJoints(); ++j) p[m.jointParam(j, JointParam::kThetaOffset)] += degToRad(0.03);
   rt.publish(ServoVersion::prepare(m, 1, IdentifiedModel(CalibratedModel::geometric(p)), &why));
-  Histogram correct_h, ik_h;
-  std::vector<double> correct_us;
+  std::vector<double> correct_us, ik_us;
   for (int k = 0; k < 20000; ++k) {
     double q[kMaxServoJoints];
     for (int j = 0; j < m.numJoints(); ++j) q[j] = degToRad(20 * std::sin(1e-3 * k + j) + (j == 2 ? 90 : 0));
@@ -96,26 +71,15 @@ nlohmann::json inMemory(const RobotModel& m) {
     const Pose target = forwardKinematics(m, p, Eigen::VectorXd(qv.array() + 0.01));
     t0 = Clock::now();
     solveInverseKinematics(m, p, target, qv);
-    ik_h.add(std::chrono::duration<double, std::micro>(Clock::now() - t0).count());
+    ik_us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count());
   }
-  std::sort(correct_us.begin(), correct_us.end());
-  return {{"correct_us",
-           {{"p50", correct_us[correct_us.size() / 2]}, {"p999", correct_us[correct_us.size() * 999 / 1000]}}},
-          {"ik_us", {{"p50", ik_h.at(0.5)}}}};
+  return {{"correct_us", {{"p50", percentile(correct_us, 0.5)}, {"p999", percentile(correct_us, 0.999)}}},
+          {"ik_us", {{"p50", percentile(ik_us, 0.5)}}}};
 }
 
+// SCHED_FIFO refused (--rt-priority without root or CAP_SYS_NICE) is `cellcal cell`'s error (--rsi-rt-priority),
+// printed with its output.
 int run(const Args& a) {
-  if (a.rt_priority > 0) {  // SCHED_FIFO allowed here?
-    sched_param p{};
-    p.sched_priority = a.rt_priority;
-    if (const int e = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p); e != 0) {
-      std::cerr << "bench-servo: --rt-priority " << a.rt_priority << ": SCHED_FIFO refused (" << std::strerror(e)
-                << "): run as root or with CAP_SYS_NICE\n";
-      return 1;
-    }
-    p.sched_priority = 0;
-    pthread_setschedparam(pthread_self(), SCHED_OTHER, &p);
-  }
   const fs::path dir = fs::temp_directory_path() / ("cellcal_bench_servo_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   const std::string cfg = cellFile(dir, a);
@@ -162,11 +126,15 @@ int run(const Args& a) {
         "landed_error_uncompensated_mean_mm", "predicted_sigma_mean_mm"})
     out[k] = r[k];
   nlohmann::json per_robot = nlohmann::json::array();  // where the late cycles were: the controller's or the bridge's
-  for (const auto& rb : r["robots"])
+  const nlohmann::json bridges = s.value("rsi_bridges", nlohmann::json::object());
+  for (std::size_t k = 0; k < r["robots"].size(); ++k) {
+    const nlohmann::json& rb = r["robots"][k];
+    const nlohmann::json bridge = bridges.value("rsi_bridge_" + std::to_string(k + 1), nlohmann::json::object());
     per_robot.push_back({{"robot_id", rb["robot_id"]},
                          {"late", rb["late"]},
-                         {"bridge_latency_us", rb["bridge"].value("latency_us", nlohmann::json())},
-                         {"bridge_missed_cycles", rb["bridge"].value("missed_cycles", 0)}});
+                         {"bridge_latency_us", bridge.value("latency_us", nlohmann::json())},
+                         {"bridge_missed_cycles", bridge.value("missed_cycles", 0)}});
+  }
   out["per_robot"] = per_robot;
   out.update({{"robots", a.robots},
               {"pass_through", a.pass_through},

@@ -139,7 +139,7 @@ int runCell(const CellArgs& options) {
   const int failures = mergeProcessStats(children, node.stats(), &summary);
   judge.summarize(&summary);
   application.summarize(&summary);
-  const bool rsi_equal = !rsi || rsi->summarize(children, judge, &summary);
+  const bool rsi_equal = !rsi || rsi->summarize(judge, &summary);
   if (!a.summary_json.empty()) {
     writeJsonFile(a.summary_json, summary);
     std::printf("cell: summary in %s\n", a.summary_json.c_str());

@@ -6,7 +6,7 @@
 
 namespace cellcal {
 
-double rsiLimitDeg(const CompensationSettings& c) { return c.max_joint_correction_rad * 180.0 / 3.14159265358979323846 + 1e-6; }
+double rsiLimitDeg(const CompensationSettings& c) { return radToDeg(c.max_joint_correction_rad) + 1e-6; }
 
 RsiSession::RsiSession(RealtimeCompensator& compensator, int axes, const RsiSettings& settings)
     : compensator_(&compensator), axes_(axes), settings_(settings) {

@@ -3,9 +3,8 @@
 // waits for the <Sen> until the cycle ends, and counts the answers that came too late or never, as RSI does. The
 // setpoints follow an application's path: joint-space moves between random configurations of the simulated robot
 // (SimulatedCell::randomConfigurations) that keep away from singularities, `segment_s` each with a smooth (cosine)
-// profile. Each cycle is logged (setpoint,
-// correction received, latency) into storage reserved before the stream, so the cycle's thread allocates nothing;
-// where the corrected robot landed is computed afterwards (landedErrors).
+// profile. Each cycle is logged (setpoint, correction received, latency) into storage written before the stream, so
+// the cycle's thread allocates nothing; where the corrected robot landed is computed afterwards (landedErrors).
 //
 // Before the stream, the controller connects: it sends the first setpoint every 100 ms (IPOC 1, 2, ...) until a bridge
 // answers one, as RSI's start waits for its sensor; those attempts are logged (counted = false) but not counted as
@@ -50,7 +49,7 @@ struct RsiCycleRecord {
 
 class SimulatedRsiController {
  public:
-  // `max_cycles`: storage reserved for the log; the stream ends when it is full.
+  // `max_cycles`: the log's length; the stream ends when it is full.
   SimulatedRsiController(const SimulatedCell& sim, const RsiControllerOptions& options, std::size_t max_cycles);
   ~SimulatedRsiController();
   SimulatedRsiController(const SimulatedRsiController&) = delete;

@@ -25,14 +25,16 @@
 
 namespace cellcal {
 
-struct RsiSettings {
-  const char* sensor_type = "ImFree";  // the Type of <Sen>, as RSI's ETHERNET object is configured
-  double cycle_s = 0.004;              // RSI's interpolation cycle: 4 ms (IPO_FAST) or 12 ms
-  double max_correction_deg = 5.0;     // per axis; above it the correction last sent is sent again
-};
 // The limit that never trips on an answer the compensator gives: its max_joint_correction_rad (above which it refuses
 // and holds by itself), in degrees, with 1e-6 deg for the conversion's rounding. The bridge's default.
 double rsiLimitDeg(const CompensationSettings& compensation);
+
+struct RsiSettings {
+  const char* sensor_type = "ImFree";  // the Type of <Sen>, as RSI's ETHERNET object is configured
+  double cycle_s = 0.004;              // RSI's interpolation cycle: 4 ms (IPO_FAST) or 12 ms
+  // Per axis; above it the correction last sent is sent again.
+  double max_correction_deg = rsiLimitDeg(CompensationSettings{});
+};
 
 struct RsiCounters {
   std::uint64_t packets = 0;         // every datagram given
