@@ -52,6 +52,7 @@ set(CELLCAL_CORE_SOURCES
   # engine/: the calibration engine of one robot (no DDS, no threads), pairing, compensation
   src/engine/pairing.cpp
   src/engine/outlier_gate.cpp
+  src/engine/work_configurations.cpp           # where the cell works: the configurations health is judged at
   src/engine/file_probation.cpp
   src/engine/input_watch.cpp
   src/engine/calibration_engine.cpp

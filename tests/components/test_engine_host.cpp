@@ -91,6 +91,11 @@ TEST_F(HostFixture, RestartFromPersistedStateContinuesExactlyWhereItStopped) {
   EXPECT_EQ(second.snapshot().version, straight.snapshot().version);
   EXPECT_EQ(second.snapshot().poses_used, straight.snapshot().poses_used);
   EXPECT_LT((second.snapshot().params - straight.snapshot().params).cwiseAbs().maxCoeff(), 1e-12);
+  // Where the cell works came back with it: the same configurations, so health is judged where it was.
+  EXPECT_EQ(second.r.engine->workConfigurations(), straight.workConfigurations());
+  EXPECT_NEAR(second.snapshot().prediction_sigma_position_m, straight.snapshot().prediction_sigma_position_m,
+              1e-9 * straight.snapshot().prediction_sigma_position_m);
+  EXPECT_EQ(second.snapshot().health, straight.snapshot().health);
   // A clean close of the first host made its own snapshot current and emptied its journal.
   EXPECT_EQ(fs::file_size(fs::path(config.engine.state_dir) / "tx60.state.journal"), 0u);
   EXPECT_EQ(loadEngineState(stateFilePath(config.engine.state_dir, "tx60"))->version, version_at_stop);

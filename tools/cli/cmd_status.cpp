@@ -46,6 +46,7 @@ struct RobotView {
   std::uint64_t version = 0, poses_used = 0, state_stamp_ns = 0;
   std::string health = "-", model, extensions;
   double verification_mm = std::nan(""), residual_mm = std::nan(""), predicted_mm = std::nan("");
+  double predicted_workspace_mm = std::nan("");
   std::map<std::string, std::uint64_t> rejections;
   bool drift_alarm = false;
   std::string health_cause = "-", health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
@@ -74,6 +75,7 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
              {"verification_mean_position_mm", num(r.verification_mm)},
              {"residual_rms_position_mm", num(r.residual_mm)},
              {"predicted_sigma_position_mm", num(r.predicted_mm)},
+             {"predicted_sigma_workspace_mm", num(r.predicted_workspace_mm)},
              {"model_extensions", r.extensions},
              {"rejections", r.rejections},
              {"drift_alarm", r.drift_alarm},
@@ -149,6 +151,12 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
                       (r.applied_beyond_data ? " (" + std::to_string(r.applied_beyond_data) + " beyond the extensions' data)" : "") +
                       (r.last_reason.empty() ? "" : "; last: " + r.last_reason));
     if (!r.extensions.empty()) notes.push_back("model: " + r.extensions);
+    // The engine judges health where the cell works; away from it each target meets its own predicted error.
+    if (r.has_diagnostics && r.predicted_workspace_mm > cell.compensation.max_predicted_sigma_m * 1e3 &&
+        cell.compensation.max_predicted_sigma_m > 0)
+      notes.push_back("predicted error over the whole workspace " + fmt(r.predicted_workspace_mm, 4, " mm") +
+                      " (1 sigma, worst): targets far from where the robot was measured are passed through; the poses "
+                      "on cellcal/pose_request widen where it corrects");
     for (const auto& n : notes) out << "  " << id << ": " << n << "\n";
   }
   for (const auto& rb : cell.robots)
@@ -193,6 +201,7 @@ int runStatus(const StatusArgs& a) {
     r.clock_warning = d.clock_warning().to_string();
     r.persist_error = d.persist_error().to_string();
     r.predicted_mm = d.prediction_sigma_position_m() * 1e3;
+    r.predicted_workspace_mm = d.prediction_sigma_workspace_m() * 1e3;
     r.last_rejection = d.last_rejection().to_string();
   });
   node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& c, const fdds::SampleInfo&) {

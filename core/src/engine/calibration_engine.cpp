@@ -388,6 +388,7 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
                          : 0.0;
   recent_.push_back(r);
   while (recent_.size() > kRecentWindow) recent_.pop_front();
+  if (work_.offer(o.q_rad)) ++work_revision_;
   ++snap_.poses_used;
   applied_readings_.push_back({p.tracker_sequence, p.tracker_stamp_ns});
   if (applied_readings_.size() > kAppliedKept) applied_readings_.pop_front();
@@ -405,51 +406,64 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
   ++state_revision_;
 }
 
-// Worst over the reference configurations of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state,
-// with J at the nominal parameters (the linearization the predicted error needs: the estimate's corrections change it
-// by their relative size, 1e-3). The rows are the RLS estimator's tracked variances: each update brings them up to
-// date at a cost of the update's rank (6) instead of the state's size, and each configuration's variance is the sum
-// of its three. The engine test checks it against kinematicPositionSigma.
-double CalibrationEngine::predictionSigma() {
+// Worst of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state, over the reference configurations
+// (the workspace) and over the work configurations (where the cell works), with J at the nominal parameters (the
+// linearization the predicted error needs: the estimate's corrections change it by their relative size, 1e-3). The
+// rows are the RLS estimator's tracked variances: each update brings them up to date at a cost of the update's rank
+// (6) instead of the state's size, and each configuration's variance is the sum of its three. The engine test checks
+// it against kinematicPositionSigma. Without a work configuration yet, the workspace's figure stands for both.
+CalibrationEngine::PredictionSigma CalibrationEngine::predictionSigma() {
   const RobotModel& m = robot_->model;
   const std::vector<int>& estimated = rls_->estimated();
+  const std::vector<Eigen::VectorXd>& work = work_.configurations();
   const auto refs = static_cast<Eigen::Index>(reference_q_.size());
+  const auto configs = refs + static_cast<Eigen::Index>(work.size());
   const Eigen::Index state = rls_->covariance().rows();
-  if (refs == 0) return 0.0;
-  // Rebuilt when the state changes shape; tracked again by each new estimator (a new rls_ tracks nothing).
-  const bool rebuild = sigma_rows_.rows() != 3 * refs || sigma_rows_.cols() != state || sigma_rows_estimated_ != estimated;
+  if (configs == 0) return {};
+  // Rebuilt when the state changes shape or the work configurations change; tracked again by each new estimator (a
+  // new rls_ tracks nothing).
+  const bool rebuild = sigma_rows_.rows() != 3 * configs || sigma_rows_.cols() != state ||
+                       sigma_rows_estimated_ != estimated || sigma_rows_work_revision_ != work_revision_;
   if (rebuild) {
     KinematicsData data(m);
     Eigen::MatrixXd J(6, m.numParams());
-    sigma_rows_ = Eigen::MatrixXd::Zero(3 * refs, state);
-    for (Eigen::Index r = 0; r < refs; ++r) {
-      forwardKinematics(m, data, m.nominal, reference_q_[static_cast<size_t>(r)]);
+    sigma_rows_ = Eigen::MatrixXd::Zero(3 * configs, state);
+    for (Eigen::Index r = 0; r < configs; ++r) {
+      const auto k = static_cast<size_t>(r);
+      forwardKinematics(m, data, m.nominal, r < refs ? reference_q_[k] : work[k - static_cast<size_t>(refs)]);
       computePoseJacobian(m, data, J);
-      for (size_t k = 0; k < estimated.size(); ++k)
-        sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(k)) = J.col(estimated[k]).head<3>();
+      for (size_t c = 0; c < estimated.size(); ++c)
+        sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(c)) = J.col(estimated[c]).head<3>();
     }
     sigma_rows_estimated_ = estimated;
+    sigma_rows_work_revision_ = work_revision_;
   }
   if (rebuild || rls_->estimator().trackedRows().rows() == 0) rls_->trackVariances(sigma_rows_);
   const Eigen::VectorXd& v = rls_->estimator().trackedVariances();
-  double worst = 0;
-  for (Eigen::Index r = 0; r < refs; ++r) {
+  PredictionSigma out;
+  for (Eigen::Index r = 0; r < configs; ++r) {
     const double var = v.segment<3>(3 * r).sum();
-    if (!std::isfinite(var)) return std::numeric_limits<double>::infinity();
-    worst = std::max(worst, std::sqrt(std::max(0.0, var)));
+    const double sigma = std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity();
+    double& worst = r < refs ? out.workspace_m : out.work_m;
+    worst = std::max(worst, sigma);
   }
-  return worst;
+  if (work.empty()) out.work_m = out.workspace_m;
+  return out;
 }
 
 // The health rule (health.hpp) on this estimate; a hold publishes the last good version's model.
 void CalibrationEngine::decideHealth() {
-  snap_.prediction_sigma_position_m = predictionSigma();
+  const PredictionSigma sigma = predictionSigma();
+  snap_.prediction_sigma_position_m = sigma.work_m;
+  snap_.prediction_sigma_workspace_m = sigma.workspace_m;
   HealthFacts f;
   f.poses_used = snap_.poses_used;
   f.poses_needed = posesNeeded(rls_->estimated().size() + rls_->estimatedExtension().size(), robot_->measurement,
                                started_calibrated_);
   f.consecutive_outliers = gate_.inARow();
   f.prediction_sigma_m = snap_.prediction_sigma_position_m;
+  f.prediction_sigma_workspace_m = snap_.prediction_sigma_workspace_m;
+  f.work_configurations = work_.configurations().size();
   f.drift_alarm = snap_.drift_alarm;
   f.recent_nis_per_row = snap_.recent_nis_per_row;
   if (last_good_) f.good_version = last_good_->version;
@@ -523,6 +537,7 @@ EngineState CalibrationEngine::exportState() const {
                                          : EngineState::Start::kNominal;
   s.file_drift_pending_since_ns = file_date_ns_;
   s.start_warning = snap_.start_warning;
+  s.work_configurations = work_.configurations();
   return s;
 }
 
@@ -606,6 +621,11 @@ void CalibrationEngine::importState(const EngineState& s) {
   batch_.clear();
   for (const auto& b : s.pending_batch) batch_.push_back({b.reading, b.drivers ? *b.drivers : Drivers{}});
   gate_.restore(s.gate_window.begin(), s.gate_window.end(), s.consecutive_outliers);
+  std::vector<Eigen::VectorXd> work;
+  for (const auto& q : s.work_configurations)
+    if (q.size() == m.numJoints() && q.allFinite()) work.push_back(q);
+  work_.restore(work);
+  ++work_revision_;
   if (good) {  // the files keep its extensions and their estimated set once, as the state's
     good->extensions = rls_->extensions();
     good->estimated_extension = rls_->estimatedExtension();

@@ -79,8 +79,11 @@ std::string describe(const HealthVerdict& v) {
           << "moved (check the station and the target, then re-register if it was bumped)";
       break;
     case HealthCause::kPredictionAboveBound:
-      why << "predicted position error " << f.prediction_sigma_m * 1e3 << " mm (1 sigma) above the bound "
-          << v.hold_prediction_sigma_m * 1e3 << " mm: the recent poses do not pin the model down";
+      why << "predicted position error " << f.prediction_sigma_m * 1e3 << " mm (1 sigma, worst of "
+          << (f.work_configurations > 0 ? std::to_string(f.work_configurations) + " configurations measured"
+                                        : std::string("the reference configurations over the workspace"))
+          << ") above the bound " << v.hold_prediction_sigma_m * 1e3
+          << " mm: the recent poses do not pin the model down where the cell works";
       break;
   }
   return (v.hold ? "holding v" + std::to_string(*f.good_version) + ": " : std::string("nothing good to hold yet: ")) +

@@ -10,7 +10,8 @@
 //   c.square(name, Eigen::MatrixXd&)           c.texts(name, std::vector<std::string>&)
 //   c.choice(name, E&, {names in the order of E's values})      (the journal: a byte)
 //   c.object(name, std::optional<T>&, fields)  an optional nested object (the journal: a flag, then its fields)
-//   c.objects(name, container<T>&, bytes, fields)  an array of objects; `bytes`: the least one takes in the journal
+//   c.objects(name, container<T>&, bytes, fields[, presence])  an array of objects; `bytes`: the least one takes
+//                                              in the journal
 //   c.tuple(name, T&, fields)                  a nested array (JSON by position)
 //   c.tuples(name, container<T>&, bytes, fields)   an array of such arrays
 //   c.pose(Pose&)                              a reading's pose (JSON: position_m and orientation_xyzw; the journal:
@@ -116,6 +117,8 @@ void engineState(C& c, EngineState& s) {
            kAppended);
   c.template number<std::int64_t>("file_drift_pending_since_ns", s.file_drift_pending_since_ns, kAppended);
   c.text("start_warning", s.start_warning, kAppended);
+  c.objects("work_configurations", s.work_configurations, 8,
+            [](C& c, Eigen::VectorXd& q) { c.vec("q_rad", q); }, kAppended);
 }
 
 // Walks a state with a writer: the list takes fields by reference, a writer only reads them.

@@ -87,7 +87,9 @@ class JsonWriter {
     put(n, o);
   }
   template <class Seq, class F>
-  void objects(const char* n, Seq& v, std::size_t, F fields) { put(n, items(v, fields, false)); }
+  void objects(const char* n, Seq& v, std::size_t, F fields, Presence = Presence::kRequired) {
+    put(n, items(v, fields, false));
+  }
   template <class Seq, class F>
   void tuples(const char* n, Seq& v, std::size_t, F fields) { put(n, items(v, fields, true)); }
   template <class T, class F>
@@ -187,7 +189,9 @@ class JsonReader {
     v = std::move(x);
   }
   template <class Seq, class F>
-  void objects(const char* n, Seq& v, std::size_t, F fields) { items(n, v, fields, false); }
+  void objects(const char* n, Seq& v, std::size_t, F fields, Presence p = Presence::kRequired) {
+    if (has(n, p)) items(n, v, fields, false);
+  }
   template <class Seq, class F>
   void tuples(const char* n, Seq& v, std::size_t, F fields) { items(n, v, fields, true); }
   template <class T, class F>

@@ -156,7 +156,7 @@ class BinaryWriter {
     if (v) fields(*this, *v);
   }
   template <class Seq, class F>
-  void objects(const char*, Seq& v, std::size_t, F fields) {
+  void objects(const char*, Seq& v, std::size_t, F fields, Presence = Presence::kRequired) {
     w_.size(v.size());
     for (auto& x : v) fields(*this, x);
   }
@@ -229,7 +229,8 @@ class BinaryReader {
     v = std::move(x);
   }
   template <class Seq, class F>
-  void objects(const char* n, Seq& v, std::size_t bytes, F fields) {
+  void objects(const char* n, Seq& v, std::size_t bytes, F fields, Presence p = Presence::kRequired) {
+    if (!present(p)) return;
     const std::size_t k = r_.size(bytes, n);
     for (std::size_t i = 0; i < k; ++i) {
       typename Seq::value_type x{};

@@ -77,23 +77,30 @@ TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
   EXPECT_FALSE(engine.snapshot().drift_alarm);
   EXPECT_GT(engine.conditionNumber(), 1.0);
   EXPECT_TRUE(std::isfinite(engine.conditionNumber()));
-  // The engine's predicted error (variances the RLS tracks through its updates, at the nominal parameters' Jacobians)
-  // against the plain reference: the worst of kinematicPositionSigma at each reference configuration, with the
-  // Jacobians at the nominal parameters (to rounding, after 80 updates) and at the estimate (within 1 %).
+  // The engine's predicted errors (variances the RLS tracks through its updates, at the nominal parameters'
+  // Jacobians) against the plain reference: the worst of kinematicPositionSigma at each reference configuration (the
+  // workspace) and at each work configuration (where the cell works: every configuration measured while fewer than
+  // the set keeps), with the Jacobians at the nominal parameters (to rounding, after 80 updates) and at the estimate
+  // (within 1 %).
   {
     const CalibrationSnapshot& snap = engine.snapshot();
     KinematicsData data(robot.model);
-    double at_nominal = 0, at_estimate = 0;
-    for (const auto& q : engine.referenceConfigurations()) {
-      at_nominal = std::max(at_nominal, kinematicPositionSigma(robot.model, data, robot.model.nominal, snap.estimated,
-                                                               snap.covariance, q));
-      at_estimate = std::max(at_estimate, kinematicPositionSigma(robot.model, data, snap.params, snap.estimated,
-                                                                 snap.covariance, q));
-    }
+    auto worst = [&](const std::vector<Eigen::VectorXd>& qs, const Eigen::VectorXd& at) {
+      double w = 0;
+      for (const auto& q : qs)
+        w = std::max(w, kinematicPositionSigma(robot.model, data, at, snap.estimated, snap.covariance, q));
+      return w;
+    };
     ASSERT_EQ(engine.referenceConfigurations().size(), 16u);
-    EXPECT_GT(at_nominal, 0.0);
-    EXPECT_NEAR(snap.prediction_sigma_position_m, at_nominal, 1e-9 * at_nominal);
-    EXPECT_NEAR(snap.prediction_sigma_position_m, at_estimate, 1e-2 * at_estimate);
+    ASSERT_EQ(engine.workConfigurations().size(), WorkConfigurations::kKept);
+    for (const auto& [figure, qs] :
+         {std::pair{snap.prediction_sigma_workspace_m, engine.referenceConfigurations()},
+          std::pair{snap.prediction_sigma_position_m, engine.workConfigurations()}}) {
+      const double at_nominal = worst(qs, robot.model.nominal), at_estimate = worst(qs, snap.params);
+      EXPECT_GT(at_nominal, 0.0);
+      EXPECT_NEAR(figure, at_nominal, 1e-9 * at_nominal);
+      EXPECT_NEAR(figure, at_estimate, 1e-2 * at_estimate);
+    }
   }
   EXPECT_LT(engine.snapshot().residual_rms_position_m, 0.1e-3);
 }

@@ -108,6 +108,7 @@ EngineState randomState(std::mt19937_64& rng, std::uint64_t version) {
   if (const int start = small(rng) % 4; start < 3) s.started_from = static_cast<EngineState::Start>(start);
   if (small(rng) % 2) s.file_drift_pending_since_ns = 1'600'000'000'000'000'000 + static_cast<std::int64_t>(rng() % 1'000'000'000);
   if (small(rng) % 2) s.start_warning = "calibration_file \"x.yaml\" does not fit this cell: " + std::to_string(rng());
+  for (int i = small(rng); i > 0; --i) s.work_configurations.push_back(vec(6));
   return s;
 }
 
@@ -144,16 +145,17 @@ TEST_F(JournalTest, ABinaryRecordKeepsEverythingTheJsonSnapshotKeeps) {
     EXPECT_TRUE(a == b) << "k " << k << ": "
                         << nlohmann::json::diff(nlohmann::json::parse(b), nlohmann::json::parse(a)).dump().substr(0, 600);
   }
-  // The comparison sees a change in the last field written (the start warning's last character), and in the last of
-  // the fields the first records ended with (the pending pose's joint stamp, before its "no drivers" flag).
+  // The comparison sees a change in the last field written (the last work configuration's last joint), and in the last
+  // of the fields the first records ended with (the pending pose's joint stamp, before its "no drivers" flag).
   EngineState s = randomState(rng, 7);
   s.start_warning = "refused";
+  s.work_configurations = {Eigen::VectorXd::Constant(6, 0.25)};
   std::string b = engineStateToBinary(s);
   b[b.size() - 1] ^= 0x01;
   EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
   s.pending_batch.resize(1);
   s.pending_batch[0].drivers.reset();
-  const std::size_t appended = 1 + (s.started_from ? 1 : 0) + 8 + 8 + s.start_warning.size();
+  const std::size_t appended = 1 + (s.started_from ? 1 : 0) + 8 + 8 + s.start_warning.size() + 8 + 8 + 6 * 8;
   b = engineStateToBinary(s);
   b[b.size() - appended - 2] ^= 0x01;
   EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
@@ -162,6 +164,7 @@ TEST_F(JournalTest, ABinaryRecordKeepsEverythingTheJsonSnapshotKeeps) {
   old.started_from.reset();
   old.file_drift_pending_since_ns = 0;
   old.start_warning.clear();
+  old.work_configurations.clear();
   const std::string old_record = engineStateToBinary(s).substr(0, engineStateToBinary(s).size() - appended);
   EXPECT_EQ(engineStateToJson(engineStateFromBinary(old_record)), engineStateToJson(old));
 }
@@ -322,21 +325,28 @@ TEST_F(JournalTest, DamageThatIsNotACrashIsRefusedWithTheFileNamedAndNeverCrashe
 // with every part: golden/engine_state_v1.json (the state file) and .bin (a journal record's payload), the JSON with
 // the keys older files lack removed (.stripped.json) and the record cut before the fields appended since the first
 // records (.cut.bin); beside each, what that code read from it, as a record (*read.bin). Today's code reads each as it
-// did, and writes the state it read from the record as those files were written.
+// did, and writes the state it read from the record as those files were written, plus the fields appended since
+// (empty in those states: the work configurations' count 0; an empty array in JSON).
 TEST(StateFormats, FilesWrittenBeforeTheFieldListReadAsThey) {
   const std::string dir = std::string(CELLCAL_CONFIG_DIR) + "/../tests/core/engine/golden/engine_state_v1";
   auto bytes = [&](const std::string& suffix) { return test::readTextFile(dir + suffix); };
+  const std::string appended_since(8, '\0');  // work_configurations: none
+  auto withAppended = [&](const std::string& suffix) { return bytes(suffix) + appended_since; };
   const std::string record = bytes(".bin");
   ASSERT_GT(record.size(), 1000u);
   const EngineState s = engineStateFromBinary(record);
   ASSERT_TRUE(s.last_good && s.play && s.started_from && !s.pending_batch.empty() && s.pending_batch[0].drivers &&
               !s.recent.empty() && !s.start_warning.empty())
       << "the golden state lost a part";
-  EXPECT_EQ(engineStateToBinary(s), record);
-  EXPECT_EQ(engineStateToJson(s), bytes(".json"));
-  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".json"))), bytes(".jsonread.bin"));
-  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".stripped.json"))), bytes(".strippedread.bin"));
-  EXPECT_EQ(engineStateToBinary(engineStateFromBinary(bytes(".cut.bin"))), bytes(".cutread.bin"));
+  EXPECT_TRUE(s.work_configurations.empty());
+  EXPECT_EQ(engineStateToBinary(s), record + appended_since);
+  nlohmann::json written = nlohmann::json::parse(engineStateToJson(s));
+  EXPECT_EQ(written.at("work_configurations"), nlohmann::json::array());
+  written.erase("work_configurations");
+  EXPECT_EQ(written.dump(), nlohmann::json::parse(bytes(".json")).dump());
+  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".json"))), withAppended(".jsonread.bin"));
+  EXPECT_EQ(engineStateToBinary(engineStateFromJson(bytes(".stripped.json"))), withAppended(".strippedread.bin"));
+  EXPECT_EQ(engineStateToBinary(engineStateFromBinary(bytes(".cut.bin"))), withAppended(".cutread.bin"));
 }
 
 }  // namespace

@@ -19,8 +19,9 @@
 //    (a bumped station): drift alarm and health hold_last_good until a pose passes the gate again;
 //  - an update that would make the estimate non-finite is rolled back (unsafe_update);
 //  - the published calibration is the estimate while it is healthy. When the model's predicted position error
-//    (1 sigma, worst of 16 reference configurations) exceeds hold_prediction_sigma_m (covariance blow-up, or
-//    directions the recent poses no longer excite), the engine keeps learning but publishes the last good
+//    (1 sigma, worst over where the cell works: the configurations it measured, work_configurations.hpp) exceeds
+//    hold_prediction_sigma_m (covariance blow-up, or directions the recent poses no longer excite), the engine keeps
+//    learning but publishes the last good
 //    calibration with health hold_last_good; a drift alarm (recent NIS per row too high: a slowly biased tracker,
 //    a missing model effect) publishes the estimate with health degraded, and compensation keeps its last ok one.
 #pragma once
@@ -40,6 +41,7 @@
 #include "cellcal/core/engine/input_watch.hpp"
 #include "cellcal/core/engine/outlier_gate.hpp"
 #include "cellcal/core/engine/pairing.hpp"
+#include "cellcal/core/engine/work_configurations.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/identification/rls.hpp"
 #include "cellcal/core/model/calibrated_model.hpp"
@@ -67,8 +69,14 @@ struct CalibrationSnapshot : CalibratedModel {
   // robot moves faster than the drift model allows, or the model misses an effect -> drift_alarm.
   double recent_nis_per_row = 0;
   bool drift_alarm = false;
-  // Predicted 1-sigma position error of the estimate (worst of the reference configurations), m.
+  // Predicted 1-sigma position error of the estimate where the cell works (worst over the configurations the engine
+  // measured, work_configurations.hpp; over the reference configurations until it has measured one), m: the figure
+  // health is judged on.
   double prediction_sigma_position_m = 0;
+  // The same over the whole workspace (worst of the fixed reference configurations), m: information, not a gate. A
+  // cell whose program keeps to one orientation or region leaves it wide; the poses cellcal/pose_request proposes
+  // lower it, and compensation gates each target by its own predicted error.
+  double prediction_sigma_workspace_m = 0;
   // The health rule's verdict on this version: its cause and what it was decided on (health.hpp; describe() words it,
   // e.g. "holding v52: 5 poses in a row beyond the outlier gate").
   HealthVerdict health_verdict;
@@ -126,8 +134,10 @@ class CalibrationEngine {
   // there is an estimate. Computed on each call (an eigen-decomposition of the state's size: for the diagnostics'
   // period, not for every pose).
   double conditionNumber() const;
-  // The fixed configurations over which snapshot().prediction_sigma_position_m is the worst predicted error.
+  // The fixed configurations over which snapshot().prediction_sigma_workspace_m is the worst predicted error.
   const std::vector<Eigen::VectorXd>& referenceConfigurations() const { return reference_q_; }
+  // Where the cell works: the configurations over which snapshot().prediction_sigma_position_m is the worst.
+  const std::vector<Eigen::VectorXd>& workConfigurations() const { return work_.configurations(); }
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh;
@@ -160,7 +170,10 @@ class CalibrationEngine {
   void addDriftSinceFile(std::int64_t stamp_ns);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
-  double predictionSigma();
+  struct PredictionSigma {
+    double work_m = 0, workspace_m = 0;
+  };
+  PredictionSigma predictionSigma();
   void decideHealth();
   void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
   void startFromCalibration(const RobotFile& file, const std::string& path);
@@ -202,10 +215,14 @@ class CalibrationEngine {
   std::optional<EngineState::Good> last_good_;  // the last version published with health ok
   OutlierGate gate_;  // the recent new stand-stills' NIS, those gated in a row, the last gated (outlier_gate.hpp)
   std::vector<Eigen::VectorXd> reference_q_;
-  // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters
-  // over the state (the estimated kinematic columns; zero for extension columns), for the estimated set they are of.
+  WorkConfigurations work_;
+  std::uint64_t work_revision_ = 0;  // +1 whenever work_ changes
+  // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters,
+  // then every work configuration's, over the state (the estimated kinematic columns; zero for extension columns), for
+  // the estimated set and the work configurations they are of.
   Eigen::MatrixXd sigma_rows_;
   std::vector<int> sigma_rows_estimated_;
+  std::uint64_t sigma_rows_work_revision_ = 0;
   RlsCalibrator::Checkpoint rollback_;  // applyPose's, reused
   std::int64_t last_update_duration_ns_ = 0;
   std::deque<AppliedReading> applied_readings_;

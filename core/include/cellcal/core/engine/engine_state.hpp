@@ -77,6 +77,9 @@ struct EngineState {
   std::int64_t file_drift_pending_since_ns = 0;
   // Why the calibration file was refused (kNominalFileRefused), as the engine said it.
   std::string start_warning;
+  // Where the cell works (work_configurations.hpp), in the set's order. Absent in states written before it was kept:
+  // the set starts empty (health judged over the workspace until the next pose).
+  std::vector<Eigen::VectorXd> work_configurations;
 };
 
 }  // namespace cellcal

@@ -3,7 +3,8 @@
 //  1. fewer poses than needed (every estimated parameter twice over at 6 or 3 rows a pose; none when the engine
 //     started from a calibrated robot file): uncalibrated (too_few_poses);
 //  2. EngineSettings::outlier_hold_after poses in a row beyond the outlier gate (which also raises the drift alarm),
-//     (outliers_in_a_row) or the predicted position error above hold_prediction_sigma_m (prediction_above_bound): the
+//     (outliers_in_a_row) or the predicted position error where the cell works (the worst over the configurations it
+//     measured, work_configurations.hpp) above hold_prediction_sigma_m (prediction_above_bound): the
 //     last version published ok is held (hold_last_good: its model is published), or without one uncalibrated;
 //  3. the drift alarm (the recent normalized innovation above drift_alarm_nis_per_row): degraded (drift_alarm);
 //  4. else ok: this version becomes the one a later hold publishes.
@@ -26,7 +27,9 @@ const char* healthName(Health h);  // "uncalibrated", "ok", "degraded", "hold_la
 struct HealthFacts {
   std::size_t poses_used = 0, poses_needed = 0;
   int consecutive_outliers = 0;       // stand-stills in a row beyond the outlier gate
-  double prediction_sigma_m = 0;      // predicted 1-sigma position error of the estimate
+  double prediction_sigma_m = 0;      // predicted 1-sigma position error of the estimate where the cell works
+  std::size_t work_configurations = 0;  // ... the worst over this many measured configurations (0: the workspace's)
+  double prediction_sigma_workspace_m = 0;  // the same over the whole workspace: information, not a gate
   bool drift_alarm = false;           // as the recent poses' statistics set it
   double recent_nis_per_row = 0;
   std::optional<std::uint64_t> good_version;  // the last version published ok, if any
