@@ -245,7 +245,7 @@ void EngineProcess::stopAndReport() {
                   {"health_cause", healthCauseName(snap.health_verdict.cause)},
                   {"health_reason", describe(snap.health_verdict)},
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
-                  {"prediction_sigma_workspace_m", snap.prediction_sigma_workspace_m},
+                  {"prediction_sigma_workspace_m", r.engine->workspacePredictionSigma()},
                   {"persist_failures", r.persist_failures},
                   {"rejected", rej},
                   // the readings applied, in order (the last 4096): [tracker sequence number, stamp_ns]

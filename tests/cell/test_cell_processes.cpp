@@ -326,12 +326,17 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   EXPECT_EQ(r["health_reason"], "") << j.dump(1);
   EXPECT_GT(r["verification_mean_position_mm"].get<double>(), 0.0);
   EXPECT_LT(r["predicted_sigma_position_mm"].get<double>(), 1.0);
+  // 40 random poses spread over the workspace: the engine's figure there is under the bound too, and no note says
+  // that targets away from where it measured are passed through.
+  EXPECT_GT(r["predicted_sigma_workspace_mm"].get<double>(), 0.0) << j.dump(1);
+  EXPECT_LT(r["predicted_sigma_workspace_mm"].get<double>(), 1.0) << j.dump(1);
   EXPECT_GT(r["compensated_targets"].get<int>(), 0);
   // No robot file's extensions here: no target is corrected beyond their data (the judged-window tests count those).
   EXPECT_EQ(r["applied_beyond_data"].get<int>(), 0) << j.dump(1);
   EXPECT_GT(r["max_correction_mm"].get<double>(), 0.1);  // the simulated robot's errors are ~1 mm
   const std::string printed = status.log();
   EXPECT_NE(printed.find("tx60"), std::string::npos) << printed;
+  EXPECT_EQ(printed.find("over the whole workspace"), std::string::npos) << printed;
   EXPECT_NE(printed.find("v" + std::to_string(r["version"].get<std::uint64_t>())), std::string::npos) << printed;
   // --watch: redrawn every 0.5 s for 2 s.
   const std::string live = watch.log();

@@ -138,7 +138,7 @@ msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r,
   d.health_cause(static_cast<msg::HealthCause>(static_cast<int>(snap.health_verdict.cause)));
   d.health_reason(describe(snap.health_verdict));
   d.prediction_sigma_position_m(snap.prediction_sigma_position_m);
-  d.prediction_sigma_workspace_m(snap.prediction_sigma_workspace_m);
+  d.prediction_sigma_workspace_m(r.engine->workspacePredictionSigma());
   d.persist_failures(r.persist_failures);
   d.persist_error(r.persist_error.substr(0, 255));
   d.identifiable_parameters(static_cast<std::uint32_t>(snap.estimated.size()));

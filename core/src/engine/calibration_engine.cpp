@@ -66,6 +66,16 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
                                                     0.8 * std::min(m.limits[j].upper_rad, kPi))(ref_rng);
     reference_q_.push_back(q);
   }
+  {  // their position rows at the nominal parameters, every parameter's column (workspacePredictionSigma selects)
+    KinematicsData data(m);
+    Eigen::MatrixXd J(6, m.numParams());
+    reference_rows_.resize(3 * static_cast<Eigen::Index>(reference_q_.size()), m.numParams());
+    for (size_t r = 0; r < reference_q_.size(); ++r) {
+      forwardKinematics(m, data, m.nominal, reference_q_[r]);
+      computePoseJacobian(m, data, J);
+      reference_rows_.middleRows<3>(3 * static_cast<Eigen::Index>(r)) = J.topRows<3>();
+    }
+  }
   if (robot.start) {
     startFromCalibration(*robot.start, robot.calibration_file);
     return;
@@ -388,7 +398,11 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
                          : 0.0;
   recent_.push_back(r);
   while (recent_.size() > kRecentWindow) recent_.pop_front();
-  if (work_.offer(o.q_rad)) ++work_revision_;
+  const std::size_t work_before = work_.configurations().size();
+  if (const std::optional<std::size_t> changed = work_.offer(o.q_rad)) {
+    if (work_.configurations().size() != work_before) ++work_revision_;
+    else work_replaced_.push_back(*changed);
+  }
   ++snap_.poses_used;
   applied_readings_.push_back({p.tracker_sequence, p.tracker_stamp_ns});
   if (applied_readings_.size() > kAppliedKept) applied_readings_.pop_front();
@@ -406,63 +420,84 @@ void CalibrationEngine::finishUpdate(std::int64_t stamp_ns, std::uint64_t sequen
   ++state_revision_;
 }
 
-// Worst of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state, over the reference configurations
-// (the workspace) and over the work configurations (where the cell works), with J at the nominal parameters (the
-// linearization the predicted error needs: the estimate's corrections change it by their relative size, 1e-3). The
-// rows are the RLS estimator's tracked variances: each update brings them up to date at a cost of the update's rank
-// (6) instead of the state's size, and each configuration's variance is the sum of its three. The engine test checks
-// it against kinematicPositionSigma. Without a work configuration yet, the workspace's figure stands for both.
-CalibrationEngine::PredictionSigma CalibrationEngine::predictionSigma() {
+// Worst of sqrt(trace(J P J^T)) for the position rows, kinematic part of the state, over the work configurations
+// (where the cell works), with J at the nominal parameters (the linearization the predicted error needs: the
+// estimate's corrections change it by their relative size, 1e-3). The rows are the RLS estimator's tracked
+// variances: each update brings them up to date at a cost of the update's rank (6) instead of the state's size, and
+// each configuration's variance is the sum of its three. A replaced configuration's rows alone are computed again.
+// The engine test checks every configuration's figure against kinematicPositionSigma.
+double CalibrationEngine::predictionSigma() {
   const RobotModel& m = robot_->model;
   const std::vector<int>& estimated = rls_->estimated();
   const std::vector<Eigen::VectorXd>& work = work_.configurations();
-  const auto refs = static_cast<Eigen::Index>(reference_q_.size());
-  const auto configs = refs + static_cast<Eigen::Index>(work.size());
+  const auto configs = static_cast<Eigen::Index>(work.size());
   const Eigen::Index state = rls_->covariance().rows();
-  if (configs == 0) return {};
-  // Rebuilt when the state changes shape or the work configurations change; tracked again by each new estimator (a
-  // new rls_ tracks nothing).
+  KinematicsData data(m);
+  Eigen::MatrixXd J(6, m.numParams());
+  auto rowsAt = [&](Eigen::Index r) {
+    forwardKinematics(m, data, m.nominal, work[static_cast<size_t>(r)]);
+    computePoseJacobian(m, data, J);
+    for (size_t c = 0; c < estimated.size(); ++c)
+      sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(c)) = J.col(estimated[c]).head<3>();
+  };
+  // Rebuilt when the state changes shape or the work configurations change in number (or are restored); tracked
+  // again by each new estimator (a new rls_ tracks nothing).
   const bool rebuild = sigma_rows_.rows() != 3 * configs || sigma_rows_.cols() != state ||
                        sigma_rows_estimated_ != estimated || sigma_rows_work_revision_ != work_revision_;
   if (rebuild) {
-    KinematicsData data(m);
-    Eigen::MatrixXd J(6, m.numParams());
     sigma_rows_ = Eigen::MatrixXd::Zero(3 * configs, state);
-    for (Eigen::Index r = 0; r < configs; ++r) {
-      const auto k = static_cast<size_t>(r);
-      forwardKinematics(m, data, m.nominal, r < refs ? reference_q_[k] : work[k - static_cast<size_t>(refs)]);
-      computePoseJacobian(m, data, J);
-      for (size_t c = 0; c < estimated.size(); ++c)
-        sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(c)) = J.col(estimated[c]).head<3>();
-    }
+    for (Eigen::Index r = 0; r < configs; ++r) rowsAt(r);
     sigma_rows_estimated_ = estimated;
     sigma_rows_work_revision_ = work_revision_;
+  } else {
+    for (const std::size_t w : work_replaced_) {
+      const auto r = static_cast<Eigen::Index>(w);
+      rowsAt(r);
+      if (rls_->estimator().trackedRows().rows() == sigma_rows_.rows())
+        rls_->retrackRows(3 * r, sigma_rows_.middleRows<3>(3 * r));
+    }
   }
-  if (rebuild || rls_->estimator().trackedRows().rows() == 0) rls_->trackVariances(sigma_rows_);
+  work_replaced_.clear();
+  if (rebuild || rls_->estimator().trackedRows().rows() != sigma_rows_.rows()) rls_->trackVariances(sigma_rows_);
   const Eigen::VectorXd& v = rls_->estimator().trackedVariances();
-  PredictionSigma out;
+  work_sigma_m_.assign(work.size(), 0.0);
+  double worst = 0;
   for (Eigen::Index r = 0; r < configs; ++r) {
     const double var = v.segment<3>(3 * r).sum();
     const double sigma = std::isfinite(var) ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity();
-    double& worst = r < refs ? out.workspace_m : out.work_m;
+    work_sigma_m_[static_cast<size_t>(r)] = sigma;
     worst = std::max(worst, sigma);
   }
-  if (work.empty()) out.work_m = out.workspace_m;
-  return out;
+  return worst;
+}
+
+// The same over the reference configurations, from the estimator's covariance directly (for the diagnostics' period
+// and the health rule before the first pose, not for every pose).
+double CalibrationEngine::workspacePredictionSigma() const {
+  const std::vector<int>& estimated = rls_->estimated();
+  const auto ne = static_cast<Eigen::Index>(estimated.size());
+  Eigen::MatrixXd G(reference_rows_.rows(), ne);
+  for (Eigen::Index c = 0; c < ne; ++c) G.col(c) = reference_rows_.col(estimated[static_cast<size_t>(c)]);
+  const Eigen::VectorXd v = (G * rls_->covariance().topLeftCorner(ne, ne)).cwiseProduct(G).rowwise().sum();
+  double worst = 0;
+  for (Eigen::Index r = 0; 3 * r < v.size(); ++r) {
+    const double var = v.segment<3>(3 * r).sum();
+    if (!std::isfinite(var)) return std::numeric_limits<double>::infinity();
+    worst = std::max(worst, std::sqrt(std::max(0.0, var)));
+  }
+  return worst;
 }
 
 // The health rule (health.hpp) on this estimate; a hold publishes the last good version's model.
 void CalibrationEngine::decideHealth() {
-  const PredictionSigma sigma = predictionSigma();
-  snap_.prediction_sigma_position_m = sigma.work_m;
-  snap_.prediction_sigma_workspace_m = sigma.workspace_m;
+  // Where the cell works; before its first pose, over the workspace.
+  snap_.prediction_sigma_position_m = work_.empty() ? workspacePredictionSigma() : predictionSigma();
   HealthFacts f;
   f.poses_used = snap_.poses_used;
   f.poses_needed = posesNeeded(rls_->estimated().size() + rls_->estimatedExtension().size(), robot_->measurement,
                                started_calibrated_);
   f.consecutive_outliers = gate_.inARow();
   f.prediction_sigma_m = snap_.prediction_sigma_position_m;
-  f.prediction_sigma_workspace_m = snap_.prediction_sigma_workspace_m;
   f.work_configurations = work_.configurations().size();
   f.drift_alarm = snap_.drift_alarm;
   f.recent_nis_per_row = snap_.recent_nis_per_row;
@@ -626,6 +661,7 @@ void CalibrationEngine::importState(const EngineState& s) {
     if (q.size() == m.numJoints() && q.allFinite()) work.push_back(q);
   work_.restore(work);
   ++work_revision_;
+  work_replaced_.clear();
   if (good) {  // the files keep its extensions and their estimated set once, as the state's
     good->extensions = rls_->extensions();
     good->estimated_extension = rls_->estimatedExtension();

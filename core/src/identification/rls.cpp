@@ -133,6 +133,15 @@ void RlsEstimator::trackVariances(const Eigen::MatrixXd& G) {
   track_Qv_.resize(0);
 }
 
+void RlsEstimator::retrackRows(Eigen::Index first, const Eigen::MatrixXd& G) {
+  if (G.cols() != P_.rows() || first < 0 || first + G.rows() > track_G_.rows())
+    throw std::invalid_argument("RlsEstimator::retrackRows: rows outside the tracked ones, or the wrong width");
+  track_G_.middleRows(first, G.rows()) = G;
+  track_v_.segment(first, G.rows()) = (G * P_).cwiseProduct(G).rowwise().sum();
+  if (track_Qv_.size() == track_G_.rows())
+    track_Qv_.segment(first, G.rows()) = (G * track_Q_).cwiseProduct(G).rowwise().sum();
+}
+
 namespace {
 
 Eigen::VectorXd select(const Eigen::VectorXd& full, const std::vector<int>& idx) {

@@ -94,7 +94,7 @@ TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
     ASSERT_EQ(engine.referenceConfigurations().size(), 16u);
     ASSERT_EQ(engine.workConfigurations().size(), WorkConfigurations::kKept);
     for (const auto& [figure, qs] :
-         {std::pair{snap.prediction_sigma_workspace_m, engine.referenceConfigurations()},
+         {std::pair{engine.workspacePredictionSigma(), engine.referenceConfigurations()},
           std::pair{snap.prediction_sigma_position_m, engine.workConfigurations()}}) {
       const double at_nominal = worst(qs, robot.model.nominal), at_estimate = worst(qs, snap.params);
       EXPECT_GT(at_nominal, 0.0);

@@ -16,6 +16,7 @@
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/engine/work_configurations.hpp"
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/model/inverse_kinematics.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "core/engine/engine_feed.hpp"
@@ -51,17 +52,26 @@ TEST(WorkConfigurations, KeepTheExtremesOfWhereTheRobotWasMeasured) {
     std::vector<Eigen::VectorXd> offered;
     for (size_t k = 0; k < WorkConfigurations::kKept; ++k) {
       offered.push_back(near(a, 0.3));
-      EXPECT_TRUE(set.offer(offered.back()));
+      EXPECT_EQ(set.offer(offered.back()), std::optional<std::size_t>(k));
       Eigen::VectorXd again = offered.back();
       again[static_cast<Eigen::Index>(rng() % joints)] += 0.9 * WorkConfigurations::kSameRad;
-      EXPECT_FALSE(set.offer(again)) << "a repeat of a member is no new configuration";
+      EXPECT_FALSE(set.offer(again).has_value()) << "a repeat of a member is no new configuration";
     }
     ASSERT_EQ(set.configurations(), offered);
     double spread = minPairDistance(set.configurations());
     for (int k = 0; k < 300; ++k) {
       const std::vector<Eigen::VectorXd> before = set.configurations();
-      const bool changed = set.offer(near(a, 0.3));
-      EXPECT_EQ(changed, before != set.configurations());
+      const Eigen::VectorXd q = near(a, 0.3);
+      const std::optional<std::size_t> changed = set.offer(q);
+      EXPECT_EQ(changed.has_value(), before != set.configurations());
+      if (changed) {  // only that member changed, to the configuration offered
+        EXPECT_EQ(set.configurations()[*changed], q);
+        for (size_t m = 0; m < before.size(); ++m) {
+          if (m != *changed) {
+            EXPECT_EQ(set.configurations()[m], before[m]);
+          }
+        }
+      }
       EXPECT_EQ(set.configurations().size(), WorkConfigurations::kKept);
       const double now = minPairDistance(set.configurations());
       EXPECT_GE(now, spread) << "a replacement brought the set's closest pair closer";
@@ -78,6 +88,38 @@ TEST(WorkConfigurations, KeepTheExtremesOfWhereTheRobotWasMeasured) {
     restored.restore(set.configurations());
     EXPECT_EQ(restored.configurations(), set.configurations());
   }
+}
+
+// The engine's figure at each work configuration, kept current through every update and every replacement of a
+// configuration (only its rows are computed again), against the plain reference: kinematicPositionSigma there, with
+// the Jacobian at the nominal parameters, after every pose of a random stream long enough to replace members.
+TEST(HealthWhereTheCellWorks, EachWorkConfigurationsPredictedErrorIsThePlainOne) {
+  CellConfig config = loadCellConfig(kCell);
+  std::mt19937_64 rng(test::testSeed());
+  config.simulation.seed = rng();
+  const CellRobot& robot = config.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  CalibrationEngine engine(robot, config.engine, 1.0);
+  test::Stream st{sim, rng};
+  KinematicsData data(robot.model);
+  int replaced = 0;
+  double worst = 0;
+  for (const auto& q : sim.randomConfigurations(150, rng)) {
+    const std::vector<Eigen::VectorXd> before = engine.workConfigurations();
+    st.advance(30);
+    st.feed(engine, q, st.reading(q));
+    const auto& work = engine.workConfigurations();
+    replaced += before.size() == work.size() && before != work;
+    const CalibrationSnapshot& snap = engine.snapshot();
+    ASSERT_EQ(engine.workPredictionSigmas().size(), work.size());
+    for (size_t k = 0; k < work.size(); ++k) {
+      const double plain =
+          kinematicPositionSigma(robot.model, data, robot.model.nominal, snap.estimated, snap.covariance, work[k]);
+      worst = std::max(worst, std::abs(engine.workPredictionSigmas()[k] - plain) / plain);
+    }
+  }
+  EXPECT_GE(replaced, 5) << "the stream did not replace enough configurations to show anything";
+  EXPECT_LT(worst, 1e-9) << replaced << " replacements";
 }
 
 // Where a production program works: one tool orientation (positions in a box around a centre, the joints from the
@@ -181,7 +223,7 @@ TEST(HealthWhereTheCellWorks, ACellThatKeepsToOneOrientationOrRegionIsOkAndLands
     // The old rule (the worst over the whole workspace) refuses a cell at one tool orientation: what it leaves open
     // there stays at the prior's width.
     if (domain.one_orientation) {
-      EXPECT_GT(snap.prediction_sigma_workspace_m, config.engine.hold_prediction_sigma_m);
+      EXPECT_GT(engine.workspacePredictionSigma(), config.engine.hold_prediction_sigma_m);
     }
 
     // The compensation publisher's rule with the published model: the cell's own targets, and targets far from
@@ -219,7 +261,7 @@ TEST(HealthWhereTheCellWorks, ACellThatKeepsToOneOrientationOrRegionIsOkAndLands
     std::printf("  %s: workspace %.3f mm, where it works %.4f mm (1 sigma); own targets %d of %d applied, landed/sigma "
                 "RMS %.2f max %.2f; far %d of %d passed through (%.3f mm RMS had they been corrected), the others "
                 "landed/sigma RMS %.2f\n",
-                what.c_str(), snap.prediction_sigma_workspace_m * 1e3, snap.prediction_sigma_position_m * 1e3,
+                what.c_str(), engine.workspacePredictionSigma() * 1e3, snap.prediction_sigma_position_m * 1e3,
                 own.applied, own.asked, own.rms(), own.worst_ratio, away.outside, away.asked,
                 refused.rmsError_m() * 1e3, away.rms());
     // Every own target corrected but those the calibrated arm cannot reach (near a stretched elbow the true arm can

@@ -153,6 +153,15 @@ TEST(RlsTrackedVariances, FollowEveryChangeOfTheCovariance) {
     else if (what < 0.3) rls.addProcessNoise(randomSpd(1e-7));
     else if (what < 0.8) rls.addScaledProcessNoise(shape, 3 * u(rng));
     if (u(rng) < 0.02) shape = randomSpd(1e-6);
+    // Now and then some rows replaced (a work configuration of the engine's), their variances computed afresh.
+    if (static_cast<int>(p) >= start && u(rng) < 0.1) {
+      const Eigen::Index rows = 1 + static_cast<Eigen::Index>(u(rng) * 3);
+      const auto first = static_cast<Eigen::Index>(u(rng) * static_cast<double>(k - rows + 1));
+      Eigen::MatrixXd fresh(rows, n);
+      for (Eigen::Index i = 0; i < fresh.size(); ++i) fresh.data()[i] = g(rng);
+      G.middleRows(first, rows) = fresh;
+      rls.retrackRows(first, fresh);
+    }
     if (static_cast<int>(p) >= start) {
       const Eigen::VectorXd plain = (G * rls.P()).cwiseProduct(G).rowwise().sum();
       worst = std::max(worst, ((rls.trackedVariances() - plain).array().abs() / plain.array()).maxCoeff());
@@ -160,6 +169,7 @@ TEST(RlsTrackedVariances, FollowEveryChangeOfTheCovariance) {
   }
   EXPECT_EQ(rls.trackedRows(), G);
   EXPECT_LT(worst, 1e-9) << "seed " << seed << ", " << k << " rows, forgetting " << options.forgetting;
+  EXPECT_THROW(rls.retrackRows(k - 1, Eigen::MatrixXd::Ones(2, n)), std::invalid_argument);
   EXPECT_THROW(rls.trackVariances(Eigen::MatrixXd::Ones(2, n + 1)), std::invalid_argument);
   EXPECT_THROW(rls.addScaledProcessNoise(shape, -1.0), std::invalid_argument);
 }

@@ -70,13 +70,9 @@ struct CalibrationSnapshot : CalibratedModel {
   double recent_nis_per_row = 0;
   bool drift_alarm = false;
   // Predicted 1-sigma position error of the estimate where the cell works (worst over the configurations the engine
-  // measured, work_configurations.hpp; over the reference configurations until it has measured one), m: the figure
-  // health is judged on.
+  // measured, work_configurations.hpp; over the reference configurations of the workspace until it has measured one),
+  // m: the figure health is judged on. The same over the whole workspace: CalibrationEngine::workspacePredictionSigma.
   double prediction_sigma_position_m = 0;
-  // The same over the whole workspace (worst of the fixed reference configurations), m: information, not a gate. A
-  // cell whose program keeps to one orientation or region leaves it wide; the poses cellcal/pose_request proposes
-  // lower it, and compensation gates each target by its own predicted error.
-  double prediction_sigma_workspace_m = 0;
   // The health rule's verdict on this version: its cause and what it was decided on (health.hpp; describe() words it,
   // e.g. "holding v52: 5 poses in a row beyond the outlier gate").
   HealthVerdict health_verdict;
@@ -134,10 +130,16 @@ class CalibrationEngine {
   // there is an estimate. Computed on each call (an eigen-decomposition of the state's size: for the diagnostics'
   // period, not for every pose).
   double conditionNumber() const;
-  // The fixed configurations over which snapshot().prediction_sigma_workspace_m is the worst predicted error.
+  // The estimate's predicted 1-sigma position error over the whole workspace (the worst of fixed reference
+  // configurations spread over 80 % of each joint's range), m: information, not a gate. A cell whose program keeps to
+  // one orientation or region leaves it wide; the poses cellcal/pose_request proposes lower it, and compensation gates
+  // each target by its own predicted error. Computed on each call from the covariance (for the diagnostics' period).
+  double workspacePredictionSigma() const;
   const std::vector<Eigen::VectorXd>& referenceConfigurations() const { return reference_q_; }
-  // Where the cell works: the configurations over which snapshot().prediction_sigma_position_m is the worst.
+  // Where the cell works: the configurations over which snapshot().prediction_sigma_position_m is the worst, and the
+  // predicted 1-sigma position error at each (as of the last health decision).
   const std::vector<Eigen::VectorXd>& workConfigurations() const { return work_.configurations(); }
+  const std::vector<double>& workPredictionSigmas() const { return work_sigma_m_; }
   const EngineCounters& counters() const { return counters_; }
   const CellRobot& robot() const { return *robot_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh;
@@ -170,10 +172,7 @@ class CalibrationEngine {
   void addDriftSinceFile(std::int64_t stamp_ns);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
-  struct PredictionSigma {
-    double work_m = 0, workspace_m = 0;
-  };
-  PredictionSigma predictionSigma();
+  double predictionSigma();
   void decideHealth();
   void startExtensions(const Eigen::VectorXd& params, const std::vector<int>& estimated, const Eigen::MatrixXd& P);
   void startFromCalibration(const RobotFile& file, const std::string& path);
@@ -215,11 +214,14 @@ class CalibrationEngine {
   std::optional<EngineState::Good> last_good_;  // the last version published with health ok
   OutlierGate gate_;  // the recent new stand-stills' NIS, those gated in a row, the last gated (outlier_gate.hpp)
   std::vector<Eigen::VectorXd> reference_q_;
+  Eigen::MatrixXd reference_rows_;  // their position rows of the Jacobian at the nominal parameters (3 per configuration)
   WorkConfigurations work_;
-  std::uint64_t work_revision_ = 0;  // +1 whenever work_ changes
-  // predictionSigma()'s rows: the position rows of every reference configuration's Jacobian at the nominal parameters,
-  // then every work configuration's, over the state (the estimated kinematic columns; zero for extension columns), for
-  // the estimated set and the work configurations they are of.
+  std::uint64_t work_revision_ = 0;         // +1 whenever work_ changes its size or is restored
+  std::vector<std::size_t> work_replaced_;  // members replaced since predictionSigma() last ran (their rows retracked)
+  std::vector<double> work_sigma_m_;        // predictionSigma()'s figure at each work configuration
+  // predictionSigma()'s rows: the position rows of every work configuration's Jacobian at the nominal parameters over
+  // the state (the estimated kinematic columns; zero for extension columns), for the estimated set and the work
+  // configurations they are of.
   Eigen::MatrixXd sigma_rows_;
   std::vector<int> sigma_rows_estimated_;
   std::uint64_t sigma_rows_work_revision_ = 0;

@@ -29,7 +29,6 @@ struct HealthFacts {
   int consecutive_outliers = 0;       // stand-stills in a row beyond the outlier gate
   double prediction_sigma_m = 0;      // predicted 1-sigma position error of the estimate where the cell works
   std::size_t work_configurations = 0;  // ... the worst over this many measured configurations (0: the workspace's)
-  double prediction_sigma_workspace_m = 0;  // the same over the whole workspace: information, not a gate
   bool drift_alarm = false;           // as the recent poses' statistics set it
   double recent_nis_per_row = 0;
   std::optional<std::uint64_t> good_version;  // the last version published ok, if any

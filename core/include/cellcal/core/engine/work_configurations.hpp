@@ -11,17 +11,18 @@
 
 #include <Eigen/Core>
 #include <cstddef>
+#include <optional>
 #include <vector>
 
 namespace cellcal {
 
 class WorkConfigurations {
  public:
-  static constexpr std::size_t kKept = 24;
+  static constexpr std::size_t kKept = 16;
   static constexpr double kSameRad = 1e-3;
 
-  // A used pose's joints; true when the set changed.
-  bool offer(const Eigen::VectorXd& q_rad);
+  // A used pose's joints; when the set changed, the index it now has (appended at the end, or the member it replaced).
+  std::optional<std::size_t> offer(const Eigen::VectorXd& q_rad);
   const std::vector<Eigen::VectorXd>& configurations() const { return q_; }
   bool empty() const { return q_.empty(); }
   // As saved (at most kKept are taken, in order).

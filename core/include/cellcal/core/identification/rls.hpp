@@ -58,6 +58,9 @@ class RlsEstimator {
   // stay). Exact up to rounding (the tests check it against G P G^T after long random sequences).
   // Replaces any earlier tracking; v is computed from P here.
   void trackVariances(const Eigen::MatrixXd& G);
+  // Replaces G.rows() tracked rows from `first` on (same width), their variances computed afresh: for rows that change
+  // now and then (a configuration replaced), at the cost of those rows instead of all.
+  void retrackRows(Eigen::Index first, const Eigen::MatrixXd& G);
   const Eigen::MatrixXd& trackedRows() const { return track_G_; }    // 0 x 0 when nothing is tracked
   const Eigen::VectorXd& trackedVariances() const { return track_v_; }
 
@@ -145,6 +148,7 @@ class RlsCalibrator {
   void addProcessNoise(const Eigen::VectorXd& sigma_full, MeasurementKind kind, double variance_scale = 1.0);
   // The estimator's tracked variances (RlsEstimator::trackVariances) over the state.
   void trackVariances(const Eigen::MatrixXd& G) { rls_.trackVariances(G); }
+  void retrackRows(Eigen::Index first, const Eigen::MatrixXd& G) { rls_.retrackRows(first, G); }
   // What addObservation and addProcessNoise change, to roll an update back (cheaper than a copy of the calibrator).
   struct Checkpoint {
     RlsEstimator::Checkpoint rls;
