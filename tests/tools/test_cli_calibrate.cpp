@@ -2,6 +2,9 @@
 // placement in the tracker frame is unknown to the robot file (hidden errors and placement from a fresh seed).
 #include <gtest/gtest.h>
 
+#include <map>
+#include <sstream>
+
 #include "cell/cell_test_support.hpp"
 #include "cellcal/lab/ipa_dataset.hpp"
 #include "cellcal/core/files/robot_file.hpp"
@@ -934,6 +937,71 @@ WrittenDraw writeDraw(const std::string& dir, const HiddenEffectData& h, const c
   writeMeasurementCsv(out, h.file, 6, comment);
   return {std::string(CELLCAL_CONFIG_DIR) + "/robots/" + h.draw.robot + ".yaml",
           h.data.verification.front().sigma_position_m * 1e3};
+}
+
+// `calibrate --report`: report.md gives the held-out figures --json gives (mean, RMS, max before and after, on the
+// verification rows without their gross errors; the 99.7th percentile between the RMS and the max), a row of the
+// figures' data per such row, the three figures drawn, and every estimated parameter with the value and sigma of the
+// JSON. A file with an effect hidden in it and gross errors (robot, placements, points or 6D drawn at random).
+TEST(CliCalibrate, AReportShowsTheHeldOutErrorsTheJsonGives) {
+  const std::string dir = testDir();
+  DrawOptions o;
+  o.poses = 200;
+  o.max_outlier_fraction = 0.03;
+  const HiddenEffectData h = makeHiddenEffectData(o, testSeed());
+  const auto [robot_file, sigma_mm] = writeDraw(dir, h, "simulated robot with a hidden effect");
+  Process p(dir, "calibrate", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--json",
+                               dir + "/c.json", "--report", dir + "/report", "--sigma-position-mm", std::to_string(sigma_mm)});
+  ASSERT_EQ(p.wait(120), 0) << p.log();
+  const auto j = readJson(dir + "/c.json");
+  std::ifstream in(dir + "/report/report.md");
+  ASSERT_TRUE(in) << p.log();
+  std::map<std::string, std::vector<double>> table;  // first cell -> the figures after it
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("| ", 0) != 0) continue;
+    std::vector<std::string> cells;
+    std::stringstream ss(line.substr(1));
+    for (std::string c; std::getline(ss, c, '|');) {
+      const size_t a = c.find_first_not_of(' '), b = c.find_last_not_of(' ');
+      cells.push_back(a == std::string::npos ? "" : c.substr(a, b - a + 1));
+    }
+    std::vector<double> figures;
+    for (size_t k = 1; k < cells.size(); ++k) figures.push_back(std::atof(cells[k].c_str()));
+    if (!cells.empty()) table[cells[0]] = figures;
+  }
+  const auto& held = j["verification_without_outliers"];
+  for (const char* side : {"before", "after"}) {
+    ASSERT_EQ(table[side].size(), 4u) << side;
+    EXPECT_NEAR(table[side][0], held[side]["mean_mm"].get<double>(), 6e-5) << side;
+    EXPECT_NEAR(table[side][1], held[side]["rms_mm"].get<double>(), 6e-5) << side;
+    EXPECT_NEAR(table[side][3], held[side]["max_mm"].get<double>(), 6e-5) << side;
+    EXPECT_GE(table[side][2], table[side][1] - 1e-4) << side;
+    EXPECT_LE(table[side][2], table[side][3] + 1e-4) << side;
+  }
+  const int kept = j["verification_rows"].get<int>() - static_cast<int>(j["outliers"]["verification"]["rows"].size());
+  for (const char* figure : {"histogram", "joints", "workspace"}) {
+    EXPECT_TRUE(isGnuplotFigure(dir + "/report/" + figure + ".svg")) << figure;
+    std::ifstream data(dir + "/report/" + figure + ".dat");
+    int rows = 0;
+    for (std::string line; std::getline(data, line);) rows += !line.empty() && line[0] != '#';
+    EXPECT_EQ(rows, kept) << figure;
+  }
+  int estimated = 0;
+  for (const auto& prm : j["parameters"]) {
+    if (!prm["estimated"].get<bool>()) continue;
+    ++estimated;
+    const std::string name = prm["name"];
+    ASSERT_EQ(table.count(name), 1u) << name;
+    EXPECT_NEAR(table[name][1], prm["value"].get<double>(), 6e-5) << name;
+    EXPECT_NEAR(table[name][3], std::abs(prm["stddev"].get<double>()), 6e-5) << name;
+  }
+  EXPECT_GT(estimated, 10);
+  // Several set-ups: a usage error, nothing written.
+  Process two(dir, "two", {"cellcal", "calibrate", "--robot", robot_file, "--data", dir + "/m.csv", "--data",
+                           dir + "/m.csv", "--report", dir + "/report2"});
+  EXPECT_EQ(two.wait(120), 2) << two.log();
+  EXPECT_NE(two.log().find("--report takes one set-up"), std::string::npos) << two.log();
+  EXPECT_FALSE(std::filesystem::exists(dir + "/report2/report.md"));
 }
 
 // A robot base that drifts in the tracker's frame as the cell warms up (about joint 1's axis or by any small twist;

@@ -16,6 +16,9 @@ namespace {
 void addOptions(CLI::App& cmd, CalibrateArgs& a) {
   addInputOptions(&cmd, a.input);
   cmd.add_option("--json", a.json, "write the results as JSON")->check(outputFile());
+  cmd.add_option("--report", a.report,
+                 "write report.md into this folder: the held-out errors before and after (a histogram, along each joint, "
+                 "over the workspace; SVG by gnuplot) and the parameters with their sigmas (one set-up)");
   cmd.add_option("--model", a.model,
                  "geometric | auto (the cause `diagnose` names) | a list of causes with 1-based joints, e.g. "
                  "backlash:2,joint_compliance:3 (thermal_drift alone: lengths only)")
@@ -91,6 +94,7 @@ int runCalibrate(const CalibrateArgs& a) {
   p.setups = loadSetups(a.input);  // --data given again, or a file with a setup column
   const bool several = p.setups.size() > 1;
   if (several && a.frames_only) throw ConfigError("--frames-only takes one set-up (a usage error, exit 2)");
+  if (several && !a.report.empty()) throw ConfigError("--report takes one set-up (a usage error, exit 2)");
   if (several && a.solver == "lm")
     throw ConfigError("--solver lm takes one set-up: several set-ups are fitted by Gauss-Newton (a usage error, exit 2)");
   if (a.frames_only && a.model != "geometric")
@@ -126,6 +130,10 @@ int runCalibrate(const CalibrateArgs& a) {
   printCampaignReport(a, p, r);
   if (!a.json.empty()) std::ofstream(a.json) << campaignJson(a, p, r).dump(2) << "\n";
   if (!several) std::printf("%s\n", recommendationText(r).c_str());
+  if (!a.report.empty() && r.converged) {
+    writeCalibrationReport(a.report, a, p, r);
+    std::printf("report: %s/report.md\n", a.report.c_str());
+  }
   if (const int code = failedExit(r, a.save_robot)) return code;
   if (!a.save_robot.empty()) {
     const CampaignInput& in = several ? p.setups.back() : p.setups.front();
