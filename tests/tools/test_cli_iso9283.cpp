@@ -136,6 +136,27 @@ TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
   EXPECT_TRUE(fs::exists(dir + "/report/report.md"));
   EXPECT_TRUE(isGnuplotFigure(dir + "/report/clouds.png"));
   EXPECT_TRUE(isGnuplotFigure(dir + "/report/ap_rp.png"));
+  // Against a specification: the measured figures decide (exit 5 when a pose is over the bound), the calibrated
+  // model's are judged as a prediction. Bounds on either side of the worst pose's measured AP_p and RP_l.
+  double worst_ap = 0, worst_rp = 0, worst_ap_after = 0;
+  for (size_t k = 0; k < 5; ++k) {
+    worst_ap = std::max(worst_ap, j["poses"][k]["AP_mm"].get<double>());
+    worst_rp = std::max(worst_rp, j["poses"][k]["RP_mm"].get<double>());
+    worst_ap_after = std::max(worst_ap_after, j["after"]["poses"][k]["AP_mm"].get<double>());
+  }
+  for (const double scale : {0.9, 1.1}) {
+    Process spec(dir, "spec", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/test.csv",
+                               "--model-robot", dir + "/cal.yaml", "--json", dir + "/spec.json", "--spec-ap-mm",
+                               std::to_string(scale * worst_ap), "--spec-rp-mm", std::to_string(1.1 * worst_rp)});
+    EXPECT_EQ(spec.wait(60), scale < 1 ? 5 : 0) << spec.log();
+    const auto s = readJsonFile(dir + "/spec.json");
+    EXPECT_EQ(s["spec_ap"]["measured"]["pass"].get<bool>(), scale > 1) << s["spec_ap"].dump();
+    EXPECT_NEAR(s["spec_ap"]["measured"]["worst_mm"].get<double>(), worst_ap, 1e-9);
+    EXPECT_NEAR(s["spec_ap"]["predicted_after"]["worst_mm"].get<double>(), worst_ap_after, 1e-9);
+    EXPECT_TRUE(s["spec_rp"]["measured"]["pass"].get<bool>()) << s["spec_rp"].dump();
+    EXPECT_NEAR(s["spec_rp"]["measured"]["worst_mm"].get<double>(), worst_rp, 1e-9);
+    EXPECT_NE(spec.log().find(scale < 1 ? "FAIL as measured" : "PASS as measured"), std::string::npos) << spec.log();
+  }
   std::printf("  %s: cube %.0f mm; mean AP_p %.4f mm against the nominal model, %.4f mm against the calibrated one\n",
               d.name.c_str(), pj["cube"]["edge_mm"].get<double>(), before, after);
 

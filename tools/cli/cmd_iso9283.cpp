@@ -18,6 +18,7 @@
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "commands.hpp"
+#include "iso9283_spec.hpp"
 #include "measurement_input.hpp"
 
 namespace cellcal::cli {
@@ -28,6 +29,7 @@ namespace fs = std::filesystem;
 struct Iso9283Args {
   std::string robot, config, robot_id, data, program, model_robot, json, report, distance;
   bool register_frames = false, position_only = false;
+  double spec_ap_mm = 0, spec_rp_mm = 0;  // the specification (0: none)
 };
 
 void addOptions(CLI::App& cmd, Iso9283Args& a) {
@@ -50,7 +52,16 @@ void addOptions(CLI::App& cmd, Iso9283Args& a) {
   cmd.add_flag("--position-only", a.position_only, "position figures only, even where the rows have orientations");
   cmd.add_option("--json", a.json, "write the figures as JSON")->check(outputFile());
   cmd.add_option("--report", a.report, "write report.md and figures (each pose's cloud, AP and RP) into this directory");
+  cmd.add_option("--spec-ap-mm", a.spec_ap_mm,
+                 "the specification's pose accuracy: every test pose's AP_p at most this (pass/fail; the measured "
+                 "figures decide the exit code, 5 when they fail)")
+      ->check(CLI::PositiveNumber);
+  cmd.add_option("--spec-rp-mm", a.spec_rp_mm,
+                 "the specification's pose repeatability: every test pose's RP_l at most this (as --spec-ap-mm)")
+      ->check(CLI::PositiveNumber);
 }
+
+
 
 // Rows without a pose name take the name of the program pose whose joints they have (to 1e-6 rad).
 void nameByProgram(MeasurementFile& f, const std::string& program_path, const RobotModel& m) {
@@ -325,8 +336,13 @@ int runIso9283(const Iso9283Args& a) {
                 c < b ? "what compensation with it would leave at these poses" : "WORSE: do not deploy it (exit 4)");
     if (!(c < b)) code = 4;
   }
+  nlohmann::json spec = nlohmann::json::object();
+  std::vector<std::pair<std::string, const Iso9283Report*>> judged;
+  for (const auto& [mm, r] : reports) judged.emplace_back(mm.label, &r);
+  if (!judgeIso9283Spec(a.spec_ap_mm, a.spec_rp_mm, judged, &spec) && code == 0) code = 5;
   if (!a.json.empty()) {
     nlohmann::json j = reportJson(before);
+    j.update(spec);
     j["robot"] = robot_label;
     j["data"] = a.data;
     j["commanded_by"] = "nominal";
