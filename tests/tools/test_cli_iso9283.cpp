@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <sstream>
@@ -215,6 +216,70 @@ namespace {
 // `cellcal plan poses` beside a cell file: the tracker at the registration's tracker frame origin; every chosen
 // configuration within the limits and seen by the tracker; the chosen set's indices and predicted error beside random
 // ones; a range no configuration falls in is refused with what was refused, nothing written.
+// `plan iso9283 --directions 3`: the cycles in three orders in turn, each pose approached from three other test
+// poses; `iso9283` then gives vAP at every pose, equal to the plain computation: the largest distance between the
+// barycentres of the position deviations (attained - commanded by the nominal model) of the visits from each pose
+// before them.
+TEST(CliIso9283, ThreeApproachesGiveTheMultiDirectionalAccuracy) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  std::mt19937_64 rng(seed);
+  RandomDraw d = randomDraw(rng);
+  const SimulatedCell cell(robot(d.name), d.sc);
+  const RobotModel& m = cell.model();
+  SCOPED_TRACE(d.name);
+  saveRobotFile(dir + "/robot.yaml", m, nullptr, "the nominal " + m.name + " with this cell's registration");
+  Process plan(dir, "plan", {"cellcal", "plan", "iso9283", "--robot", dir + "/robot.yaml", "--cycles", "9",
+                             "--directions", "3", "--candidates", "15", "--seed", std::to_string(seed % 100000), "--out",
+                             dir + "/program.csv"});
+  ASSERT_EQ(plan.wait(120), 0) << plan.log();
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const MeasurementFile program = readMeasurementCsv(dir + "/program.csv", m, po);
+  ASSERT_EQ(program.rows.size(), 45u);
+  MeasurementFile f;
+  KinematicsData data(m);
+  std::map<std::string, std::map<std::string, std::vector<Eigen::Vector3d>>> from;  // pose -> predecessor -> deviations
+  for (size_t i = 0; i < program.rows.size(); ++i) {
+    const auto& r = program.rows[i];
+    const Observation o = cell.measure(r.q_rad, 0.0, rng, d.kind);
+    MeasurementRow row;
+    row.q_rad = r.q_rad;
+    row.position_m = o.measured_in_tracker.translation();
+    if (d.kind == MeasurementKind::kPose6D) row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    row.pose = r.pose;
+    row.cycle = r.cycle;
+    f.rows.push_back(row);
+    if (i > 0)
+      from[*r.pose][*program.rows[i - 1].pose].push_back(row.position_m -
+                                                          forwardKinematics(m, data, m.nominal, r.q_rad).translation());
+  }
+  {
+    std::ofstream out(dir + "/test.csv");
+    writeMeasurementCsv(out, f, m.numJoints(), "ISO 9283 test, three approaches");
+  }
+  Process iso(dir, "iso9283", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/test.csv",
+                               "--json", dir + "/iso.json"});
+  ASSERT_EQ(iso.wait(60), 0) << iso.log();
+  const auto j = readJsonFile(dir + "/iso.json");
+  ASSERT_EQ(j["poses"].size(), 5u);
+  for (const auto& p : j["poses"]) {
+    const std::string name = p["name"];
+    ASSERT_EQ(from[name].size(), 3u) << name << " approached from " << from[name].size() << " poses";
+    std::vector<Eigen::Vector3d> centres;
+    for (const auto& [before, deviations] : from[name]) {
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      for (const auto& e : deviations) c += e / static_cast<double>(deviations.size());
+      centres.push_back(c);
+    }
+    double plain = 0;
+    for (size_t a = 0; a < centres.size(); ++a)
+      for (size_t b = a + 1; b < centres.size(); ++b) plain = std::max(plain, (centres[a] - centres[b]).norm());
+    ASSERT_TRUE(p["vAP_mm"].is_number()) << p.dump();
+    EXPECT_NEAR(p["vAP_mm"].get<double>(), plain * 1e3, 1e-6) << name;
+  }
+}
+
 TEST(CliPlanPoses, ChosenConfigurationsTheTrackerSeesWithTheirIndices) {
   const std::string dir = testDir();
   const std::uint64_t seed = testSeed();

@@ -24,7 +24,7 @@ namespace {
 struct PlanIsoArgs {
   std::string robot, config, robot_id, out, json, centre_mm;
   double edge_mm = 0, min_z_mm = 0, min_radius_mm = 200, max_edge_mm = 1000;
-  int plane = 1, cycles = 30, candidates = 200;
+  int plane = 1, cycles = 30, candidates = 200, directions = 1;
   std::uint64_t seed = 1;
 };
 
@@ -43,6 +43,11 @@ void addIsoOptions(CLI::App& cmd, PlanIsoArgs& a) {
       ->check(CLI::Range(1, 4))
       ->capture_default_str();
   cmd.add_option("--cycles", a.cycles, "cycles of P1, P5, P4, P3, P2")->check(CLI::Range(2, 10000))->capture_default_str();
+  cmd.add_option("--directions", a.directions,
+                 "1: every cycle P1, P5, P4, P3, P2; 3: cycles in three orders in turn (P1 P5 P4 P3 P2, P1 P2 P3 P4 P5, "
+                 "P1 P3 P5 P2 P4), each pose approached from three others: iso9283 then gives vAP")
+      ->check(CLI::IsMember({1, 3}))
+      ->capture_default_str();
   cmd.add_option("--min-z-mm", a.min_z_mm, "every corner above this height in the base frame (the floor)")->capture_default_str();
   cmd.add_option("--min-radius-mm", a.min_radius_mm, "every corner this far from the base frame's z axis (joint 1's)")
       ->check(nonNegative())
@@ -103,10 +108,13 @@ int runPlanIso(const PlanIsoArgs& a) {
   std::ostringstream comment;
   comment << "ISO 9283 test program of " << robot_label << " (cellcal plan iso9283)\ncube edge " << plan.cube.edge_m * 1e3
           << " mm, centre " << c.x() << " " << c.y() << " " << c.z() << " mm (base frame), plane " << plan.plane << " ("
-          << kPlanes[plan.plane - 1] << "), " << a.cycles << " cycles of P1 P5 P4 P3 P2";
+          << kPlanes[plan.plane - 1] << "), " << a.cycles
+          << (a.directions == 1 ? " cycles of P1 P5 P4 P3 P2"
+                                : " cycles of P1 P5 P4 P3 P2, P1 P2 P3 P4 P5, P1 P3 P5 P2 P4 in turn (three approaches)");
   std::vector<ProgramRow> rows;
   for (int cy = 1; cy <= a.cycles; ++cy)
-    for (int k : kIsoCycleOrder) rows.push_back({&plan.q_rad[static_cast<size_t>(k)], "P" + std::to_string(k + 1), cy});
+    for (int k : a.directions == 1 ? kIsoCycleOrder : kIsoDirectionOrders[static_cast<size_t>((cy - 1) % 3)])
+      rows.push_back({&plan.q_rad[static_cast<size_t>(k)], "P" + std::to_string(k + 1), cy});
   writeProgram(a.out, comment.str(), m.numJoints(), rows);
   std::printf("  %d cycles, %d rows -> %s; the planned joints reach the poses to %.1g mm and %.1g deg\n", a.cycles,
               5 * a.cycles, a.out.c_str(), plan.worst_position_error_m * 1e3, radToDeg(plan.worst_orientation_error_rad));
@@ -122,7 +130,7 @@ int runPlanIso(const PlanIsoArgs& a) {
                               {"cube", {{"edge_mm", plan.cube.edge_m * 1e3}, {"centre_base_mm", {c.x(), c.y(), c.z()}},
                                         {"centre_tracker_mm", {ct.x(), ct.y(), ct.z()}},
                                         {"orientation_rpy_deg", {radToDeg(rpy[3]), radToDeg(rpy[4]), radToDeg(rpy[5])}}}},
-                              {"plane", plan.plane}, {"cycles", a.cycles}, {"poses", poses},
+                              {"plane", plan.plane}, {"cycles", a.cycles}, {"directions", a.directions}, {"poses", poses},
                               {"reached_mm", plan.worst_position_error_m * 1e3}, {"program", a.out}};
     std::ofstream(a.json) << j.dump(2) << "\n";
   }

@@ -33,6 +33,9 @@ std::array<Eigen::Vector3d, 8> isoCubeCorners(const IsoCube& cube);
 std::array<Pose, 5> isoTestPoses(const IsoCube& cube, int plane);
 // The standard's order of the poses in one cycle: P1, P5, P4, P3, P2 (0-based indices into isoTestPoses).
 constexpr std::array<int, 5> kIsoCycleOrder = {0, 4, 3, 2, 1};
+// A multi-directional test (vAP): cycles in these three orders in turn, so that each pose is approached from three
+// other test poses (P1 from P2, P5 and P4 at the ends of the orders before it; P2 from P3, P1 and P5; ...), 0-based.
+constexpr std::array<std::array<int, 5>, 3> kIsoDirectionOrders = {{{0, 4, 3, 2, 1}, {0, 1, 2, 3, 4}, {0, 2, 4, 1, 3}}};
 
 struct IsoPlanOptions {
   std::optional<Eigen::Vector3d> centre_m;  // given: the cube is centred there (base frame)
