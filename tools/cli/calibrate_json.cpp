@@ -164,6 +164,7 @@ json campaignJson(const CalibrateArgs& a, const CampaignProblem& problem, const 
             {"drift_check", rep.diagnosis ? driftCheckJson(*rep.diagnosis) : json(nullptr)}, {"solver", a.solver},
             {"converged", rep.converged}, {"iterations", rep.iterations},
             {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", modelErrorJson(in)},
+            {"registration_note", in.registration_note.empty() ? json(nullptr) : json(in.registration_note)},
             {"setup_change", in.setup_hint.empty() ? json(nullptr)
                                                    : json{{"line", in.setup_change_line}, {"text", in.setup_hint}}},
             {"registration_time_s", in.registration_s}, {"solve_time_s", rep.solve_s},

@@ -113,6 +113,7 @@ void printSetups(const CalibrateArgs& a, const CampaignProblem& problem, const C
                 s + 1, in.name.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
                 in.data.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);
     if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+    if (!in.registration_note.empty()) std::printf("NOTE: %s\n", in.registration_note.c_str());
     if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
     if (rep.setups[s].rows_left_out_backlash > 0)
       std::printf("%d identification row(s) before the backlash joint first moved in this set-up left out of the fit "
@@ -216,6 +217,7 @@ void printCampaignReport(const CalibrateArgs& a, const CampaignProblem& problem,
     std::printf("registration of base and tool frames: rms %.3f mm (%.1f ms)\n", in.registration_rms_mm,
                 in.registration_s * 1e3);
   if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (!in.registration_note.empty()) std::printf("NOTE: %s\n", in.registration_note.c_str());
   if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
   std::printf("calibration, model %s (%s): %s after %d iterations, %zu parameters estimated (%.1f ms)\n",
               rep.model_label.c_str(), a.model == "geometric" && a.solver == "lm" ? "Levenberg-Marquardt" : "Gauss-Newton",

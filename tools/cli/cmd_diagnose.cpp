@@ -292,6 +292,7 @@ int runDiagnose(const DiagnoseArgs& a) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
   };
   if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (!in.registration_note.empty()) std::printf("NOTE: %s\n", in.registration_note.c_str());
   if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
   const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);
   bar.done();

@@ -117,6 +117,15 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
     const RegistrationResult reg = registerFrames(in.robot, in.robot.nominal, in.data.identification);
     in.start = reg.params;
     in.registration_rms_mm = reg.rms_position_m * 1e3;
+    if (reg.line_direction) {
+      char b[400];
+      std::snprintf(b, sizeof b,
+                    "the positions lie on a line (direction %.3f %.3f %.3f in the tracker frame): the robot's turn "
+                    "about it is not in these rows; the registration takes the smallest turn, the calibration holds "
+                    "what the rows leave open, and its figures hold on that line only",
+                    reg.line_direction->x(), reg.line_direction->y(), reg.line_direction->z());
+      in.registration_note = b;
+    }
     // No robot is off its nominal model by this much: rows of two placements of the tracker (or the target)?
     constexpr double kSetupHintRmsMm = 5.0;
     if (in.registration_rms_mm > kSetupHintRmsMm) {

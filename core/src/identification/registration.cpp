@@ -24,7 +24,7 @@ Eigen::Matrix<double, 6, 1> xyzRpyFromPose(const Pose& T) {
 }
 
 void rigidFit(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
-            Eigen::Vector3d& t) {
+              Eigen::Vector3d& t, Eigen::Vector3d* line) {
   Eigen::Vector3d ca = Eigen::Vector3d::Zero(), cb = Eigen::Vector3d::Zero();
   for (size_t i = 0; i < a.size(); ++i) {
     ca += a[i];
@@ -35,8 +35,15 @@ void rigidFit(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Ve
   Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
   for (size_t i = 0; i < a.size(); ++i) H += (a[i] - ca) * (b[i] - cb).transpose();
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  if (svd.singularValues()[1] < 1e-9 * std::max(1.0, svd.singularValues()[0]))
-    throw std::invalid_argument("registration: flange positions are (nearly) collinear");
+  if (svd.singularValues()[1] < 1e-9 * std::max(1.0, svd.singularValues()[0])) {
+    if (!line) throw std::invalid_argument("registration: flange positions are (nearly) collinear");
+    // H = sum (a_i - ca)(b_i - cb)^T ~ s u v^T: u is a's line, v b's, in the sense that pairs them.
+    const Eigen::Vector3d u = svd.matrixU().col(0), v = svd.matrixV().col(0);
+    R = Eigen::Quaterniond::FromTwoVectors(u, v).toRotationMatrix();
+    t = cb - R * ca;
+    *line = v;
+    return;
+  }
   Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
   D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
   R = svd.matrixV() * D * svd.matrixU().transpose();
@@ -79,7 +86,10 @@ RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd
   for (int it = 0; it < iterations; ++it) {
     std::vector<Eigen::Vector3d> a;
     for (const auto& F : flange) a.push_back(F * tool);
-    rigidFit(a, measured, Rb, tb);
+    Eigen::Vector3d line = Eigen::Vector3d::Zero();
+    rigidFit(a, measured, Rb, tb, &line);
+    out.line_direction.reset();
+    if (line.squaredNorm() > 0) out.line_direction = line;
     double ss = 0;
     for (size_t i = 0; i < obs.size(); ++i) ss += (Rb * a[i] + tb - measured[i]).squaredNorm();
     const double noise_m = std::sqrt(ss / (3 * n));

@@ -46,6 +46,9 @@ struct CampaignInput {
   std::vector<int> identification_lines, verification_lines;  // the file line of each of those rows
   Eigen::VectorXd start;     // nominal kinematics with registered base and tool frames (or the file's)
   double registration_rms_mm = 0;  // NaN without registration
+  // What the registration could not take from the rows, in words (empty: nothing): positions on a line leave the
+  // base's turn about it open.
+  std::string registration_note;
   // When one registration cannot fit the file (RMS above kSetupHintRmsMm) and its rows split into two set-ups that
   // each register: where they change and what each side leaves (empty otherwise).
   std::string setup_hint;

@@ -20,14 +20,18 @@ struct RegistrationResult {
   Eigen::VectorXd params;            // `initial` with the base and tool frames replaced
   double rms_position_m = 0;         // residual of the registered nominal model over the observations
   int iterations = 0;
+  // Set when the positions lie on a line (its direction in the tracker frame): the base's turn about it is not in
+  // the data; the registration turns the base by the smallest rotation that lays the robot's line onto the tracker's.
+  std::optional<Eigen::Vector3d> line_direction;
 };
 
-// The rotation R and translation t minimizing sum |R a_i + t - b_i|^2 (Kabsch; a proper rotation). Throws
-// std::invalid_argument when the points are (nearly) collinear.
+// The rotation R and translation t minimizing sum |R a_i + t - b_i|^2 (Kabsch; a proper rotation). When the points
+// are (nearly) collinear the turn about their line is not in them: with `line`, R is the smallest rotation that lays
+// a's line onto b's (in the same sense) and *line is b's direction; without, std::invalid_argument.
 void rigidFit(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, Eigen::Matrix3d& R,
-              Eigen::Vector3d& t);
+              Eigen::Vector3d& t, Eigen::Vector3d* line = nullptr);
 
-// Needs >= 4 observations with non-coplanar flange positions; throws std::invalid_argument otherwise.
+// Needs >= 4 observations; flange positions on a line are registered as rigidFit says (line_direction set).
 RegistrationResult registerFrames(const RobotModel& model, const Eigen::VectorXd& initial,
                                   const std::vector<Observation>& observations, int iterations = 10);
 
