@@ -59,10 +59,10 @@ void printErrorsAndGrossErrors(const CampaignErrors& e, double threshold, const 
     table.push_back({"  without gross errors", &e.verification_kept_before});
     table.push_back({"  without gross errors", &e.verification_kept_after});
   }
-  std::printf("                 position mm: mean     rms     max   orientation deg: mean    rms     max\n");
+  std::printf("                 position mm: mean     rms   99.7%%     max   orientation deg: mean    rms   99.7%%     max\n");
   for (const auto& [name, s] : table)
-    std::printf("  %-24s %8.4f %7.4f %7.4f %17.4f %7.4f %7.4f\n", name, s->mean_mm, s->rms_mm, s->max_mm, s->mean_deg,
-                s->rms_deg, s->max_deg);
+    std::printf("  %-24s %8.4f %7.4f %7.4f %7.4f %17.4f %7.4f %7.4f %7.4f\n", name, s->mean_mm, s->rms_mm, s->p997_mm,
+                s->max_mm, s->mean_deg, s->rms_deg, s->p997_deg, s->max_deg);
   if (between) std::printf("%s", between);
   const OutlierScreen &io = e.identification_outliers, &vo = e.verification_outliers;
   if (io.rows.empty() && vo.rows.empty()) return;

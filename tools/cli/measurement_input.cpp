@@ -124,8 +124,9 @@ nlohmann::json heldJson(const std::vector<ExcitationDeficit>& held) {
 
 nlohmann::json errorStatsJson(const ErrorStats& s, const std::string& prefix) {
   const std::string& p = prefix;
-  nlohmann::json j = {{p + "mean_mm", s.mean_mm}, {p + "rms_mm", s.rms_mm}, {p + "max_mm", s.max_mm}};
-  if (s.oriented) j.update({{p + "mean_deg", s.mean_deg}, {p + "rms_deg", s.rms_deg}, {p + "max_deg", s.max_deg}});
+  nlohmann::json j = {{p + "mean_mm", s.mean_mm}, {p + "rms_mm", s.rms_mm}, {p + "p997_mm", s.p997_mm}, {p + "max_mm", s.max_mm}};
+  if (s.oriented)
+    j.update({{p + "mean_deg", s.mean_deg}, {p + "rms_deg", s.rms_deg}, {p + "p997_deg", s.p997_deg}, {p + "max_deg", s.max_deg}});
   return j;
 }
 

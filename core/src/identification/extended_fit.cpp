@@ -423,12 +423,14 @@ void ErrorStatsAccumulator::add(const Observation& obs, const Pose& predicted) {
   s.mean_mm += e;
   s.rms_mm += e * e;
   s.max_mm = std::max(s.max_mm, e);
+  position_mm_.push_back(e);
   if (obs.kind == MeasurementKind::kPose6D) {
     const double a = logSO3(obs.measured_in_tracker.linear() * predicted.linear().transpose()).norm() * 180 / kPi;
     ++s.oriented;
     s.mean_deg += a;
     s.rms_deg += a * a;
     s.max_deg = std::max(s.max_deg, a);
+    orientation_deg_.push_back(a);
   }
 }
 
@@ -437,9 +439,11 @@ ErrorStats ErrorStatsAccumulator::stats() const {
   const double n = std::max(1, s.rows);
   s.mean_mm /= n;
   s.rms_mm = std::sqrt(s.rms_mm / n);
+  if (!position_mm_.empty()) s.p997_mm = percentile(position_mm_, 0.997);
   if (s.oriented) {
     s.mean_deg /= s.oriented;
     s.rms_deg = std::sqrt(s.rms_deg / s.oriented);
+    s.p997_deg = percentile(orientation_deg_, 0.997);
   }
   return s;
 }

@@ -95,6 +95,9 @@ struct ErrorStats {
   int rows = 0, oriented = 0;
   double mean_mm = 0, rms_mm = 0, max_mm = 0;     // position
   double mean_deg = 0, rms_deg = 0, max_deg = 0;  // orientation (6D rows only)
+  // The 99.7th percentile (statistics.hpp's percentile; where 3 sigma of a normal error lies): what an accuracy
+  // stated "at 99.7 %" means, beside the mean and the max.
+  double p997_mm = 0, p997_deg = 0;
 };
 ErrorStats errorStats(const RobotModel& model, const CalibratedModel& fit, const std::vector<Observation>& obs,
                       const std::vector<Drivers>& drivers);
@@ -109,6 +112,7 @@ class ErrorStatsAccumulator {
 
  private:
   ErrorStats sums_;
+  std::vector<double> position_mm_, orientation_deg_;  // each row's, for the percentile
 };
 
 }  // namespace cellcal
