@@ -432,11 +432,15 @@ double CalibrationEngine::predictionSigma() {
   const std::vector<Eigen::VectorXd>& work = work_.configurations();
   const auto configs = static_cast<Eigen::Index>(work.size());
   const Eigen::Index state = rls_->covariance().rows();
-  KinematicsData data(m);
-  Eigen::MatrixXd J(6, m.numParams());
+  std::optional<KinematicsData> data;  // made only when rows are (most poses change none)
+  Eigen::MatrixXd J;
   auto rowsAt = [&](Eigen::Index r) {
-    forwardKinematics(m, data, m.nominal, work[static_cast<size_t>(r)]);
-    computePoseJacobian(m, data, J);
+    if (!data) {
+      data.emplace(m);
+      J.resize(6, m.numParams());
+    }
+    forwardKinematics(m, *data, m.nominal, work[static_cast<size_t>(r)]);
+    computePoseJacobian(m, *data, J);
     for (size_t c = 0; c < estimated.size(); ++c)
       sigma_rows_.block<3, 1>(3 * r, static_cast<Eigen::Index>(c)) = J.col(estimated[c]).head<3>();
   };
