@@ -11,7 +11,6 @@
 #include <sstream>
 
 #include "calibrate_report.hpp"
-#include "cellcal/core/identification/statistics.hpp"
 #include "commands.hpp"
 
 namespace cellcal::cli {
@@ -42,22 +41,6 @@ HeldOut heldOut(const CampaignInput& in, const CampaignReport& r) {
     h.q_rad.push_back(rows[i].q_rad);
   }
   return h;
-}
-
-struct Summary {
-  double mean = 0, rms = 0, p997 = 0, max = 0;
-};
-Summary summarize(const std::vector<double>& e) {
-  Summary s;
-  if (e.empty()) return s;
-  for (double x : e) {
-    s.mean += x / static_cast<double>(e.size());
-    s.rms += x * x / static_cast<double>(e.size());
-  }
-  s.rms = std::sqrt(s.rms);
-  s.p997 = percentile(e, 0.997);
-  s.max = *std::max_element(e.begin(), e.end());
-  return s;
 }
 
 // SVG for the report, PNG for pages that take images only.
@@ -158,7 +141,6 @@ void writeCalibrationReport(const std::string& dir, const CalibrateArgs& a, cons
   const CampaignInput& in = p.setups.front();
   const HeldOut h = heldOut(in, r);
   if (h.after_mm.empty()) throw std::runtime_error("--report: no held-out row is left to show");
-  const Summary before = summarize(h.before_mm), after = summarize(h.after_mm);
   char buf[512];
   md << "# cellcal calibrate: " << in.robot.name << "\n\nData: `" << a.input.data << "`, " << in.file.rows.size()
      << " rows (" << a.input.split << " split: " << in.data.identification.size() << " identify, "
@@ -166,8 +148,11 @@ void writeCalibrationReport(const std::string& dir, const CalibrateArgs& a, cons
      << recommendationText(r) << "\n\n## Held-out error\n\nThe " << h.after_mm.size()
      << " verification rows without their gross errors: the model was not fitted on them. Position error (mm):\n\n"
      << "| | mean | RMS | 99.7 % | max |\n|---|---|---|---|---|\n";
-  for (const auto& [label, s] : {std::pair{"before", before}, {"after", after}}) {
-    std::snprintf(buf, sizeof buf, "| %s | %.4f | %.4f | %.4f | %.4f |\n", label, s.mean, s.rms, s.p997, s.max);
+  // The campaign's own figures of these rows (the text's and --json's "without gross errors").
+  for (const auto& [label, s] : {std::pair{"before", &r.errors.verification_kept_before},
+                                 {"after", &r.errors.verification_kept_after}}) {
+    std::snprintf(buf, sizeof buf, "| %s | %.4f | %.4f | %.4f | %.4f |\n", label, s->mean_mm, s->rms_mm, s->p997_mm,
+                  s->max_mm);
     md << buf;
   }
   md << "\n![histogram](histogram.svg)\n\n## Along each joint\n\nWhat depends on a joint's angle (a cyclic error, a "

@@ -61,8 +61,6 @@ void addOptions(CLI::App& cmd, Iso9283Args& a) {
       ->check(CLI::PositiveNumber);
 }
 
-
-
 // Rows without a pose name take the name of the program pose whose joints they have (to 1e-6 rad).
 void nameByProgram(MeasurementFile& f, const std::string& program_path, const RobotModel& m) {
   MeasurementCsvOptions o;
