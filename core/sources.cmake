@@ -32,6 +32,7 @@ set(CELLCAL_CORE_SOURCES
   src/identification/residual_map.cpp
   src/identification/residual_map_fit.cpp
   src/identification/registration.cpp
+  src/identification/setup_change.cpp          # a set-up change inside one file, from the residuals' structure
   src/identification/controller_check.cpp      # a controller's own poses against a model (robot check)
   src/identification/extended_fit.cpp
   src/identification/diagnosis.cpp

@@ -22,6 +22,13 @@ json errorsJson(const CampaignErrors& e, double threshold, const CampaignInput& 
 
 json unusableJson(const std::string& u) { return u.empty() ? json(nullptr) : json(u); }
 
+// The set-up change that begins a block found in a file (null for the first block, or a set-up not found so).
+json foundChangeJson(const CampaignInput& in) {
+  if (in.found_block < 2) return nullptr;
+  const FoundSetupChange& f = in.found_changes[static_cast<size_t>(in.found_block - 2)];
+  return {{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}};
+}
+
 json setupsJson(const CalibrateArgs& a, const CampaignProblem& problem, const CampaignReport& rep) {
   const auto& ins = problem.setups;
   const RobotModel& robot = ins[0].robot;
@@ -34,7 +41,8 @@ json setupsJson(const CalibrateArgs& a, const CampaignProblem& problem, const Ca
     for (int k = 0; k < 12; ++k) frames[robot.paramNameHuman(f0 + k)] = robot.toHuman(f0 + k, rep.setups[s].frames[k]);
     json j = {{"data", in.name}, {"rows", in.file.rows.size()}, {"measurement", in.measurementName()},
               {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", modelErrorJson(in)},
-              {"rows_left_out_backlash", rep.setups[s].rows_left_out_backlash}};
+              {"rows_left_out_backlash", rep.setups[s].rows_left_out_backlash},
+              {"found_setup_change", foundChangeJson(in)}};
     j.update(errorsJson(rep.setups[s].errors, problem.outliers.threshold, in));
     j["frames"] = frames;
     per.push_back(j);

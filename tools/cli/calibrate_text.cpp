@@ -109,6 +109,7 @@ void printSetups(const CalibrateArgs& a, const CampaignProblem& problem, const C
   }
   for (size_t s = 0; s < ins.size(); ++s) {
     const CampaignInput& in = ins[s];
+    if (in.found_block == 1) std::printf("\nNOTE: %s\n", foundSetupsText(in).c_str());
     std::printf("\nset-up %zu: %s: %zu rows (%s split: %zu identify, %zu verify), %s; registration rms %.3f mm\n",
                 s + 1, in.name.c_str(), in.file.rows.size(), a.input.split.c_str(), in.data.identification.size(),
                 in.data.verification.size(), in.measurementText().c_str(), in.registration_rms_mm);

@@ -86,17 +86,20 @@ std::vector<std::pair<std::string, std::string>> provenanceOf(const CalibrateArg
   const std::string& last = p.setups.back().name;
   return {{"date_utc", utcNow()},        {"tool", "cellcal calibrate (several set-ups)"},
           {"robot_file", a.input.robot}, {"data_files", all},
-          {"data_sha256", fileSha256(last.substr(0, last.find(" [setup ")))}, {"frames_of", last}};
+          {"data_sha256", fileSha256(p.setups.back().path)}, {"frames_of", last}};
 }
 
 int runCalibrate(const CalibrateArgs& a) {
   CampaignProblem p;
   p.setups = loadSetups(a.input);  // --data given again, or a file with a setup column
   const bool several = p.setups.size() > 1;
-  if (several && a.frames_only) throw ConfigError("--frames-only takes one set-up (a usage error, exit 2)");
-  if (several && !a.report.empty()) throw ConfigError("--report takes one set-up (a usage error, exit 2)");
+  // Set-ups found in a file without a setup column: said with the usage error.
+  const std::string found = foundSetupsText(p.setups.front());
+  const std::string why = found.empty() ? " (a usage error, exit 2)" : ": " + found + " (a usage error, exit 2)";
+  if (several && a.frames_only) throw ConfigError("--frames-only takes one set-up" + why);
+  if (several && !a.report.empty()) throw ConfigError("--report takes one set-up" + why);
   if (several && a.solver == "lm")
-    throw ConfigError("--solver lm takes one set-up: several set-ups are fitted by Gauss-Newton (a usage error, exit 2)");
+    throw ConfigError("--solver lm takes one set-up: several set-ups are fitted by Gauss-Newton" + why);
   if (a.frames_only && a.model != "geometric")
     throw std::runtime_error("--frames-only keeps the robot file's model: no --model");
   const RobotModel& robot = p.setups.front().robot;

@@ -216,7 +216,11 @@ void writeDiagnoseJson(const DiagnoseArgs& a, const LoadedInput& in, const Diagn
                                               ? nlohmann::json(st.added.time_constant_h)
                                               : nlohmann::json(nullptr)}});
   const DriverStructure* left = d.structureLeft();
+  nlohmann::json found = nlohmann::json::array();
+  for (const auto& f : in.found_changes)
+    found.push_back({{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}});
   nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
+                      {"setup_changes_found", found}, {"rows_diagnosed", in.name},
                       {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},
                       {"thermal_driver", in.data.has_thermal ? in.data.thermal_source : "none"},
                       {"constant_temperature_c", in.data.constant_temperature_c ? nlohmann::json(*in.data.constant_temperature_c) : nlohmann::json(nullptr)},
@@ -292,6 +296,9 @@ int runDiagnose(const DiagnoseArgs& a) {
     bar.update(static_cast<double>(done) / total, std::to_string(done) + "/" + std::to_string(total) + " model fits");
   };
   if (!in.setup_hint.empty()) std::printf("WARNING: %s\n", in.setup_hint.c_str());
+  if (in.found_block > 0)
+    std::printf("WARNING: %s. diagnose takes one: it diagnoses %s, the largest; `cellcal calibrate` fits them all\n",
+                foundSetupsText(in).c_str(), in.name.c_str());
   if (!in.registration_note.empty()) std::printf("NOTE: %s\n", in.registration_note.c_str());
   if (in.model_error_added) std::printf("%s\n", in.modelErrorText().c_str());
   const DiagnosisResult d = diagnose(in.robot, in.start, in.data, options);

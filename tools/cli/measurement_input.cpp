@@ -52,6 +52,7 @@ InputOptions inputOptions(const InputArgs& a) {
   o.sigma_orientation_rad = a.sigma_orientation_deg * kPi / 180;
   o.position_only = a.position_only;
   o.register_frames = !a.no_register;
+  o.find_setup_changes = !a.one_setup;
   o.outliers = outlierOptions(a);
   return o;
 }
@@ -68,7 +69,48 @@ LoadedInput loadInput(const InputArgs& a) {
     throw ConfigError(a.data + ": rows of " + std::to_string(parts.size()) + " set-ups (column setup: " + labels +
                       "): only `cellcal calibrate` takes several set-ups (a usage error, exit 2)");
   }
-  return prepareCampaignInput(a.data, std::move(rf), std::move(file), inputOptions(a));
+  const InputOptions options = inputOptions(a);
+  const std::vector<FoundSetupChange> found =
+      options.find_setup_changes ? findSetupChanges(rf.model, file, options) : std::vector<FoundSetupChange>{};
+  if (found.empty()) return prepareCampaignInput(a.data, std::move(rf), std::move(file), options);
+  // Several set-ups found: this command takes one, the largest block.
+  size_t best = 0, best_rows = 0;
+  for (size_t b = 0; b <= found.size(); ++b) {
+    const size_t first = b == 0 ? 0 : static_cast<size_t>(found[b - 1].first_row);
+    const size_t last = b == found.size() ? file.rows.size() : static_cast<size_t>(found[b].first_row);
+    if (last - first > best_rows) best = b, best_rows = last - first;
+  }
+  const long first = best == 0 ? 0 : found[best - 1].first_row;
+  MeasurementFile block;
+  block.source = file.source;
+  block.rows.assign(file.rows.begin() + first, file.rows.begin() + first + static_cast<long>(best_rows));
+  const std::string name = a.data + " [lines " + std::to_string(block.rows.front().line) + "-" +
+                           std::to_string(block.rows.back().line) + "]";
+  LoadedInput in = prepareCampaignInput(name, std::move(rf), std::move(block), options);
+  in.path = a.data;
+  in.found_changes = found;
+  in.found_block = static_cast<int>(best) + 1;
+  return in;
+}
+
+std::string foundSetupsText(const CampaignInput& in) {
+  if (in.found_changes.empty()) return "";
+  const auto& f = in.found_changes;
+  std::string s = "the rows of " + in.path + " are " + std::to_string(f.size() + 1) +
+                  " set-ups (the tracker or the target moved; no setup column says so): ";
+  for (size_t k = 0; k < f.size(); ++k) {
+    char b[240];
+    const char* sep = k == 0 ? "" : k + 1 == f.size() ? " and " : ", ";
+    if (f[k].registration_rms_mm.size() == 3)
+      std::snprintf(b, sizeof b, "%sa change before line %d (one registration leaves %.1f mm RMS; each side on its "
+                    "own %.2f and %.2f mm)", sep, f[k].line, f[k].registration_rms_mm[0], f[k].registration_rms_mm[1],
+                    f[k].registration_rms_mm[2]);
+    else
+      std::snprintf(b, sizeof b, "%sa change before line %d (the target moves %.3f mm RMS after it; probability %.1e "
+                    "that rows of one set-up split as clearly)", sep, f[k].line, f[k].move_mm, f[k].probability);
+    s += b;
+  }
+  return s + ". Each is registered apart; --one-setup takes them as one";
 }
 
 std::vector<LoadedInput> loadSetups(const InputArgs& a) {
@@ -189,6 +231,9 @@ void addInputOptions(CLI::App* cmd, InputArgs& a) {
       ->capture_default_str();
   cmd->add_flag("--skip-bad-rows", a.skip_bad_rows, "skip (and count) bad rows instead of stopping");
   cmd->add_flag("--no-register", a.no_register, "trust the robot file's base and tool frames as the start");
+  cmd->add_flag("--one-setup", a.one_setup,
+                "take a file without a setup column as one set-up: no search for rows where the tracker or the target "
+                "moved");
   cmd->add_option("--plausible-length-mm", a.plausible_length_mm,
                   "how far a kinematic length may plausibly lie from the robot file's (1 sigma): a length is estimated "
                   "only where the data, at the noise the fit leaves, pin it better than this; the others are held at the "

@@ -22,7 +22,7 @@ struct InputArgs {
   std::vector<std::string> data_files; // every --data, in order (what the option fills)
   double sigma_position_mm = 0.025, sigma_orientation_deg = 0.01;
   double outlier_threshold = OutlierOptions{}.threshold;  // robust sigmas; 0: no screening
-  bool position_only = false, skip_bad_rows = false, no_register = false;
+  bool position_only = false, skip_bad_rows = false, no_register = false, one_setup = false;
   // A kinematic parameter is estimated only where the data pin it better than this (identifiability.hpp); 0: rank only.
   double plausible_length_mm = kPlausibleLengthM * 1e3, plausible_angle_deg = kPlausibleAngleRad * 180 / kPi;
 };
@@ -43,6 +43,8 @@ OutlierOptions outlierOptions(const InputArgs& a);
 
 // Reads and prepares (prepareCampaignInput: split, registration, the rows' sigmas). Prints skipped rows and ignored columns to stderr. Throws std::runtime_error with the file name on bad input.
 LoadedInput loadInput(const InputArgs& a);
+// What the set-up search found in the file a set-up came from (findSetupChanges), in one sentence; "" when nothing.
+std::string foundSetupsText(const CampaignInput& in);
 // Every set-up of every --data file (a file with a setup column gives one per label, in order of appearance), each
 // split and registered on its own as loadInput does. A file whose rows name set-ups must name one on every row.
 std::vector<LoadedInput> loadSetups(const InputArgs& a);

@@ -8,6 +8,7 @@
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/identification/setup_change.hpp"
 
 namespace cellcal {
 
@@ -42,6 +43,9 @@ std::vector<std::pair<std::string, MeasurementFile>> splitBySetup(const Measurem
 
 namespace {
 
+// No robot is off its nominal model by this much (RMS of one registration, mm): rows of two placements.
+constexpr double kSetupHintRmsMm = 5.0;
+
 void addModelErrorComponent(CampaignInput& in, const InputOptions& options) {
   CalibrationProblem p{&in.robot, in.start, in.data.identification, std::nullopt, {}, {}};
   p.outliers = options.outliers;
@@ -70,6 +74,7 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
   if (!a.IsValid(&why)) throw ConfigError(name + ": " + why);
   CampaignInput in;
   in.name = name;
+  in.path = name;  // a block or a labelled set-up of a file: the caller names the file
   in.split = a.split;
   in.robot = std::move(rf.model);
   in.calibration = std::move(rf.calibration);
@@ -127,7 +132,6 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
       in.registration_note = b;
     }
     // No robot is off its nominal model by this much: rows of two placements of the tracker (or the target)?
-    constexpr double kSetupHintRmsMm = 5.0;
     if (in.registration_rms_mm > kSetupHintRmsMm) {
       std::vector<Observation> all;
       for (const auto& r : rows) all.push_back(toObservation(r, in.kind, a.sigma_position_m, a.sigma_orientation_rad));
@@ -155,6 +159,76 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
   return in;
 }
 
+namespace {
+
+// Rows [begin, end) of `rows` scanned as one set-up; the changes found, recursively, appended to `out`.
+void searchSetups(const RobotModel& robot, const std::vector<MeasurementRow>& rows, int begin, int end,
+                  const InputOptions& a, std::vector<FoundSetupChange>* out) {
+  const SetupChangeOptions so;
+  if (end - begin < 2 * so.min_rows || static_cast<int>(out->size()) + 1 >= kMaxFoundSetups) return;
+  const MeasurementKind kind = a.position_only ? MeasurementKind::kPosition3D : MeasurementKind::kPose6D;
+  std::vector<Observation> obs;
+  std::vector<double> times, temperatures;
+  for (int i = begin; i < end; ++i) {
+    const auto& r = rows[static_cast<size_t>(i)];
+    obs.push_back(toObservation(r, kind, a.sigma_position_m, a.sigma_orientation_rad));
+    if (r.stamp_s && (times.empty() || *r.stamp_s >= times.back())) times.push_back(*r.stamp_s);
+    if (r.temperature_c) temperatures.push_back(*r.temperature_c);
+  }
+  if (times.size() != obs.size()) times.clear();  // some row without a stamp, or stamps out of order: the rows' order
+  if (temperatures.size() != obs.size()) temperatures.clear();
+  // Rows no registration fits (a tracker moved by far more than a robot's error): where registering each side apart
+  // fits them ten times better (findSetupChange); else, and for every smaller change, the scan of a calibration of
+  // them all.
+  const RegistrationResult reg = registerFrames(robot, robot.nominal, obs);
+  if (reg.rms_position_m * 1e3 > kSetupHintRmsMm) {
+    const auto c = findSetupChange(robot, robot.nominal, obs, 10, so.min_rows);
+    if (c) {
+      const int k = begin + c->first_row;
+      searchSetups(robot, rows, begin, k, a, out);
+      FoundSetupChange f;
+      f.first_row = k;
+      f.line = rows[static_cast<size_t>(k)].line;
+      f.probability = 0;
+      f.registration_rms_mm = {c->rms_single_m * 1e3, c->rms_first_m * 1e3, c->rms_second_m * 1e3};
+      out->push_back(f);
+      searchSetups(robot, rows, k, end, a, out);
+      return;
+    }
+  }
+  CalibrationProblem p;
+  p.model = &robot;
+  p.initial_params = reg.params;
+  p.observations = obs;
+  p.outliers.enabled = false;  // the scan clips each row itself
+  const CalibrationResult fit = solveGaussNewton(p);
+  // The scan fits the model's columns itself, about the point it is given: the fit where it got closer than the
+  // registration (rows of two set-ups can keep it from converging), else the registration.
+  const bool closer = fit.params.allFinite() && fit.final_cost_per_observation <= fit.initial_cost_per_observation;
+  const SetupChangeScan scan =
+      scanSetupChange(robot, closer ? fit.params : reg.params, fit.estimated, obs, so, times, temperatures);
+  if (!scan.found) return;
+  const int k = begin + scan.first_row;
+  searchSetups(robot, rows, begin, k, a, out);
+  FoundSetupChange f;
+  f.first_row = k;
+  f.line = rows[static_cast<size_t>(k)].line;
+  f.probability = scan.probability;
+  f.move_mm = scan.move_m * 1e3;
+  out->push_back(f);
+  searchSetups(robot, rows, k, end, a, out);
+}
+
+}  // namespace
+
+std::vector<FoundSetupChange> findSetupChanges(const RobotModel& robot, const MeasurementFile& file,
+                                               const InputOptions& options) {
+  std::vector<FoundSetupChange> out;
+  searchSetups(robot, file.rows, 0, static_cast<int>(file.rows.size()), options, &out);
+  std::sort(out.begin(), out.end(), [](const auto& x, const auto& y) { return x.first_row < y.first_row; });
+  return out;
+}
+
 std::vector<CampaignInput> prepareCampaignSetups(const std::string& path, const RobotFile& robot,
                                                  const MeasurementFile& file, const InputOptions& options) {
   if (file.rows.empty()) throw ConfigError(path + ": no data rows");  // readMeasurementCsv refuses it already
@@ -163,8 +237,29 @@ std::vector<CampaignInput> prepareCampaignSetups(const std::string& path, const 
     if (label.empty() && file.rows.size() != part.rows.size())
       throw ConfigError(path + ": line " + std::to_string(part.rows.front().line) +
                         ": setup: empty, while other rows name their set-up");
-    out.push_back(prepareCampaignInput(label.empty() ? path : path + " [setup " + label + "]", robot, std::move(part),
-                                       options));
+    const std::vector<FoundSetupChange> found =
+        label.empty() && options.find_setup_changes ? findSetupChanges(robot.model, part, options)
+                                                    : std::vector<FoundSetupChange>{};
+    if (found.empty()) {
+      out.push_back(prepareCampaignInput(label.empty() ? path : path + " [setup " + label + "]", robot,
+                                         std::move(part), options));
+      out.back().path = path;
+      continue;
+    }
+    // One set-up per block between the changes found, named by its lines.
+    for (size_t b = 0; b <= found.size(); ++b) {
+      const auto first = static_cast<size_t>(b == 0 ? 0 : found[b - 1].first_row);
+      const auto last = b == found.size() ? part.rows.size() : static_cast<size_t>(found[b].first_row);
+      MeasurementFile block;
+      block.source = part.source;
+      block.rows.assign(part.rows.begin() + static_cast<long>(first), part.rows.begin() + static_cast<long>(last));
+      const std::string name = path + " [lines " + std::to_string(block.rows.front().line) + "-" +
+                               std::to_string(block.rows.back().line) + "]";
+      out.push_back(prepareCampaignInput(name, robot, std::move(block), options));
+      out.back().path = path;
+      out.back().found_changes = found;
+      out.back().found_block = static_cast<int>(b) + 1;
+    }
   }
   return out;
 }

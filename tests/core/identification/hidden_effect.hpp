@@ -50,7 +50,10 @@ inline const char* categoryName(DrawCategory c) {
 
 struct DrawOptions {
   DrawCategory category = DrawCategory::kSingle;
-  std::string robot;                 // "" : staubli_tx60 or ur10 at random
+  std::string robot;                 // "" : staubli_tx60 or ur10 at random; a path ending .urdf: that URDF
+  // The visiting order: random configurations one after the other (false), or a path through them, each next one
+  // the nearest not yet visited (a robot's own task: neighbouring rows share their model error).
+  bool path_order = false;
   int kind = -1;                     // -1: points or 6D at random; else a MeasurementKind
   int poses = 400;
   double hours = 4.0;
@@ -246,7 +249,9 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
   d.robot = !options.robot.empty() ? options.robot : (u(rng) < 0.5 ? "staubli_tx60" : "ur10");
   d.kind = options.kind >= 0 ? static_cast<MeasurementKind>(options.kind)
                              : (u(rng) < 0.5 ? MeasurementKind::kPose6D : MeasurementKind::kPosition3D);
-  const RobotModel file_model = robot(d.robot);
+  const RobotModel file_model = d.robot.size() > 5 && d.robot.substr(d.robot.size() - 5) == ".urdf"
+                                     ? loadRobotFile(d.robot).model
+                                     : robot(d.robot);
   const int n = file_model.numJoints();
   SimulationConfig sc;
   sc.seed = rng();
@@ -263,6 +268,13 @@ inline HiddenEffectData makeHiddenEffectData(const DrawOptions& options, std::ui
   sc.zero_wear_per_h_max_rad = 0;
   const SimulatedCell plain(file_model, sc);
   std::vector<Eigen::VectorXd> qs = plain.randomConfigurations(options.poses, rng);
+  if (options.path_order)
+    for (size_t i = 1; i < qs.size(); ++i) {
+      size_t next = i;
+      for (size_t j = i + 1; j < qs.size(); ++j)
+        if ((qs[j] - qs[i - 1]).squaredNorm() < (qs[next] - qs[i - 1]).squaredNorm()) next = j;
+      std::swap(qs[i], qs[next]);
+    }
   d.repeats = u(rng) < options.repeat_probability;
   if (d.repeats)  // 10 % of the poses measured again later in the run
     for (int k = 0; k < options.poses / 10; ++k) {

@@ -26,13 +26,29 @@ struct InputOptions {
   bool position_only = false;                 // positions only, even where orientations are given
   bool register_frames = true;                // false: trust the robot file's base and tool frames as the start
   OutlierOptions outliers;                    // the geometric fit beneath the model error component
+  // A file without a setup column is searched for set-up changes (findSetupChanges); false: its rows are one set-up.
+  bool find_setup_changes = true;
   bool IsValid(std::string* why) const;
 };
 
 constexpr double kPositionRadiusMm = 20.0;
 
+// A set-up change found in a file's rows from their structure (setup_change.hpp): the tracker or the target moved
+// between two rows, and no setup column says so.
+struct FoundSetupChange {
+  int first_row = -1;       // index into the file's rows: the first row of the new set-up
+  int line = -1;            // its file line
+  double probability = 1;   // that rows of one set-up give a split as clear (the scan's law)
+  double move_mm = 0;       // how far the new set-up's frames move the target, RMS over its rows
+  // A change no registration of both sides fits (RMS above 5 mm): one registration's RMS, then each side's (mm);
+  // empty when the scan found it.
+  std::vector<double> registration_rms_mm;
+};
+
 struct CampaignInput {
-  std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column
+  std::string name;  // the file, with " [setup <label>]" for one set-up of a file with a setup column ("[lines a-b]"
+                     // for a block of one whose set-ups were found)
+  std::string path;  // the file
   std::string split;  // the rule its rows were split by (InputOptions::split)
   RobotModel robot;
   std::optional<RobotCalibration> calibration;  // the robot file's calibration section (a calibrated robot file)
@@ -53,6 +69,10 @@ struct CampaignInput {
   // each register: where they change and what each side leaves (empty otherwise).
   std::string setup_hint;
   int setup_change_line = -1;         // file line of the first row of the second set-up
+  // When the set-up is a block of a file whose rows were found to be several set-ups (findSetupChanges): every change
+  // found in that file, and the block's number (1-based; 0: not such a block).
+  std::vector<FoundSetupChange> found_changes;
+  int found_block = 0;
   double registration_s = 0;
   // Rows with the tracker's own sigmas (sigma_position_mm / sigma_orientation_deg columns): the error a geometric
   // fit leaves beyond them (model_error.hpp), added to every row's sigmas before any fit; zero without such rows.
@@ -65,13 +85,24 @@ struct CampaignInput {
 // A file's rows per set-up label, in order of first appearance (one group, unlabelled, when it has no setup column).
 std::vector<std::pair<std::string, MeasurementFile>> splitBySetup(const MeasurementFile& file);
 
+// The set-up changes in a file's rows without a setup column, in row order: the rows calibrated as one set-up
+// (registered, then a geometric fit of every row) and scanned (scanSetupChange, with the rows' stamps as the drift's
+// clock and their temperatures as a drift's shape when every row has them); rows one registration cannot fit (RMS
+// above 5 mm) are split where each side registers best (findSetupChange). Where a change is found, each side is
+// searched again, up to kMaxFoundSetups set-ups. Empty when the rows are too few (40), the fit does not converge, or
+// nothing is found.
+constexpr int kMaxFoundSetups = 8;
+std::vector<FoundSetupChange> findSetupChanges(const RobotModel& robot, const MeasurementFile& file,
+                                               const InputOptions& options);
+
 // Splits, registers and checks the rows of one set-up; `name` (the file, and its set-up label) in messages. Throws
 // ConfigError naming it when the split leaves fewer than 8 rows to identify or none to verify.
 CampaignInput prepareCampaignInput(const std::string& name, RobotFile robot, MeasurementFile rows,
                                    const InputOptions& options);
 
-// Every set-up of one file (a file with a setup column gives one per label, in order of appearance), each prepared on
-// its own; `path` names the file. A file whose rows name set-ups must name one on every row (ConfigError, its line).
+// Every set-up of one file (a file with a setup column gives one per label, in order of appearance; one without, one
+// per block between the set-up changes found in it when options.find_setup_changes), each prepared on its own;
+// `path` names the file. A file whose rows name set-ups must name one on every row (ConfigError, its line).
 std::vector<CampaignInput> prepareCampaignSetups(const std::string& path, const RobotFile& robot,
                                                  const MeasurementFile& file, const InputOptions& options);
 
