@@ -3,8 +3,12 @@
 // the recording and is deterministic.
 #include <gtest/gtest.h>
 
+#include <numeric>
+
 #include "cell/cell_test_support.hpp"
 #include "cellcal/lab/ipa_dataset.hpp"
+#include "cellcal/core/engine/calibration_engine.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
 
 namespace cellcal {
@@ -65,6 +69,23 @@ TEST(CliRecording, ImportValidateAndExportKeepEveryRow) {
   for (int i = 0; i < 10; ++i) early += c[i + 1].value("verification_mm", 0.0) / 10;
   late = c[c.size() - 1]["verification_mm"].get<double>();
   EXPECT_LT(late, 0.5 * early) << "first poses " << early << " mm, last " << late << " mm";
+  // The run's held-out figures are its updates' a-priori errors, one per update: their mean, 99.7th percentile and
+  // max; the engine's own running figure (the mean of the last kRecentPoses) is the same errors' window mean.
+  std::vector<double> held;
+  for (size_t k = 0; k < c.size(); ++k) {
+    if (c[k]["held_out_mm"].is_null()) continue;
+    held.push_back(c[k]["held_out_mm"].get<double>());
+    if (held.size() < CalibrationEngine::kRecentPoses) continue;
+    const double window = std::accumulate(held.end() - CalibrationEngine::kRecentPoses, held.end(), 0.0) /
+                          CalibrationEngine::kRecentPoses;
+    EXPECT_NEAR(c[k]["verification_mm"].get<double>(), window, 1e-9) << "version " << c[k]["version"];
+  }
+  const auto& h = runs[0]["held_out_mm"];
+  ASSERT_EQ(h["updates"].get<size_t>(), held.size());
+  EXPECT_EQ(held.size(), static_cast<size_t>(rows));  // every row made a version
+  EXPECT_NEAR(h["mean_mm"].get<double>(), std::accumulate(held.begin(), held.end(), 0.0) / held.size(), 1e-9);
+  EXPECT_NEAR(h["p997_mm"].get<double>(), percentile(held, 0.997), 1e-12);
+  EXPECT_NEAR(h["max_mm"].get<double>(), *std::max_element(held.begin(), held.end()), 1e-12);
 
   Process exp(dir, "export", {"cellcal", "export", dir + "/m.mcap", "--config", cell, "--out", dir + "/back.csv"});
   ASSERT_EQ(exp.wait(60), 0) << exp.log();

@@ -113,8 +113,8 @@ int runContinuous(const ContinuousArgs& a) {
     }
   }
   auto line = [&](const char* name, const ErrorStats& s) {
-    std::printf("%-14s mean %.4f  RMS %.4f  max %.4f mm", name, s.mean_mm, s.rms_mm, s.max_mm);
-    if (s.oriented) std::printf("  | mean %.4f deg", s.mean_deg);
+    std::printf("%-14s mean %.4f  RMS %.4f  99.7%% %.4f  max %.4f mm", name, s.mean_mm, s.rms_mm, s.p997_mm, s.max_mm);
+    if (s.oriented) std::printf("  | mean %.4f  99.7%% %.4f  max %.4f deg", s.mean_deg, s.p997_deg, s.max_deg);
     std::printf("\n");
   };
   std::printf("\nover %d updates, %d poses used, %d rows predicted (%.2f s):\n", res.updates, res.poses_used,

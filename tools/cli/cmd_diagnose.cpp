@@ -134,8 +134,9 @@ void printCause(const LoadedInput& in, const DiagnosisResult& d) {
       for (const auto& e : st.alike) alike += (alike.empty() ? "" : ", ") + extensionLabel(e);
       std::printf("  %s: these data tell it only weakly from %s\n", extensionLabel(st.added).c_str(), alike.c_str());
     }
-  std::printf("  verification mean %.4f -> %.4f mm (gain %.1f %%)", g.verification.mean_mm, b.verification.mean_mm,
-              d.gain_pct);
+  std::printf("  held-out (verification rows): mean %.4f -> %.4f mm (gain %.1f %%), 99.7%% %.4f -> %.4f mm, max %.4f -> "
+              "%.4f mm", g.verification.mean_mm, b.verification.mean_mm, d.gain_pct, g.verification.p997_mm,
+              b.verification.p997_mm, g.verification.max_mm, b.verification.max_mm);
   if (!vo.rows.empty())
     std::printf("; with the gross errors (%zu rows): %.4f -> %.4f mm", vo.rows.size(), d.geometric_verification_all_rows.mean_mm,
                 d.verification_all_rows.mean_mm);

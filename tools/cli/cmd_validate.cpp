@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "cellcal/components/convert.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/components/engine_host.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
@@ -101,6 +102,9 @@ std::string robotOfTarget(const CellConfig& cell, const std::string& target_id) 
 // recording holds.
 struct Run {
   std::vector<ReceivedCalibration> reproduced;
+  // Beside each reproduced calibration: the a-priori error of the pose that made it (NaN: none did), mm. These are
+  // the run's held-out errors.
+  std::vector<double> prior_mm;
   std::map<std::uint64_t, ReceivedCalibration> recorded;  // first CalibrationState of each version
   std::uint64_t joint_states = 0, tracker_readings = 0;
 };
@@ -171,6 +175,21 @@ Unused replay(const ValidateArgs& a, const Recording& rec, const CellConfig& cel
 
 // One robot's reproduced calibrations against the recorded ones: printed, and returned as JSON; all_match false when a
 // version differs or was recorded but not reproduced.
+// The run's held-out errors (mm: every update's pose, predicted before it was used; NaN beside a calibration no pose
+// made), printed and as JSON: their mean, 99.7th percentile and max (null when there are none).
+nlohmann::json heldOutSummary(const std::string& id, const std::vector<double>& prior_mm) {
+  std::vector<double> pe;
+  for (double e : prior_mm)
+    if (std::isfinite(e)) pe.push_back(e);
+  if (pe.empty()) return nullptr;
+  const double mean = std::accumulate(pe.begin(), pe.end(), 0.0) / static_cast<double>(pe.size());
+  const double p997 = percentile(pe, 0.997), max = *std::max_element(pe.begin(), pe.end());
+  std::printf("validate: %s: held-out position errors of the %zu updates (each pose predicted before it was used): "
+              "mean %.4f, 99.7%% %.4f, max %.4f mm\n",
+              id.c_str(), pe.size(), mean, p997, max);
+  return {{"updates", pe.size()}, {"mean_mm", mean}, {"p997_mm", p997}, {"max_mm", max}};
+}
+
 nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const Run& run, const EngineHost::Robot& hosted,
                             bool* all_match) {
   const RobotModel& model = hosted.robot->model;
@@ -180,10 +199,13 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
   std::string first_mismatch;
   nlohmann::json series = nlohmann::json::array();
   std::set<std::uint64_t> reproduced_versions;
-  for (const auto& c : run.reproduced) {
+  for (size_t k = 0; k < run.reproduced.size(); ++k) {
+    const ReceivedCalibration& c = run.reproduced[k];
     reproduced_versions.insert(c.version);
+    const double prior_mm = run.prior_mm[k];
     nlohmann::json row = {{"version", c.version}, {"poses_used", c.poses_used},
-                          {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()}};
+                          {"verification_mm", std::isfinite(c.verification_mean_position_m) ? nlohmann::json(c.verification_mean_position_m * 1e3) : nlohmann::json()},
+                          {"held_out_mm", std::isfinite(prior_mm) ? nlohmann::json(prior_mm) : nlohmann::json()}};
     auto it = run.recorded.find(c.version);
     if (it == run.recorded.end()) {
       ++not_recorded;
@@ -224,6 +246,7 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
               static_cast<unsigned long long>(run.tracker_readings), run.reproduced.size(),
               static_cast<unsigned long long>(last_rep ? last_rep->version : 0), last_rep ? last_rep->poses_used : 0,
               last_rep ? last_rep->verification_mean_position_m * 1e3 : std::nan(""));
+  const nlohmann::json held_out = heldOutSummary(id, run.prior_mm);
   // How the engine started shows in its first poses: each predicted a priori, windows of kRecentPoses.
   std::vector<double> first_windows;  // a-priori mean of poses 1-30, 31-60, ...
   for (const auto& c : run.reproduced)
@@ -272,6 +295,7 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
                 {"max_difference_verification_m", worst.verification_m},
                 {"first_difference", first_mismatch},
                 {"final_version", last_rep ? last_rep->version : 0},
+                {"held_out_mm", held_out},
                 {"first_poses_verification_mm", std::isfinite(first_window_mm) ? nlohmann::json(first_window_mm) : nlohmann::json()},
                 {"first_ten_windows_verification_mm", std::isfinite(first_ten_mm) ? nlohmann::json(first_ten_mm) : nlohmann::json()},
                 {"started_from", hosted.robot->start ? hosted.robot->calibration_file : std::string("nominal")},
@@ -297,7 +321,11 @@ int runValidate(const ValidateArgs& a) {
     std::string error;
     auto c = fromCalibrationState(r.robot->model, toCalibrationState(*r.robot, r.engine->snapshot(), 0, 0), &error);
     if (!c) throw std::logic_error("validate: a calibration does not survive its own conversion: " + error);
-    runs[r.robot->robot_id].reproduced.push_back(std::move(*c));
+    Run& run = runs[r.robot->robot_id];
+    const double prior_m = r.engine->snapshot().last_prior_error_position_m;
+    const bool made_by_a_pose = run.reproduced.empty() || c->version != run.reproduced.back().version;
+    run.prior_mm.push_back(made_by_a_pose ? prior_m * 1e3 : std::nan(""));
+    run.reproduced.push_back(std::move(*c));
   };
   EngineHost host(cell, {/*persist=*/false, nullptr}, reproduce);
   // Where each engine stands at its start, as the engine process publishes it before any reading: a calibration

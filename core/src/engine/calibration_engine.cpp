@@ -56,6 +56,7 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
   drift_sigma_ = drift.sigmas(m);
   snap_.mode = settings.mode;
   snap_.verification_mean_position_m = std::nan("");
+  snap_.last_prior_error_position_m = std::nan("");
   // Reference configurations for the predicted error: fixed (the same in every process and after a restart), spread
   // over 80 % of each joint's range (at most +-180 deg).
   std::mt19937_64 ref_rng(0x63656c6c63616cULL);
@@ -397,6 +398,7 @@ bool CalibrationEngine::applyPose(const Pending& pending) {
                          ? logSO3(o.measured_in_tracker.linear() * after.linear().transpose()).norm()
                          : 0.0;
   recent_.push_back(r);
+  snap_.last_prior_error_position_m = r.prior_error_m;
   while (recent_.size() > kRecentWindow) recent_.pop_front();
   const std::size_t work_before = work_.configurations().size();
   if (const std::optional<std::size_t> changed = work_.offer(o.q_rad)) {

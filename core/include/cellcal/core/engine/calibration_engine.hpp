@@ -61,6 +61,9 @@ struct CalibrationSnapshot : CalibratedModel {
   double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
   double residual_rms_orientation_rad = 0;
   double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
+  // The a-priori position error of the pose that made this version (predicted before it was used; NaN for a version
+  // no pose made): a run's held-out errors are these, one per update.
+  double last_prior_error_position_m = 0;
   std::int64_t last_measurement_stamp_ns = 0;
   std::uint64_t last_tracker_sequence = 0;
   std::int64_t last_update_stamp_ns = 0;    // stamp of the reading that made this version
