@@ -94,15 +94,22 @@ struct Judge {
   // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
   std::vector<std::array<double, 4>> history;
 
-  double verify(const CalibratedModel& m, double t_h) const {
+  // Each hold-out pose's position error under model m at cell time t_h (mm), and their mean.
+  std::vector<double> errors(const CalibratedModel& m, double t_h) const {
     const RobotModel& model = sim.model();
     KinematicsData d(model);
-    double s = 0;
+    std::vector<double> out;
     for (const auto& q : holdout) {
       const Eigen::VectorXd p = extendedParams(model, m.params, m.extensions, m.extension_params, q, Drivers{});
-      s += (forwardKinematics(model, d, p, q).translation() - sim.truePose(q, t_h).translation()).norm();
+      out.push_back((forwardKinematics(model, d, p, q).translation() - sim.truePose(q, t_h).translation()).norm() * 1e3);
     }
-    return s / static_cast<double>(holdout.size()) * 1e3;
+    return out;
+  }
+  double verify(const CalibratedModel& m, double t_h) const {
+    const std::vector<double> e = errors(m, t_h);
+    double s = 0;
+    for (double x : e) s += x;
+    return s / static_cast<double>(e.size());
   }
   double verifyNominal(double t_h) const { return verify(CalibratedModel::geometric(sim.nominalParams()), t_h); }
 };
