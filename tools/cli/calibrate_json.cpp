@@ -23,10 +23,9 @@ json errorsJson(const CampaignErrors& e, double threshold, const CampaignInput& 
 json unusableJson(const std::string& u) { return u.empty() ? json(nullptr) : json(u); }
 
 // The set-up change that begins a block found in a file (null for the first block, or a set-up not found so).
-json foundChangeJson(const CampaignInput& in) {
+json blockChangeJson(const CampaignInput& in) {
   if (in.found_block < 2) return nullptr;
-  const FoundSetupChange& f = in.found_changes[static_cast<size_t>(in.found_block - 2)];
-  return {{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}};
+  return foundChangeJson(in.found_changes[static_cast<size_t>(in.found_block - 2)]);
 }
 
 json setupsJson(const CalibrateArgs& a, const CampaignProblem& problem, const CampaignReport& rep) {
@@ -42,7 +41,7 @@ json setupsJson(const CalibrateArgs& a, const CampaignProblem& problem, const Ca
     json j = {{"data", in.name}, {"rows", in.file.rows.size()}, {"measurement", in.measurementName()},
               {"registration_rms_mm", in.registration_rms_mm}, {"model_error_sigma", modelErrorJson(in)},
               {"rows_left_out_backlash", rep.setups[s].rows_left_out_backlash},
-              {"found_setup_change", foundChangeJson(in)}};
+              {"found_setup_change", blockChangeJson(in)}};
     j.update(errorsJson(rep.setups[s].errors, problem.outliers.threshold, in));
     j["frames"] = frames;
     per.push_back(j);

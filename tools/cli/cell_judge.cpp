@@ -82,8 +82,8 @@ class CellJudge::Impl {
     for (size_t i = 0; i < judges_.size(); ++i) {
       const Judge& j = judges_[i];
       const double t_h = j.cell_time_s / 3600.0;
-      const double vb = j.verifyNominal(t_h), va = j.verify(j.identified, t_h);
       const std::vector<double> ea = j.errors(j.identified, t_h);
+      const double vb = j.verifyNominal(t_h), va = mean(ea);
       after_errors.insert(after_errors.end(), ea.begin(), ea.end());
       const std::optional<ReadingsApplied> readings = readingsApplied(*summary, j.robot->robot_id);
       const std::map<long long, Eigen::VectorXd> followed = followedPoses(*summary, j.robot->robot_id);

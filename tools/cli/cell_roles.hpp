@@ -105,12 +105,7 @@ struct Judge {
     }
     return out;
   }
-  double verify(const CalibratedModel& m, double t_h) const {
-    const std::vector<double> e = errors(m, t_h);
-    double s = 0;
-    for (double x : e) s += x;
-    return s / static_cast<double>(e.size());
-  }
+  double verify(const CalibratedModel& m, double t_h) const { return mean(errors(m, t_h)); }
   double verifyNominal(double t_h) const { return verify(CalibratedModel::geometric(sim.nominalParams()), t_h); }
 };
 

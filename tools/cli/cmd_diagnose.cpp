@@ -218,8 +218,7 @@ void writeDiagnoseJson(const DiagnoseArgs& a, const LoadedInput& in, const Diagn
                                               : nlohmann::json(nullptr)}});
   const DriverStructure* left = d.structureLeft();
   nlohmann::json found = nlohmann::json::array();
-  for (const auto& f : in.found_changes)
-    found.push_back({{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}});
+  for (const auto& f : in.found_changes) found.push_back(foundChangeJson(f));
   nlohmann::json j = {{"data", a.input.data}, {"robot", in.robot.name}, {"rows", in.file.rows.size()},
                       {"setup_changes_found", found}, {"rows_diagnosed", in.name},
                       {"split", a.input.split}, {"measurement", in.measurementName()}, {"model_error_sigma", modelErrorJson(in)},

@@ -15,11 +15,11 @@
 #include <vector>
 
 #include "cellcal/components/convert.hpp"
-#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/components/engine_host.hpp"
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/files/robot_yaml.hpp"
 #include "cellcal/core/identification/extended_fit.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/recording/recording.hpp"
 #include "commands.hpp"
 #include "progress.hpp"
@@ -173,8 +173,6 @@ Unused replay(const ValidateArgs& a, const Recording& rec, const CellConfig& cel
   return unused;
 }
 
-// One robot's reproduced calibrations against the recorded ones: printed, and returned as JSON; all_match false when a
-// version differs or was recorded but not reproduced.
 // The run's held-out errors (mm: every update's pose, predicted before it was used; NaN beside a calibration no pose
 // made), printed and as JSON: their mean, 99.7th percentile and max (null when there are none).
 nlohmann::json heldOutSummary(const std::string& id, const std::vector<double>& prior_mm) {
@@ -190,6 +188,8 @@ nlohmann::json heldOutSummary(const std::string& id, const std::vector<double>& 
   return {{"updates", pe.size()}, {"mean_mm", mean}, {"p997_mm", p997}, {"max_mm", max}};
 }
 
+// One robot's reproduced calibrations against the recorded ones: printed, and returned as JSON; all_match false when a
+// version differs or was recorded but not reproduced.
 nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const Run& run, const EngineHost::Robot& hosted,
                             bool* all_match) {
   const RobotModel& model = hosted.robot->model;

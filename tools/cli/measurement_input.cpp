@@ -73,24 +73,22 @@ LoadedInput loadInput(const InputArgs& a) {
   const std::vector<FoundSetupChange> found =
       options.find_setup_changes ? findSetupChanges(rf.model, file, options) : std::vector<FoundSetupChange>{};
   if (found.empty()) return prepareCampaignInput(a.data, std::move(rf), std::move(file), options);
-  // Several set-ups found: this command takes one, the largest block.
-  size_t best = 0, best_rows = 0;
-  for (size_t b = 0; b <= found.size(); ++b) {
-    const size_t first = b == 0 ? 0 : static_cast<size_t>(found[b - 1].first_row);
-    const size_t last = b == found.size() ? file.rows.size() : static_cast<size_t>(found[b].first_row);
-    if (last - first > best_rows) best = b, best_rows = last - first;
-  }
-  const long first = best == 0 ? 0 : found[best - 1].first_row;
-  MeasurementFile block;
-  block.source = file.source;
-  block.rows.assign(file.rows.begin() + first, file.rows.begin() + first + static_cast<long>(best_rows));
-  const std::string name = a.data + " [lines " + std::to_string(block.rows.front().line) + "-" +
-                           std::to_string(block.rows.back().line) + "]";
+  // Several set-ups found: this command takes one, the largest block (the first of equals).
+  size_t best = 0;
+  MeasurementFile block = foundSetupBlock(file, found, 0);
+  for (size_t b = 1; b <= found.size(); ++b)
+    if (MeasurementFile other = foundSetupBlock(file, found, b); other.rows.size() > block.rows.size())
+      best = b, block = std::move(other);
+  const std::string name = foundSetupBlockName(a.data, block);
   LoadedInput in = prepareCampaignInput(name, std::move(rf), std::move(block), options);
   in.path = a.data;
   in.found_changes = found;
   in.found_block = static_cast<int>(best) + 1;
   return in;
+}
+
+nlohmann::json foundChangeJson(const FoundSetupChange& f) {
+  return {{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}};
 }
 
 std::string foundSetupsText(const CampaignInput& in) {

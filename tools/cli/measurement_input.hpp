@@ -45,6 +45,8 @@ OutlierOptions outlierOptions(const InputArgs& a);
 LoadedInput loadInput(const InputArgs& a);
 // What the set-up search found in the file a set-up came from (findSetupChanges), in one sentence; "" when nothing.
 std::string foundSetupsText(const CampaignInput& in);
+// One change found: {line, probability, move_mm}.
+nlohmann::json foundChangeJson(const FoundSetupChange& f);
 // Every set-up of every --data file (a file with a setup column gives one per label, in order of appearance), each
 // split and registered on its own as loadInput does. A file whose rows name set-ups must name one on every row.
 std::vector<LoadedInput> loadSetups(const InputArgs& a);

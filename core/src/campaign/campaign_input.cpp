@@ -161,6 +161,9 @@ CampaignInput prepareCampaignInput(const std::string& name, RobotFile rf, Measur
 
 namespace {
 
+void splitAt(const RobotModel& robot, const std::vector<MeasurementRow>& rows, int begin, int end,
+             const InputOptions& a, FoundSetupChange f, std::vector<FoundSetupChange>* out);
+
 // Rows [begin, end) of `rows` scanned as one set-up; the changes found, recursively, appended to `out`.
 void searchSetups(const RobotModel& robot, const std::vector<MeasurementRow>& rows, int begin, int end,
                   const InputOptions& a, std::vector<FoundSetupChange>* out) {
@@ -184,16 +187,11 @@ void searchSetups(const RobotModel& robot, const std::vector<MeasurementRow>& ro
   if (reg.rms_position_m * 1e3 > kSetupHintRmsMm) {
     const auto c = findSetupChange(robot, robot.nominal, obs, 10, so.min_rows);
     if (c) {
-      const int k = begin + c->first_row;
-      searchSetups(robot, rows, begin, k, a, out);
       FoundSetupChange f;
-      f.first_row = k;
-      f.line = rows[static_cast<size_t>(k)].line;
+      f.first_row = begin + c->first_row;
       f.probability = 0;
       f.registration_rms_mm = {c->rms_single_m * 1e3, c->rms_first_m * 1e3, c->rms_second_m * 1e3};
-      out->push_back(f);
-      searchSetups(robot, rows, k, end, a, out);
-      return;
+      return splitAt(robot, rows, begin, end, a, f, out);
     }
   }
   CalibrationProblem p;
@@ -208,15 +206,20 @@ void searchSetups(const RobotModel& robot, const std::vector<MeasurementRow>& ro
   const SetupChangeScan scan =
       scanSetupChange(robot, closer ? fit.params : reg.params, fit.estimated, obs, so, times, temperatures);
   if (!scan.found) return;
-  const int k = begin + scan.first_row;
-  searchSetups(robot, rows, begin, k, a, out);
   FoundSetupChange f;
-  f.first_row = k;
-  f.line = rows[static_cast<size_t>(k)].line;
+  f.first_row = begin + scan.first_row;
   f.probability = scan.probability;
   f.move_mm = scan.move_m * 1e3;
+  splitAt(robot, rows, begin, end, a, f, out);
+}
+
+// The change f splits rows [begin, end): each side searched again, in row order (the changes come out sorted).
+void splitAt(const RobotModel& robot, const std::vector<MeasurementRow>& rows, int begin, int end,
+             const InputOptions& a, FoundSetupChange f, std::vector<FoundSetupChange>* out) {
+  f.line = rows[static_cast<size_t>(f.first_row)].line;
+  searchSetups(robot, rows, begin, f.first_row, a, out);
   out->push_back(f);
-  searchSetups(robot, rows, k, end, a, out);
+  searchSetups(robot, rows, f.first_row, end, a, out);
 }
 
 }  // namespace
@@ -225,8 +228,21 @@ std::vector<FoundSetupChange> findSetupChanges(const RobotModel& robot, const Me
                                                const InputOptions& options) {
   std::vector<FoundSetupChange> out;
   searchSetups(robot, file.rows, 0, static_cast<int>(file.rows.size()), options, &out);
-  std::sort(out.begin(), out.end(), [](const auto& x, const auto& y) { return x.first_row < y.first_row; });
   return out;
+}
+
+MeasurementFile foundSetupBlock(const MeasurementFile& file, const std::vector<FoundSetupChange>& found, size_t b) {
+  const auto first = b == 0 ? file.rows.begin() : file.rows.begin() + found[b - 1].first_row;
+  const auto last = b == found.size() ? file.rows.end() : file.rows.begin() + found[b].first_row;
+  MeasurementFile block;
+  block.source = file.source;
+  block.rows.assign(first, last);
+  return block;
+}
+
+std::string foundSetupBlockName(const std::string& path, const MeasurementFile& block) {
+  return path + " [lines " + std::to_string(block.rows.front().line) + "-" + std::to_string(block.rows.back().line) +
+         "]";
 }
 
 std::vector<CampaignInput> prepareCampaignSetups(const std::string& path, const RobotFile& robot,
@@ -248,13 +264,8 @@ std::vector<CampaignInput> prepareCampaignSetups(const std::string& path, const 
     }
     // One set-up per block between the changes found, named by its lines.
     for (size_t b = 0; b <= found.size(); ++b) {
-      const auto first = static_cast<size_t>(b == 0 ? 0 : found[b - 1].first_row);
-      const auto last = b == found.size() ? part.rows.size() : static_cast<size_t>(found[b].first_row);
-      MeasurementFile block;
-      block.source = part.source;
-      block.rows.assign(part.rows.begin() + static_cast<long>(first), part.rows.begin() + static_cast<long>(last));
-      const std::string name = path + " [lines " + std::to_string(block.rows.front().line) + "-" +
-                               std::to_string(block.rows.back().line) + "]";
+      MeasurementFile block = foundSetupBlock(part, found, b);
+      const std::string name = foundSetupBlockName(path, block);
       out.push_back(prepareCampaignInput(name, robot, std::move(block), options));
       out.back().path = path;
       out.back().found_changes = found;

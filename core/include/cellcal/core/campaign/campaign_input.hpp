@@ -95,6 +95,11 @@ constexpr int kMaxFoundSetups = 8;
 std::vector<FoundSetupChange> findSetupChanges(const RobotModel& robot, const MeasurementFile& file,
                                                const InputOptions& options);
 
+// Block b (0 .. found.size()) of a file's rows, between the changes found in it, and the name it goes by:
+// "<path> [lines a-b]".
+MeasurementFile foundSetupBlock(const MeasurementFile& file, const std::vector<FoundSetupChange>& found, size_t b);
+std::string foundSetupBlockName(const std::string& path, const MeasurementFile& block);
+
 // Splits, registers and checks the rows of one set-up; `name` (the file, and its set-up label) in messages. Throws
 // ConfigError naming it when the split leaves fewer than 8 rows to identify or none to verify.
 CampaignInput prepareCampaignInput(const std::string& name, RobotFile robot, MeasurementFile rows,
