@@ -55,6 +55,7 @@ set(CELLCAL_CORE_SOURCES
   src/engine/outlier_gate.cpp
   src/engine/work_configurations.cpp           # where the cell works: the configurations health is judged at
   src/engine/file_probation.cpp
+  src/engine/file_trial.cpp                    # a calibration file judged against its nominal kinematics
   src/engine/input_watch.cpp
   src/engine/calibration_engine.cpp
   src/engine/calibration_start.cpp             # the estimate and prior from a calibrated robot file

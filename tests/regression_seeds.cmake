@@ -17,3 +17,5 @@ cellcal_seed_case(test_accuracy Iso9283.ASimulatedTestGivesTheAccuracyItsTruthSa
                   "the same: no cube among 10 configurations; 40 tried since")
 cellcal_seed_case(test_campaign Campaign.AFitAtTheNoiseFloorConverges 14998941758427650685
                   "LM on a TX60 over 15 % of its joint ranges still moving after 50 iterations; converged on the predictions since")
+cellcal_seed_case(test_engine FileTrial.ACalibrationFileWorseThanItsNominalKinematicsIsWithdrawn 1093
+                  "one wrong verdict in 18 judged draws failed ceil(0.95 * judged); at most max(1, judged / 20) since")

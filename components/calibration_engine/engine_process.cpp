@@ -233,9 +233,6 @@ void EngineProcess::stopAndReport() {
   nlohmann::json robots = nlohmann::json::object();
   for (auto& [id, r] : host_.robots()) {
     const auto& snap = r.engine->snapshot();
-    nlohmann::json rej = nlohmann::json::object();
-    for (size_t k = 0; k < r.engine->counters().rejected.size(); ++k)
-      if (r.engine->counters().rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = r.engine->counters().rejected[k];
     robots[id] = {{"version", snap.version},
                   {stats::kPosesUsed, snap.poses_used},
                   {"health", healthName(snap.health)},
@@ -247,7 +244,7 @@ void EngineProcess::stopAndReport() {
                   {"prediction_sigma_position_m", snap.prediction_sigma_position_m},
                   {"prediction_sigma_workspace_m", r.engine->workspacePredictionSigma()},
                   {"persist_failures", r.persist_failures},
-                  {"rejected", rej},
+                  {"rejected", nlohmann::json(rejectionCounts(r.engine->counters()))},
                   // the readings applied, in order (the last 4096): [tracker sequence number, stamp_ns]
                   {stats::kAppliedReadings, appliedReadingsJson(r.engine->appliedReadings())},
                   {"pose_requests",

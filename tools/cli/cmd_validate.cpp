@@ -263,6 +263,8 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
     std::printf(" (started %s)\n",
                 hosted.robot->start ? ("from " + hosted.robot->calibration_file).c_str() : "from the nominal model");
   }
+  const std::optional<FileVerdict>& verdict = hosted.engine->fileVerdict();  // the file against its nominal kinematics
+  if (verdict) std::printf("validate: %s: %s\n", id.c_str(), verdict->text(hosted.robot->calibration_file).c_str());
   if (run.recorded.empty()) {
     std::printf("validate: %s: the recording holds no CalibrationState: nothing to compare with\n", id.c_str());
   } else {
@@ -277,13 +279,10 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
                 first_mismatch.empty() ? "" : ("; first: " + first_mismatch).c_str());
   }
   const auto& c = hosted.engine->counters();
-  nlohmann::json rej = nlohmann::json::object();
-  for (size_t k = 0; k < c.rejected.size(); ++k)
-    if (c.rejected[k]) rej[rejectionName(static_cast<Rejection>(k))] = c.rejected[k];
   return {{"joint_states", run.joint_states},
                 {"tracker_readings", run.tracker_readings},
                 {"paired", c.paired},
-                {"rejected", rej},
+                {"rejected", nlohmann::json(rejectionCounts(c))},
                 {"reproduced", run.reproduced.size()},
                 {"recorded", run.recorded.size()},
                 {"compared", compared},
@@ -299,6 +298,7 @@ nlohmann::json compareRobot(const ValidateArgs& a, const std::string& id, const 
                 {"first_poses_verification_mm", std::isfinite(first_window_mm) ? nlohmann::json(first_window_mm) : nlohmann::json()},
                 {"first_ten_windows_verification_mm", std::isfinite(first_ten_mm) ? nlohmann::json(first_ten_mm) : nlohmann::json()},
                 {"started_from", hosted.robot->start ? hosted.robot->calibration_file : std::string("nominal")},
+                {"calibration_file_verdict", verdict ? nlohmann::json(verdict->text(hosted.robot->calibration_file)) : nlohmann::json()},
                 {"final_verification_mm", last_rep && std::isfinite(last_rep->verification_mean_position_m) ? nlohmann::json(last_rep->verification_mean_position_m * 1e3) : nlohmann::json()},
                 {"final_parameters", [&] {
                    nlohmann::json p = nlohmann::json::object();
@@ -335,9 +335,7 @@ int runValidate(const ValidateArgs& a) {
   const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_read).count();
   const auto t0 = std::chrono::steady_clock::now();
   const Unused unused = replay(a, rec, cell, host, runs);
-  const std::uint64_t unknown_keys = unused.unknown_keys, undecodable = unused.undecodable,
-                      state_errors = unused.state_errors;
-  const std::string& first_error = unused.first_error;
+  const auto& [unknown_keys, undecodable, state_errors, first_error] = unused;
   const double process_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const double span_s = (rec.end_ns - rec.start_ns) / 1e9;
   const double real_time_factor = span_s / std::max(read_s + process_s, 1e-9);

@@ -119,6 +119,14 @@ void CalibrationEngine::startFromCalibration(const RobotFile& file, const std::s
   note << "; on probation until a pose fits it: " << kProbationPoses
        << " first poses in a row beyond the outlier gate (another set-up, a moved tracker) and the engine starts "
           "from the nominal model instead";
+  if (cal.nominal_params.size() == m.numParams()) {
+    trial_.start(c, cal.nominal_params);
+    note << "; judged against the nominal kinematics it started from at its first " << FileTrial::kPositions
+         << " positions (the better of the two is kept)";
+  } else {
+    note << "; not judged against nominal kinematics: the file does not give them (nominal_parameters: saved "
+            "before they were kept)";
+  }
   for (const auto& e : cal.extensions) {
     bool kept = false;
     for (const auto& x : exts) kept = kept || extensionSpec(x) == extensionSpec(e);
@@ -170,30 +178,63 @@ void CalibrationEngine::addDriftSinceFile(std::int64_t stamp_ns) {
 // The readings held while the calibration file was on probation contradicted it: the engine starts over from the
 // nominal model and the cell file's registration, then takes those readings.
 bool CalibrationEngine::refuseCalibrationFile(double gate) {
+  std::vector<Pending> held;
+  for (auto& h : probation_.take()) held.push_back(std::move(h.pending));
+  refused_file_ = true;
+  startOverFromNominal(probation_.refusal(robot_->calibration_file, gate), held);
+  return true;
+}
+
+// The trial's poses judged the file against its nominal kinematics: kept (said), or withdrawn and started over.
+bool CalibrationEngine::judgeCalibrationFile() {
+  const FileVerdict v = trial_.judge(robot_->model);
+  file_verdict_ = v;
+  const std::vector<Pending> poses = trial_.take();
+  const std::string text = v.text(robot_->calibration_file);
+  ++state_revision_;
+  if (!v.judged || !v.nominal_better) {
+    notes_.push_back(text);
+    return false;
+  }
+  file_worse_ = true;
+  // Those poses are applied again: they were counted when paired, and were all the engine applied since it started.
+  counters_.paired -= std::min<std::uint64_t>(counters_.paired, poses.size());
+  applied_readings_.clear();
+  startOverFromNominal(text, poses);
+  return true;
+}
+
+void CalibrationEngine::startOverFromNominal(const std::string& why, const std::vector<Pending>& readings) {
   const RobotModel& m = robot_->model;
-  const std::string why = probation_.refusal(robot_->calibration_file, gate);
   const GaussianPrior prior =
       diagonalPrior(m, m.nominal, m.canonicalParams(), settings_->prior_length_m, settings_->prior_angle_rad);
   rls_ = std::make_unique<RlsCalibrator>(m, m.nominal, prior, robot_->measurement);
   if (!robot_->extensions.empty()) startExtensions(rls_->params(), rls_->estimated(), rls_->covariance());
   started_calibrated_ = false;
-  refused_file_ = true;
   file_date_ns_ = 0;
+  trial_.take();
   last_good_.reset();
   recent_.clear();
   gate_.clear();
+  batch_.clear();
   used_q_.resize(0);
   snap_.last_update_stamp_ns = 0;
+  snap_.poses_used = 0;
+  snap_.last_prior_error_position_m = 0;
+  work_.restore({});
+  ++work_revision_;
+  work_replaced_.clear();
   snap_.start_warning = why;
   notes_.push_back("WARNING: " + why);
-  const std::vector<FileProbation::Held> held = probation_.take();
   ++snap_.version;  // the file's model is withdrawn at once: compensation must stop applying it
   publishEstimate();
   refreshStatistics();
   decideHealth();
   ++state_revision_;
-  for (const auto& h : held) handlePaired(h.pending);
-  return true;
+  // Each was a stand-still of its own when it came (the joint history of a resumed engine may not reach back to it).
+  replaying_ = true;
+  for (const auto& r : readings) handlePaired(r);
+  replaying_ = false;
 }
 
 std::vector<std::string> CalibrationEngine::takeNotes() {
@@ -283,7 +324,7 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   const PairedReading& p = pending.reading;
   const auto t0 = steadyNs();
   if (file_date_ns_ != 0) addDriftSinceFile(p.tracker_stamp_ns);
-  const bool same_as_used = samePose(p, used_q_, used_joint_stamp_ns_);
+  const bool same_as_used = !replaying_ && samePose(p, used_q_, used_joint_stamp_ns_);
   if (gate_.enabled())
     if (const std::optional<bool> stopped = gateReading(pending, same_as_used)) return *stopped;
   // A pose passed the gate: readings held on probation were outliers after all.
@@ -298,7 +339,9 @@ bool CalibrationEngine::handlePaired(const Pending& pending) {
   }
   used_q_ = p.observation.q_rad;
   used_joint_stamp_ns_ = p.joint_stamp_ns;
-  const bool changed = usePose(pending);
+  bool changed = usePose(pending);
+  // A calibration file on trial: its first positions judge it against its nominal kinematics.
+  if (trial_.active() && trial_.keep(pending)) changed = judgeCalibrationFile() || changed;
   last_update_duration_ns_ = steadyNs() - t0;
   return changed;
 }
@@ -319,7 +362,8 @@ std::optional<bool> CalibrationEngine::gateReading(const Pending& pending, bool 
   const double nis = rls_->normalizedInnovation(p.observation, extended ? &pending.drivers : nullptr);
   const int rows = p.observation.rows();
   const double gate = gate_.gate(rows);  // scaled by the recent median NIS per row (outlier_gate.hpp)
-  const bool new_stand_still = !same_as_used && !samePose(p, gate_.gatedQ(), gate_.gatedJointStampNs());
+  const bool new_stand_still =
+      !same_as_used && (replaying_ || !samePose(p, gate_.gatedQ(), gate_.gatedJointStampNs()));
   if (new_stand_still && std::isfinite(nis)) gate_.record(nis / rows);
   if (nis <= gate) return std::nullopt;
   std::ostringstream m;
@@ -509,6 +553,7 @@ void CalibrationEngine::decideHealth() {
   f.recent_nis_per_row = snap_.recent_nis_per_row;
   if (last_good_) f.good_version = last_good_->version;
   f.refused_file = refused_file_;
+  f.file_worse = file_worse_;
   const HealthVerdict v = judgeHealth(f, *settings_);
   snap_.drift_alarm = v.drift_alarm;
   snap_.health = v.health;
@@ -574,8 +619,16 @@ EngineState CalibrationEngine::exportState() const {
   for (const auto& b : batch_)
     s.pending_batch.push_back({b.reading, extended ? std::optional<Drivers>(b.drivers) : std::nullopt});
   s.started_from = refused_file_         ? EngineState::Start::kNominalFileRefused
+                   : file_worse_         ? EngineState::Start::kNominalFileWorse
                    : started_calibrated_ ? EngineState::Start::kCalibrationFile
                                          : EngineState::Start::kNominal;
+  if (trial_.active()) {
+    EngineState::FileTrialState t{trial_.fileModel().params, trial_.fileModel().extension_params,
+                                  trial_.nominalParams(), {}};
+    for (const auto& p : trial_.poses())
+      t.poses.push_back({p.reading, extended ? std::optional<Drivers>(p.drivers) : std::nullopt});
+    s.file_trial = std::move(t);
+  }
   s.file_drift_pending_since_ns = file_date_ns_;
   s.start_warning = snap_.start_warning;
   s.work_configurations = work_.configurations();
@@ -642,10 +695,24 @@ void CalibrationEngine::importState(const EngineState& s) {
   if (s.started_from) {
     started_calibrated_ = *s.started_from == EngineState::Start::kCalibrationFile;
     refused_file_ = *s.started_from == EngineState::Start::kNominalFileRefused;
+    file_worse_ = *s.started_from == EngineState::Start::kNominalFileWorse;
     if (started_calibrated_) file_date_ns_ = s.file_drift_pending_since_ns;
     snap_.start_warning = s.start_warning;
   }
   probation_.take();  // readings held before the import are not the resumed state's
+  trial_.take();
+  if (s.file_trial) {  // a trial running when the state was saved: resumed with the model it judges
+    const auto& t = s.file_trial.value();
+    if (t.file_params.size() != m.numParams() || t.nominal.size() != m.numParams() ||
+        t.file_extension_params.size() != rls_->extensionParams().size())
+      fail("file_trial: parameter size mismatch");
+    CalibratedModel file = CalibratedModel::geometric(t.file_params);
+    file.extensions = rls_->extensions();
+    file.extension_params = t.file_extension_params;
+    std::vector<Pending> poses;
+    for (const auto& p : t.poses) poses.push_back({p.reading, p.drivers ? *p.drivers : Drivers{}});
+    trial_.restore(std::move(file), t.nominal, std::move(poses));
+  }
   if (robot_->start)
     note += std::string(note.empty() ? "" : "; ") + "resumed from its state file: calibration_file " +
             robot_->calibration_file + " (the start of a new cell) is not used";
@@ -684,6 +751,13 @@ void CalibrationEngine::importState(const EngineState& s) {
     refreshStatistics();
     decideHealth();
   }
+}
+
+std::map<std::string, std::uint64_t> rejectionCounts(const EngineCounters& counters) {
+  std::map<std::string, std::uint64_t> out;
+  for (size_t k = 0; k < counters.rejected.size(); ++k)
+    if (counters.rejected[k]) out[rejectionName(static_cast<Rejection>(k))] = counters.rejected[k];
+  return out;
 }
 
 }  // namespace cellcal

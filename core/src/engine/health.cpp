@@ -68,7 +68,9 @@ std::string describe(const HealthVerdict& v) {
     case HealthCause::kNone: return "";
     case HealthCause::kTooFewPoses:
       return std::to_string(f.poses_used) + " of the " + std::to_string(f.poses_needed) + " poses needed" +
-             (f.refused_file ? " (started from nominal: the calibration file does not fit this cell)" : "");
+             (f.refused_file ? " (started from nominal: the calibration file does not fit this cell)"
+              : f.file_worse ? " (started from nominal: the calibration file did worse here than its nominal kinematics)"
+                             : "");
     case HealthCause::kDriftAlarm:
       why << "drift alarm: recent normalized innovation " << f.recent_nis_per_row << " per row (alarm above "
           << v.drift_alarm_nis_per_row << "): the estimate follows something the noise and drift models do not "

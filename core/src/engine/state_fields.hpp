@@ -63,6 +63,12 @@ void drivers(C& c, Drivers& d) {
 }
 
 template <class C>
+void pendingPose(C& c, EngineState::PendingPose& p) {
+  reading(c, p.reading);
+  c.object("drivers", p.drivers, drivers<C>);
+}
+
+template <class C>
 void turn(C& c, PlayTracker::Turn& t) {
   c.template number<std::int64_t>("stamp_ns", t.stamp_ns);
   c.template number<double>("q_rad", t.q_rad);
@@ -109,16 +115,20 @@ void engineState(C& c, EngineState& s) {
     c.template number<double>("post_error_rad", r.post_error_rad);
     c.template number<double>("nis_per_row", r.nis_per_row);
   });
-  c.objects("pending_batch", s.pending_batch, 8, [](C& c, EngineState::PendingPose& p) {
-    reading(c, p.reading);
-    c.object("drivers", p.drivers, drivers<C>);
-  });
-  c.choice("started_from", s.started_from, {"nominal", "calibration_file", "nominal_calibration_file_refused"},
+  c.objects("pending_batch", s.pending_batch, 8, pendingPose<C>);
+  c.choice("started_from", s.started_from,
+           {"nominal", "calibration_file", "nominal_calibration_file_refused", "nominal_calibration_file_worse"},
            kAppended);
   c.template number<std::int64_t>("file_drift_pending_since_ns", s.file_drift_pending_since_ns, kAppended);
   c.text("start_warning", s.start_warning, kAppended);
   c.objects("work_configurations", s.work_configurations, 8,
             [](C& c, Eigen::VectorXd& q) { c.vec("q_rad", q); }, kAppended);
+  c.object("file_trial", s.file_trial, [](C& c, EngineState::FileTrialState& t) {
+    c.vec("file_params", t.file_params);
+    c.vec("file_extension_params", t.file_extension_params);
+    c.vec("nominal", t.nominal);
+    c.objects("poses", t.poses, 8, pendingPose<C>);
+  }, kAppended);
 }
 
 // Walks a state with a writer: the list takes fields by reference, a writer only reads them.

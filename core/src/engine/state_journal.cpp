@@ -222,8 +222,8 @@ class BinaryReader {
     v = e;
   }
   template <class T, class F>
-  void object(const char* n, std::optional<T>& v, F fields, Presence = Presence::kOptional) {
-    if (!r_.flag(n)) return;
+  void object(const char* n, std::optional<T>& v, F fields, Presence p = Presence::kOptional) {
+    if (!present(p) || !r_.flag(n)) return;
     T x{};
     fields(*this, x);
     v = std::move(x);

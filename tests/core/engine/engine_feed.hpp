@@ -83,6 +83,17 @@ struct Feed {
   }
 };
 
+// The reading `s` of a stand-still at q: the robot arrives (a moving joint state), stands still around the reading,
+// then the engine processes. `seq`: the joint states' sequence number, advanced.
+template <class Sink>
+void feedStandStill(Sink& e, const Eigen::VectorXd& q, const TrackerSample& s, std::uint64_t& seq) {
+  e.onJointState({s.stamp_ns - 2000, ++seq, q, false}, s.stamp_ns);
+  e.onJointState({s.stamp_ns - 1000, ++seq, q, true}, s.stamp_ns);
+  e.onTrackerSample(s, s.stamp_ns);
+  e.onJointState({s.stamp_ns + 1000, ++seq, q, true}, s.stamp_ns + 1000);
+  e.process(s.stamp_ns + 2000);
+}
+
 // One stand-still per call: a settled joint state before and after the reading, then process().
 struct Stream {
   const SimulatedCell& sim;
@@ -94,15 +105,10 @@ struct Stream {
   TrackerSample reading(const Eigen::VectorXd& q) {
     return trackerSample(sim.measure(q, cell_h, rng), t_ns, ++seq);
   }
-  // Feeds `s` (made by reading() for q) as the reading of a stand-still at q.
-  // The robot arrives (a moving joint state), stands still around the reading, then the engine processes.
+  // Feeds `s` (made by reading() for q) as the reading of a stand-still at q (feedStandStill).
   template <class Sink>
   void feed(Sink& e, const Eigen::VectorXd& q, const TrackerSample& s) {
-    e.onJointState({s.stamp_ns - 2000, ++seq, q, false}, s.stamp_ns);
-    e.onJointState({s.stamp_ns - 1000, ++seq, q, true}, s.stamp_ns);
-    e.onTrackerSample(s, s.stamp_ns);
-    e.onJointState({s.stamp_ns + 1000, ++seq, q, true}, s.stamp_ns + 1000);
-    e.process(s.stamp_ns + 2000);
+    feedStandStill(e, q, s, seq);
   }
   void advance(double seconds) {
     t_ns += static_cast<std::int64_t>(seconds * 1e9);

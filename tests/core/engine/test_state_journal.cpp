@@ -83,7 +83,7 @@ EngineState randomState(std::mt19937_64& rng, std::uint64_t version) {
     s.play = std::move(play);
   }
   for (int i = small(rng); i > 0; --i) s.recent.push_back({u(rng), u(rng), u(rng), std::abs(u(rng))});
-  for (int i = small(rng); i > 0; --i) {
+  auto pendingPose = [&] {
     EngineState::PendingPose p;
     p.reading.observation.q_rad = vec(6);
     p.reading.observation.measured_in_tracker = Pose::Identity();
@@ -102,13 +102,19 @@ EngineState randomState(std::mt19937_64& rng, std::uint64_t version) {
       d.recent_steps_rad = Eigen::MatrixXd::NullaryExpr(6, kPlayHistory, [&]() { return u(rng); });
       p.drivers = std::move(d);
     }
-    s.pending_batch.push_back(std::move(p));
-  }
+    return p;
+  };
+  for (int i = small(rng); i > 0; --i) s.pending_batch.push_back(pendingPose());
   // How the engine started (absent in states written before it was kept).
-  if (const int start = small(rng) % 4; start < 3) s.started_from = static_cast<EngineState::Start>(start);
+  if (const int start = small(rng) % 5; start < 4) s.started_from = static_cast<EngineState::Start>(start);
   if (small(rng) % 2) s.file_drift_pending_since_ns = 1'600'000'000'000'000'000 + static_cast<std::int64_t>(rng() % 1'000'000'000);
   if (small(rng) % 2) s.start_warning = "calibration_file \"x.yaml\" does not fit this cell: " + std::to_string(rng());
   for (int i = small(rng); i > 0; --i) s.work_configurations.push_back(vec(6));
+  if (small(rng) % 2) {  // a calibration file on trial
+    EngineState::FileTrialState t{vec(s.num_params), vec(2 * n_ext), vec(s.num_params), {}};
+    for (int i = small(rng); i > 0; --i) t.poses.push_back(pendingPose());
+    s.file_trial = std::move(t);
+  }
   return s;
 }
 
@@ -145,17 +151,21 @@ TEST_F(JournalTest, ABinaryRecordKeepsEverythingTheJsonSnapshotKeeps) {
     EXPECT_TRUE(a == b) << "k " << k << ": "
                         << nlohmann::json::diff(nlohmann::json::parse(b), nlohmann::json::parse(a)).dump().substr(0, 600);
   }
-  // The comparison sees a change in the last field written (the last work configuration's last joint), and in the last
-  // of the fields the first records ended with (the pending pose's joint stamp, before its "no drivers" flag).
+  // The comparison sees a change in the last value written (the file trial's last nominal value, before its count of
+  // poses), and in the last of the fields the first records ended with (the pending pose's joint stamp, before its "no
+  // drivers" flag).
   EngineState s = randomState(rng, 7);
   s.start_warning = "refused";
   s.work_configurations = {Eigen::VectorXd::Constant(6, 0.25)};
+  s.file_trial = EngineState::FileTrialState{Eigen::VectorXd::Constant(3, 0.5), Eigen::VectorXd(),
+                                             Eigen::VectorXd::Constant(4, 0.75), {}};
   std::string b = engineStateToBinary(s);
-  b[b.size() - 1] ^= 0x01;
+  b[b.size() - 1 - 8] ^= 0x01;
   EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
+  s.file_trial.reset();
   s.pending_batch.resize(1);
   s.pending_batch[0].drivers.reset();
-  const std::size_t appended = 1 + (s.started_from ? 1 : 0) + 8 + 8 + s.start_warning.size() + 8 + 8 + 6 * 8;
+  const std::size_t appended = 1 + (s.started_from ? 1 : 0) + 8 + 8 + s.start_warning.size() + 8 + 8 + 6 * 8 + 1;
   b = engineStateToBinary(s);
   b[b.size() - appended - 2] ^= 0x01;
   EXPECT_NE(engineStateToJson(engineStateFromBinary(b)), engineStateToJson(s));
@@ -326,11 +336,11 @@ TEST_F(JournalTest, DamageThatIsNotACrashIsRefusedWithTheFileNamedAndNeverCrashe
 // the keys older files lack removed (.stripped.json) and the record cut before the fields appended since the first
 // records (.cut.bin); beside each, what that code read from it, as a record (*read.bin). Today's code reads each as it
 // did, and writes the state it read from the record as those files were written, plus the fields appended since
-// (empty in those states: the work configurations' count 0; an empty array in JSON).
+// (empty in those states: the work configurations' count 0, an empty array in JSON; no file trial, absent in JSON).
 TEST(StateFormats, FilesWrittenBeforeTheFieldListReadAsThey) {
   const std::string dir = std::string(CELLCAL_CONFIG_DIR) + "/../tests/core/engine/golden/engine_state_v1";
   auto bytes = [&](const std::string& suffix) { return test::readTextFile(dir + suffix); };
-  const std::string appended_since(8, '\0');  // work_configurations: none
+  const std::string appended_since(8 + 1, '\0');  // work_configurations: none; file_trial: absent
   auto withAppended = [&](const std::string& suffix) { return bytes(suffix) + appended_since; };
   const std::string record = bytes(".bin");
   ASSERT_GT(record.size(), 1000u);

@@ -30,6 +30,7 @@
 #include <array>
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -37,6 +38,7 @@
 
 #include "cellcal/core/engine/engine_state.hpp"
 #include "cellcal/core/engine/file_probation.hpp"
+#include "cellcal/core/engine/file_trial.hpp"
 #include "cellcal/core/engine/health.hpp"
 #include "cellcal/core/engine/input_watch.hpp"
 #include "cellcal/core/engine/outlier_gate.hpp"
@@ -81,7 +83,8 @@ struct CalibrationSnapshot : CalibratedModel {
   HealthVerdict health_verdict;
   // When health is hold_last_good: the version whose parameters are published (params, covariance, ... are its).
   std::uint64_t held_version = 0;
-  // Set when the engine refused its calibration file (its first poses contradicted it) and started from nominal.
+  // Set when the engine refused its calibration file (its first poses contradicted it) or withdrew it (its first
+  // positions held its nominal kinematics better, file_trial.hpp) and started from nominal.
   std::string start_warning;
 };
 
@@ -107,6 +110,11 @@ class CalibrationEngine {
   // kProbationPoses stand-stills are all beyond the gate (calibrated on another set-up, a moved tracker), the engine
   // says so (snapshot().start_warning, takeNotes()), starts from the nominal model and the cell file's registration,
   // and applies those readings.
+  // A file that fits is on trial against the kinematics it started from (file_trial.hpp: RobotCalibration::
+  // nominal_params; files saved before they were kept are not judged): at its first FileTrial::kPositions positions,
+  // the file's model and its nominal kinematics, frames registered alike, are judged on held-out positions. Where the
+  // nominal kinematics do better, the engine says so with both figures, withdraws the file's model (a new version)
+  // and starts from the nominal model, applying those poses again; else it says that the file is kept, with both.
   static constexpr size_t kProbationPoses = FileProbation::kPoses;
   CalibrationEngine(const CellRobot& robot, const EngineSettings& settings, double time_compression);
 
@@ -144,6 +152,9 @@ class CalibrationEngine {
   const std::vector<Eigen::VectorXd>& workConfigurations() const { return work_.configurations(); }
   const std::vector<double>& workPredictionSigmas() const { return work_sigma_m_; }
   const EngineCounters& counters() const { return counters_; }
+  // The calibration file's trial verdict (file_trial.hpp), once judged by this engine object (not kept in the state:
+  // a restart after the judgement has the notes it logged and, when withdrawn, snapshot().start_warning).
+  const std::optional<FileVerdict>& fileVerdict() const { return file_verdict_; }
   const CellRobot& robot() const { return *robot_; }
   // Inputs that stopped: "joint_state: nothing for 4.1 s; tracker_pose: ..." (empty when both streams are fresh;
   // InputWatch::staleInputs). A robot that works between campaigns, moving or standing, is not a stale tracker.
@@ -172,6 +183,11 @@ class CalibrationEngine {
   bool usePose(const Pending& pending);
   bool onProbation() const { return started_calibrated_ && !refused_file_ && snap_.poses_used == 0; }
   bool refuseCalibrationFile(double gate);
+  // The trial's verdict (file_trial.hpp); true when the file was withdrawn.
+  bool judgeCalibrationFile();
+  // Starts over from the nominal model and the cell file's registration (the file refused or withdrawn: `why`), then
+  // applies `readings` again.
+  void startOverFromNominal(const std::string& why, const std::vector<Pending>& readings);
   void addDriftSinceFile(std::int64_t stamp_ns);
   bool applyPose(const Pending& p);  // false: rolled back (unsafe_update)
   bool samePose(const PairedReading& p, const Eigen::VectorXd& q, std::int64_t stamp_ns) const;
@@ -195,6 +211,10 @@ class CalibrationEngine {
   std::string start_note_;
   bool started_calibrated_ = false;  // from a calibrated robot file: healthy without poses of its own
   bool refused_file_ = false;        // its first poses contradicted it: started from nominal
+  bool file_worse_ = false;          // its first positions held its nominal kinematics better: started from nominal
+  FileTrial trial_;
+  std::optional<FileVerdict> file_verdict_;
+  bool replaying_ = false;  // startOverFromNominal applies readings again: each a stand-still of its own
   std::int64_t file_date_ns_ = 0;    // the file's date while the drift since it is not yet added
   Eigen::VectorXd start_prior_sd_;   // the uncalibrated prior's widths over the state (caps the file's variances)
   FileProbation probation_;
@@ -234,6 +254,9 @@ class CalibrationEngine {
   Eigen::VectorXd used_q_;
   std::int64_t used_joint_stamp_ns_ = 0;
 };
+
+// The rejections counted, by name (rejectionName), those above zero.
+std::map<std::string, std::uint64_t> rejectionCounts(const EngineCounters& counters);
 
 // The pairing the engine does for `robot` (cellcal export pairs a recording the same way).
 PairingOptions pairingOptions(const CellRobot& robot, const EngineSettings& settings);

@@ -70,13 +70,22 @@ struct EngineState {
 
   // How the estimate started. Absent in states written before it was kept: as the cell file says (a calibration_file
   // or not), with the drift since the file's date already in the covariance.
-  enum class Start { kNominal, kCalibrationFile, kNominalFileRefused };
+  // kNominalFileWorse: the file fitted, but its first poses held the nominal kinematics better (file_trial.hpp).
+  enum class Start { kNominal, kCalibrationFile, kNominalFileRefused, kNominalFileWorse };
   std::optional<Start> started_from;
   // Started from a calibration file whose date is this and no reading yet: the first reading widens the covariance by
   // the drift from this date to its stamp (0: nothing pending).
   std::int64_t file_drift_pending_since_ns = 0;
-  // Why the calibration file was refused (kNominalFileRefused), as the engine said it.
+  // Why the calibration file was refused or withdrawn (kNominalFileRefused, kNominalFileWorse), as the engine said it.
   std::string start_warning;
+  // A calibration file on trial against the kinematics it started from (file_trial.hpp): the file's model as the
+  // engine started from it (the extensions are the state's), its nominal kinematics and the poses kept. Absent: no
+  // trial running (states written before trials were kept have none).
+  struct FileTrialState {
+    Eigen::VectorXd file_params, file_extension_params, nominal;
+    std::vector<PendingPose> poses;
+  };
+  std::optional<FileTrialState> file_trial;
   // Where the cell works (work_configurations.hpp), in the set's order. Absent in states written before it was kept:
   // the set starts empty (health judged over the workspace until the next pose).
   std::vector<Eigen::VectorXd> work_configurations;

@@ -33,6 +33,7 @@ struct HealthFacts {
   double recent_nis_per_row = 0;
   std::optional<std::uint64_t> good_version;  // the last version published ok, if any
   bool refused_file = false;          // the calibration file was refused: started from nominal
+  bool file_worse = false;            // the calibration file did worse than its nominal kinematics: started from nominal
 };
 
 // Why health is not ok, in the rule's order. The wire's HealthCause (idl/cellcal_msgs.idl) has these in this order.
