@@ -5,6 +5,8 @@
 // size of the move drawn at random.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 
 #include "cell/cell_test_support.hpp"
@@ -71,6 +73,17 @@ TEST(CliSetupChange, AMovedTrackerIsFoundAndTheSetUpsAreCalibratedApart) {
   const int line = change["line"];
   EXPECT_LE(std::abs(line - true_line), 2) << c.log();
   EXPECT_TRUE(j["setups"][0]["found_setup_change"].is_null());
+  // How it was found: one registration cannot fit both sides (above 5 mm RMS, each side far below), or the scan.
+  if (change["found_by"] == "registration") {
+    const auto& rms = change["registration_rms_mm"];
+    EXPECT_GT(rms["one"].get<double>(), 5.0) << change.dump();
+    EXPECT_LT(std::max(rms["before"].get<double>(), rms["after"].get<double>()), rms["one"].get<double>()) << change.dump();
+    EXPECT_TRUE(change["probability"].is_null() && change["move_mm"].is_null()) << change.dump();
+  } else {
+    EXPECT_EQ(change["found_by"], "scan") << change.dump();
+    EXPECT_LT(change["probability"].get<double>(), 1e-6) << change.dump();
+    EXPECT_GE(change["move_mm"].get<double>(), 0.25) << change.dump();
+  }
   EXPECT_NE(c.log().find("are 2 set-ups (the tracker or the target moved; no setup column says so): a change before "
                          "line " + std::to_string(line)),
             std::string::npos)

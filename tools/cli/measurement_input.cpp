@@ -88,7 +88,11 @@ LoadedInput loadInput(const InputArgs& a) {
 }
 
 nlohmann::json foundChangeJson(const FoundSetupChange& f) {
-  return {{"line", f.line}, {"probability", f.probability}, {"move_mm", f.move_mm}};
+  if (f.registration_rms_mm.size() == 3)  // no registration fits both sides: found by registering each apart
+    return {{"line", f.line}, {"found_by", "registration"}, {"probability", nullptr}, {"move_mm", nullptr},
+            {"registration_rms_mm", {{"one", f.registration_rms_mm[0]}, {"before", f.registration_rms_mm[1]},
+                                     {"after", f.registration_rms_mm[2]}}}};
+  return {{"line", f.line}, {"found_by", "scan"}, {"probability", f.probability}, {"move_mm", f.move_mm}};
 }
 
 std::string foundSetupsText(const CampaignInput& in) {
