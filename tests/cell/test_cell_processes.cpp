@@ -325,6 +325,13 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   EXPECT_EQ(r["health_cause"], "none") << j.dump(1);
   EXPECT_EQ(r["health_reason"], "") << j.dump(1);
   EXPECT_GT(r["verification_mean_position_mm"].get<double>(), 0.0);
+  // The held-out errors of the engine's recent poses, as one figure: mean, 99.7th percentile, max.
+  const auto& held = r["held_out_mm"];
+  ASSERT_TRUE(held.is_object()) << j.dump(1);
+  EXPECT_GE(held["poses"].get<int>(), 1);
+  EXPECT_LE(held["poses"].get<int>(), 30);
+  EXPECT_LE(held["mean_mm"].get<double>(), held["p997_mm"].get<double>());
+  EXPECT_LE(held["p997_mm"].get<double>(), held["max_mm"].get<double>());
   EXPECT_LT(r["predicted_sigma_position_mm"].get<double>(), 1.0);
   // 40 random poses spread over the workspace: the engine's figure there is under the bound too, and no note says
   // that targets away from where it measured are passed through.
@@ -337,6 +344,7 @@ TEST(CellProcesses, StatusShowsTheRunningCell) {
   const std::string printed = status.log();
   EXPECT_NE(printed.find("tx60"), std::string::npos) << printed;
   EXPECT_EQ(printed.find("over the whole workspace"), std::string::npos) << printed;
+  EXPECT_NE(printed.find("tx60: held-out position errors of the last "), std::string::npos) << printed;
   EXPECT_NE(printed.find("v" + std::to_string(r["version"].get<std::uint64_t>())), std::string::npos) << printed;
   // --watch: redrawn every 0.5 s for 2 s.
   const std::string live = watch.log();

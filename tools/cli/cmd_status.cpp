@@ -47,6 +47,9 @@ struct RobotView {
   std::string health = "-", model, extensions;
   double verification_mm = std::nan(""), residual_mm = std::nan(""), predicted_mm = std::nan("");
   double predicted_workspace_mm = std::nan("");
+  // The engine's held-out errors of its recent poses, as its diagnostics gave them: mean, 99.7th percentile, max, count.
+  double held_out_mean_mm = std::nan(""), verification_p997_mm = std::nan(""), verification_max_mm = std::nan("");
+  std::uint32_t verification_poses = 0;
   std::map<std::string, std::uint64_t> rejections;
   bool drift_alarm = false;
   std::string health_cause = "-", health_reason, stale_inputs, persist_error, last_rejection, clock_warning;
@@ -73,6 +76,11 @@ nlohmann::json toJson(const std::map<std::string, RobotView>& robots) {
              {"health_reason", r.health_reason},
              {"poses_used", r.poses_used},
              {"verification_mean_position_mm", num(r.verification_mm)},
+             {"held_out_mm", r.verification_poses == 0 ? nlohmann::json()
+                                                       : nlohmann::json{{"poses", r.verification_poses},
+                                                                        {"mean_mm", num(r.held_out_mean_mm)},
+                                                                        {"p997_mm", num(r.verification_p997_mm)},
+                                                                        {"max_mm", num(r.verification_max_mm)}}},
              {"residual_rms_position_mm", num(r.residual_mm)},
              {"predicted_sigma_position_mm", num(r.predicted_mm)},
              {"predicted_sigma_workspace_mm", num(r.predicted_workspace_mm)},
@@ -150,6 +158,10 @@ void render(std::ostream& out, const CellConfig& cell, const std::map<std::strin
                       " targets corrected" +
                       (r.applied_beyond_data ? " (" + std::to_string(r.applied_beyond_data) + " beyond the extensions' data)" : "") +
                       (r.last_reason.empty() ? "" : "; last: " + r.last_reason));
+    if (r.verification_poses > 0)
+      notes.push_back("held-out position errors of the last " + std::to_string(r.verification_poses) +
+                      " poses (each predicted before it was used): mean " + fmt(r.held_out_mean_mm, 4, "") + ", 99.7% " +
+                      fmt(r.verification_p997_mm, 4, "") + ", max " + fmt(r.verification_max_mm, 4, " mm"));
     if (!r.extensions.empty()) notes.push_back("model: " + r.extensions);
     // The engine judges health where the cell works; away from it each target meets its own predicted error.
     if (r.has_diagnostics && r.predicted_workspace_mm > cell.compensation.max_predicted_sigma_m * 1e3 &&
@@ -202,6 +214,10 @@ int runStatus(const StatusArgs& a) {
     r.persist_error = d.persist_error().to_string();
     r.predicted_mm = d.prediction_sigma_position_m() * 1e3;
     r.predicted_workspace_mm = d.prediction_sigma_workspace_m() * 1e3;
+    r.held_out_mean_mm = d.verification_mean_position_m() * 1e3;
+    r.verification_p997_mm = d.verification_p997_position_m() * 1e3;
+    r.verification_max_mm = d.verification_max_position_m() * 1e3;
+    r.verification_poses = d.verification_poses();
     r.last_rejection = d.last_rejection().to_string();
   });
   node.reader<msg::CompensatedTarget>([&](const msg::CompensatedTarget& c, const fdds::SampleInfo&) {

@@ -139,6 +139,10 @@ msg::CalibrationDiagnostics toCalibrationDiagnostics(const EngineHost::Robot& r,
   d.health_reason(describe(snap.health_verdict));
   d.prediction_sigma_position_m(snap.prediction_sigma_position_m);
   d.prediction_sigma_workspace_m(r.engine->workspacePredictionSigma());
+  d.verification_mean_position_m(snap.verification_mean_position_m);
+  d.verification_p997_position_m(snap.verification_p997_position_m);
+  d.verification_max_position_m(snap.verification_max_position_m);
+  d.verification_poses(snap.verification_poses);
   d.persist_failures(r.persist_failures);
   d.persist_error(r.persist_error.substr(0, 255));
   d.identifiable_parameters(static_cast<std::uint32_t>(snap.estimated.size()));

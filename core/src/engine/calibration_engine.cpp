@@ -13,6 +13,7 @@
 #include "cellcal/core/engine/calibration_start.hpp"
 #include "cellcal/core/identification/calibration.hpp"
 #include "cellcal/core/identification/prediction.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
 namespace cellcal {
@@ -56,6 +57,7 @@ CalibrationEngine::CalibrationEngine(const CellRobot& robot, const EngineSetting
   drift_sigma_ = drift.sigmas(m);
   snap_.mode = settings.mode;
   snap_.verification_mean_position_m = std::nan("");
+  snap_.verification_p997_position_m = snap_.verification_max_position_m = std::nan("");
   snap_.last_prior_error_position_m = std::nan("");
   // Reference configurations for the predicted error: fixed (the same in every process and after a restart), spread
   // over 80 % of each joint's range (at most +-180 deg).
@@ -576,6 +578,11 @@ void CalibrationEngine::refreshStatistics() {
   snap_.residual_rms_position_m = recent_.empty() ? 0.0 : std::sqrt(sp / n);
   snap_.residual_rms_orientation_rad = recent_.empty() ? 0.0 : std::sqrt(so / n);
   snap_.verification_mean_position_m = recent_.empty() ? std::nan("") : pe / n;
+  std::vector<double> prior;
+  for (const auto& r : recent_) prior.push_back(r.prior_error_m);
+  snap_.verification_p997_position_m = recent_.empty() ? std::nan("") : percentile(prior, 0.997);
+  snap_.verification_max_position_m = recent_.empty() ? std::nan("") : *std::max_element(prior.begin(), prior.end());
+  snap_.verification_poses = static_cast<std::uint32_t>(recent_.size());
   snap_.recent_nis_per_row = recent_.empty() ? 0.0 : nis / n;
   snap_.drift_alarm = recent_.size() >= 10 && snap_.recent_nis_per_row > settings_->drift_alarm_nis_per_row;
 }

@@ -105,6 +105,37 @@ TEST_F(EngineFixture, ContinuousEngineTracksTheDegradingRobotToTheNoiseFloor) {
   EXPECT_LT(engine.snapshot().residual_rms_position_m, 0.1e-3);
 }
 
+// The held-out figure of the recent poses (what `cellcal status` shows): the mean, 99.7th percentile and max of the
+// a-priori errors of the last kRecentPoses poses, each the error of the pose that made its version, recomputed here.
+TEST_F(EngineFixture, TheRecentHeldOutErrorsAreThoseOfTheLastPoses) {
+  const CellRobot& robot = config.robots[0];
+  CalibrationEngine engine(robot, config.engine, 1.0);
+  const SimulatedCell sim = makeSimulatedCell(robot, config.simulation, 0);
+  std::mt19937_64 rng(seed);
+  test::Stream stream{sim, rng};
+  EXPECT_TRUE(std::isnan(engine.snapshot().verification_max_position_m));
+  EXPECT_EQ(engine.snapshot().verification_poses, 0u);
+  std::vector<double> prior;  // each version's pose's a-priori error
+  const int poses = 10 + static_cast<int>(rng() % 40);
+  for (const auto& q : sim.randomConfigurations(poses, rng)) {
+    stream.advance(60);
+    const std::uint64_t before = engine.snapshot().version;
+    stream.feed(engine, q, stream.reading(q));
+    ASSERT_EQ(engine.snapshot().version, before + 1) << engine.counters().last_rejection;
+    prior.push_back(engine.snapshot().last_prior_error_position_m);
+    const std::size_t n = std::min(prior.size(), CalibrationEngine::kRecentPoses);
+    std::vector<double> last(prior.end() - static_cast<std::ptrdiff_t>(n), prior.end());
+    double mean = 0;
+    for (double e : last) mean += e / static_cast<double>(n);
+    std::sort(last.begin(), last.end());
+    const CalibrationSnapshot& s = engine.snapshot();
+    EXPECT_EQ(s.verification_poses, n);
+    EXPECT_NEAR(s.verification_mean_position_m, mean, 1e-15);
+    EXPECT_EQ(s.verification_p997_position_m, last[std::min(n - 1, static_cast<std::size_t>(0.997 * static_cast<double>(n)))]);
+    EXPECT_EQ(s.verification_max_position_m, last.back());
+  }
+}
+
 TEST_F(EngineFixture, AStreamingTrackerUpdatesOncePerStandStill) {
   const CellRobot& robot = config.robots[0];
   CalibrationEngine engine(robot, config.engine, 1.0);

@@ -63,6 +63,10 @@ struct CalibrationSnapshot : CalibratedModel {
   double residual_rms_position_m = 0;     // a-posteriori, over the recent window of used poses
   double residual_rms_orientation_rad = 0;
   double verification_mean_position_m = 0;  // a-priori prediction error over the recent window (NaN until known)
+  // The same errors' 99.7th percentile (statistics.hpp's percentile: the max below 334 poses) and max, and how many
+  // poses the window holds (at most kRecentPoses): one held-out figure, named as every summary names it.
+  double verification_p997_position_m = 0, verification_max_position_m = 0;
+  std::uint32_t verification_poses = 0;
   // The a-priori position error of the pose that made this version (predicted before it was used; NaN for a version
   // no pose made): a run's held-out errors are these, one per update.
   double last_prior_error_position_m = 0;
