@@ -20,6 +20,7 @@
 #include "cellcal/core/model/model_extension.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
+#include "cellcal/lab/sim_program.hpp"
 #include "core/identification/hidden_effect.hpp"
 
 namespace cellcal {
@@ -29,6 +30,28 @@ using namespace cellcal::test;
 namespace fs = std::filesystem;
 
 nlohmann::json readJsonFile(const std::string& path) { return nlohmann::json::parse(std::ifstream(path)); }
+
+// A campaign of `n` random poses of `cell`'s robot read by its tracker, written to <dir>/campaign.csv and calibrated
+// with `cellcal calibrate --robot <dir>/robot.yaml --save-robot saved` (the robot file written before).
+void calibrateOnRandomPoses(const std::string& dir, const SimulatedCell& cell, int n, MeasurementKind kind,
+                            std::mt19937_64& rng, const std::string& saved) {
+  MeasurementFile c;
+  for (const auto& q : cell.randomConfigurations(n, rng)) {
+    const Observation o = cell.measure(q, 0.0, rng, kind);
+    MeasurementRow row;
+    row.q_rad = q;
+    row.position_m = o.measured_in_tracker.translation();
+    if (kind == MeasurementKind::kPose6D) row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    c.rows.push_back(row);
+  }
+  {
+    std::ofstream out(dir + "/campaign.csv");
+    writeMeasurementCsv(out, c, cell.model().numJoints(), "calibration campaign");
+  }
+  Process cal(dir, "calibrate", {"cellcal", "calibrate", "--robot", dir + "/robot.yaml", "--data", dir + "/campaign.csv",
+                                 "--save-robot", saved});
+  ASSERT_EQ(cal.wait(120), 0) << cal.log();
+}
 
 TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
   const std::string dir = testDir();
@@ -86,22 +109,7 @@ TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
     writeMeasurementCsv(out, f, m.numJoints(), "ISO 9283 test of a simulated " + m.name);
   }
   // A calibration of the same robot on 150 other poses (random), saved.
-  MeasurementFile c;
-  for (const auto& q : cell.randomConfigurations(150, rng)) {
-    const Observation o = cell.measure(q, 0.0, rng, d.kind);
-    MeasurementRow row;
-    row.q_rad = q;
-    row.position_m = o.measured_in_tracker.translation();
-    row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
-    c.rows.push_back(row);
-  }
-  {
-    std::ofstream out(dir + "/campaign.csv");
-    writeMeasurementCsv(out, c, m.numJoints(), "calibration campaign");
-  }
-  Process cal(dir, "calibrate", {"cellcal", "calibrate", "--robot", dir + "/robot.yaml", "--data", dir + "/campaign.csv",
-                                 "--save-robot", dir + "/cal.yaml"});
-  ASSERT_EQ(cal.wait(120), 0) << cal.log();
+  ASSERT_NO_FATAL_FAILURE(calibrateOnRandomPoses(dir, cell, 150, d.kind, rng, dir + "/cal.yaml"));
 
   Process iso(dir, "iso9283", {"cellcal", "iso9283", "--robot", dir + "/robot.yaml", "--data", dir + "/test.csv",
                                "--model-robot", dir + "/cal.yaml", "--json", dir + "/iso.json", "--report", dir + "/report"});
@@ -205,6 +213,94 @@ TEST(CliIso9283, PlannedRunMeasuredAndReportedBeforeAndAfterCalibration) {
   EXPECT_NE(far.log().find("P1 (the centre)"), std::string::npos) << far.log();
   EXPECT_NE(far.log().find("closest pose found is"), std::string::npos) << far.log();
   EXPECT_FALSE(fs::exists(dir + "/far.csv"));
+}
+
+// The ISO program run through compensation and measured: a simulated cell whose engine starts from a calibration of
+// its own robot (in-process, 60 random 6D readings) sends the planned program's poses as targets (`cell
+// --targets-program`); the compensation publisher corrects them, the simulated tracker reads where the robot lands
+// (`--landed-csv`), and `iso9283 --compensated` gives the figures. Each landed row keeps the program row's joints,
+// pose and cycle; iso9283's AP is the plain one of those rows; AP after compensation is under a third of the robot's
+// own error at each pose (the truth against the nominal model, at the rows' cell time), and within the cell's
+// hold-out error of the calibration (plus the noise of a barycentre).
+TEST(CliIso9283, AProgramRunThroughCompensationIsMeasuredWhereItLands) {
+  const std::string dir = testDir();
+  const std::uint64_t seed = testSeed();
+  std::mt19937_64 rng(seed);
+  const int domain = domainForTest();
+  const std::string plain_cfg = writeCell(dir, domain, seed, {{"tx60", "tx60_target"}}, "", "", "", "plain");
+  const CellConfig plain = loadCellConfig(plain_cfg);
+  const CellRobot& cr = plain.robots[0];
+  const SimulatedCell sim = makeSimulatedCell(cr, plain.simulation, 0);
+  const RobotModel& m = cr.model;
+  saveRobotFile(dir + "/robot.yaml", m, nullptr, "the nominal " + m.name + " with this cell's registration");
+  ASSERT_NO_FATAL_FAILURE(calibrateOnRandomPoses(dir, sim, 60, MeasurementKind::kPose6D, rng, dir + "/calibrated.yaml"));
+  RobotEntry robot{"tx60", "tx60_target"};
+  robot.calibration_file = dir + "/calibrated.yaml";
+  const std::string cfg = writeCell(dir, domain, seed, {robot});
+  Process plan(dir, "plan", {"cellcal", "plan", "iso9283", "--config", cfg, "--cycles", "6", "--candidates", "15",
+                             "--seed", std::to_string(seed % 100000), "--out", dir + "/program.csv"});
+  ASSERT_EQ(plan.wait(120), 0) << plan.log();
+  const auto summary = runCell(dir, cfg, "4", {"--targets-program", dir + "/program.csv", "--landed-csv", dir + "/landed.csv"}, 90);
+  ASSERT_FALSE(summary.is_discarded());
+  const auto& r = summary["robots"][0];
+  MeasurementCsvOptions po;
+  po.joints_only = true;
+  const MeasurementFile program = readMeasurementCsv(dir + "/program.csv", m, po);
+  const MeasurementFile landed = readMeasurementCsv(dir + "/landed.csv", m);
+  ASSERT_EQ(r["landed_rows"].get<std::size_t>(), landed.rows.size()) << r.dump(1);
+  // Each landed row: the program row of its pose and cycle, its joints as they were.
+  std::map<std::string, std::vector<const MeasurementRow*>> visits;
+  for (const auto& row : landed.rows) {
+    ASSERT_TRUE(row.pose && row.cycle);
+    const MeasurementRow* asked = nullptr;
+    for (const auto& p : program.rows)
+      if (p.pose == row.pose && p.cycle == row.cycle) asked = &p;
+    ASSERT_NE(asked, nullptr) << *row.pose << " cycle " << *row.cycle;
+    EXPECT_LT((asked->q_rad - row.q_rad).cwiseAbs().maxCoeff(), 1e-9);
+    visits[*row.pose].push_back(&row);
+  }
+  ASSERT_EQ(visits.size(), 5u) << "every test pose landed";
+  for (const auto& [pose, v] : visits) ASSERT_GE(v.size(), 2u) << pose << ": fewer than 2 cycles answered";
+
+  Process iso(dir, "iso9283", {"cellcal", "iso9283", "--config", cfg, "--data", dir + "/landed.csv", "--compensated",
+                               "--json", dir + "/iso.json", "--spec-ap-mm", "1", "--spec-rp-mm", "1"});
+  ASSERT_EQ(iso.wait(60), 0) << iso.log();
+  EXPECT_NE(iso.log().find("through compensation (measured where the robot landed)"), std::string::npos) << iso.log();
+  const auto j = readJsonFile(dir + "/iso.json");
+  EXPECT_EQ(j["commanded_by"], "nominal, through compensation");
+  const double holdout_mm = r["verify_after_mm"].get<double>();
+  KinematicsData data(m);
+  double after = 0, before = 0;
+  for (const auto& p : j["poses"]) {
+    const auto& v = visits.at(p["name"].get<std::string>());
+    // Plain AP: the barycentre of the landed positions against the commanded (nominal model at the program's joints).
+    Eigen::Vector3d bary = Eigen::Vector3d::Zero(), truth_error = Eigen::Vector3d::Zero();
+    for (const MeasurementRow* row : v) {
+      bary += row->position_m / static_cast<double>(v.size());
+      truth_error += (sim.truePose(row->q_rad, *row->stamp_s / 3600).translation() -
+                      forwardKinematics(m, data, m.nominal, row->q_rad).translation()) / static_cast<double>(v.size());
+    }
+    const Eigen::Vector3d commanded = forwardKinematics(m, data, m.nominal, v.front()->q_rad).translation();
+    EXPECT_NEAR(p["AP_mm"].get<double>(), (bary - commanded).norm() * 1e3, 1e-6) << p.dump();
+    EXPECT_EQ(p["n"].get<std::size_t>(), v.size());
+    // Within the calibration's hold-out error of the cell, and the noise of a barycentre of n visits (tracker and
+    // repeatability, 6 sigma of 30 um per axis over sqrt(n)).
+    EXPECT_LT(p["AP_mm"].get<double>(), 3 * holdout_mm + 6 * 0.03 / std::sqrt(static_cast<double>(v.size()))) << p.dump();
+    after += p["AP_mm"].get<double>() / 5;
+    before += truth_error.norm() * 1e3 / 5;
+  }
+  std::printf("  AP after compensation %.4f mm (measured), the robot's own error at the test poses %.4f mm, the "
+              "cell's hold-out error %.4f mm; %zu of %zu targets landed\n",
+              after, before, holdout_mm, landed.rows.size(), program.rows.size());
+  EXPECT_LT(after, before / 3);
+  EXPECT_TRUE(j["spec_ap"]["measured"]["pass"].get<bool>()) << j["spec_ap"].dump();
+  // Without the program, no landing to read; with a prediction model, refused (the data were compensated already).
+  Process no_program(dir, "no_program", {"cellcal", "cell", "--config", cfg, "--landed-csv", dir + "/x.csv"});
+  EXPECT_EQ(no_program.wait(30), 2) << no_program.log();
+  EXPECT_NE(no_program.log().find("--landed-csv: needs --targets-program"), std::string::npos) << no_program.log();
+  Process both(dir, "both", {"cellcal", "iso9283", "--config", cfg, "--data", dir + "/landed.csv", "--compensated",
+                             "--model-robot", dir + "/calibrated.yaml"});
+  EXPECT_EQ(both.wait(60), 2) << both.log();
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include "cell_roles.hpp"
 #include "cellcal/components/convert.hpp"
 #include "cellcal/components/dds_node.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/lab/sim_program.hpp"
 
 namespace cellcal::cli {
@@ -22,6 +23,11 @@ class CellApplication::Impl {
       std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);
       r.sim.randomConfigurations(a.holdout_poses, rng);
       r.target_qs = r.sim.randomConfigurations(200, rng);
+      if (!a.targets_program.empty()) {  // the program's rows instead, each once
+        MeasurementCsvOptions po;
+        po.joints_only = true;
+        r.program = readMeasurementCsv(a.targets_program, cell.robots[i].model, po).rows;
+      }
       robots_.push_back(std::move(r));
       sent_[cell.robots[i].robot_id];
     }
@@ -40,7 +46,13 @@ class CellApplication::Impl {
 
   void sendTargets() {
     for (auto& r : robots_) {
-      const Eigen::VectorXd& q = r.target_qs[std::uniform_int_distribution<size_t>(0, r.target_qs.size() - 1)(target_rng_)];
+      const MeasurementRow* row = nullptr;  // --targets-program: the next row, until the program ends
+      if (!a_.targets_program.empty()) {
+        if (r.target_seq >= r.program.size()) continue;
+        row = &r.program[r.target_seq];
+      }
+      const Eigen::VectorXd& q =
+          row ? row->q_rad : r.target_qs[std::uniform_int_distribution<size_t>(0, r.target_qs.size() - 1)(target_rng_)];
       KinematicsData d(r.sim.model());
       const Pose desired = forwardKinematics(r.sim.model(), d, r.sim.nominalParams(), q);
       msg::TargetPose t;
@@ -50,7 +62,7 @@ class CellApplication::Impl {
       t.seed_position_rad(std::vector<double>(q.data(), q.data() + q.size()));
       const std::int64_t now = wallNs();
       t.source_stamp_ns(static_cast<std::uint64_t>(now));
-      sent_[r.robot->robot_id][r.target_seq] = {now, q};
+      sent_[r.robot->robot_id][r.target_seq] = {now, q, row ? row->pose : std::nullopt, row ? row->cycle : std::nullopt};
       targets_->write(t);
       if (servo_) {  // the robot holding the target's joints, one setpoint per cycle
         servo_sample_.robot_id(r.robot->robot_id);
@@ -80,6 +92,7 @@ class CellApplication::Impl {
     const CellRobot* robot;
     SimulatedCell sim;
     std::vector<Eigen::VectorXd> target_qs = {};
+    std::vector<MeasurementRow> program = {};  // --targets-program
     std::uint64_t target_seq = 0;
   };
   const CellArgs& a_;

@@ -1,6 +1,7 @@
 // `cellcal cell`'s judge: every calibration and compensated target scored against the simulator's truth.
 #include <algorithm>
 #include <chrono>
+#include <fstream>
 #include <cstdio>
 #include <iostream>
 #include <mutex>
@@ -27,6 +28,7 @@ class CellJudge::Impl {
       std::mt19937_64 rng(cell.simulation.seed * 31 + 12345 + i);  // the application's targets follow (cell_application)
       j.holdout = j.sim.randomConfigurations(a.holdout_poses, rng);
       j.identified.params = j.sim.nominalParams();
+      j.landed_rng.seed(cell.simulation.seed * 31 + 54321 + i);
       judges_.push_back(std::move(j));
     }
   }
@@ -126,6 +128,7 @@ class CellJudge::Impl {
     }
     auto& s = *summary;
     s["robots"] = robots;
+    writeLanded(summary);
     s["verify_before_mm"] = before;
     s["verify_after_mm"] = after;
     const double after_p997 = percentile(after_errors, 0.997);
@@ -258,7 +261,8 @@ class CellJudge::Impl {
     auto it = sent.find(m.target_sequence());
     if (it == sent.end()) return;
     target_to_compensated_us_.push_back((now - it->second.stamp_ns) / 1e3);
-    const Eigen::VectorXd q_nominal = it->second.q_nominal;
+    const SentTarget target = it->second;
+    const Eigen::VectorXd& q_nominal = target.q_nominal;
     sent.erase(it);
     if (!m.applied()) {
       ++j->refused;
@@ -283,6 +287,39 @@ class CellJudge::Impl {
     const double t_h = j->cell_time_s / 3600.0;
     j->compensated_error_mm.push_back((j->sim.truePose(ctrl.q_rad, t_h).translation() - desired.translation()).norm() * 1e3);
     j->uncompensated_error_mm.push_back((j->sim.truePose(q_nominal, t_h).translation() - desired.translation()).norm() * 1e3);
+    if (a_.landed_csv.empty() || !target.pose) return;
+    // The tracker reads the robot where it landed; the row keeps the joints of the pose asked for (the program's).
+    const Observation o = j->sim.measure(ctrl.q_rad, t_h, j->landed_rng, j->robot->measurement);
+    MeasurementRow row;
+    row.q_rad = q_nominal;
+    row.position_m = o.measured_in_tracker.translation();
+    if (o.kind == MeasurementKind::kPose6D) row.orientation = Eigen::Quaterniond(o.measured_in_tracker.linear());
+    row.stamp_s = j->cell_time_s;
+    row.pose = target.pose;
+    row.cycle = target.cycle;
+    j->landed.rows.push_back(std::move(row));
+  }
+
+  // --landed-csv: each robot's program targets, read where the robot landed, written and counted.
+  void writeLanded(nlohmann::json* summary) const {
+    if (a_.landed_csv.empty()) return;
+    for (const auto& j : judges_) {
+      std::string path = a_.landed_csv;
+      if (judges_.size() > 1) {
+        const auto dot = path.rfind(".csv");
+        path.insert(dot == std::string::npos ? path.size() : dot, "_" + j.robot->robot_id);
+      }
+      std::ofstream out(path);
+      writeMeasurementCsv(out, j.landed, j.sim.model().numJoints(),
+                          "The targets of " + a_.targets_program + " compensated by the cell and read by the simulated "
+                          "tracker where " + j.robot->robot_id + " landed; the joints are the program's (the pose asked "
+                          "for), not the corrected ones the robot went to");
+      if (!out) throw std::runtime_error("cannot write " + path);
+      std::printf("cell: %s: %zu program targets landed and read into %s (cellcal iso9283 --data gives their figures)\n",
+                  j.robot->robot_id.c_str(), j.landed.rows.size(), path.c_str());
+      for (auto& r : (*summary)["robots"])
+        if (r["robot_id"] == j.robot->robot_id) r["landed_rows"] = j.landed.rows.size(), r["landed_csv"] = path;
+    }
   }
 
   const CellConfig& cell_;

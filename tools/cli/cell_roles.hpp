@@ -11,6 +11,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -18,6 +19,7 @@
 #include "cellcal/components/process.hpp"
 #include "cellcal/core/engine/compensation.hpp"
 #include "cellcal/core/files/cell_config.hpp"
+#include "cellcal/core/files/measurement_csv.hpp"
 #include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "cellcal/core/sim/simulation.hpp"
@@ -52,6 +54,12 @@ struct CellArgs {
   double rsi_hz = 0;
   int rsi_rt_priority = 0;
   bool rsi_pass_through = false;  // --rsi-pass-through: the bridges answer zero corrections (the floor, for a bench)
+  // --targets-program FILE: the application's targets are the nominal poses of a robot program's rows (CSV v1's joint
+  // columns with pose and cycle, as `cellcal plan iso9283` writes it), each row once in order, instead of random
+  // configurations. --landed-csv FILE: every such target compensation applied, read by the simulated tracker where
+  // the robot lands (truth, noise and repeatability), as CSV v1 rows with the program row's joints (the pose asked
+  // for), pose and cycle, one file per robot (`_<robot_id>` before .csv when the cell has several).
+  std::string targets_program, landed_csv;
 };
 
 // The launcher.
@@ -93,6 +101,9 @@ struct Judge {
   std::map<std::uint64_t, CalibratedModel> calibrations;
   // Per calibration received: version, poses used, cell time (h), hold-out error against the truth then (mm).
   std::vector<std::array<double, 4>> history;
+  // --landed-csv: the program's targets read where the robot landed, and the tracker noise's draws for them.
+  MeasurementFile landed;
+  std::mt19937_64 landed_rng{0};
 
   // Each hold-out pose's position error under model m at cell time t_h (mm), and their mean.
   std::vector<double> errors(const CalibratedModel& m, double t_h) const {
@@ -147,6 +158,8 @@ std::map<long long, Eigen::VectorXd> followedPoses(const nlohmann::json& summary
 struct SentTarget {
   std::int64_t stamp_ns = 0;
   Eigen::VectorXd q_nominal;
+  std::optional<std::string> pose;  // --targets-program: the program row's pose and cycle
+  std::optional<long long> cycle;
 };
 using SentTargets = std::map<std::string, std::map<std::uint64_t, SentTarget>>;
 

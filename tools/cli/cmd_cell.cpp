@@ -45,6 +45,12 @@ void addOptions(CLI::App& cmd, CellArgs& a) {
   cmd.add_flag("--rsi-pass-through", a.rsi_pass_through,
                "the RSI bridges answer every cycle with a zero correction and no compensator: the floor of the "
                "transport and the host (cellcal bench-servo --pass-through)");
+  cmd.add_option("--targets-program", a.targets_program,
+                 "the targets are this robot program's rows (`cellcal plan iso9283`), each once in order")
+      ->check(CLI::ExistingFile);
+  cmd.add_option("--landed-csv", a.landed_csv,
+                 "write the program's compensated targets as the simulated tracker read them where the robot landed "
+                 "(CSV with pose and cycle, for `cellcal iso9283 --data`)");
   cmd.add_flag("--quiet", a.quiet, "no line per update");
   cmd.add_option("--record", a.record, "also run `cellcal record` on every topic into this MCAP file");
   cmd.add_option("--shards", a.shards,
@@ -83,6 +89,8 @@ int runCell(const CellArgs& options) {
   if (static_cast<std::size_t>(a.shards) > cell.robots.size())
     throw ConfigError("--shards " + std::to_string(a.shards) + ": the cell has " + std::to_string(cell.robots.size()) +
                       " robot(s)");
+  if (!a.landed_csv.empty() && a.targets_program.empty())
+    throw ConfigError("--landed-csv: needs --targets-program (the targets whose landing it reads)");
   fs::create_directories(a.work_dir);
   const std::string state_dir = (fs::path(a.work_dir) / "state").string();
   if (!a.resume) fs::remove_all(state_dir);

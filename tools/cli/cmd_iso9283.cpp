@@ -29,6 +29,7 @@ namespace fs = std::filesystem;
 struct Iso9283Args {
   std::string robot, config, robot_id, data, program, model_robot, json, report, distance;
   bool register_frames = false, position_only = false;
+  bool compensated = false;  // the data: a compensated run (cellcal cell --landed-csv), the joints those asked for
   double spec_ap_mm = 0, spec_rp_mm = 0;  // the specification (0: none)
 };
 
@@ -46,6 +47,9 @@ void addOptions(CLI::App& cmd, Iso9283Args& a) {
                  "a calibrated robot file: the figures again with the commanded poses of that model (what compensation "
                  "would command)")
       ->check(CLI::ExistingFile);
+  cmd.add_flag("--compensated", a.compensated,
+               "the data are a run through compensation (cellcal cell --landed-csv): each row's joints are the pose "
+               "asked for, its position where the robot landed; the figures are measured after compensation");
   cmd.add_option("--distance", a.distance, "the two poses of AD and RD, e.g. P2,P4 (default: P2,P4, else the first two)");
   cmd.add_flag("--register", a.register_frames,
                "fit the base and tool frames on the data first (needs poses off one plane; the standard's five are not)");
@@ -283,7 +287,11 @@ int runIso9283(const Iso9283Args& a) {
   }
   const bool orientation = !a.position_only;
   std::vector<Model> models;
-  models.push_back({"nominal model of " + robot_label, {CalibratedModel::geometric(m.nominal), &m}});
+  if (a.compensated && !a.model_robot.empty())
+    throw ConfigError("--compensated with --model-robot: the data were already compensated (measured), not predicted");
+  models.push_back({"nominal model of " + robot_label +
+                        (a.compensated ? ", through compensation (measured where the robot landed)" : ""),
+                    {CalibratedModel::geometric(m.nominal), &m}});
   std::optional<RobotFile> cal;
   if (!a.model_robot.empty()) {
     cal = loadRobotFile(a.model_robot);
@@ -343,7 +351,7 @@ int runIso9283(const Iso9283Args& a) {
     j.update(spec);
     j["robot"] = robot_label;
     j["data"] = a.data;
-    j["commanded_by"] = "nominal";
+    j["commanded_by"] = a.compensated ? "nominal, through compensation" : "nominal";
     j["frames_registered"] = a.register_frames;
     if (reports.size() > 1) {
       j["after"] = reportJson(reports[1].second);
