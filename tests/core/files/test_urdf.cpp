@@ -22,6 +22,7 @@
 #include "cellcal/core/files/robot_file.hpp"
 #include "cellcal/core/files/urdf.hpp"
 #include "cellcal/core/identification/calibration.hpp"
+#include "cellcal/core/identification/controller_check.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "test_support.hpp"
@@ -658,6 +659,81 @@ TEST(Urdf, AnExportMovesTool0OnlyByWhatTheDataTellFromTheBase) {
                 radToDeg(moved_r), dp * 1e3, radToDeg(dr));
     EXPECT_LT(dp, 0.1 * moved_p);
     EXPECT_LT(dr, 0.1 * moved_r);
+  }
+}
+
+// `robot check` (controller_check.hpp) against KDL: a controller that loaded a URDF reports its tool pose at its joints
+// (KDL base_link -> tip of that URDF, rounded to 1 um and 1e-9 of its quaternion as a controller prints it). A random
+// arm of the eleven, calibrated through its URDF and exported (exportUrdf, the tip as the chain puts it): a controller
+// running the exported file matches the calibrated model and not the nominal one, a controller running the nominal
+// URDF the other way round. Where they differ, the parameters fitted to the controller's poses explain them (what
+// they leave is under the rounding) and the largest named is the calibration's own change of it, to 1 %.
+TEST(Urdf, ControllerCheckTellsWhichUrdfAControllerRuns) {
+  const auto files = arms();
+  if (files.empty()) GTEST_SKIP() << kArms << " missing";
+  std::mt19937_64 rng(test::testSeed());
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int draw = 0; draw < 4; ++draw) {
+    const fs::path f = files[rng() % files.size()];
+    SCOPED_TRACE(f.filename().string());
+    const std::string xml = readText(f);
+    const UrdfImport u = importUrdf(xml, f.string());
+    const RobotModel& m = u.model;
+    const KdlChain truth(perturbedOrigins(xml, u.chain_joints, rng), u.base_link, u.tip_link);
+    const auto [base, target] = randomPlacement(rng);
+    std::vector<Observation> ident;
+    for (int k = 0; k < 80; ++k) {
+      Observation o;
+      o.q_rad = innerConfiguration(m, rng);
+      o.kind = MeasurementKind::kPose6D;
+      o.sigma_position_m = 0.01e-3;
+      o.sigma_orientation_rad = degToRad(0.001);
+      o.measured_in_tracker = base * truth.at(o.q_rad) * target;
+      o.measured_in_tracker.translation() += o.sigma_position_m * Eigen::Vector3d(g(rng), g(rng), g(rng));
+      ident.push_back(o);
+    }
+    const CalibrationResult r =
+        solveGaussNewton(CalibrationProblem{&m, registerFrames(m, m.nominal, ident).params, ident, std::nullopt, {}, {}});
+    ASSERT_TRUE(r.converged) << r.message;
+    const std::string exported = exportUrdf(xml, f.string(), u, r.params, Pose::Identity());
+    const KdlChain controllers[2] = {KdlChain(exported, u.base_link, u.tip_link), KdlChain(xml, u.base_link, u.tip_link)};
+    const Eigen::VectorXd models[2] = {r.params, m.nominal};
+    std::vector<Eigen::VectorXd> qs;
+    for (int k = 0; k < 40; ++k) qs.push_back(innerConfiguration(m, rng));
+    for (int c = 0; c < 2; ++c) {
+      std::vector<Observation> readings;
+      for (const auto& q : qs) {
+        Observation o;
+        o.q_rad = q;
+        o.kind = MeasurementKind::kPose6D;
+        const Pose T = controllers[c].at(q);
+        Eigen::Quaterniond qt(T.linear());
+        for (int i = 0; i < 4; ++i) qt.coeffs()[i] = std::round(qt.coeffs()[i] * 1e9) / 1e9;
+        o.measured_in_tracker = Pose::Identity();
+        o.measured_in_tracker.linear() = qt.normalized().toRotationMatrix();
+        for (int i = 0; i < 3; ++i) o.measured_in_tracker.translation()[i] = std::round(T.translation()[i] * 1e6) / 1e6;
+        readings.push_back(o);
+      }
+      for (int k = 0; k < 2; ++k) {
+        const ControllerCheck check = checkController(m, models[k], readings, ControllerCheckOptions{});
+        SCOPED_TRACE(std::string(c == 0 ? "controller on the export" : "controller on the nominal URDF") +
+                     (k == 0 ? ", the calibrated model" : ", the nominal model"));
+        EXPECT_EQ(check.matches, c == k) << "max " << check.max_mm << " mm, " << check.max_deg << " deg";
+        if (c == k) {
+          EXPECT_LT(check.max_mm, 1e-3);
+          continue;
+        }
+        EXPECT_GT(check.max_mm, 0.05);
+        ASSERT_FALSE(check.explained_by.empty());
+        EXPECT_LT(check.left_mean_mm, 2e-3);
+        const auto [param, change] = check.explained_by.front();
+        const double calibrated = models[c][param] - models[k][param];
+        std::printf("  %-22s %s: %.4f mm mean, named first %s %+.6g (the calibration's %+.6g), %.5f mm left\n",
+                    f.filename().c_str(), c == 0 ? "export vs nominal model" : "nominal URDF vs calibrated model",
+                    check.mean_mm, m.paramName(param).c_str(), change, calibrated, check.left_mean_mm);
+        EXPECT_NEAR(change, calibrated, 0.01 * std::abs(calibrated)) << m.paramName(param);
+      }
+    }
   }
 }
 
