@@ -236,5 +236,56 @@ TEST(FileTrial, ACalibrationFileWorseThanItsNominalKinematicsIsWithdrawn) {
   EXPECT_LT(withdrawn + refused, kDraws);
 }
 
+// The trial's own rule, as its header states it: judge() is due at the kPositions-th distinct position (a revisit
+// within kSameRad of every joint is no new one), or after kMaxPoses poses; a cell that keeps to fewer positions is
+// not judged, and the verdict says so with what it saw.
+TEST(FileTrial, ItIsDueAtItsTwentiethPositionOrItsLastPose) {
+  std::mt19937_64 rng(test::testSeed());
+  std::uniform_real_distribution<double> u(-2.0, 2.0);
+  const RobotModel model = loadRobotModel(std::string(CELLCAL_CONFIG_DIR) + "/robots/staubli_tx60.yaml");
+  auto pose = [&](const Eigen::VectorXd& q) {
+    DrivenReading r;
+    r.reading.observation.q_rad = q;
+    return r;
+  };
+  auto randomQ = [&] { return Eigen::VectorXd(Eigen::VectorXd::NullaryExpr(6, [&] { return u(rng); })); };
+  FileTrial trial;
+  trial.start(CalibratedModel::geometric(model.nominal), model.nominal);
+  std::vector<Eigen::VectorXd> seen;
+  std::size_t kept = 0;
+  while (true) {
+    Eigen::VectorXd q;
+    if (!seen.empty() && rng() % 3 == 0) {  // a revisit, within the tolerance
+      q = seen[rng() % seen.size()];
+      q[static_cast<Eigen::Index>(rng() % 6)] += 0.9 * FileTrial::kSameRad;
+    } else {
+      q = randomQ();
+      seen.push_back(q);
+    }
+    ++kept;
+    const bool due = trial.keep(pose(q));
+    EXPECT_EQ(due, seen.size() == FileTrial::kPositions) << kept << " poses, " << seen.size() << " positions";
+    if (due) break;
+  }
+  EXPECT_EQ(trial.poses().size(), kept);
+  // Three positions over and over: not judged after kMaxPoses, and said.
+  FileTrial few;
+  few.start(CalibratedModel::geometric(model.nominal), model.nominal);
+  const Eigen::VectorXd a = randomQ(), b = randomQ(), c = randomQ();
+  for (std::size_t k = 1; k <= FileTrial::kMaxPoses; ++k)
+    EXPECT_EQ(few.keep(pose(k % 3 == 0 ? a : k % 3 == 1 ? b : c)), k == FileTrial::kMaxPoses) << k;
+  const FileVerdict v = few.judge(model);
+  EXPECT_FALSE(v.judged);
+  EXPECT_FALSE(v.nominal_better);
+  EXPECT_EQ(v.positions, 3u);
+  EXPECT_EQ(v.poses, FileTrial::kMaxPoses);
+  EXPECT_NE(v.text("cal.yaml").find("kept without a judgement against its nominal kinematics: its first 200 poses visit "
+                                    "3 distinct positions"),
+            std::string::npos)
+      << v.text("cal.yaml");
+  EXPECT_EQ(few.take().size(), FileTrial::kMaxPoses);
+  EXPECT_FALSE(few.active());
+}
+
 }  // namespace
 }  // namespace cellcal
