@@ -222,7 +222,7 @@ void CalibrationEngine::startOverFromNominal(const std::string& why, const std::
   used_q_.resize(0);
   snap_.last_update_stamp_ns = 0;
   snap_.poses_used = 0;
-  snap_.last_prior_error_position_m = 0;
+  snap_.last_prior_error_position_m = std::nan("");  // the withdrawing version: no pose made it
   work_.restore({});
   ++work_revision_;
   work_replaced_.clear();

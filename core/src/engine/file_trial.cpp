@@ -1,6 +1,5 @@
 #include "cellcal/core/engine/file_trial.hpp"
 
-#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -9,14 +8,9 @@
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/extended_fit.hpp"
 #include "cellcal/core/identification/registration.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 
 namespace cellcal {
-
-namespace {
-bool samePosition(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
-  return a.size() == b.size() && (a - b).cwiseAbs().maxCoeff() < FileTrial::kSameRad;
-}
-}  // namespace
 
 std::string FileVerdict::text(const std::string& file) const {
   char b[700];
@@ -47,45 +41,40 @@ void FileTrial::start(CalibratedModel file_model, Eigen::VectorXd nominal_params
 void FileTrial::restore(CalibratedModel file_model, Eigen::VectorXd nominal_params, std::vector<DrivenReading> poses) {
   file_model_ = std::move(file_model);
   nominal_ = std::move(nominal_params);
-  poses_ = std::move(poses);
+  take();
   active_ = true;
-  positions_ = 0;
-  for (std::size_t p : positionOf()) positions_ = std::max(positions_, p + 1);
+  for (auto& p : poses) add(std::move(p));
 }
 
-std::vector<std::size_t> FileTrial::positionOf() const {
-  std::vector<std::size_t> out;
-  std::vector<const Eigen::VectorXd*> first;  // each position's first joints
-  for (const auto& p : poses_) {
-    const Eigen::VectorXd& q = p.reading.observation.q_rad;
-    std::size_t k = 0;
-    while (k < first.size() && !samePosition(*first[k], q)) ++k;
-    if (k == first.size()) first.push_back(&q);
-    out.push_back(k);
-  }
-  return out;
+void FileTrial::add(DrivenReading pose) {
+  const Eigen::VectorXd& q = pose.reading.observation.q_rad;
+  auto at = [&](std::size_t first) {
+    const Eigen::VectorXd& f = poses_[first].reading.observation.q_rad;
+    return f.size() == q.size() && (f - q).cwiseAbs().maxCoeff() < kSameRad;
+  };
+  std::size_t k = 0;
+  while (k < first_pose_.size() && !at(first_pose_[k])) ++k;
+  if (k == first_pose_.size()) first_pose_.push_back(poses_.size());
+  position_.push_back(k);
+  poses_.push_back(std::move(pose));
 }
 
 bool FileTrial::keep(const DrivenReading& pose) {
   if (!active_) return false;
-  bool seen = false;
-  for (const auto& p : poses_) seen = seen || samePosition(p.reading.observation.q_rad, pose.reading.observation.q_rad);
-  poses_.push_back(pose);
-  if (!seen) ++positions_;
-  return positions_ >= kPositions || poses_.size() >= kMaxPoses;
+  add(pose);
+  return first_pose_.size() >= kPositions || poses_.size() >= kMaxPoses;
 }
 
 FileVerdict FileTrial::judge(const RobotModel& model) const {
   if (!active_) throw std::logic_error("FileTrial::judge: no trial");
   FileVerdict v;
   v.poses = poses_.size();
-  v.positions = positions_;
-  if (positions_ < kPositions) return v;
+  v.positions = first_pose_.size();
+  if (v.positions < kPositions) return v;
   std::vector<Observation> ident, verify;
   std::vector<Drivers> idr, vdr;
-  const std::vector<std::size_t> at = positionOf();
   for (std::size_t k = 0; k < poses_.size(); ++k) {
-    const bool registered = at[k] % 2 == 0;
+    const bool registered = position_[k] % 2 == 0;
     (registered ? ident : verify).push_back(poses_[k].reading.observation);
     (registered ? idr : vdr).push_back(poses_[k].drivers);
   }
@@ -100,22 +89,19 @@ FileVerdict FileTrial::judge(const RobotModel& model) const {
   v.nominal_better = c.nominal_better;
   v.mean_file_mm = c.mean_carried_mm;
   v.mean_nominal_mm = c.mean_nominal_mm;
-  // The standard error of the difference the decision is made on (the mean distances), reading by reading.
+  // The difference the decision is made on (the mean distances), reading by reading, in its standard errors.
   const auto rf = positionResiduals(model, carried, verify, vdr), rn = positionResiduals(model, c.nominal, verify, vdr);
   std::vector<double> d;
-  for (std::size_t k = 0; k < rf.size(); ++k) d.push_back((rf[k].norm() - rn[k].norm()) * 1e3);
-  double var = 0;
-  const double mean = v.mean_file_mm - v.mean_nominal_mm;
-  for (double x : d) var += (x - mean) * (x - mean);
-  const double se = d.size() > 1 ? std::sqrt(var / static_cast<double>(d.size() - 1) / static_cast<double>(d.size())) : 0;
-  v.z = se > 0 ? mean / se : 0;
+  for (std::size_t k = 0; k < rf.size(); ++k) d.push_back(rf[k].norm() - rn[k].norm());
+  v.z = meanZ(d);
   v.judged_readings = verify.size();
   return v;
 }
 
 std::vector<DrivenReading> FileTrial::take() {
   active_ = false;
-  positions_ = 0;
+  position_.clear();
+  first_pose_.clear();
   std::vector<DrivenReading> out = std::move(poses_);
   poses_.clear();
   return out;

@@ -29,9 +29,6 @@ OutlierScreen screenFit(const RobotModel& model, const Eigen::VectorXd& params, 
 // Paired improvement of squared position errors from residual set a to residual set b (row by row), in standard
 // errors of the mean difference: positive when b is better.
 double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b);
-// The mean of `d` in standard errors of the mean (0 for fewer than two values without scatter; infinite with a
-// positive mean and none).
-double meanZ(const std::vector<double>& d);
 // Whether residual set b improves on a (row by row) by more than `z_limit` standard errors (pairedZ, written to `z`)
 // and more than `min_gain` of the mean squared position error.
 bool improves(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b, double z_limit,

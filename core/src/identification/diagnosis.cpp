@@ -31,15 +31,6 @@ std::string DiagnosisData::thermalText() const {
 }
 
 namespace internal {
-double meanZ(const std::vector<double>& d) {
-  const auto n = static_cast<double>(d.size());
-  double mean = 0, sq = 0;
-  for (double x : d) mean += x, sq += x * x;
-  mean /= n;
-  const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
-  return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
-}
-
 double pairedZ(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b) {
   std::vector<double> d(a.size());
   for (size_t i = 0; i < a.size(); ++i) d[i] = a[i].squaredNorm() - b[i].squaredNorm();

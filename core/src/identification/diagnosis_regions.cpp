@@ -5,6 +5,7 @@
 #include <cstdio>
 
 #include "calibration_internal.hpp"
+#include "cellcal/core/identification/statistics.hpp"
 #include "cellcal/core/identification/diagnosis.hpp"
 #include "cellcal/core/identification/prediction.hpp"
 #include "cellcal/core/identification/registration.hpp"
@@ -143,7 +144,7 @@ std::vector<RegionCheck> checkRegions(const RobotModel& model, const Eigen::Vect
       d[i] = (without.residuals[i].squaredNorm() - without.variance_m2[i]) -
              (with.residuals[i].squaredNorm() - with.variance_m2[i]);
     c.gain_pct = 100.0 * mean(d) / m0.mse_m2;
-    c.z = internal::meanZ(d);
+    c.z = meanZ(d);
     c.transfers = !(c.gain_pct < 0 && c.z < -options.region_z);
     out.push_back(c);
     if (!c.transfers) break;

@@ -81,6 +81,15 @@ double percentile(std::vector<double> v, double p) {
   return v[k];
 }
 
+double meanZ(const std::vector<double>& d) {
+  const auto n = static_cast<double>(d.size());
+  double mean = 0, sq = 0;
+  for (double x : d) mean += x, sq += x * x;
+  mean /= n;
+  const double var = n > 1 ? std::max(0.0, (sq - n * mean * mean) / (n - 1)) : 0.0;
+  return var > 0 ? mean / std::sqrt(var / n) : (mean > 0 ? INFINITY : 0.0);
+}
+
 double fSurvival(double f, double d1, double d2) {
   if (!(d1 > 0 && d2 > 0)) throw std::invalid_argument("fSurvival: degrees of freedom must be > 0");
   if (!(f > 0)) return 1.0;

@@ -21,6 +21,7 @@
 #include "cellcal/core/engine/state_journal.hpp"
 #include "cellcal/core/files/cell_config.hpp"
 #include "cellcal/core/files/robot_file.hpp"
+#include "cellcal/core/identification/observation.hpp"
 #include "cellcal/core/identification/registration.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 #include "core/engine/engine_feed.hpp"
@@ -40,12 +41,6 @@ std::vector<double> errors(const RobotModel& model, const Eigen::VectorXd& param
   for (const Observation& o : obs)
     e.push_back((forwardKinematics(model, data, params, o.q_rad).translation() - o.measured_in_tracker.translation()).norm());
   return e;
-}
-
-double meanOf(const std::vector<double>& v) {
-  double m = 0;
-  for (double x : v) m += x / static_cast<double>(v.size());
-  return m;
 }
 
 // Where the trial's verdict lands, draw by draw: the deployed model is the better on fresh poses wherever the two
@@ -167,7 +162,7 @@ TEST(FileTrial, ACalibrationFileWorseThanItsNominalKinematicsIsWithdrawn) {
     std::vector<double> d;
     for (size_t k = 0; k < ef.size(); ++k) d.push_back(ef[k] - en[k]);
     double var = 0;
-    for (double x : d) var += (x - meanOf(d)) * (x - meanOf(d)) / static_cast<double>(d.size() - 1);
+    for (double x : d) var += (x - mean(d)) * (x - mean(d)) / static_cast<double>(d.size() - 1);
     const double se = std::sqrt(var / static_cast<double>(d.size()));
     double fresh_f = 0, fresh_n = 0;
     for (int k = 0; k < 400; ++k) {
@@ -194,10 +189,10 @@ TEST(FileTrial, ACalibrationFileWorseThanItsNominalKinematicsIsWithdrawn) {
       EXPECT_EQ(v->judged_readings, judging.size())
           << "poses " << v->poses << " same_pose " << engine.counters().same_pose << " last rejection "
           << engine.counters().last_rejection << " registration " << registration.size();
-      EXPECT_NEAR(v->mean_file_mm, meanOf(ef) * 1e3, 1e-6);
-      EXPECT_NEAR(v->mean_nominal_mm, meanOf(en) * 1e3, 1e-6);
-      EXPECT_EQ(v->nominal_better, meanOf(en) < meanOf(ef));
-      EXPECT_NEAR(v->z, (meanOf(ef) - meanOf(en)) / se, 1e-6 * (1 + std::abs(v->z)));
+      EXPECT_NEAR(v->mean_file_mm, mean(ef) * 1e3, 1e-6);
+      EXPECT_NEAR(v->mean_nominal_mm, mean(en) * 1e3, 1e-6);
+      EXPECT_EQ(v->nominal_better, mean(en) < mean(ef));
+      EXPECT_NEAR(v->z, (mean(ef) - mean(en)) / se, 1e-6 * (1 + std::abs(v->z)));
       withdrawn += v->nominal_better;
       if (v->nominal_better) {
         EXPECT_NE(snap.start_warning.find("does worse here than the nominal kinematics"), std::string::npos)

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "cellcal/core/engine/file_probation.hpp"
+#include "cellcal/core/engine/work_configurations.hpp"
 #include "cellcal/core/model/calibrated_model.hpp"
 #include "cellcal/core/model/kinematics.hpp"
 
@@ -46,8 +47,8 @@ class FileTrial {
  public:
   static constexpr std::size_t kPositions = 20;
   static constexpr std::size_t kMaxPoses = 200;
-  // Two poses are at one position when every joint differs by less than this (WorkConfigurations::kSameRad).
-  static constexpr double kSameRad = 1e-3;
+  // A pose is at a position when every joint lies within this of that position's first pose.
+  static constexpr double kSameRad = WorkConfigurations::kSameRad;
 
   // Starts a trial of `file_model` against `nominal_params` (every kinematic parameter and frame, SI).
   void start(CalibratedModel file_model, Eigen::VectorXd nominal_params);
@@ -67,14 +68,14 @@ class FileTrial {
   void restore(CalibratedModel file_model, Eigen::VectorXd nominal_params, std::vector<DrivenReading> poses);
 
  private:
-  // Each pose's position (its index among the distinct positions, in the order first visited).
-  std::vector<std::size_t> positionOf() const;
+  void add(DrivenReading pose);  // appends it, with its position
 
   bool active_ = false;
   CalibratedModel file_model_;
   Eigen::VectorXd nominal_;
   std::vector<DrivenReading> poses_;
-  std::size_t positions_ = 0;
+  std::vector<std::size_t> position_;    // each pose's position: its index among them, in the order first visited
+  std::vector<std::size_t> first_pose_;  // each position's first pose
 };
 
 }  // namespace cellcal

@@ -21,6 +21,9 @@ double fSurvival(double f, double d1, double d2);
 // The sample at rank floor(p n) (clamped to the last) of v: p = 0.5 the median, 0.99 the 99th percentile. NaN when
 // v is empty.
 double percentile(std::vector<double> v, double p);
+// The mean of `d` in standard errors of the mean (0 for fewer than two values without scatter; infinite with a
+// positive mean and none): a paired difference's significance.
+double meanZ(const std::vector<double>& d);
 
 // Gaussian conditioning: the covariance of the entries `kept` of a Gaussian with covariance P (symmetric, positive
 // semi-definite) given the other entries at known values: P_kk - P_kh P_hh^+ P_hk, in the order of `kept`, symmetric.
